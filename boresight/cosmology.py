@@ -1,0 +1,99 @@
+"""CMB power spectra: the paper's Planck-2015 LCDM model from CAMB, and a cached copy.
+
+Spectra are C_ell in muK^2 from ell = 0 (no ell(ell+1)/2pi factor). The lensing B-mode is scaled by
+A_lens and the tensor spectra (computed at r = 1, n_t = 0) by r, so any (r, A_lens) is a linear
+combination of the cached arrays. ``scripts/make_spectra.py`` regenerates the cached file.
+"""
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+
+#: Paper section 3: best-fitting Planck 2015 6-parameter LCDM.
+PAPER_COSMOLOGY = dict(H0=67.3, omega_b=0.0480, omega_cdm=0.261, tau=0.066, ns=0.968, As=2.19e-9)
+CACHE_FILE = "planck2015_spectra.npz"
+FIELDS = ("tt", "ee", "te", "bb_lens", "tt_tensor", "ee_tensor", "te_tensor", "bb_tensor")
+
+
+@dataclass(frozen=True)
+class Spectra:
+    """Template spectra [muK^2], each an array indexed by ell = 0..lmax.
+
+    ``tt, ee, te`` are lensed scalar spectra, ``bb_lens`` the lensing B-mode (A_lens = 1), and the
+    ``*_tensor`` arrays the tensor contribution at r = 1.
+    """
+
+    tt: np.ndarray
+    ee: np.ndarray
+    te: np.ndarray
+    bb_lens: np.ndarray
+    tt_tensor: np.ndarray
+    ee_tensor: np.ndarray
+    te_tensor: np.ndarray
+    bb_tensor: np.ndarray
+
+    @property
+    def lmax(self):
+        return self.tt.size - 1
+
+    def total(self, r=0.0, a_lens=1.0, lmax=None):
+        """(TT, EE, BB, TE) [muK^2] for tensor-to-scalar ratio r and lensing amplitude A_lens."""
+        if r < 0 or a_lens < 0:
+            raise ValueError(f"r and a_lens must be >= 0, got r={r}, a_lens={a_lens}")
+        lmax = self.lmax if lmax is None else lmax
+        if lmax > self.lmax:
+            raise ValueError(f"lmax={lmax} exceeds the spectra's lmax={self.lmax}; "
+                             "compute them with boresight.cosmology.compute_spectra(lmax=...)")
+        s = slice(0, lmax + 1)
+        return np.array([self.tt[s] + r * self.tt_tensor[s], self.ee[s] + r * self.ee_tensor[s],
+                         a_lens * self.bb_lens[s] + r * self.bb_tensor[s],
+                         self.te[s] + r * self.te_tensor[s]])
+
+    def bb(self, r=0.0, a_lens=0.0):
+        """B-mode spectrum [muK^2] alone: r * tensor + A_lens * lensing (the reference curves)."""
+        return a_lens * self.bb_lens + r * self.bb_tensor
+
+
+def compute_spectra(lmax=6000, **cosmology):
+    """Run CAMB for the paper's cosmology (overridable by keyword) up to ``lmax``."""
+    import camb
+
+    p = {**PAPER_COSMOLOGY, **cosmology}
+    h2 = (p["H0"] / 100.0) ** 2
+    pars = camb.CAMBparams()
+    pars.set_cosmology(H0=p["H0"], ombh2=p["omega_b"] * h2, omch2=p["omega_cdm"] * h2, tau=p["tau"])
+    pars.InitPower.set_params(As=p["As"], ns=p["ns"], r=1.0, nt=0.0)
+    pars.WantTensors = True
+    pars.set_for_lmax(lmax + 500, lens_potential_accuracy=2)
+    res = camb.get_results(pars)
+    lensed = res.get_lensed_scalar_cls(lmax=lmax, CMB_unit="muK", raw_cl=True)
+    tensor = res.get_tensor_cls(lmax=lmax, CMB_unit="muK", raw_cl=True)
+    # CAMB column order: TT, EE, BB, TE.
+    return Spectra(tt=lensed[:, 0], ee=lensed[:, 1], te=lensed[:, 3], bb_lens=lensed[:, 2],
+                   tt_tensor=tensor[:, 0], ee_tensor=tensor[:, 1], te_tensor=tensor[:, 3],
+                   bb_tensor=tensor[:, 2])
+
+
+def save_spectra(spectra, path):
+    """Write spectra to an .npz file (the format of the shipped cache)."""
+    np.savez_compressed(path, **{f: getattr(spectra, f) for f in FIELDS})
+
+
+def load_spectra(path=None):
+    """Load spectra from ``path``, or the cached paper spectra shipped with the package."""
+    if path is None:
+        path = resources.files("boresight.data").joinpath(CACHE_FILE)
+    with resources.as_file(path) if not isinstance(path, str) else _nullpath(path) as f:
+        data = np.load(f)
+        return Spectra(**{k: data[k] for k in FIELDS})
+
+
+class _nullpath:
+    def __init__(self, path):
+        self.path = path
+
+    def __enter__(self):
+        return self.path
+
+    def __exit__(self, *exc):
+        return False

@@ -1,0 +1,151 @@
+"""The simulation engine: sky -> synthetic scan -> detectors and systematics -> PBR -> maps.
+
+``simulate`` streams pixel chunks through the kernels of a backend (``tod_cpu`` or ``tod_gpu``):
+hits, detector-B pointing, sky evaluation, pair differences and per-pixel normal equations; memory
+is bounded by the chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
+"""
+import contextlib
+
+import numba
+import numpy as np
+from tqdm.auto import tqdm
+
+from . import harmonics
+from .evaluation import METHODS, SkyFields
+from .instrument import Instrument, Systematics
+from .mapmaking import RCOND_MIN, Maps, solve
+
+BACKENDS = ("cpu", "gpu")
+DEFAULT_CHUNK_PIXELS = 1 << 16
+
+
+def get_backend(name):
+    """The kernel module of a backend: 'cpu' (numba) or 'gpu' (CuPy)."""
+    if name == "cpu":
+        from . import tod_cpu
+        return tod_cpu
+    if name == "gpu":
+        from . import tod_gpu
+        return tod_gpu
+    raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
+
+
+@contextlib.contextmanager
+def threads(nthreads):
+    """Run numba kernels on ``nthreads`` threads (0: all cores)."""
+    old = numba.get_num_threads()
+    numba.set_num_threads(nthreads if nthreads > 0 else numba.config.NUMBA_NUM_THREADS)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
+
+
+def _pixel_list(pixels, npix):
+    if pixels is None:
+        return np.arange(npix, dtype=np.int64)
+    pixels = np.asarray(pixels)
+    if pixels.dtype == bool:
+        if pixels.size != npix:
+            raise ValueError(f"pixel mask has {pixels.size} entries, the sky has {npix}")
+        return np.flatnonzero(pixels).astype(np.int64)
+    pixels = np.unique(pixels.astype(np.int64))
+    if pixels.size and (pixels[0] < 0 or pixels[-1] >= npix):
+        raise ValueError(f"pixel indices must lie in [0, {npix})")
+    return pixels
+
+
+def _chunks(pixels, chunk_pixels, progress, label):
+    if chunk_pixels < 1:
+        raise ValueError(f"chunk_pixels must be >= 1, got {chunk_pixels}")
+    starts = range(0, pixels.size, chunk_pixels)
+    for s in tqdm(starts, desc=label, unit="chunk", disable=not progress, leave=False):
+        yield s, pixels[s:s + chunk_pixels]
+
+
+def _hits(kernels, scan, nside, chunk):
+    n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
+    offsets = np.zeros(chunk.size + 1, dtype=np.int64)
+    np.cumsum(n_phi, out=offsets[1:])
+    theta, phi, psi = kernels.generate_hits(scan.seed, nside, chunk, offsets, rng_rad, centre,
+                                            scan.in_pixel == "centre")
+    return offsets, theta, phi, psi
+
+
+def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, pixels=None,
+             evaluation="interp", leak_template=None, chunk_pixels=DEFAULT_CHUNK_PIXELS,
+             nthreads=0, backend="cpu", rcond_min=RCOND_MIN, progress=False):
+    """Simulate the pair-differenced TOD of ``scan`` over ``sky`` and make Q, U maps.
+
+    sky: :class:`boresight.sky.Sky`; scan: :class:`boresight.scan.SyntheticScan`; pixels: RING
+    indices or boolean map of the pixels to observe (default: all); evaluation: "interp" or
+    "exact"; leak_template: map used by the additive leak (default: the sky's I). Returns
+    :class:`boresight.mapmaking.Maps` on the full sky (unobserved pixels flagged).
+    """
+    if evaluation not in METHODS:
+        raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
+    kernels = get_backend(backend)
+    nside, npix = sky.nside, 12 * sky.nside**2
+    pix = _pixel_list(pixels, npix)
+    dg, rho, chi, leak = systematics.per_pair(instrument.n_pairs)
+    fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
+    rot, ang = scan.rotations_rad, instrument.pair_angles_rad
+    normal = np.zeros((npix, 5))
+    ncross = np.zeros(npix, dtype=np.int64)
+    with threads(nthreads):
+        for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
+            offsets, theta, phi, psi = _hits(kernels, scan, nside, chunk)
+            values_a = kernels.to_host(fields_at(kernels, fields, theta, phi, evaluation, nthreads))
+            if systematics.has_pointing:
+                tb, pb = kernels.offset_points(theta, phi, psi, rot, ang, rho, chi)
+                values_b = fields_at(kernels, fields, tb.ravel(), pb.ravel(), evaluation, nthreads)
+                values_b = values_b.reshape((fields.n_fields,) + tb.shape)
+            else:
+                values_b = np.empty((fields.n_fields, 0, rot.size, ang.size))
+            normal[chunk] = kernels.to_host(kernels.accumulate(offsets, psi, values_a, values_b,
+                                                               rot, ang, dg, leak))
+            ncross[chunk] = np.diff(kernels.to_host(offsets)) * rot.size
+    q, u, rcond = solve(normal, rcond_min)
+    return Maps(q=q, u=u, hits=ncross, rcond=rcond)
+
+
+def fields_at(kernels, fields, theta, phi, evaluation, nthreads):
+    """Evaluate the sky fields at points with the backend's interpolation or ducc0 (exact)."""
+    if evaluation == "interp":
+        return kernels.interpolate(fields.maps, fields.nside, theta, phi)
+    return fields.evaluate(kernels.to_host(theta), kernels.to_host(phi), "exact", nthreads)
+
+
+def _sky_fields(sky, systematics, template, evaluation, nthreads):
+    if not systematics.has_leak:
+        return SkyFields(sky)
+    if template is None:
+        return SkyFields(sky, sky.maps[0], sky.alm[0])
+    template = np.asarray(template, dtype=np.float64)
+    if template.shape != (12 * sky.nside**2,):
+        raise ValueError(f"leak_template must be a map of {12 * sky.nside**2} pixels, "
+                         f"got shape {template.shape}")
+    if not np.isfinite(template).all():
+        raise ValueError("leak_template contains NaN or infinite values")
+    alm = harmonics.map2alm(template, sky.lmax, nthreads=nthreads) if evaluation == "exact" else None
+    return SkyFields(sky, template, alm)
+
+
+def scan_moments(scan, nside, n_max=4, *, pixels=None, chunk_pixels=DEFAULT_CHUNK_PIXELS,
+                 nthreads=0, backend="cpu", progress=False):
+    """h_n = <exp(i n psi)> over each pixel's hits (rotations included), n = 0..n_max.
+
+    Returns (h, crossings): complex (n_max + 1, npix) (0 where unobserved) and int (npix,).
+    """
+    kernels = get_backend(backend)
+    npix = 12 * nside**2
+    pix = _pixel_list(pixels, npix)
+    h = np.zeros((n_max + 1, npix), dtype=np.complex128)
+    ncross = np.zeros(npix, dtype=np.int64)
+    with threads(nthreads):
+        for _, chunk in _chunks(pix, chunk_pixels, progress, "scan moments"):
+            offsets, _, _, psi = _hits(kernels, scan, nside, chunk)
+            h[:, chunk] = kernels.to_host(kernels.moments(offsets, psi, scan.rotations_rad, n_max)).T
+            ncross[chunk] = np.diff(kernels.to_host(offsets)) * len(scan.rotations_deg)
+    return h, ncross
+

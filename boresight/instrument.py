@@ -1,0 +1,81 @@
+"""Detector pairs and their differential systematics.
+
+Pair i has detector A at polarisation angle psi + angle_i and detector B at psi + angle_i + 90 deg,
+where psi is the crossing angle of the hit. Systematics, per pair:
+
+* differential gain ``dg``: detector B's signal is scaled by (1 - dg);
+* differential pointing ``rho_arcmin``, ``chi_deg``: detector B looks at
+  theta + rho cos(beta), phi + rho sin(beta) / sin(theta) with beta = psi + angle_i + chi, i.e. the
+  offset is fixed in the focal plane and chi is measured from the pair's own polarisation axis
+  (the convention behind the paper's eq. 6, see docs/conventions.md);
+* additive leak ``leak`` (bandpass mismatch or any crossing-angle-independent term): detector A sees
+  +leak/2 and detector B -leak/2 times a template map (default: the sky's I), so the pair
+  difference gains leak/2 * template, like a gain error with its own template.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import ARCMIN, DEG
+
+
+@dataclass(frozen=True)
+class Instrument:
+    """Polarisation angles of the detector pairs [deg]; the paper's Q and U pairs by default."""
+
+    pair_angles_deg: tuple = (0.0, 45.0)
+
+    def __post_init__(self):
+        a = np.asarray(self.pair_angles_deg, dtype=np.float64)
+        if a.ndim != 1 or a.size == 0 or not np.isfinite(a).all():
+            raise ValueError(f"pair_angles_deg must be a non-empty list, got {self.pair_angles_deg!r}")
+        object.__setattr__(self, "pair_angles_deg", tuple(float(x) for x in a))
+
+    @property
+    def n_pairs(self):
+        return len(self.pair_angles_deg)
+
+    @property
+    def pair_angles_rad(self):
+        return np.asarray(self.pair_angles_deg) * DEG
+
+
+@dataclass(frozen=True)
+class Systematics:
+    """Per-pair differential systematics; scalars apply to every pair, tuples give one per pair."""
+
+    dg: object = 0.0
+    rho_arcmin: object = 0.0
+    chi_deg: object = 0.0
+    leak: object = 0.0
+
+    def __post_init__(self):
+        if (np.asarray(self.rho_arcmin) < 0).any():
+            raise ValueError(f"rho_arcmin must be >= 0, got {self.rho_arcmin!r}")
+        for name in ("dg", "rho_arcmin", "chi_deg", "leak"):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.ndim > 1 or not np.isfinite(v).all():
+                raise ValueError(f"{name} must be a finite scalar or list, got {getattr(self, name)!r}")
+
+    def per_pair(self, n_pairs):
+        """Arrays (dg, rho [rad], chi [rad], leak), each of length n_pairs."""
+        out = []
+        for name, unit in (("dg", 1.0), ("rho_arcmin", ARCMIN), ("chi_deg", DEG), ("leak", 1.0)):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.ndim == 1 and v.size != n_pairs:
+                raise ValueError(f"{name} has {v.size} entries but the instrument has {n_pairs} pairs")
+            out.append(np.broadcast_to(v, (n_pairs,)).astype(np.float64) * unit)
+        return out
+
+    @property
+    def has_pointing(self):
+        return bool(np.any(np.asarray(self.rho_arcmin) != 0))
+
+    @property
+    def has_leak(self):
+        return bool(np.any(np.asarray(self.leak) != 0))
+
+
+#: The paper's systematics: |dg| = 0.01 with opposite signs, rho = 0.1 arcmin, chi = 0.
+PAPER_GAIN = Systematics(dg=(0.01, -0.01))
+PAPER_POINTING = Systematics(rho_arcmin=0.1, chi_deg=0.0)

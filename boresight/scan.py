@@ -1,0 +1,84 @@
+"""Synthetic scans (paper section 3.1) and the boresight-rotation schedule.
+
+In every observed pixel, N_phi crossing angles are drawn uniformly in a range R about a centre
+angle, each at a uniformly random position inside the pixel (or at its centre). Partial boresight
+rotation (PBR) repeats every hit at crossing angle + alpha for each alpha in ``rotations_deg``
+(``(0,)`` is no rotation; the paper's gain case is ``(0, 90)``). N_phi, R and the centre are scalars
+or per-pixel RING maps. Angles are measured on the sky from e_theta towards e_phi (COSMO).
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import DEG
+
+
+def _scalar_or_map(name, value, lo, hi):
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim > 1 or not np.isfinite(arr).all() or (arr < lo).any() or (arr > hi).any():
+        raise ValueError(f"{name} must be a finite scalar or 1-d map with values in [{lo}, {hi}]")
+    return arr
+
+
+@dataclass(frozen=True)
+class SyntheticScan:
+    """A synthetic scan: crossing angles per pixel and the boresight-rotation schedule.
+
+    n_phi: hits per pixel (int or int map, >= 1); range_rad: range R [rad] in [0, 2 pi];
+    centre_rad: centre of the range [rad]; rotations_deg: PBR angles alpha [deg], each hit repeated
+    once per entry; in_pixel: "random" (uniform in solid angle) or "centre"; seed >= 0.
+    """
+
+    n_phi: object = 4
+    range_rad: object = 0.719
+    centre_rad: object = 0.0
+    rotations_deg: tuple = (0.0,)
+    in_pixel: str = "random"
+    seed: int = 0
+
+    def __post_init__(self):
+        nphi = np.asarray(self.n_phi)
+        if not np.issubdtype(nphi.dtype, np.integer) or nphi.ndim > 1 or (nphi < 1).any():
+            raise ValueError(f"n_phi must be an integer >= 1 or an integer map, got {self.n_phi!r}")
+        _scalar_or_map("range_rad", self.range_rad, 0.0, 2 * np.pi)
+        _scalar_or_map("centre_rad", self.centre_rad, -4 * np.pi, 4 * np.pi)
+        rot = np.asarray(self.rotations_deg, dtype=np.float64)
+        if rot.ndim != 1 or rot.size == 0 or not np.isfinite(rot).all():
+            raise ValueError(f"rotations_deg must be a non-empty list of angles, got "
+                             f"{self.rotations_deg!r}")
+        if self.in_pixel not in ("random", "centre"):
+            raise ValueError(f"in_pixel must be 'random' or 'centre', got {self.in_pixel!r}")
+        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        object.__setattr__(self, "rotations_deg", tuple(float(a) for a in rot))
+
+    @property
+    def rotations_rad(self):
+        return np.asarray(self.rotations_deg) * DEG
+
+    def per_pixel(self, pixels, npix):
+        """(n_phi, R, centre) for the given pixels, as int64/float64 arrays of pixels.size."""
+        out = []
+        for name, dtype in (("n_phi", np.int64), ("range_rad", np.float64),
+                            ("centre_rad", np.float64)):
+            v = np.asarray(getattr(self, name))
+            if v.ndim == 0:
+                out.append(np.full(pixels.size, v, dtype=dtype))
+            elif v.size != npix:
+                raise ValueError(f"{name} map has {v.size} pixels, the sky has {npix}")
+            else:
+                out.append(v[pixels].astype(dtype))
+        return out
+
+
+def paper_scan(survey, rotation_deg=None, seed=0):
+    """The paper's synthetic scans: 'deep' (N_phi=4, R=0.719) or 'wide' (N_phi=2, R=0.169).
+
+    ``rotation_deg`` adds one PBR repeat at that angle (None: no rotation).
+    """
+    params = {"deep": (4, 0.719), "wide": (2, 0.169)}
+    if survey not in params:
+        raise ValueError(f"survey must be 'deep' or 'wide', got {survey!r}")
+    n_phi, r = params[survey]
+    rotations = (0.0,) if rotation_deg is None else (0.0, float(rotation_deg))
+    return SyntheticScan(n_phi=n_phi, range_rad=r, rotations_deg=rotations, seed=seed)

@@ -1,0 +1,133 @@
+"""The hot loop on the CPU: numba kernels for hits, pointing offsets, pair differences, moments.
+
+Each kernel works on one chunk of pixels and runs in parallel over pixels (or hits); every random
+number comes from :mod:`boresight.rng` keyed by (seed, pixel, hit), so results do not depend on the
+chunking or the thread count. ``boresight.tod_gpu`` implements the same kernels for CuPy.
+"""
+import numba
+import numpy as np
+
+from .pixels import interpolate, pixel_point
+from .rng import STREAM_PSI, STREAM_U, STREAM_V, uniform
+
+__all__ = ["generate_hits", "offset_points", "interpolate", "accumulate", "moments", "to_host"]
+_TWOPI = 2.0 * np.pi
+
+
+@numba.njit(parallel=True, cache=True)
+def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
+    """Crossing angle and position of every hit of a chunk of pixels.
+
+    Pixel k owns hits offsets[k]..offsets[k+1]-1 (hit number j = h - offsets[k] in the RNG key).
+    Returns theta, phi, psi [rad], each of length offsets[-1].
+    """
+    nhit = offsets[-1]
+    theta = np.empty(nhit)
+    phi = np.empty(nhit)
+    psi = np.empty(nhit)
+    for k in numba.prange(pixels.size):
+        p = pixels[k]
+        for h in range(offsets[k], offsets[k + 1]):
+            j = h - offsets[k]
+            psi[h] = centre_rad[k] + range_rad[k] * (uniform(seed, p, j, STREAM_PSI) - 0.5)
+            if centred:
+                u = v = 0.5
+            else:
+                u = uniform(seed, p, j, STREAM_U)
+                v = uniform(seed, p, j, STREAM_V)
+            theta[h], phi[h] = pixel_point(nside, p, u, v)
+    return theta, phi, psi
+
+
+@numba.njit(parallel=True, cache=True)
+def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
+    """Where detector B of each pair looks, for every (hit, rotation, pair): (H, K, M) arrays.
+
+    theta_B = theta + rho cos(beta), phi_B = phi + rho sin(beta) / sin(theta), with
+    beta = psi + rotation + pair angle + chi; points past a pole are folded back onto the sphere.
+    """
+    nh, nk, nm = theta.size, rotations.size, pair_angles.size
+    tb = np.empty((nh, nk, nm))
+    pb = np.empty((nh, nk, nm))
+    for h in numba.prange(nh):
+        sin_t = np.sin(theta[h])
+        for k in range(nk):
+            for m in range(nm):
+                beta = psi[h] + rotations[k] + pair_angles[m] + chi[m]
+                t = theta[h] + rho[m] * np.cos(beta)
+                f = phi[h] + rho[m] * np.sin(beta) / sin_t
+                if t < 0.0:
+                    t, f = -t, f + np.pi
+                elif t > np.pi:
+                    t, f = 2.0 * np.pi - t, f + np.pi
+                tb[h, k, m] = t
+                pb[h, k, m] = f % _TWOPI
+    return tb, pb
+
+
+@numba.njit(parallel=True, cache=True)
+def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
+    """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
+
+    values_a (F, H): fields I, Q, U[, leak template] at each hit; values_b (F, H, K, M): the same
+    where detector B looks, or an empty (F, 0, K, M) array when B looks where A does.
+    Returns (npix_chunk, 5): sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
+    """
+    nk, nm = rotations.size, pair_angles.size
+    nfield = values_a.shape[0]
+    same_point = values_b.shape[1] == 0
+    out = np.zeros((offsets.size - 1, 5))
+    for p in numba.prange(offsets.size - 1):
+        a11 = a12 = a22 = b1 = b2 = 0.0
+        for h in range(offsets[p], offsets[p + 1]):
+            i_a, q_a, u_a = values_a[0, h], values_a[1, h], values_a[2, h]
+            s_a = values_a[3, h] if nfield > 3 else 0.0
+            for k in range(nk):
+                for m in range(nm):
+                    ang = 2.0 * (psi[h] + rotations[k] + pair_angles[m])
+                    c = np.cos(ang)
+                    s = np.sin(ang)
+                    if same_point:
+                        i_b, q_b, u_b, s_b = i_a, q_a, u_a, s_a
+                    else:
+                        i_b, q_b, u_b = values_b[0, h, k, m], values_b[1, h, k, m], values_b[2, h, k, m]
+                        s_b = values_b[3, h, k, m] if nfield > 3 else 0.0
+                    d_a = i_a + q_a * c + u_a * s + 0.5 * leak[m] * s_a
+                    d_b = (1.0 - dg[m]) * (i_b - q_b * c - u_b * s) - 0.5 * leak[m] * s_b
+                    d = 0.5 * (d_a - d_b)
+                    a11 += c * c
+                    a12 += c * s
+                    a22 += s * s
+                    b1 += c * d
+                    b2 += s * d
+        out[p, 0] = a11
+        out[p, 1] = a12
+        out[p, 2] = a22
+        out[p, 3] = b1
+        out[p, 4] = b2
+    return out
+
+
+@numba.njit(parallel=True, cache=True)
+def moments(offsets, psi, rotations, n_max):
+    """Spin moments h_n = mean over hits (all rotations) of exp(i n psi), n = 0..n_max.
+
+    Returns complex (npix_chunk, n_max + 1).
+    """
+    out = np.zeros((offsets.size - 1, n_max + 1), dtype=np.complex128)
+    for p in numba.prange(offsets.size - 1):
+        count = (offsets[p + 1] - offsets[p]) * rotations.size
+        for h in range(offsets[p], offsets[p + 1]):
+            for k in range(rotations.size):
+                ang = psi[h] + rotations[k]
+                for n in range(n_max + 1):
+                    out[p, n] += complex(np.cos(n * ang), np.sin(n * ang))
+        if count > 0:
+            for n in range(n_max + 1):
+                out[p, n] /= count
+    return out
+
+
+def to_host(array):
+    """Kernel output as a numpy array (the CPU kernels already return numpy arrays)."""
+    return array
