@@ -1,0 +1,48 @@
+"""Pseudo-C_ell mode-coupling matrices of a mask (spin 0 and spin 2).
+
+M_{l l'} = (2 l' + 1) / (4 pi) sum_L (2 L + 1) W_L (l l' L; s -s 0)^2 x parity factor, with W_L the
+mask's power spectrum, so that <pseudo C_l> = sum_l' M_{l l'} C_l'. The Wigner-3j sums run in ducc0's
+``coupling_matrix_rect`` (the routine NaMaster 2 uses); for spin 2 the even-parity part is
+M^{EE,EE} = M^{BB,BB} and the odd part M^{EE,BB} = M^{BB,EE} (Brown, Castro & Taylor 2005).
+"""
+from dataclasses import dataclass
+
+import numpy as np
+from ducc0.misc.experimental import coupling_matrix_rect
+
+from . import harmonics
+
+
+@dataclass(frozen=True)
+class Coupling:
+    """Coupling matrices, each (lmax+1, lmax+1) indexed [l, l'] from l = 0."""
+
+    tt: np.ndarray
+    even: np.ndarray  #: M^{EE,EE} = M^{BB,BB}
+    odd: np.ndarray  #: M^{EE,BB} = M^{BB,EE}
+
+    @property
+    def lmax(self):
+        return self.tt.shape[0] - 1
+
+    def pseudo_bb(self, cl_bb, cl_ee):
+        """Expected pseudo-C_ell BB of full-sky (BB, EE) spectra: M^{BB,BB} C^BB + M^{BB,EE} C^EE."""
+        n = self.lmax + 1
+        return self.even @ cl_bb[:n] + self.odd @ cl_ee[:n]
+
+
+def mask_spectrum(mask, lmax, nthreads=0):
+    """Pseudo power spectrum W_L of the mask up to L = lmax (iteration-free, as NaMaster)."""
+    return harmonics.alm2cl(harmonics.map2alm(mask, lmax, iterations=0, nthreads=nthreads))
+
+
+def coupling_matrices(mask, lmax, nthreads=0):
+    """The TT, spin-2 even and odd coupling matrices of ``mask`` for ell <= lmax."""
+    w = mask_spectrum(mask, 2 * lmax, nthreads)
+    res = np.zeros((3, lmax + 1, lmax + 1))
+    coupling_matrix_rect(w[None], [0], res[0:1], nthreads=max(nthreads, 1))
+    coupling_matrix_rect(w[None], [4], res[1:3], nthreads=max(nthreads, 1))
+    res *= (2 * np.arange(lmax + 1) + 1)[None, None, :]
+    res[1:, :2, :] = 0.0  # spin-2 spectra start at l = 2
+    res[1:, :, :2] = 0.0
+    return Coupling(tt=res[0], even=res[1], odd=res[2])

@@ -1,0 +1,67 @@
+"""Survey footprints: SO-like deep (SAT) and wide (LAT) masks, apodisation, user FITS masks.
+
+The footprints approximate those of Stevens et al. 2018 (SPIE 10708, 1070841), in equatorial
+coordinates (the sky maps' frame):
+
+* deep (SAT, fsky ~ 0.10): -60 deg <= RA <= 60 deg, -70 deg <= Dec <= -20 deg, a low-foreground
+  patch in the southern sky away from the Galactic plane;
+* wide (LAT, fsky ~ 0.40): -61 deg <= Dec <= 18 deg at all RA, with Galactic latitude |b| > 20 deg.
+
+They are not official SO masks; they reproduce the paper's sky fractions and geometry.
+"""
+import os
+
+import healpy as hp
+import numpy as np
+
+from .constants import DEG
+
+FOOTPRINTS = {
+    "deep": dict(ra_deg=(-60.0, 60.0), dec_deg=(-70.0, -20.0), galactic_cut_deg=0.0),
+    "wide": dict(ra_deg=(-180.0, 180.0), dec_deg=(-61.0, 18.0), galactic_cut_deg=20.0),
+}
+
+
+def footprint(ra_deg, dec_deg, galactic_cut_deg, nside):
+    """Binary RING mask of an RA/Dec box [deg] minus |b| < galactic_cut_deg, tested at pixel centres."""
+    theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
+    dec = 90.0 - theta / DEG
+    ra = (phi / DEG + 180.0) % 360.0 - 180.0
+    mask = (ra >= ra_deg[0]) & (ra <= ra_deg[1]) & (dec >= dec_deg[0]) & (dec <= dec_deg[1])
+    if galactic_cut_deg > 0:
+        theta_g, _ = hp.Rotator(coord=["C", "G"])(theta, phi)
+        mask &= np.abs(90.0 - theta_g / DEG) > galactic_cut_deg
+    return mask.astype(np.float64)
+
+
+def survey_mask(name, nside):
+    """The SO-like 'deep' or 'wide' binary mask at ``nside`` (RING, float 0/1)."""
+    if name not in FOOTPRINTS:
+        raise ValueError(f"survey must be one of {sorted(FOOTPRINTS)}, got {name!r}")
+    return footprint(nside=nside, **FOOTPRINTS[name])
+
+
+def apodize(mask, fwhm_deg):
+    """Smooth a binary mask's edges inwards: mask * clip(Gaussian-smoothed mask, 0, 1)."""
+    if fwhm_deg <= 0:
+        raise ValueError(f"fwhm_deg must be > 0, got {fwhm_deg}")
+    smooth = hp.smoothing(mask, fwhm=fwhm_deg * DEG, iter=0)
+    return mask * np.clip(2.0 * smooth - 1.0, 0.0, 1.0)
+
+
+def read_mask(path, nside=None):
+    """A user mask from a HEALPix FITS file (values in [0, 1]), optionally regraded to ``nside``."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"mask file not found: {path}")
+    mask = hp.read_map(path, dtype=np.float64)
+    mask[mask == hp.UNSEEN] = 0.0
+    if not np.isfinite(mask).all() or mask.min() < 0 or mask.max() > 1:
+        raise ValueError(f"mask {path} must hold finite values in [0, 1]")
+    if nside is not None and hp.npix2nside(mask.size) != nside:
+        mask = hp.ud_grade(mask, nside)
+    return mask
+
+
+def fsky(mask):
+    """Observed sky fraction: mean of the mask."""
+    return float(np.mean(mask))
