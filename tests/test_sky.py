@@ -1,0 +1,71 @@
+import healpy as hp
+import numpy as np
+import pytest
+from conftest import rel_max
+
+from boresight import cosmology, harmonics, sky
+from boresight.constants import ARCMIN
+
+
+def test_cached_spectra_are_the_paper_cosmology(spectra):
+    """Published numbers of Planck-2015-like LCDM: first TT peak near l=220 at ~5800 muK^2."""
+    ell = np.arange(spectra.lmax + 1)
+    dl = ell * (ell + 1) / (2 * np.pi)
+    assert 215 <= np.argmax(dl * spectra.tt) <= 225
+    assert 5500 < np.max(dl * spectra.tt) < 6100
+    assert 800 < np.argmax(dl * spectra.bb_lens) < 1100  # lensing B-mode peak
+    assert np.all(spectra.bb_tensor[2:300] > 0) and spectra.bb_lens[0] == 0
+
+
+def test_cache_matches_camb():
+    pytest.importorskip("camb")
+    fresh = cosmology.compute_spectra(lmax=1000)
+    cached = cosmology.load_spectra()
+    for name in cosmology.FIELDS:
+        a, b = getattr(fresh, name)[2:1001], getattr(cached, name)[2:1001]
+        assert rel_max(a, b) < 1e-3, name  # CAMB accuracy settings are the same; versions vary
+
+
+def test_realisation_has_the_input_spectrum(spectra):
+    cfg = sky.SkyConfig(nside=128, lmax=256, fwhm_arcmin=30.0, seed=3)
+    s = sky.make_sky(cfg, spectra)
+    beam = hp.gauss_beam(30 * ARCMIN, lmax=256, pol=True)
+    want = spectra.total(lmax=256)
+    nmodes = 2 * np.arange(30, 257) + 1
+
+    def ratio(a, b, want_cl):
+        got = harmonics.alm2cl(a, b)[30:257]
+        return np.sum(nmodes * got) / np.sum(nmodes * want_cl[30:257])
+
+    # Sums over ~6.5e4 modes: cosmic variance ~0.6% (TT, EE), a few % (TE); bounds are > 4 sigma.
+    assert abs(ratio(s.alm[0], s.alm[0], want[0] * beam[:, 0] ** 2) - 1) < 0.03
+    assert abs(ratio(s.alm[1], s.alm[1], want[1] * beam[:, 1] ** 2) - 1) < 0.03
+    assert abs(ratio(s.alm[0], s.alm[1], want[3] * beam[:, 0] * beam[:, 1]) - 1) < 0.1
+
+
+def test_maps_are_healpy_synthesis_of_alm(small_sky):
+    assert rel_max(small_sky.maps, hp.alm2map(small_sky.alm, 64, pol=True)) < 1e-12
+
+
+def test_seed_reproducible_and_unpolarised_option(spectra):
+    a = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1), spectra)
+    b = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1), spectra)
+    c = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=2), spectra)
+    d = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1, polarised=False), spectra)
+    assert np.array_equal(a.maps, b.maps) and not np.allclose(a.maps, c.maps)
+    assert np.array_equal(a.maps[0], d.maps[0]) and not d.maps[1:].any()
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    (dict(nside=-4), "nside"), (dict(nside=100), "nside"), (dict(nside=16, lmax=48), "lmax"),
+    (dict(fwhm_arcmin=-1.0), "fwhm_arcmin"), (dict(r=-0.1), "r"), (dict(seed=-1), "seed")])
+def test_bad_sky_config(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        sky.SkyConfig(**kwargs)
+
+
+def test_from_maps_rejects_nan():
+    m = np.zeros((3, 12 * 16**2))
+    m[1, 5] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        sky.Sky.from_maps(m)
