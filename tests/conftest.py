@@ -6,20 +6,20 @@ from boresight import cosmology, sky
 
 
 @pytest.fixture(scope="session")
-def spectra():
+def theory():
     return cosmology.load_spectra()
 
 
 @pytest.fixture(scope="session")
-def small_sky(spectra):
+def small_sky(theory):
     """Nside 64 sky with a 1-degree beam (smooth on the pixel scale)."""
-    return sky.make_sky(sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=60.0, seed=7), spectra)
+    return sky.make_sky(sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=60.0, seed=7), theory)
 
 
 @pytest.fixture(scope="session")
-def small_sky_unpolarised(spectra):
+def small_sky_unpolarised(theory):
     return sky.make_sky(sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=60.0, seed=7,
-                                      polarised=False), spectra)
+                                      polarised=False), theory)
 
 
 def rel_max(a, b):

@@ -7,14 +7,14 @@ from boresight import cosmology, harmonics, sky
 from boresight.constants import ARCMIN
 
 
-def test_cached_spectra_are_the_paper_cosmology(spectra):
+def test_cached_spectra_are_the_paper_cosmology(theory):
     """Published numbers of Planck-2015-like LCDM: first TT peak near l=220 at ~5800 muK^2."""
-    ell = np.arange(spectra.lmax + 1)
+    ell = np.arange(theory.lmax + 1)
     dl = ell * (ell + 1) / (2 * np.pi)
-    assert 215 <= np.argmax(dl * spectra.tt) <= 225
-    assert 5500 < np.max(dl * spectra.tt) < 6100
-    assert 800 < np.argmax(dl * spectra.bb_lens) < 1100  # lensing B-mode peak
-    assert np.all(spectra.bb_tensor[2:300] > 0) and spectra.bb_lens[0] == 0
+    assert 215 <= np.argmax(dl * theory.tt) <= 225
+    assert 5500 < np.max(dl * theory.tt) < 6100
+    assert 800 < np.argmax(dl * theory.bb_lens) < 1100  # lensing B-mode peak
+    assert np.all(theory.bb_tensor[2:300] > 0) and theory.bb_lens[0] == 0
 
 
 def test_cache_matches_camb():
@@ -26,11 +26,11 @@ def test_cache_matches_camb():
         assert rel_max(a, b) < 1e-3, name  # CAMB accuracy settings are the same; versions vary
 
 
-def test_realisation_has_the_input_spectrum(spectra):
+def test_realisation_has_the_input_spectrum(theory):
     cfg = sky.SkyConfig(nside=128, lmax=256, fwhm_arcmin=30.0, seed=3)
-    s = sky.make_sky(cfg, spectra)
+    s = sky.make_sky(cfg, theory)
     beam = hp.gauss_beam(30 * ARCMIN, lmax=256, pol=True)
-    want = spectra.total(lmax=256)
+    want = theory.total(lmax=256)
     nmodes = 2 * np.arange(30, 257) + 1
 
     def ratio(a, b, want_cl):
@@ -47,11 +47,11 @@ def test_maps_are_healpy_synthesis_of_alm(small_sky):
     assert rel_max(small_sky.maps, hp.alm2map(small_sky.alm, 64, pol=True)) < 1e-12
 
 
-def test_seed_reproducible_and_unpolarised_option(spectra):
-    a = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1), spectra)
-    b = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1), spectra)
-    c = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=2), spectra)
-    d = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1, polarised=False), spectra)
+def test_seed_reproducible_and_unpolarised_option(theory):
+    a = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1), theory)
+    b = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1), theory)
+    c = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=2), theory)
+    d = sky.make_sky(sky.SkyConfig(nside=16, lmax=40, seed=1, polarised=False), theory)
     assert np.array_equal(a.maps, b.maps) and not np.allclose(a.maps, c.maps)
     assert np.array_equal(a.maps[0], d.maps[0]) and not d.maps[1:].any()
 
