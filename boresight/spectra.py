@@ -42,15 +42,17 @@ def pseudo_spectra(maps, mask, lmax, nthreads=0):
                                                          (t, b))])
 
 
-def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0):
+def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
     """(cross, auto) parts of C_BB(sys) - C_BB(ref): 2 Re<B, dB> and <dB, dB>, each (lmax+1,).
 
     B = B(ref) and dB = B(sys - ref): the transform of the small difference map keeps its full
     relative precision, unlike subtracting two spectra. The cross part has zero mean when the
     systematic is uncorrelated with the polarisation; the auto part is what leakage adds on average.
+    ``b_ref``: the B alm of the masked reference, when already computed.
     """
     qu_sys, qu_ref = np.asarray(qu_sys), np.asarray(qu_ref)
-    b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads)[1]
+    if b_ref is None:
+        b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads)[1]
     d_b = masked_pol_alm(qu_sys - qu_ref, mask, lmax, nthreads)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
