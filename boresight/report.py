@@ -147,7 +147,7 @@ def report_markdown(claims, cfg, stages):
     """report.md: each claim, the number measured here and the computed verdict."""
     lines = ["# boresight: reproduction of Thomas, McCallum & Brown (2020)", "",
              f"Nside {cfg.nside}, lmax {cfg.lmax}, beam {cfg.fwhm_arcmin:g} arcmin, seed "
-             f"{cfg.seed}, evaluation `{cfg.evaluation}`, bands {list(cfg.edges())}.", "",
+             f"{cfg.seed}, evaluation `{cfg.evaluation}`, band edges {[int(e) for e in cfg.edges()]}.", "",
              f"**{sum(c.reproduced for c in claims)} of {len(claims)} claims reproduced.**", "",
              "| experiment | the paper says | test | measured | verdict |",
              "|---|---|---|---|---|"]

@@ -1,0 +1,99 @@
+"""Command line: `boresight reproduce | simulate | predict | scan-stats`.
+
+Exit codes: 0 success, 1 a claim of `reproduce` not reproduced, 2 bad input (config, arguments,
+existing output directory); nothing is written when the input is bad.
+"""
+import argparse
+import logging
+import sys
+
+from . import paper, studies
+from .config import ConfigError, load_study
+
+log = logging.getLogger("boresight")
+
+
+def _parser():
+    p = argparse.ArgumentParser(prog="boresight", description=__doc__.splitlines()[0])
+    p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug output")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("reproduce", help="the paper's study: figures, results.csv, report.md")
+    r.add_argument("--quick", action="store_true", help="Nside 512 / lmax 1535 (minutes)")
+    r.add_argument("--nside", type=int, help="HEALPix Nside (default 2048, quick 512)")
+    r.add_argument("--lmax", type=int, help="band limit (default 4000, quick 3*nside-1)")
+    r.add_argument("--seed", type=int, default=1)
+    r.add_argument("--evaluation", choices=("interp", "exact"), default="interp")
+    r.add_argument("--backend", choices=("cpu", "gpu"), default="cpu")
+    r.add_argument("--threads", type=int, default=0, help="0: all cores")
+    r.add_argument("--out", default="boresight-paper", help="output directory")
+    r.add_argument("--force", action="store_true", help="overwrite an existing output directory")
+
+    for name, text in (("simulate", "simulate a study from a TOML config"),
+                       ("scan-stats", "h_n, hit, N_phi and R maps of a config's scan")):
+        s = sub.add_parser(name, help=text)
+        s.add_argument("config")
+        s.add_argument("--out", required=True, help="output directory")
+        s.add_argument("--force", action="store_true")
+    pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
+    pr.add_argument("config")
+    pr.add_argument("--out", help="write prediction.csv into this directory")
+    pr.add_argument("--force", action="store_true")
+    return p
+
+
+def _study_config(args):
+    defaults = paper.StudyConfig.quick() if args.quick else paper.StudyConfig()
+    nside = args.nside or defaults.nside
+    lmax = args.lmax or (min(3 * nside - 1, defaults.lmax) if args.nside else defaults.lmax)
+    if nside < 16 or nside & (nside - 1):
+        raise ValueError(f"--nside must be a power of two >= 16, got {nside}")
+    if not 2 <= lmax <= 3 * nside - 1:
+        raise ValueError(f"--lmax must be in [2, {3 * nside - 1}], got {lmax}")
+    return paper.StudyConfig(nside=nside, lmax=lmax, seed=args.seed, evaluation=args.evaluation,
+                             backend=args.backend, nthreads=args.threads)
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
+    logging.basicConfig(level=level, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    progress = sys.stderr.isatty() and not args.quiet
+    try:
+        if args.command == "reproduce":
+            claims = studies.reproduce(args.out, _study_config(args), args.force, log.info,
+                                       progress)
+            bad = [c for c in claims if not c.reproduced]
+            log.info("%d of %d claims reproduced; see %s/report.md", len(claims) - len(bad),
+                     len(claims), args.out)
+            return 1 if bad else 0
+        study = load_study(args.config)
+        if args.command == "simulate":
+            studies.simulate(study, args.out, args.force, log.info, progress)
+        elif args.command == "scan-stats":
+            for row in studies.scan_stats(study, args.out, args.force, log=log.info):
+                log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
+        else:
+            if args.out:
+                from . import io
+                io.check_output_dir(args.out, args.force)
+            rows = studies.predict_study(study, log.info)
+            if args.out:
+                with io.staged_dir(args.out, args.force) as stage:
+                    io.write_csv(stage / "prediction.csv", rows, ["ell", "predicted_bb"])
+            else:
+                print("ell,predicted_bb")
+                for row in rows:
+                    print(f"{row['ell']},{row['predicted_bb']:.6e}")
+    except (ConfigError, FileExistsError, FileNotFoundError, ValueError) as err:
+        print(f"boresight: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("boresight: interrupted; nothing was written", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,110 @@
+"""Figures in the style of the paper: |residual| with the sign marked, analytic curve, reference
+curves, log axes; and survey footprints over a Galactic-emission proxy."""
+import contextlib
+import io
+
+import healpy as hp
+import matplotlib
+import matplotlib.ticker
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from . import spectra  # noqa: E402
+
+ANGLE_COLOURS = {None: "tab:orange", 0: "tab:blue", 1: "tab:green", 2: "tab:red"}
+REF_COLOURS = ("tab:purple", "tab:red", "tab:green")
+
+
+def _signed_points(ax, ell, values, colour, label):
+    """|values| on log axes: filled markers for positive, open for negative."""
+    pos = values > 0
+    ax.plot(ell[pos], values[pos], "o", color=colour, label=label, ms=5)
+    ax.plot(ell[~pos], -values[~pos], "o", mfc="none", color=colour, ms=5)
+
+
+def residual_figure(res, cfg, angles, path_stem):
+    """Residual pseudo-C_ell BB against ell for the given rotation angles (None: no rotation)."""
+    exp = res.experiment
+    edges = cfg.edges()
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for value, colour in zip(exp.reference_values, REF_COLOURS):
+        ell = np.arange(res.references[value].size)
+        name = "r" if exp.reference == "r" else r"A_{\rm lens}"
+        ax.plot(ell[2:], res.references[value][2:], color=colour, lw=1,
+                label=f"${name} = {value:g}$")
+    ell_pred = np.arange(res.predicted_cl[None].size)
+    ax.plot(ell_pred[2:], np.abs(res.predicted_cl[None][2:]), "k--", lw=1.2,
+            label="analytic (no rotation)")
+    for i, angle in enumerate(angles):
+        centres, values = spectra.bin_spectrum(res.residual(angle), edges)
+        label = "no rotation" if angle is None else f"rotation {angle:g}$^\\circ$"
+        colour = ANGLE_COLOURS[None] if angle is None else ANGLE_COLOURS.get(i - 1, "tab:gray")
+        _signed_points(ax, centres, values, colour, label)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(edges[0], edges[-1])
+    ticks = [t for t in (20, 50, 100, 200, 500, 1000, 2000, 4000) if edges[0] <= t <= edges[-1]]
+    ax.set_xticks(ticks, [str(t) for t in ticks])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xlabel(r"multipole $\ell$")
+    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
+    ax.set_title(f"{exp.name.replace('_', ', ')}: Nside {cfg.nside}")
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    for ext in ("png", "pdf"):
+        fig.savefig(f"{path_stem}.{ext}", dpi=120)
+    plt.close(fig)
+
+
+def galactic_proxy(nside):
+    """A smooth Galactic-emission proxy [arbitrary units]: exp(-|b| / 10 deg) + 0.01."""
+    theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
+    theta_g, _ = hp.Rotator(coord=["C", "G"])(theta, phi)
+    return np.exp(-np.abs(90.0 - np.degrees(theta_g)) / 10.0) + 0.01
+
+
+def footprint_figure(mask, title, path_stem):
+    """Mollweide view (equatorial) of the Galactic proxy with the mask's footprint shaded."""
+    nside = hp.npix2nside(mask.size)
+    proxy = np.log10(galactic_proxy(nside))
+    shown = np.where(mask > 0, proxy.max() + 0.3, proxy)
+    fig = plt.figure(figsize=(8, 4.5))
+    hp.mollview(shown, fig=fig.number, title=title, cmap="magma", cbar=True,
+                unit="log10 Galactic proxy (footprint in white)", min=proxy.min(),
+                max=proxy.max() + 0.3)
+    with contextlib.redirect_stdout(io.StringIO()):  # healpy prints the grid spacing
+        hp.graticule(dpar=30, dmer=60, alpha=0.4)
+    for ext in ("png", "pdf"):
+        fig.savefig(f"{path_stem}.{ext}", dpi=110)
+    plt.close(fig)
+
+
+def map_figure(maps, names, path):
+    """Quick-look Mollweide panels of maps (UNSEEN shown grey)."""
+    fig = plt.figure(figsize=(5 * len(maps), 3.2))
+    for i, (m, name) in enumerate(zip(maps, names)):
+        hp.mollview(m, fig=fig.number, sub=(1, len(maps), i + 1), title=name, unit=r"$\mu$K")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def spectrum_figure(rows, study, path_stem):
+    """|residual C_BB| per multipole of a simulate run, sign marked, on log axes."""
+    ell = np.array([r["ell"] for r in rows])
+    res = np.array([r["residual_bb"] for r in rows])
+    lmin = study.output["lmin"]
+    edges = spectra.log_bins(lmin, ell[-1], study.output["n_bands"])
+    centres, values = spectra.bin_spectrum(res, edges)
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    _signed_points(ax, centres, values, "tab:orange", "residual (band mean)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(r"multipole $\ell$")
+    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    for ext in ("png", "pdf"):
+        fig.savefig(f"{path_stem}.{ext}", dpi=120)
+    plt.close(fig)
