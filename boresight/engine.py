@@ -6,6 +6,7 @@ is bounded by the chunk. ``scan_moments`` runs the same hit generator to give th
 """
 import contextlib
 
+import healpy as hp
 import numba
 import numpy as np
 from tqdm.auto import tqdm
@@ -90,29 +91,31 @@ def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, p
     dg, rho, chi, leak = systematics.per_pair(instrument.n_pairs)
     fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
     rot, ang = scan.rotations_rad, instrument.pair_angles_rad
-    normal = np.zeros((npix, 5))
-    ncross = np.zeros(npix, dtype=np.int64)
+    q = np.full(npix, hp.UNSEEN)
+    u = np.full(npix, hp.UNSEEN)
+    rcond = np.zeros(npix)
+    ncross = np.zeros(npix, dtype=np.int32)
     with threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
             offsets, theta, phi, psi = _hits(kernels, scan, nside, chunk)
-            values_a = kernels.to_host(fields_at(kernels, fields, theta, phi, evaluation, nthreads))
+            values_a = fields_at(kernels, fields, theta, phi, evaluation, nthreads)
             if systematics.has_pointing:
                 tb, pb = kernels.offset_points(theta, phi, psi, rot, ang, rho, chi)
                 values_b = fields_at(kernels, fields, tb.ravel(), pb.ravel(), evaluation, nthreads)
                 values_b = values_b.reshape((fields.n_fields,) + tb.shape)
             else:
                 values_b = np.empty((fields.n_fields, 0, rot.size, ang.size))
-            normal[chunk] = kernels.to_host(kernels.accumulate(offsets, psi, values_a, values_b,
-                                                               rot, ang, dg, leak))
+            normal = kernels.to_host(kernels.accumulate(offsets, psi, values_a, values_b, rot, ang,
+                                                        dg, leak))
+            q[chunk], u[chunk], rcond[chunk] = solve(normal, rcond_min)
             ncross[chunk] = np.diff(kernels.to_host(offsets)) * rot.size
-    q, u, rcond = solve(normal, rcond_min)
     return Maps(q=q, u=u, hits=ncross, rcond=rcond)
 
 
 def fields_at(kernels, fields, theta, phi, evaluation, nthreads):
     """Evaluate the sky fields at points with the backend's interpolation or ducc0 (exact)."""
     if evaluation == "interp":
-        return kernels.interpolate(fields.maps, fields.nside, theta, phi)
+        return kernels.interpolate(fields.stack, fields.nside, theta, phi)
     return fields.evaluate(kernels.to_host(theta), kernels.to_host(phi), "exact", nthreads)
 
 

@@ -7,32 +7,33 @@ second-order pointing terms that interpolation smears.
 import numpy as np
 
 from . import harmonics
-from .pixels import interpolate
+from .pixels import interpolate_interleaved
 
 METHODS = ("interp", "exact")
 EXACT_EPSILON = 1e-11  #: ducc0 relative accuracy of exact evaluation
 
 
 class SkyFields:
-    """The fields a TOD samples: I, Q, U and optionally a leak template, as maps and alm."""
+    """The fields a TOD samples: I, Q, U and optionally a leak template.
+
+    ``stack`` holds them interleaved, shape (npix, n_fields), the layout the interpolation kernels
+    read (a pixel's fields share a cache line); ``alm`` serve exact evaluation.
+    """
 
     def __init__(self, sky, template=None, template_alm=None):
         self.nside = sky.nside
         self.alm = sky.alm
-        stack = [sky.maps]
+        self.n_fields = 3 if template is None else 4
+        self.stack = np.empty((sky.maps.shape[1], self.n_fields))
+        self.stack[:, :3] = sky.maps.T
         if template is not None:
-            stack.append(np.asarray(template, dtype=np.float64)[None])
-        self.maps = np.ascontiguousarray(np.concatenate(stack))
+            self.stack[:, 3] = template
         self.template_alm = template_alm
-
-    @property
-    def n_fields(self):
-        return self.maps.shape[0]
 
     def evaluate(self, theta, phi, method, nthreads=0):
         """Fields at points: (n_fields, npoints) for flat arrays theta, phi [rad]."""
         if method == "interp":
-            return interpolate(self.maps, self.nside, theta, phi)
+            return interpolate_interleaved(self.stack, self.nside, theta, phi)
         out = np.empty((self.n_fields, theta.size))
         out[0] = harmonics.evaluate(self.alm[0], theta, phi, epsilon=EXACT_EPSILON,
                                     nthreads=nthreads)

@@ -103,6 +103,12 @@ def pixel_point(nside, pix, u, v):
     (0.5, 0.5) is the pixel centre; uniform (u, v) gives points uniform in solid angle.
     """
     ix, iy, face = ring2xyf(nside, pix)
+    return face_point(nside, ix, iy, face, u, v)
+
+
+@numba.njit(inline="always")
+def face_point(nside, ix, iy, face, u, v):
+    """:func:`pixel_point` for a pixel already given as (ix, iy, face)."""
     return xyf2ang((ix + u) / nside, (iy + v) / nside, face)
 
 
@@ -207,11 +213,19 @@ def pixel_points(nside, pixels, u, v):
 
 
 @numba.njit(parallel=True, cache=True)
-def interpolate(maps, nside, theta, phi):
-    """Bilinear interpolation of a (nfield, npix) map stack at points -> (nfield, npoints)."""
-    out = np.empty((maps.shape[0], theta.size))
+def interpolate_interleaved(maps, nside, theta, phi):
+    """Bilinear interpolation of an interleaved (npix, nfield) stack -> (nfield, npoints).
+
+    Interleaving puts a pixel's fields in one cache line: one memory access per neighbour.
+    """
+    out = np.empty((maps.shape[1], theta.size))
     for k in numba.prange(theta.size):
         p0, p1, p2, p3, w0, w1, w2, w3 = interp_weights(nside, theta[k], phi[k])
-        for f in range(maps.shape[0]):
-            out[f, k] = w0 * maps[f, p0] + w1 * maps[f, p1] + w2 * maps[f, p2] + w3 * maps[f, p3]
+        for f in range(maps.shape[1]):
+            out[f, k] = w0 * maps[p0, f] + w1 * maps[p1, f] + w2 * maps[p2, f] + w3 * maps[p3, f]
     return out
+
+
+def interpolate(maps, nside, theta, phi):
+    """Bilinear interpolation of a (nfield, npix) map stack at points -> (nfield, npoints)."""
+    return interpolate_interleaved(np.ascontiguousarray(np.asarray(maps).T), nside, theta, phi)

@@ -29,12 +29,22 @@ def mix64(z):
 
 
 @numba.njit(inline="always")
+def pixel_key(seed, pixel):
+    """The per-pixel part of the key chain: mix(mix(seed ^ SEED_SALT) ^ pixel)."""
+    return mix64(mix64(np.uint64(seed) ^ SEED_SALT) ^ np.uint64(pixel))
+
+
+@numba.njit(inline="always")
+def uniform_from_key(key, hit, stream):
+    """Uniform double in [0, 1) from a :func:`pixel_key` and (hit, stream)."""
+    h = mix64(key ^ (np.uint64(hit) * np.uint64(N_STREAMS) + np.uint64(stream)))
+    return np.float64(h >> _S11) * _TWO_M53
+
+
+@numba.njit(inline="always")
 def uniform(seed, pixel, hit, stream):
     """Uniform double in [0, 1) for the key (seed, pixel, hit, stream); all ints >= 0."""
-    h = mix64(np.uint64(seed) ^ SEED_SALT)
-    h = mix64(h ^ np.uint64(pixel))
-    h = mix64(h ^ (np.uint64(hit) * np.uint64(N_STREAMS) + np.uint64(stream)))
-    return np.float64(h >> _S11) * _TWO_M53
+    return uniform_from_key(pixel_key(seed, pixel), hit, stream)
 
 
 @numba.njit(parallel=True, cache=True)

@@ -7,10 +7,15 @@ chunking or the thread count. ``boresight.tod_gpu`` implements the same kernels 
 import numba
 import numpy as np
 
-from .pixels import interpolate, pixel_point
-from .rng import STREAM_PSI, STREAM_U, STREAM_V, uniform
+from .pixels import face_point, interpolate_interleaved, ring2xyf
+from .rng import STREAM_PSI, STREAM_U, STREAM_V, pixel_key, uniform_from_key
 
 __all__ = ["generate_hits", "offset_points", "interpolate", "accumulate", "moments", "to_host"]
+
+
+def interpolate(maps, nside, theta, phi):
+    """Bilinear interpolation of a (nfield, npix) or prepared interleaved stack at points."""
+    return interpolate_interleaved(maps, nside, theta, phi)
 _TWOPI = 2.0 * np.pi
 
 
@@ -27,15 +32,17 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     psi = np.empty(nhit)
     for k in numba.prange(pixels.size):
         p = pixels[k]
+        key = pixel_key(seed, p)
+        ix, iy, face = ring2xyf(nside, p)
         for h in range(offsets[k], offsets[k + 1]):
             j = h - offsets[k]
-            psi[h] = centre_rad[k] + range_rad[k] * (uniform(seed, p, j, STREAM_PSI) - 0.5)
+            psi[h] = centre_rad[k] + range_rad[k] * (uniform_from_key(key, j, STREAM_PSI) - 0.5)
             if centred:
                 u = v = 0.5
             else:
-                u = uniform(seed, p, j, STREAM_U)
-                v = uniform(seed, p, j, STREAM_V)
-            theta[h], phi[h] = pixel_point(nside, p, u, v)
+                u = uniform_from_key(key, j, STREAM_U)
+                v = uniform_from_key(key, j, STREAM_V)
+            theta[h], phi[h] = face_point(nside, ix, iy, face, u, v)
     return theta, phi, psi
 
 
@@ -76,17 +83,25 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
     nk, nm = rotations.size, pair_angles.size
     nfield = values_a.shape[0]
     same_point = values_b.shape[1] == 0
+    # exp(2i(psi + alpha + angle)) = exp(2i psi) * turn[k, m]: one sincos per hit.
+    turn_c = np.empty((nk, nm))
+    turn_s = np.empty((nk, nm))
+    for k in range(nk):
+        for m in range(nm):
+            turn_c[k, m] = np.cos(2.0 * (rotations[k] + pair_angles[m]))
+            turn_s[k, m] = np.sin(2.0 * (rotations[k] + pair_angles[m]))
     out = np.zeros((offsets.size - 1, 5))
     for p in numba.prange(offsets.size - 1):
         a11 = a12 = a22 = b1 = b2 = 0.0
         for h in range(offsets[p], offsets[p + 1]):
             i_a, q_a, u_a = values_a[0, h], values_a[1, h], values_a[2, h]
             s_a = values_a[3, h] if nfield > 3 else 0.0
+            c0 = np.cos(2.0 * psi[h])
+            s0 = np.sin(2.0 * psi[h])
             for k in range(nk):
                 for m in range(nm):
-                    ang = 2.0 * (psi[h] + rotations[k] + pair_angles[m])
-                    c = np.cos(ang)
-                    s = np.sin(ang)
+                    c = c0 * turn_c[k, m] - s0 * turn_s[k, m]
+                    s = s0 * turn_c[k, m] + c0 * turn_s[k, m]
                     if same_point:
                         i_b, q_b, u_b, s_b = i_a, q_a, u_a, s_a
                     else:

@@ -1,0 +1,110 @@
+"""The command line end to end, and its handling of bad input (issue 4)."""
+import csv
+import os
+
+import healpy as hp
+import numpy as np
+import pytest
+
+from boresight import paper
+from boresight.cli import main
+
+EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples")
+
+
+def test_reproduce_quick_end_to_end(tmp_path):
+    out = tmp_path / "paper"
+    assert main(["-q", "reproduce", "--quick", "--out", str(out)]) == 0
+    for stem in ("fig1_pointing_wide", "fig2_gain_deep", "fig3_pointing_angles",
+                 "fig4_gain_angles", "fig5_wide_mask", "fig6_deep_mask"):
+        for ext in ("png", "pdf"):
+            assert (out / f"{stem}.{ext}").stat().st_size > 1000
+    with open(out / "results.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert set(paper.CSV_COLUMNS) <= set(rows[0])
+    assert {r["experiment"] for r in rows} == {"pointing_wide", "gain_deep"}
+    assert {r["pbr_angle_deg"] for r in rows} == {"", "180.0", "179.0", "160.0", "90.0", "89.0",
+                                                  "70.0"}
+    report = (out / "report.md").read_text()
+    verdicts = [line.rsplit("|", 2)[-2].strip() for line in report.splitlines()
+                if line.startswith("| pointing_wide") or line.startswith("| gain_deep")]
+    assert len(verdicts) == 18 and set(verdicts) == {"reproduced"}
+    assert '"git_revision"' in (out / "manifest.json").read_text()
+    # An existing directory is kept without --force.
+    assert main(["-q", "reproduce", "--quick", "--out", str(out)]) == 2
+
+
+BASE = {
+    "sky": {"nside": 32, "lmax": 64, "fwhm_arcmin": 120.0},
+    "scan": {"n_phi": 3, "range_rad": 0.5, "rotations_deg": [0.0, 90.0]},
+    "systematics": {"dg": [0.01, -0.01]},
+    "mask": {"survey": "deep"},
+    "output": {"lmax": 60, "n_bands": 5},
+}
+
+
+def _toml(config):
+    def value(v):
+        return repr(v) if not isinstance(v, bool) else str(v).lower()
+
+    return "".join(f"[{section}]\n" + "".join(f"{k} = {value(v)}\n" for k, v in body.items())
+                   for section, body in config.items())
+
+
+def _write(tmp_path, config):
+    path = tmp_path / "study.toml"
+    path.write_text(_toml(config))
+    return str(path)
+
+
+@pytest.mark.parametrize("section, key, value, message", [
+    ("sky", "colour", 1, "unknown key sky.colour"),
+    ("sky", "nside", "big", "sky.nside"),
+    ("sky", "nside", 48, "nside must be a power of two"),
+    ("systematics", "rho_arcmin", -0.1, "rho_arcmin must be >= 0"),
+    ("scan", "rotations_deg", [], "rotations_deg"),
+    ("mask", "file", "nowhere.fits", "file not found"),
+    ("telescope", "x", 1, "unknown section [telescope]"),
+    ("run", "evaluation", "magic", "run.evaluation"),
+])
+def test_bad_config_exits_2_and_writes_nothing(tmp_path, capsys, section, key, value, message):
+    config = {k: dict(v) for k, v in BASE.items()}
+    config.setdefault(section, {})[key] = value
+    if key == "file":
+        del config["mask"]["survey"]
+    out = tmp_path / "out"
+    assert main(["simulate", _write(tmp_path, config), "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_simulate_writes_healpy_readable_maps(tmp_path):
+    out = tmp_path / "sim"
+    assert main(["-q", "simulate", _write(tmp_path, BASE), "--out", str(out)]) == 0
+    q, u, hits = hp.read_map(str(out / "maps_systematics.fits"), field=(0, 1, 2))
+    header = dict(hp.read_map(str(out / "maps_systematics.fits"), h=True)[1])
+    assert header["POLCCONV"] == "COSMO" and header["ORDERING"] == "RING"
+    assert q.size == 12 * 32**2 and np.all(hits[q != hp.UNSEEN] == 6)
+    with open(out / "spectra.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 61 and "residual_bb" in rows[0]
+    assert (out / "residual.png").exists() and (out / "manifest.json").exists()
+
+
+def test_predict_and_scan_stats(tmp_path, capsys):
+    path = _write(tmp_path, BASE)
+    assert main(["-q", "predict", path]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "ell,predicted_bb" and len(lines) == 62
+    assert main(["-q", "scan-stats", path, "--out", str(tmp_path / "stats")]) == 0
+    re_h2 = hp.read_map(str(tmp_path / "stats" / "hn_maps.fits"), field=1)
+    # With rotations (0, 90 deg) h_2 cancels in every observed pixel.
+    assert np.max(np.abs(re_h2[re_h2 != hp.UNSEEN])) < 1e-15
+
+
+@pytest.mark.parametrize("name", ["gain_deep.toml", "pointing_wide.toml"])
+def test_examples_are_valid(name):
+    from boresight.config import load_study
+
+    study = load_study(os.path.join(EXAMPLES, name))
+    assert study.scan.rotations_deg[0] == 0.0
