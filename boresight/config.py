@@ -163,13 +163,13 @@ def parse_study(raw, base="."):
         raise ConfigError(f"mask.survey = {mask['survey']!r}; allowed: 'deep', 'wide', 'none'")
     if mask.get("apodize_fwhm_deg", 1) <= 0:
         raise ConfigError("mask.apodize_fwhm_deg must be > 0")
-    run = {"evaluation": "interp", "backend": "cpu", "chunk_pixels": 1 << 16, "nthreads": 0,
+    run = {"evaluation": "interp", "backend": "cpu", "chunk_pixels": None, "nthreads": 0,
            **raw.get("run", {})}
     if run["evaluation"] not in METHODS:
         raise ConfigError(f"run.evaluation = {run['evaluation']!r}; allowed: {METHODS}")
     if run["backend"] not in ("cpu", "gpu"):
         raise ConfigError(f"run.backend = {run['backend']!r}; allowed: 'cpu', 'gpu'")
-    if run["chunk_pixels"] < 1 or run["nthreads"] < 0:
+    if (run["chunk_pixels"] is not None and run["chunk_pixels"] < 1) or run["nthreads"] < 0:
         raise ConfigError("run.chunk_pixels must be >= 1 and run.nthreads >= 0")
     output = {"lmax": min(sky_cfg.lmax, 2 * sky_cfg.nside), "n_bands": 14, "lmin": 20,
               "maps": True, **raw.get("output", {})}

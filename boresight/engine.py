@@ -17,7 +17,8 @@ from .instrument import Instrument, Systematics
 from .mapmaking import RCOND_MIN, Maps, solve
 
 BACKENDS = ("cpu", "gpu")
-DEFAULT_CHUNK_PIXELS = 1 << 16
+#: pixels per chunk: small on the CPU (cache-resident), large on a GPU (enough threads)
+DEFAULT_CHUNK_PIXELS = {"cpu": 1 << 16, "gpu": 1 << 22}
 
 
 def get_backend(name):
@@ -74,7 +75,7 @@ def _hits(kernels, scan, nside, chunk):
 
 
 def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, pixels=None,
-             evaluation="interp", leak_template=None, chunk_pixels=DEFAULT_CHUNK_PIXELS,
+             evaluation="interp", leak_template=None, chunk_pixels=None,
              nthreads=0, backend="cpu", rcond_min=RCOND_MIN, progress=False):
     """Simulate the pair-differenced TOD of ``scan`` over ``sky`` and make Q, U maps.
 
@@ -87,10 +88,13 @@ def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, p
         raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
     kernels = get_backend(backend)
     nside, npix = sky.nside, 12 * sky.nside**2
+    if chunk_pixels is None:
+        chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
     pix = _pixel_list(pixels, npix)
     dg, rho, chi, leak = systematics.per_pair(instrument.n_pairs)
     fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
     rot, ang = scan.rotations_rad, instrument.pair_angles_rad
+    stack = kernels.to_device(fields.stack) if evaluation == "interp" else None
     q = np.full(npix, hp.UNSEEN)
     u = np.full(npix, hp.UNSEEN)
     rcond = np.zeros(npix)
@@ -98,10 +102,11 @@ def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, p
     with threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
             offsets, theta, phi, psi = _hits(kernels, scan, nside, chunk)
-            values_a = fields_at(kernels, fields, theta, phi, evaluation, nthreads)
+            values_a = fields_at(kernels, fields, stack, theta, phi, evaluation, nthreads)
             if systematics.has_pointing:
                 tb, pb = kernels.offset_points(theta, phi, psi, rot, ang, rho, chi)
-                values_b = fields_at(kernels, fields, tb.ravel(), pb.ravel(), evaluation, nthreads)
+                values_b = fields_at(kernels, fields, stack, tb.ravel(), pb.ravel(), evaluation,
+                                     nthreads)
                 values_b = values_b.reshape((fields.n_fields,) + tb.shape)
             else:
                 values_b = np.empty((fields.n_fields, 0, rot.size, ang.size))
@@ -112,10 +117,11 @@ def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, p
     return Maps(q=q, u=u, hits=ncross, rcond=rcond)
 
 
-def fields_at(kernels, fields, theta, phi, evaluation, nthreads):
-    """Evaluate the sky fields at points with the backend's interpolation or ducc0 (exact)."""
+def fields_at(kernels, fields, stack, theta, phi, evaluation, nthreads):
+    """Evaluate the sky fields at points: the backend interpolates ``stack`` (the fields on the
+    backend's device), or ducc0 evaluates the alm exactly on the CPU."""
     if evaluation == "interp":
-        return kernels.interpolate(fields.stack, fields.nside, theta, phi)
+        return kernels.interpolate(stack, fields.nside, theta, phi)
     return fields.evaluate(kernels.to_host(theta), kernels.to_host(phi), "exact", nthreads)
 
 
@@ -134,7 +140,7 @@ def _sky_fields(sky, systematics, template, evaluation, nthreads):
     return SkyFields(sky, template, alm)
 
 
-def scan_moments(scan, nside, n_max=4, *, pixels=None, chunk_pixels=DEFAULT_CHUNK_PIXELS,
+def scan_moments(scan, nside, n_max=4, *, pixels=None, chunk_pixels=None,
                  nthreads=0, backend="cpu", progress=False):
     """h_n = <exp(i n psi)> over each pixel's hits (rotations included), n = 0..n_max.
 
@@ -143,6 +149,7 @@ def scan_moments(scan, nside, n_max=4, *, pixels=None, chunk_pixels=DEFAULT_CHUN
     kernels = get_backend(backend)
     npix = 12 * nside**2
     pix = _pixel_list(pixels, npix)
+    chunk_pixels = DEFAULT_CHUNK_PIXELS[backend] if chunk_pixels is None else chunk_pixels
     h = np.zeros((n_max + 1, npix), dtype=np.complex128)
     ncross = np.zeros(npix, dtype=np.int64)
     with threads(nthreads):

@@ -10,7 +10,8 @@ import numpy as np
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import STREAM_PSI, STREAM_U, STREAM_V, pixel_key, uniform_from_key
 
-__all__ = ["generate_hits", "offset_points", "interpolate", "accumulate", "moments", "to_host"]
+__all__ = ["generate_hits", "offset_points", "interpolate", "accumulate", "moments", "to_host",
+           "to_device"]
 
 
 def interpolate(maps, nside, theta, phi):
@@ -145,4 +146,9 @@ def moments(offsets, psi, rotations, n_max):
 
 def to_host(array):
     """Kernel output as a numpy array (the CPU kernels already return numpy arrays)."""
+    return array
+
+
+def to_device(array):
+    """Arrays the kernels read many times (the sky fields) stay where they are on the CPU."""
     return array
