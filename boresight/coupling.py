@@ -5,6 +5,7 @@ mask's power spectrum, so that <pseudo C_l> = sum_l' M_{l l'} C_l'. The Wigner-3
 ``coupling_matrix_rect`` (the routine NaMaster 2 uses); for spin 2 the even-parity part is
 M^{EE,EE} = M^{BB,BB} and the odd part M^{EE,BB} = M^{BB,EE} (Brown, Castro & Taylor 2005).
 """
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,8 +41,9 @@ def coupling_matrices(mask, lmax, nthreads=0):
     """The TT, spin-2 even and odd coupling matrices of ``mask`` for ell <= lmax."""
     w = mask_spectrum(mask, 2 * lmax, nthreads)
     res = np.zeros((3, lmax + 1, lmax + 1))
-    coupling_matrix_rect(w[None], [0], res[0:1], nthreads=max(nthreads, 1))
-    coupling_matrix_rect(w[None], [4], res[1:3], nthreads=max(nthreads, 1))
+    threads = nthreads if nthreads > 0 else os.cpu_count()  # ducc0 reads 0 here as 1 thread
+    coupling_matrix_rect(w[None], [0], res[0:1], nthreads=threads)
+    coupling_matrix_rect(w[None], [4], res[1:3], nthreads=threads)
     res *= (2 * np.arange(lmax + 1) + 1)[None, None, :]
     res[1:, :2, :] = 0.0  # spin-2 spectra start at l = 2
     res[1:, :, :2] = 0.0

@@ -63,18 +63,23 @@ def delta_p(sky, h, systematics, instrument=None, template=None, nthreads=0):
 
 
 def coherent_power(hn, mask, block=COHERENT_BLOCK):
-    """(<|h_n|^2>, coherent part) over the mask: h_n averaged in blocks of block^2 pixels."""
+    """(<|h_n|^2>, coherent part) over the mask: h_n averaged in blocks of block^2 pixels.
+
+    Blocks are the NEST parents at nside / block; only observed pixels are visited.
+    """
     nside = hp.npix2nside(hn.size)
     w = np.asarray(mask, dtype=np.float64)
-    total = np.sum(w * np.abs(hn) ** 2) / w.sum()
+    obs = np.flatnonzero(w)
+    wo, ho = w[obs], hn[obs]
+    total = np.sum(wo * np.abs(ho) ** 2) / wo.sum()
     if nside < block:
         return total, total
-    wn = hp.reorder(w, r2n=True).reshape(-1, block * block)
-    hnn = hp.reorder(hn.real, r2n=True) + 1j * hp.reorder(hn.imag, r2n=True)
-    hnn = hnn.reshape(-1, block * block)
-    wsum = wn.sum(axis=1)
-    mean = np.where(wsum > 0, (wn * hnn).sum(axis=1) / np.where(wsum > 0, wsum, 1), 0)
-    coherent = np.sum(wsum * np.abs(mean) ** 2) / w.sum()
+    parent = hp.ring2nest(nside, obs) // (block * block)
+    wsum = np.bincount(parent, weights=wo)
+    mean_re = np.bincount(parent, weights=wo * ho.real)
+    mean_im = np.bincount(parent, weights=wo * ho.imag)
+    used = wsum > 0
+    coherent = np.sum((mean_re[used] ** 2 + mean_im[used] ** 2) / wsum[used]) / wo.sum()
     return total, coherent
 
 
