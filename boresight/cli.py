@@ -36,6 +36,13 @@ def _parser():
         s.add_argument("config")
         s.add_argument("--out", required=True, help="output directory")
         s.add_argument("--force", action="store_true")
+    sw = sub.add_parser("sweep", help="a grid or list of studies, locally or on a Dask cluster")
+    sw.add_argument("sweep_file")
+    sw.add_argument("--out", required=True, help="output directory (re-running resumes it)")
+    sw.add_argument("--scheduler", help="Dask scheduler address, or 'serial' for no Dask "
+                    "(default: a local cluster)")
+    sw.add_argument("--workers", type=int, default=2, help="local cluster worker processes")
+    sw.add_argument("--force", action="store_true", help="replace a different sweep in --out")
     pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
     pr.add_argument("config")
     pr.add_argument("--out", help="write prediction.csv into this directory")
@@ -68,6 +75,14 @@ def main(argv=None):
             log.info("%d of %d claims reproduced; see %s/report.md", len(claims) - len(bad),
                      len(claims), args.out)
             return 1 if bad else 0
+        if args.command == "sweep":
+            from . import sweep
+
+            rows = sweep.run_sweep(args.sweep_file, args.out, args.scheduler, args.workers,
+                                   args.force, log.info, progress)
+            sweep.continuum_figure(rows, f"{args.out}/suppression")
+            log.info("%d rows in %s/results.csv", len(rows), args.out)
+            return 0
         study = load_study(args.config)
         if args.command == "simulate":
             studies.simulate(study, args.out, args.force, log.info, progress)
