@@ -72,7 +72,7 @@ class ExperimentResult:
     cross: dict = field(default_factory=dict)  #: 2 Re<B, dB> per angle
     auto: dict = field(default_factory=dict)  #: <dB, dB> per angle
     predicted_cl: dict = field(default_factory=dict)  #: eq. 10 per angle
-    predicted_map: dict = field(default_factory=dict)  #: residual of the predicted map per angle
+    predicted_map: dict = field(default_factory=dict)  #: predicted-map residual (no / ideal angle)
     zero_qu: dict = field(default_factory=dict)  #: residual with Q = U = 0 input per angle
     references: dict = field(default_factory=dict)  #: pseudo-C_ell BB per reference value
 
@@ -148,10 +148,11 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
                                        backend=cfg.backend)
             res.predicted_cl[angle] = predict.residual_pseudo_bb(
                 h, mask, cp, exp.systematics, theory, cfg.fwhm_arcmin, field_cl=local)
-            dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=cfg.nthreads) * obs
-            res.predicted_map[angle] = sum(spectra.residual_bb_parts(
-                ref.qu + np.array([dp.real, dp.imag]), ref.qu, mask, lmax_s, cfg.nthreads,
-                b_ref=b_ref))
+            if angle in (None, exp.ideal_deg):  # the map-level check needs no other angle
+                dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=cfg.nthreads) * obs
+                res.predicted_map[angle] = sum(spectra.residual_bb_parts(
+                    ref.qu + np.array([dp.real, dp.imag]), ref.qu, mask, lmax_s, cfg.nthreads,
+                    b_ref=b_ref))
         if angle in (None, exp.ideal_deg):
             with timer(f"{exp.name}: Q = U = 0, {label}"):
                 sim0 = engine.simulate(unpolarised, scan, systematics=exp.systematics, pixels=obs,
@@ -170,7 +171,8 @@ def tidy_rows(results, cfg):
             _, total = spectra.bin_spectrum(res.residual(angle), edges)
             _, auto = spectra.bin_spectrum(res.auto[angle], edges)
             _, pred = spectra.bin_spectrum(res.predicted_cl[angle], edges)
-            _, pmap = spectra.bin_spectrum(res.predicted_map[angle], edges)
+            pmap = (spectra.bin_spectrum(res.predicted_map[angle], edges)[1]
+                    if angle in res.predicted_map else np.full(len(edges) - 1, np.nan))
             for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
                 rows.append(dict(
                     experiment=name, pbr_angle_deg="" if angle is None else angle,

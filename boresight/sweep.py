@@ -179,9 +179,10 @@ def run_sweep(path, out_dir, scheduler=None, workers=2, force=False, log=print, 
                 finish(p, run_point(base, base_dir, p))
         elif todo:
             _run_dask(todo, base, base_dir, scheduler, workers, finish)
-    finally:
+    finally:  # also on Ctrl-C: the table holds every finished point, a re-run adds the rest
         bar.close()
-    return write_tables(out, points)
+        rows = write_tables(out, points)
+    return rows
 
 
 def _run_dask(todo, base, base_dir, scheduler, workers, finish):
@@ -260,8 +261,8 @@ def read_table(path):
 
 
 def continuum_figure(rows, path_stem):
-    """Leaked-power suppression against rotation angle, with the h_n closed form, when the sweep
-    varies pbr_angle_deg (skipped otherwise). Suppression: <dB,dB> at angle / at no rotation."""
+    """Leaked-power suppression and |delta r| against rotation angle, with the h_n prediction,
+    when the sweep varies pbr_angle_deg (skipped otherwise; seeds are pooled)."""
     if not rows or "pbr_angle_deg" not in rows[0]:
         return
     import matplotlib
@@ -277,12 +278,21 @@ def continuum_figure(rows, path_stem):
         return
     measured = [band_sum(a, "residual_auto_bb") / band_sum(0, "residual_auto_bb") for a in angles]
     closed = [band_sum(a, "predicted_bb") / band_sum(0, "predicted_bb") for a in angles]
-    fig, ax = plt.subplots(figsize=(6, 4))
+    def first(angle, col):
+        return next(r[col] for r in rows if r["pbr_angle_deg"] == angle)
+
+    fig, (ax, ax_r) = plt.subplots(1, 2, figsize=(10, 4))
     ax.semilogy(angles, measured, "o", label="simulation (leaked power)")
     ax.semilogy(angles, closed, "k--", label="h_n prediction")
     ax.set_xlabel("boresight rotation angle [deg]")
     ax.set_ylabel("residual power / no rotation")
     ax.legend()
+    ax_r.semilogy(angles, [abs(first(a, "delta_r")) for a in angles], "o", label="simulation")
+    ax_r.semilogy(angles, [abs(first(a, "predicted_delta_r")) for a in angles], "k--",
+                  label="h_n prediction")
+    ax_r.set_xlabel("boresight rotation angle [deg]")
+    ax_r.set_ylabel(rf"$|\Delta r|$ ({rbias.R_RANGE[0]} <= ell <= {rbias.R_RANGE[1]})")
+    ax_r.legend()
     fig.tight_layout()
     fig.savefig(f"{path_stem}.png", dpi=110)
     plt.close(fig)
