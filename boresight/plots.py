@@ -2,6 +2,7 @@
 curves, log axes; and survey footprints over a Galactic-emission proxy."""
 import contextlib
 import io
+import warnings
 
 import healpy as hp
 import matplotlib
@@ -70,10 +71,9 @@ def footprint_figure(mask, title, path_stem):
     nside = hp.npix2nside(mask.size)
     proxy = np.log10(galactic_proxy(nside))
     shown = np.where(mask > 0, proxy.max() + 0.3, proxy)
-    fig = plt.figure(figsize=(8, 4.5))
-    hp.mollview(shown, fig=fig.number, title=title, cmap="magma", cbar=True,
-                unit="log10 Galactic proxy (footprint in white)", min=proxy.min(),
-                max=proxy.max() + 0.3)
+    hp.mollview(shown, title=title, cmap="magma", cbar=True, min=proxy.min(),
+                unit="log10 Galactic proxy (footprint in white)", max=proxy.max() + 0.3)
+    fig = plt.gcf()
     with contextlib.redirect_stdout(io.StringIO()):  # healpy prints the grid spacing
         hp.graticule(dpar=30, dmer=60, alpha=0.4)
     for ext in ("png", "pdf"):
@@ -84,8 +84,10 @@ def footprint_figure(mask, title, path_stem):
 def map_figure(maps, names, path):
     """Quick-look Mollweide panels of maps (UNSEEN shown grey)."""
     fig = plt.figure(figsize=(5 * len(maps), 3.2))
-    for i, (m, name) in enumerate(zip(maps, names)):
-        hp.mollview(m, fig=fig.number, sub=(1, len(maps), i + 1), title=name, unit=r"$\mu$K")
+    with warnings.catch_warnings():  # healpy warns when it draws panels into an existing figure
+        warnings.simplefilter("ignore", UserWarning)
+        for i, (m, name) in enumerate(zip(maps, names)):
+            hp.mollview(m, fig=fig.number, sub=(1, len(maps), i + 1), title=name, unit=r"$\mu$K")
     fig.savefig(path, dpi=100)
     plt.close(fig)
 

@@ -120,8 +120,9 @@ def simulate(study, out_dir, force=False, log=print, progress=False):
             for name, m in (("maps_systematics.fits", sim), ("maps_reference.fits", ref)):
                 io.write_maps(stage / name, [m.q, m.u, m.hits, m.rcond],
                               ["Q", "U", "HITS", "RCOND"])
-            plots.map_figure([sim.q - ref.q, sim.u - ref.u], ["Q spurious", "U spurious"],
-                             stage / "maps_spurious.png")
+            both = sim.valid & ref.valid
+            spurious = [np.where(both, a - b, hp.UNSEEN) for a, b in ((sim.q, ref.q), (sim.u, ref.u))]
+            plots.map_figure(spurious, ["Q spurious", "U spurious"], stage / "maps_spurious.png")
         io.write_csv(stage / "spectra.csv", rows, columns)
         plots.spectrum_figure(rows, study, stage / "residual")
         io.write_json(stage / "manifest.json",
