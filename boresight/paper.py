@@ -157,7 +157,8 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
             with timer(f"{exp.name}: Q = U = 0, {label}"):
                 sim0 = engine.simulate(unpolarised, scan, systematics=exp.systematics, pixels=obs,
                                        **sim_kw)
-                res.zero_qu[angle] = spectra.residual_bb(sim0.qu, zero, mask, lmax_s, cfg.nthreads)
+                res.zero_qu[angle] = spectra.residual_bb(sim0.qu, zero, mask, lmax_s, cfg.nthreads,
+                                                         b_ref=np.zeros_like(b_ref))
     return res
 
 

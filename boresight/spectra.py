@@ -57,9 +57,9 @@ def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 
-def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0):
+def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
     """C_BB(sys) - C_BB(ref) [muK^2] of masked Q, U maps (see residual_bb_parts)."""
-    return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads))
+    return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads, b_ref))
 
 
 def linear_bins(lmin, lmax, width):
