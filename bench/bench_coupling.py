@@ -3,6 +3,7 @@
 NaMaster runs only where pymaster is importable (it ships no wheels). Usage:
 python bench/bench_coupling.py [NSIDE LMAX ...pairs]
 """
+
 import sys
 import time
 

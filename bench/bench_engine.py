@@ -5,6 +5,7 @@ Every configuration runs in its own process so that its peak RSS is its own. The
 what a first script would do (healpy.get_interp_val per field, numpy.bincount per pixel) on the
 same work, timed on a slice of the sky. Usage: python bench/bench_engine.py [NSIDE ...]
 """
+
 import json
 import subprocess
 import sys
@@ -53,14 +54,23 @@ print(json.dumps(dict(nside=nside, t_engine=t_engine, rate=samples / t_engine,
 
 
 def main(nsides, backend="cpu"):
-    print(f"{'Nside':>6} {'engine s':>9} {'det-samples/s':>14} {'naive /s':>10} {'speed-up':>9} "
-          f"{'peak RSS GiB':>13}")
+    print(
+        f"{'Nside':>6} {'engine s':>9} {'det-samples/s':>14} {'naive /s':>10} {'speed-up':>9} "
+        f"{'peak RSS GiB':>13}"
+    )
     for nside in nsides:
-        out = subprocess.run([sys.executable, "-c", CHILD, str(nside), backend],
-                             capture_output=True, text=True, check=True)
+        out = subprocess.run(
+            [sys.executable, "-c", CHILD, str(nside), backend],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         r = json.loads(out.stdout.strip().splitlines()[-1])
-        print(f"{r['nside']:>6} {r['t_engine']:>9.2f} {r['rate']:>14.3e} {r['naive_rate']:>10.2e} "
-              f"{r['rate'] / r['naive_rate']:>9.0f} {r['rss_gib']:>13.2f}", flush=True)
+        print(
+            f"{r['nside']:>6} {r['t_engine']:>9.2f} {r['rate']:>14.3e} {r['naive_rate']:>10.2e} "
+            f"{r['rate'] / r['naive_rate']:>9.0f} {r['rss_gib']:>13.2f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ the whole engine.simulate call (host solve and transfers included). Bandwidth co
 kernel must move at least: hit arrays written and read, four interpolation neighbours, outputs.
 Usage: python bench/bench_gpu.py [NSIDE ...]
 """
+
 import sys
 import time
 
@@ -26,7 +27,7 @@ def core(s, scan, nside, chunk):
     start, stop = cp.cuda.Event(), cp.cuda.Event()
     total, nhit = 0.0, 0
     for s0 in range(0, pixels.size, chunk):
-        pix = pixels[s0:s0 + chunk]
+        pix = pixels[s0 : s0 + chunk]
         n_phi, rng_rad, centre = scan.per_pixel(pix, pixels.size)
         offsets = np.zeros(pix.size + 1, dtype=np.int64)
         np.cumsum(n_phi, out=offsets[1:])
@@ -56,11 +57,15 @@ def main(nsides):
         # neighbours (4 x 24 B, mostly cached); per pixel: offsets and 5 sums (48 B).
         nbytes = nhit * (48 + 48 + 96) + 12 * nside**2 * 48
         t0 = time.perf_counter()
-        engine.simulate(s, scan, systematics=instrument.PAPER_GAIN, backend="gpu",
-                        chunk_pixels=chunk)
+        engine.simulate(
+            s, scan, systematics=instrument.PAPER_GAIN, backend="gpu", chunk_pixels=chunk
+        )
         t_sim = time.perf_counter() - t0
-        print(f"{nside:>6} {t_core:>8.3f} {samples / t_core:>14.3e} {nbytes / t_core / 1e9:>7.0f} "
-              f"{t_sim:>11.2f}", flush=True)
+        print(
+            f"{nside:>6} {t_core:>8.3f} {samples / t_core:>14.3e} {nbytes / t_core / 1e9:>7.0f} "
+            f"{t_sim:>11.2f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

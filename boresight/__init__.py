@@ -4,6 +4,7 @@ The pipeline, one module per stage: cosmology -> sky -> scan -> instrument -> en
 tod_gpu kernels) -> mapmaking -> masks -> spectra / coupling -> predict -> paper / report -> plots
 -> studies / cli.
 """
+
 __version__ = "0.1.0"
 
 from .engine import scan_moments, simulate  # noqa: E402
@@ -11,5 +12,16 @@ from .instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics  # n
 from .scan import SyntheticScan, paper_scan  # noqa: E402
 from .sky import Sky, SkyConfig, make_sky  # noqa: E402
 
-__all__ = ["simulate", "scan_moments", "Instrument", "Systematics", "PAPER_GAIN",
-           "PAPER_POINTING", "SyntheticScan", "paper_scan", "Sky", "SkyConfig", "make_sky"]
+__all__ = [
+    "simulate",
+    "scan_moments",
+    "Instrument",
+    "Systematics",
+    "PAPER_GAIN",
+    "PAPER_POINTING",
+    "SyntheticScan",
+    "paper_scan",
+    "Sky",
+    "SkyConfig",
+    "make_sky",
+]

@@ -3,6 +3,7 @@
 Exit codes: 0 success, 1 a claim of `reproduce` not reproduced, 2 bad input (config, arguments,
 existing output directory); nothing is written when the input is bad.
 """
+
 import argparse
 import logging
 import sys
@@ -30,8 +31,10 @@ def _parser():
     r.add_argument("--out", default="boresight-paper", help="output directory")
     r.add_argument("--force", action="store_true", help="overwrite an existing output directory")
 
-    for name, text in (("simulate", "simulate a study from a TOML config"),
-                       ("scan-stats", "h_n, hit, N_phi and R maps of a config's scan")):
+    for name, text in (
+        ("simulate", "simulate a study from a TOML config"),
+        ("scan-stats", "h_n, hit, N_phi and R maps of a config's scan"),
+    ):
         s = sub.add_parser(name, help=text)
         s.add_argument("config")
         s.add_argument("--out", required=True, help="output directory")
@@ -39,8 +42,10 @@ def _parser():
     sw = sub.add_parser("sweep", help="a grid or list of studies, locally or on a Dask cluster")
     sw.add_argument("sweep_file")
     sw.add_argument("--out", required=True, help="output directory (re-running resumes it)")
-    sw.add_argument("--scheduler", help="Dask scheduler address, or 'serial' for no Dask "
-                    "(default: a local cluster)")
+    sw.add_argument(
+        "--scheduler",
+        help="Dask scheduler address, or 'serial' for no Dask (default: a local cluster)",
+    )
     sw.add_argument("--workers", type=int, default=2, help="local cluster worker processes")
     sw.add_argument("--force", action="store_true", help="replace a different sweep in --out")
     pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
@@ -58,8 +63,14 @@ def _study_config(args):
         raise ValueError(f"--nside must be a power of two >= 16, got {nside}")
     if not 2 <= lmax <= 3 * nside - 1:
         raise ValueError(f"--lmax must be in [2, {3 * nside - 1}], got {lmax}")
-    return paper.StudyConfig(nside=nside, lmax=lmax, seed=args.seed, evaluation=args.evaluation,
-                             backend=args.backend, nthreads=args.threads)
+    return paper.StudyConfig(
+        nside=nside,
+        lmax=lmax,
+        seed=args.seed,
+        evaluation=args.evaluation,
+        backend=args.backend,
+        nthreads=args.threads,
+    )
 
 
 def main(argv=None):
@@ -69,17 +80,29 @@ def main(argv=None):
     progress = sys.stderr.isatty() and not args.quiet
     try:
         if args.command == "reproduce":
-            claims = studies.reproduce(args.out, _study_config(args), args.force, log.info,
-                                       progress)
+            claims = studies.reproduce(
+                args.out, _study_config(args), args.force, log.info, progress
+            )
             bad = [c for c in claims if not c.reproduced]
-            log.info("%d of %d claims reproduced; see %s/report.md", len(claims) - len(bad),
-                     len(claims), args.out)
+            log.info(
+                "%d of %d claims reproduced; see %s/report.md",
+                len(claims) - len(bad),
+                len(claims),
+                args.out,
+            )
             return 1 if bad else 0
         if args.command == "sweep":
             from . import sweep
 
-            rows = sweep.run_sweep(args.sweep_file, args.out, args.scheduler, args.workers,
-                                   args.force, log.info, progress)
+            rows = sweep.run_sweep(
+                args.sweep_file,
+                args.out,
+                args.scheduler,
+                args.workers,
+                args.force,
+                log.info,
+                progress,
+            )
             sweep.continuum_figure(rows, f"{args.out}/suppression")
             log.info("%d rows in %s/results.csv", len(rows), args.out)
             return 0
@@ -92,6 +115,7 @@ def main(argv=None):
         else:
             if args.out:
                 from . import io
+
                 io.check_output_dir(args.out, args.force)
             rows = studies.predict_study(study, log.info)
             if args.out:

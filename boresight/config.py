@@ -3,6 +3,7 @@
 A config is validated whole before any work starts: unknown sections or keys, wrong types, values
 out of range and missing files raise :class:`ConfigError` naming the key and what is allowed.
 """
+
 import os
 from dataclasses import dataclass
 
@@ -27,27 +28,49 @@ NUM = (int, float)
 LIST_OR_NUM = (int, float, list)
 #: section -> key -> (allowed types, description of allowed values)
 SCHEMA = {
-    "sky": {"nside": (int, "a power of two, 1..8192"), "lmax": (int, "2..3*nside-1"),
-            "fwhm_arcmin": (NUM, ">= 0"), "seed": (int, ">= 0"), "r": (NUM, ">= 0"),
-            "a_lens": (NUM, ">= 0"), "polarised": (bool, "true or false"),
-            "maps": (str, "a FITS file with I, Q, U maps (RING)")},
-    "scan": {"n_phi": ((int, str), "an integer >= 1 or a FITS map"),
-             "range_rad": ((int, float, str), "a number in [0, 2 pi] or a FITS map"),
-             "centre_rad": ((int, float, str), "a number or a FITS map"),
-             "rotations_deg": (list, "a non-empty list of angles [deg]"),
-             "in_pixel": (str, "'random' or 'centre'"), "seed": (int, ">= 0")},
+    "sky": {
+        "nside": (int, "a power of two, 1..8192"),
+        "lmax": (int, "2..3*nside-1"),
+        "fwhm_arcmin": (NUM, ">= 0"),
+        "seed": (int, ">= 0"),
+        "r": (NUM, ">= 0"),
+        "a_lens": (NUM, ">= 0"),
+        "polarised": (bool, "true or false"),
+        "maps": (str, "a FITS file with I, Q, U maps (RING)"),
+    },
+    "scan": {
+        "n_phi": ((int, str), "an integer >= 1 or a FITS map"),
+        "range_rad": ((int, float, str), "a number in [0, 2 pi] or a FITS map"),
+        "centre_rad": ((int, float, str), "a number or a FITS map"),
+        "rotations_deg": (list, "a non-empty list of angles [deg]"),
+        "in_pixel": (str, "'random' or 'centre'"),
+        "seed": (int, ">= 0"),
+    },
     "instrument": {"pair_angles_deg": (list, "a non-empty list of pair angles [deg]")},
-    "systematics": {"dg": (LIST_OR_NUM, "a number or one per pair"),
-                    "rho_arcmin": (LIST_OR_NUM, ">= 0, a number or one per pair"),
-                    "chi_deg": (LIST_OR_NUM, "a number or one per pair"),
-                    "leak": (LIST_OR_NUM, "a number or one per pair"),
-                    "leak_template": (str, "a FITS map")},
-    "mask": {"survey": (str, "'deep', 'wide' or 'none'"), "file": (str, "a FITS mask"),
-             "apodize_fwhm_deg": (NUM, "> 0")},
-    "run": {"evaluation": (str, f"one of {METHODS}"), "backend": (str, "'cpu' or 'gpu'"),
-            "chunk_pixels": (int, ">= 1"), "nthreads": (int, ">= 0")},
-    "output": {"lmax": (int, "2..3*nside-1"), "n_bands": (int, ">= 1"), "lmin": (int, ">= 2"),
-               "maps": (bool, "true or false")},
+    "systematics": {
+        "dg": (LIST_OR_NUM, "a number or one per pair"),
+        "rho_arcmin": (LIST_OR_NUM, ">= 0, a number or one per pair"),
+        "chi_deg": (LIST_OR_NUM, "a number or one per pair"),
+        "leak": (LIST_OR_NUM, "a number or one per pair"),
+        "leak_template": (str, "a FITS map"),
+    },
+    "mask": {
+        "survey": (str, "'deep', 'wide' or 'none'"),
+        "file": (str, "a FITS mask"),
+        "apodize_fwhm_deg": (NUM, "> 0"),
+    },
+    "run": {
+        "evaluation": (str, f"one of {METHODS}"),
+        "backend": (str, "'cpu' or 'gpu'"),
+        "chunk_pixels": (int, ">= 1"),
+        "nthreads": (int, ">= 0"),
+    },
+    "output": {
+        "lmax": (int, "2..3*nside-1"),
+        "n_bands": (int, ">= 1"),
+        "lmin": (int, ">= 2"),
+        "maps": (bool, "true or false"),
+    },
 }
 
 
@@ -75,14 +98,16 @@ def _check_types(raw):
             raise ConfigError(f"[{section}] must be a table")
         for key, value in body.items():
             if key not in SCHEMA[section]:
-                raise ConfigError(f"unknown key {section}.{key}; allowed: "
-                                  f"{sorted(SCHEMA[section])}")
+                raise ConfigError(
+                    f"unknown key {section}.{key}; allowed: {sorted(SCHEMA[section])}"
+                )
             types, allowed = SCHEMA[section][key]
             types = types if isinstance(types, tuple) else (types,)
             bad_bool = isinstance(value, bool) and bool not in types
             if bad_bool or not isinstance(value, types):
-                raise ConfigError(f"{section}.{key} = {value!r} has the wrong type; allowed: "
-                                  f"{allowed}")
+                raise ConfigError(
+                    f"{section}.{key} = {value!r} has the wrong type; allowed: {allowed}"
+                )
 
 
 def _file(section, key, path, base):
@@ -138,8 +163,10 @@ def parse_study(raw, base="."):
     for key in ("n_phi", "range_rad", "centre_rad"):
         v = np.asarray(getattr(scan, key))
         if v.ndim == 1 and v.size != 12 * sky_cfg.nside**2:
-            raise ConfigError(f"scan.{key} map has {v.size} pixels; sky.nside = {sky_cfg.nside} "
-                              f"needs {12 * sky_cfg.nside**2}")
+            raise ConfigError(
+                f"scan.{key} map has {v.size} pixels; sky.nside = {sky_cfg.nside} "
+                f"needs {12 * sky_cfg.nside**2}"
+            )
     inst_raw = dict(raw.get("instrument", {}))
     if "pair_angles_deg" in inst_raw:
         inst_raw["pair_angles_deg"] = tuple(inst_raw["pair_angles_deg"])
@@ -148,8 +175,11 @@ def parse_study(raw, base="."):
     template = sys_raw.pop("leak_template", None)
     if template is not None:
         template = _file("systematics", "leak_template", template, base)
-    systematics = _build("systematics", Systematics,
-                         {k: tuple(v) if isinstance(v, list) else v for k, v in sys_raw.items()})
+    systematics = _build(
+        "systematics",
+        Systematics,
+        {k: tuple(v) if isinstance(v, list) else v for k, v in sys_raw.items()},
+    )
     try:
         systematics.per_pair(instrument.n_pairs)
     except ValueError as err:
@@ -163,19 +193,28 @@ def parse_study(raw, base="."):
         raise ConfigError(f"mask.survey = {mask['survey']!r}; allowed: 'deep', 'wide', 'none'")
     if mask.get("apodize_fwhm_deg", 1) <= 0:
         raise ConfigError("mask.apodize_fwhm_deg must be > 0")
-    run = {"evaluation": "interp", "backend": "cpu", "chunk_pixels": None, "nthreads": 0,
-           **raw.get("run", {})}
+    run = {
+        "evaluation": "interp",
+        "backend": "cpu",
+        "chunk_pixels": None,
+        "nthreads": 0,
+        **raw.get("run", {}),
+    }
     if run["evaluation"] not in METHODS:
         raise ConfigError(f"run.evaluation = {run['evaluation']!r}; allowed: {METHODS}")
     if run["backend"] not in ("cpu", "gpu"):
         raise ConfigError(f"run.backend = {run['backend']!r}; allowed: 'cpu', 'gpu'")
     if (run["chunk_pixels"] is not None and run["chunk_pixels"] < 1) or run["nthreads"] < 0:
         raise ConfigError("run.chunk_pixels must be >= 1 and run.nthreads >= 0")
-    output = {"lmax": min(sky_cfg.lmax, 2 * sky_cfg.nside), "n_bands": 14, "lmin": 20,
-              "maps": True, **raw.get("output", {})}
+    output = {
+        "lmax": min(sky_cfg.lmax, 2 * sky_cfg.nside),
+        "n_bands": 14,
+        "lmin": 20,
+        "maps": True,
+        **raw.get("output", {}),
+    }
     if not 2 <= output["lmax"] <= 3 * sky_cfg.nside - 1:
         raise ConfigError(f"output.lmax = {output['lmax']}; allowed: 2..{3 * sky_cfg.nside - 1}")
     if output["n_bands"] < 1 or not 2 <= output["lmin"] < output["lmax"]:
         raise ConfigError("output.n_bands must be >= 1 and 2 <= output.lmin < output.lmax")
-    return Study(sky_cfg, sky_maps, scan, instrument, systematics, template, mask, run, output,
-                 raw)
+    return Study(sky_cfg, sky_maps, scan, instrument, systematics, template, mask, run, output, raw)

@@ -1,4 +1,5 @@
 """Physical and angular constants used across boresight (angles in radians inside the code)."""
+
 import numpy as np
 
 DEG = np.pi / 180.0  #: one degree in radians

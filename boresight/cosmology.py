@@ -4,6 +4,7 @@ Spectra are C_ell in muK^2 from ell = 0 (no ell(ell+1)/2pi factor). The lensing 
 A_lens and the tensor spectra (computed at r = 1, n_t = 0) by r, so any (r, A_lens) is a linear
 combination of the cached arrays. ``scripts/make_spectra.py`` regenerates the cached file.
 """
+
 from dataclasses import dataclass
 from importlib import resources
 
@@ -42,12 +43,19 @@ class Spectra:
             raise ValueError(f"r and a_lens must be >= 0, got r={r}, a_lens={a_lens}")
         lmax = self.lmax if lmax is None else lmax
         if lmax > self.lmax:
-            raise ValueError(f"lmax={lmax} exceeds the spectra's lmax={self.lmax}; "
-                             "compute them with boresight.cosmology.compute_spectra(lmax=...)")
+            raise ValueError(
+                f"lmax={lmax} exceeds the spectra's lmax={self.lmax}; "
+                "compute them with boresight.cosmology.compute_spectra(lmax=...)"
+            )
         s = slice(0, lmax + 1)
-        return np.array([self.tt[s] + r * self.tt_tensor[s], self.ee[s] + r * self.ee_tensor[s],
-                         a_lens * self.bb_lens[s] + r * self.bb_tensor[s],
-                         self.te[s] + r * self.te_tensor[s]])
+        return np.array(
+            [
+                self.tt[s] + r * self.tt_tensor[s],
+                self.ee[s] + r * self.ee_tensor[s],
+                a_lens * self.bb_lens[s] + r * self.bb_tensor[s],
+                self.te[s] + r * self.te_tensor[s],
+            ]
+        )
 
     def bb(self, r=0.0, a_lens=0.0):
         """B-mode spectrum [muK^2] alone: r * tensor + A_lens * lensing (the reference curves)."""
@@ -69,9 +77,16 @@ def compute_spectra(lmax=6000, **cosmology):
     lensed = res.get_lensed_scalar_cls(lmax=lmax, CMB_unit="muK", raw_cl=True)
     tensor = res.get_tensor_cls(lmax=lmax, CMB_unit="muK", raw_cl=True)
     # CAMB column order: TT, EE, BB, TE.
-    return Spectra(tt=lensed[:, 0], ee=lensed[:, 1], te=lensed[:, 3], bb_lens=lensed[:, 2],
-                   tt_tensor=tensor[:, 0], ee_tensor=tensor[:, 1], te_tensor=tensor[:, 3],
-                   bb_tensor=tensor[:, 2])
+    return Spectra(
+        tt=lensed[:, 0],
+        ee=lensed[:, 1],
+        te=lensed[:, 3],
+        bb_lens=lensed[:, 2],
+        tt_tensor=tensor[:, 0],
+        ee_tensor=tensor[:, 1],
+        te_tensor=tensor[:, 3],
+        bb_tensor=tensor[:, 2],
+    )
 
 
 def save_spectra(spectra, path):

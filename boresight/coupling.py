@@ -1,10 +1,11 @@
 """Pseudo-C_ell mode-coupling matrices of a mask (spin 0 and spin 2).
 
 M_{l l'} = (2 l' + 1) / (4 pi) sum_L (2 L + 1) W_L (l l' L; s -s 0)^2 x parity factor, with W_L the
-mask's power spectrum, so that <pseudo C_l> = sum_l' M_{l l'} C_l'. The Wigner-3j sums run in ducc0's
-``coupling_matrix_rect`` (the routine NaMaster 2 uses); for spin 2 the even-parity part is
-M^{EE,EE} = M^{BB,BB} and the odd part M^{EE,BB} = M^{BB,EE} (Brown, Castro & Taylor 2005).
+mask's power spectrum, so that <pseudo C_l> = sum_l' M_{l l'} C_l'. The Wigner-3j sums run in
+ducc0's ``coupling_matrix_rect`` (the routine NaMaster 2 uses); for spin 2 the even-parity part
+is M^{EE,EE} = M^{BB,BB} and the odd part M^{EE,BB} = M^{BB,EE} (Brown, Castro & Taylor 2005).
 """
+
 import os
 from dataclasses import dataclass
 
@@ -27,7 +28,7 @@ class Coupling:
         return self.tt.shape[0] - 1
 
     def pseudo_bb(self, cl_bb, cl_ee):
-        """Expected pseudo-C_ell BB of full-sky (BB, EE) spectra: M^{BB,BB} C^BB + M^{BB,EE} C^EE."""
+        """Expected pseudo-C_BB of full-sky (BB, EE) spectra: M^{BB,BB} C^BB + M^{BB,EE} C^EE."""
         n = self.lmax + 1
         return self.even @ cl_bb[:n] + self.odd @ cl_ee[:n]
 

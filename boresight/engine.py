@@ -4,6 +4,7 @@
 hits, detector-B pointing, sky evaluation, pair differences and per-pixel normal equations; memory
 is bounded by the chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
 """
+
 import contextlib
 
 import healpy as hp
@@ -25,9 +26,11 @@ def get_backend(name):
     """The kernel module of a backend: 'cpu' (numba) or 'gpu' (CuPy)."""
     if name == "cpu":
         from . import tod_cpu
+
         return tod_cpu
     if name == "gpu":
         from . import tod_gpu
+
         return tod_gpu
     raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
 
@@ -62,21 +65,34 @@ def _chunks(pixels, chunk_pixels, progress, label):
         raise ValueError(f"chunk_pixels must be >= 1, got {chunk_pixels}")
     starts = range(0, pixels.size, chunk_pixels)
     for s in tqdm(starts, desc=label, unit="chunk", disable=not progress, leave=False):
-        yield s, pixels[s:s + chunk_pixels]
+        yield s, pixels[s : s + chunk_pixels]
 
 
 def _hits(kernels, scan, nside, chunk):
     n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
     offsets = np.zeros(chunk.size + 1, dtype=np.int64)
     np.cumsum(n_phi, out=offsets[1:])
-    theta, phi, psi = kernels.generate_hits(scan.seed, nside, chunk, offsets, rng_rad, centre,
-                                            scan.in_pixel == "centre")
+    theta, phi, psi = kernels.generate_hits(
+        scan.seed, nside, chunk, offsets, rng_rad, centre, scan.in_pixel == "centre"
+    )
     return offsets, theta, phi, psi
 
 
-def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, pixels=None,
-             evaluation="interp", leak_template=None, chunk_pixels=None,
-             nthreads=0, backend="cpu", rcond_min=RCOND_MIN, progress=False):
+def simulate(
+    sky,
+    scan,
+    instrument=Instrument(),
+    systematics=Systematics(),
+    *,
+    pixels=None,
+    evaluation="interp",
+    leak_template=None,
+    chunk_pixels=None,
+    nthreads=0,
+    backend="cpu",
+    rcond_min=RCOND_MIN,
+    progress=False,
+):
     """Simulate the pair-differenced TOD of ``scan`` over ``sky`` and make Q, U maps.
 
     sky: :class:`boresight.sky.Sky`; scan: :class:`boresight.scan.SyntheticScan`; pixels: RING
@@ -105,13 +121,15 @@ def simulate(sky, scan, instrument=Instrument(), systematics=Systematics(), *, p
             values_a = fields_at(kernels, fields, stack, theta, phi, evaluation, nthreads)
             if systematics.has_pointing:
                 tb, pb = kernels.offset_points(theta, phi, psi, rot, ang, rho, chi)
-                values_b = fields_at(kernels, fields, stack, tb.ravel(), pb.ravel(), evaluation,
-                                     nthreads)
+                values_b = fields_at(
+                    kernels, fields, stack, tb.ravel(), pb.ravel(), evaluation, nthreads
+                )
                 values_b = values_b.reshape((fields.n_fields,) + tb.shape)
             else:
                 values_b = np.empty((fields.n_fields, 0, rot.size, ang.size))
-            normal = kernels.to_host(kernels.accumulate(offsets, psi, values_a, values_b, rot, ang,
-                                                        dg, leak))
+            normal = kernels.to_host(
+                kernels.accumulate(offsets, psi, values_a, values_b, rot, ang, dg, leak)
+            )
             q[chunk], u[chunk], rcond[chunk] = solve(normal, rcond_min)
             ncross[chunk] = np.diff(kernels.to_host(offsets)) * rot.size
     return Maps(q=q, u=u, hits=ncross, rcond=rcond)
@@ -132,16 +150,28 @@ def _sky_fields(sky, systematics, template, evaluation, nthreads):
         return SkyFields(sky, sky.maps[0], sky.alm[0])
     template = np.asarray(template, dtype=np.float64)
     if template.shape != (12 * sky.nside**2,):
-        raise ValueError(f"leak_template must be a map of {12 * sky.nside**2} pixels, "
-                         f"got shape {template.shape}")
+        raise ValueError(
+            f"leak_template must be a map of {12 * sky.nside**2} pixels, got shape {template.shape}"
+        )
     if not np.isfinite(template).all():
         raise ValueError("leak_template contains NaN or infinite values")
-    alm = harmonics.map2alm(template, sky.lmax, nthreads=nthreads) if evaluation == "exact" else None
+    alm = (
+        harmonics.map2alm(template, sky.lmax, nthreads=nthreads) if evaluation == "exact" else None
+    )
     return SkyFields(sky, template, alm)
 
 
-def scan_moments(scan, nside, n_max=4, *, pixels=None, chunk_pixels=None,
-                 nthreads=0, backend="cpu", progress=False):
+def scan_moments(
+    scan,
+    nside,
+    n_max=4,
+    *,
+    pixels=None,
+    chunk_pixels=None,
+    nthreads=0,
+    backend="cpu",
+    progress=False,
+):
     """h_n = <exp(i n psi)> over each pixel's hits (rotations included), n = 0..n_max.
 
     Returns (h, crossings): complex (n_max + 1, npix) (0 where unobserved) and int (npix,).
@@ -155,7 +185,8 @@ def scan_moments(scan, nside, n_max=4, *, pixels=None, chunk_pixels=None,
     with threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "scan moments"):
             offsets, _, _, psi = _hits(kernels, scan, nside, chunk)
-            h[:, chunk] = kernels.to_host(kernels.moments(offsets, psi, scan.rotations_rad, n_max)).T
+            h[:, chunk] = kernels.to_host(
+                kernels.moments(offsets, psi, scan.rotations_rad, n_max)
+            ).T
             ncross[chunk] = np.diff(kernels.to_host(offsets)) * len(scan.rotations_deg)
     return h, ncross
-

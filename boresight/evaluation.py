@@ -4,6 +4,7 @@
 alm at each point with ducc0's synthesis_general (accuracy ``EXACT_EPSILON``), which keeps the
 second-order pointing terms that interpolation smears.
 """
+
 import numpy as np
 
 from . import harmonics
@@ -35,11 +36,14 @@ class SkyFields:
         if method == "interp":
             return interpolate_interleaved(self.stack, self.nside, theta, phi)
         out = np.empty((self.n_fields, theta.size))
-        out[0] = harmonics.evaluate(self.alm[0], theta, phi, epsilon=EXACT_EPSILON,
-                                    nthreads=nthreads)
-        out[1:3] = harmonics.evaluate(self.alm[1:], theta, phi, spin=2, epsilon=EXACT_EPSILON,
-                                      nthreads=nthreads)
+        out[0] = harmonics.evaluate(
+            self.alm[0], theta, phi, epsilon=EXACT_EPSILON, nthreads=nthreads
+        )
+        out[1:3] = harmonics.evaluate(
+            self.alm[1:], theta, phi, spin=2, epsilon=EXACT_EPSILON, nthreads=nthreads
+        )
         if self.n_fields > 3:
-            out[3] = harmonics.evaluate(self.template_alm, theta, phi, epsilon=EXACT_EPSILON,
-                                        nthreads=nthreads)
+            out[3] = harmonics.evaluate(
+                self.template_alm, theta, phi, epsilon=EXACT_EPSILON, nthreads=nthreads
+            )
         return out

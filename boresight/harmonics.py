@@ -1,9 +1,10 @@
 """Spherical-harmonic transforms on HEALPix RING maps through ducc0 (healpy's alm ordering).
 
-Polarisation follows healpy: spin-2 transforms take (E, B) alm and give (Q, U) in the HEALPix (COSMO)
-convention; ``map2alm`` mirrors healpy.map2alm with ``iter`` Jacobi iterations and no ring weights,
-so that spectra agree with healpy.anafast.
+Polarisation follows healpy: spin-2 transforms take (E, B) alm and give (Q, U) in the HEALPix
+(COSMO) convention; ``map2alm`` mirrors healpy.map2alm with ``iter`` Jacobi iterations and no
+ring weights, so that spectra agree with healpy.anafast.
 """
+
 from functools import lru_cache
 
 import ducc0
@@ -31,15 +32,26 @@ def alm_lmax(nalm):
 def alm2map(alm, nside, spin=0, nthreads=0):
     """alm -> map. spin 0: alm (nalm,) -> (npix,); spin >= 1: alm (2, nalm) -> (2, npix)."""
     alm = np.atleast_2d(alm)
-    out = ducc0.sht.synthesis(alm=alm, lmax=alm_lmax(alm.shape[-1]), spin=spin,
-                              nthreads=nthreads, **healpix_geometry(nside))
+    out = ducc0.sht.synthesis(
+        alm=alm,
+        lmax=alm_lmax(alm.shape[-1]),
+        spin=spin,
+        nthreads=nthreads,
+        **healpix_geometry(nside),
+    )
     return out[0] if spin == 0 else out
 
 
 def alm2map_gradient(alm, nside, nthreads=0):
     """Gradient of a spin-0 field: (dT/dtheta, dT/dphi / sin theta) maps, shape (2, npix)."""
-    return ducc0.sht.synthesis(alm=np.atleast_2d(alm), lmax=alm_lmax(alm.shape[-1]), spin=1,
-                               mode="DERIV1", nthreads=nthreads, **healpix_geometry(nside))
+    return ducc0.sht.synthesis(
+        alm=np.atleast_2d(alm),
+        lmax=alm_lmax(alm.shape[-1]),
+        spin=1,
+        mode="DERIV1",
+        nthreads=nthreads,
+        **healpix_geometry(nside),
+    )
 
 
 def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
@@ -50,8 +62,10 @@ def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
     scale = 4 * np.pi / maps.shape[-1]
 
     def adjoint(m):
-        return ducc0.sht.adjoint_synthesis(map=m, lmax=lmax, spin=spin, nthreads=nthreads,
-                                           **geom) * scale
+        return (
+            ducc0.sht.adjoint_synthesis(map=m, lmax=lmax, spin=spin, nthreads=nthreads, **geom)
+            * scale
+        )
 
     alm = adjoint(maps)
     for _ in range(iterations):
@@ -70,8 +84,14 @@ def evaluate(alm, theta, phi, spin=0, epsilon=1e-12, nthreads=0):
     loc = np.empty((theta.size, 2))
     loc[:, 0] = theta
     loc[:, 1] = phi
-    out = ducc0.sht.synthesis_general(alm=alm, spin=spin, lmax=alm_lmax(alm.shape[-1]), loc=loc,
-                                      epsilon=epsilon, nthreads=nthreads)
+    out = ducc0.sht.synthesis_general(
+        alm=alm,
+        spin=spin,
+        lmax=alm_lmax(alm.shape[-1]),
+        loc=loc,
+        epsilon=epsilon,
+        nthreads=nthreads,
+    )
     return out[0] if spin == 0 else out
 
 
@@ -90,5 +110,5 @@ def alm2cl(alm1, alm2=None):
     cl = np.zeros(lmax + 1)
     cl += prod[: lmax + 1]  # m = 0
     ell = np.concatenate([np.arange(m, lmax + 1) for m in range(1, lmax + 1)])
-    cl += 2 * np.bincount(ell, weights=prod[lmax + 1:], minlength=lmax + 1)
+    cl += 2 * np.bincount(ell, weights=prod[lmax + 1 :], minlength=lmax + 1)
     return cl / (2 * np.arange(lmax + 1) + 1)

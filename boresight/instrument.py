@@ -12,6 +12,7 @@ where psi is the crossing angle of the hit. Systematics, per pair:
   +leak/2 and detector B -leak/2 times a template map (default: the sky's I), so the pair
   difference gains leak/2 * template, like a gain error with its own template.
 """
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,9 @@ class Instrument:
     def __post_init__(self):
         a = np.asarray(self.pair_angles_deg, dtype=np.float64)
         if a.ndim != 1 or a.size == 0 or not np.isfinite(a).all():
-            raise ValueError(f"pair_angles_deg must be a non-empty list, got {self.pair_angles_deg!r}")
+            raise ValueError(
+                f"pair_angles_deg must be a non-empty list, got {self.pair_angles_deg!r}"
+            )
         object.__setattr__(self, "pair_angles_deg", tuple(float(x) for x in a))
 
     @property
@@ -55,7 +58,9 @@ class Systematics:
         for name in ("dg", "rho_arcmin", "chi_deg", "leak"):
             v = np.asarray(getattr(self, name), dtype=np.float64)
             if v.ndim > 1 or not np.isfinite(v).all():
-                raise ValueError(f"{name} must be a finite scalar or list, got {getattr(self, name)!r}")
+                raise ValueError(
+                    f"{name} must be a finite scalar or list, got {getattr(self, name)!r}"
+                )
 
     def per_pair(self, n_pairs):
         """Arrays (dg, rho [rad], chi [rad], leak), each of length n_pairs."""
@@ -63,7 +68,9 @@ class Systematics:
         for name, unit in (("dg", 1.0), ("rho_arcmin", ARCMIN), ("chi_deg", DEG), ("leak", 1.0)):
             v = np.asarray(getattr(self, name), dtype=np.float64)
             if v.ndim == 1 and v.size != n_pairs:
-                raise ValueError(f"{name} has {v.size} entries but the instrument has {n_pairs} pairs")
+                raise ValueError(
+                    f"{name} has {v.size} entries but the instrument has {n_pairs} pairs"
+                )
             out.append(np.broadcast_to(v, (n_pairs,)).astype(np.float64) * unit)
         return out
 

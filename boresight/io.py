@@ -4,6 +4,7 @@ Every file is written to a temporary name beside its target and renamed into pla
 directory is built under a staging name and renamed at the end, so an interruption never leaves a
 half-written file or a half-filled output directory.
 """
+
 import contextlib
 import csv
 import json
@@ -15,10 +16,12 @@ from pathlib import Path
 import healpy as hp
 import numpy as np
 
-FITS_HEADER = [("POLCCONV", "COSMO", "Q/U polarisation convention (HEALPix)"),
-               ("COORDSYS", "C", "equatorial coordinates"),
-               ("TUNIT", "uK", "maps in micro-Kelvin CMB"),
-               ("CREATOR", "boresight", "")]
+FITS_HEADER = [
+    ("POLCCONV", "COSMO", "Q/U polarisation convention (HEALPix)"),
+    ("COORDSYS", "C", "equatorial coordinates"),
+    ("TUNIT", "uK", "maps in micro-Kelvin CMB"),
+    ("CREATOR", "boresight", ""),
+]
 
 
 @contextlib.contextmanager
@@ -39,9 +42,15 @@ def write_maps(path, maps, names, unit="uK"):
     """Write RING maps (nmap, npix) as a FITS table healpy.read_map reads, with units and
     conventions in the header; healpy.UNSEEN marks invalid pixels."""
     with atomic_path(path) as tmp:
-        hp.write_map(tmp, np.asarray(maps, dtype=np.float64), column_names=list(names),
-                     column_units=[unit] * len(names), extra_header=FITS_HEADER, overwrite=True,
-                     dtype=np.float64)
+        hp.write_map(
+            tmp,
+            np.asarray(maps, dtype=np.float64),
+            column_names=list(names),
+            column_units=[unit] * len(names),
+            extra_header=FITS_HEADER,
+            overwrite=True,
+            dtype=np.float64,
+        )
 
 
 def write_csv(path, rows, columns):

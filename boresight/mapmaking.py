@@ -4,6 +4,7 @@ Each pixel's normal matrix [[sum c^2, sum c s], [sum c s, sum s^2]] (c, s = cos,
 for (Q, U). Its reciprocal condition number rcond = lambda_min / lambda_max is kept; pixels with no
 hits or rcond < ``rcond_min`` are flagged invalid and set to healpy.UNSEEN, never filled.
 """
+
 from dataclasses import dataclass
 
 import healpy as hp

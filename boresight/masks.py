@@ -9,6 +9,7 @@ coordinates (the sky maps' frame):
 
 They are not official SO masks; they reproduce the paper's sky fractions and geometry.
 """
+
 import os
 
 import healpy as hp
@@ -23,7 +24,7 @@ FOOTPRINTS = {
 
 
 def footprint(ra_deg, dec_deg, galactic_cut_deg, nside):
-    """Binary RING mask of an RA/Dec box [deg] minus |b| < galactic_cut_deg, tested at pixel centres."""
+    """Binary RING mask of an RA/Dec box [deg] minus |b| < galactic_cut_deg (pixel centres)."""
     theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
     dec = 90.0 - theta / DEG
     ra = (phi / DEG + 180.0) % 360.0 - 180.0

@@ -4,6 +4,7 @@ partial boresight rotation, the analytic predictions, the reference curves and t
 ``run_study`` returns plain arrays per experiment; :mod:`boresight.report` turns them into the CSV,
 the computed verdicts and the report, :mod:`boresight.plots` into the figures.
 """
+
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -29,8 +30,15 @@ class Experiment:
 
 
 EXPERIMENTS = (
-    Experiment("pointing_wide", "wide", PAPER_POINTING, 180.0, (180.0, 179.0, 160.0), "a_lens",
-               (0.001, 0.05, 1.0)),
+    Experiment(
+        "pointing_wide",
+        "wide",
+        PAPER_POINTING,
+        180.0,
+        (180.0, 179.0, 160.0),
+        "a_lens",
+        (0.001, 0.05, 1.0),
+    ),
     Experiment("gain_deep", "deep", PAPER_GAIN, 90.0, (90.0, 89.0, 70.0), "r", (0.001, 0.01, 0.1)),
 )
 
@@ -105,24 +113,29 @@ def run_study(cfg=StudyConfig(), experiments=EXPERIMENTS, log=lambda msg: None, 
     """Run the paper's study; returns ({name: ExperimentResult}, {stage: seconds})."""
     timer = Timer(log)
     theory = load_spectra()
-    sky_cfg = sky.SkyConfig(nside=cfg.nside, lmax=cfg.lmax, fwhm_arcmin=cfg.fwhm_arcmin,
-                            seed=cfg.seed)
+    sky_cfg = sky.SkyConfig(
+        nside=cfg.nside, lmax=cfg.lmax, fwhm_arcmin=cfg.fwhm_arcmin, seed=cfg.seed
+    )
     with timer("sky"):
         the_sky = sky.make_sky(sky_cfg, theory, cfg.nthreads)
-        unpolarised = sky.Sky(alm=the_sky.alm * np.array([[1], [0], [0]]),
-                              maps=the_sky.maps * np.array([[1], [0], [0]]), nside=cfg.nside,
-                              lmax=cfg.lmax, fwhm_arcmin=cfg.fwhm_arcmin)
+        unpolarised = sky.Sky(
+            alm=the_sky.alm * np.array([[1], [0], [0]]),
+            maps=the_sky.maps * np.array([[1], [0], [0]]),
+            nside=cfg.nside,
+            lmax=cfg.lmax,
+            fwhm_arcmin=cfg.fwhm_arcmin,
+        )
     results = {}
     for exp in experiments:
-        results[exp.name] = _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer,
-                                            progress)
+        results[exp.name] = _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress)
     return results, timer.stages
 
 
 def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
     lmax_s = cfg.lmax_bands
-    sim_kw = dict(evaluation=cfg.evaluation, nthreads=cfg.nthreads, backend=cfg.backend,
-                  progress=progress)
+    sim_kw = dict(
+        evaluation=cfg.evaluation, nthreads=cfg.nthreads, backend=cfg.backend, progress=progress
+    )
     with timer(f"{exp.name}: mask and coupling"):
         mask = masks.survey_mask(exp.survey, cfg.nside)
         obs = mask > 0
@@ -131,8 +144,9 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
     res = ExperimentResult(exp, masks.fsky(mask))
     key = "r" if exp.reference == "r" else "a_lens"
     for value in exp.reference_values:
-        res.references[value] = predict.reference_bb(cp, theory, cfg.fwhm_arcmin, cfg.nside,
-                                                     **{key: value})
+        res.references[value] = predict.reference_bb(
+            cp, theory, cfg.fwhm_arcmin, cfg.nside, **{key: value}
+        )
     with timer(f"{exp.name}: reference (no systematic)"):
         ref = engine.simulate(the_sky, paper_scan(exp.survey, seed=cfg.seed), pixels=obs, **sim_kw)
         b_ref = spectra.masked_pol_alm(ref.qu, mask, lmax_s, cfg.nthreads)[1]
@@ -143,22 +157,34 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
         with timer(f"{exp.name}: {label}"):
             sim = engine.simulate(the_sky, scan, systematics=exp.systematics, pixels=obs, **sim_kw)
             res.cross[angle], res.auto[angle] = spectra.residual_bb_parts(
-                sim.qu, ref.qu, mask, lmax_s, cfg.nthreads, b_ref=b_ref)
-            h, _ = engine.scan_moments(scan, cfg.nside, pixels=obs, nthreads=cfg.nthreads,
-                                       backend=cfg.backend)
+                sim.qu, ref.qu, mask, lmax_s, cfg.nthreads, b_ref=b_ref
+            )
+            h, _ = engine.scan_moments(
+                scan, cfg.nside, pixels=obs, nthreads=cfg.nthreads, backend=cfg.backend
+            )
             res.predicted_cl[angle] = predict.residual_pseudo_bb(
-                h, mask, cp, exp.systematics, theory, cfg.fwhm_arcmin, field_cl=local)
+                h, mask, cp, exp.systematics, theory, cfg.fwhm_arcmin, field_cl=local
+            )
             if angle in (None, exp.ideal_deg):  # the map-level check needs no other angle
                 dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=cfg.nthreads) * obs
-                res.predicted_map[angle] = sum(spectra.residual_bb_parts(
-                    ref.qu + np.array([dp.real, dp.imag]), ref.qu, mask, lmax_s, cfg.nthreads,
-                    b_ref=b_ref))
+                res.predicted_map[angle] = sum(
+                    spectra.residual_bb_parts(
+                        ref.qu + np.array([dp.real, dp.imag]),
+                        ref.qu,
+                        mask,
+                        lmax_s,
+                        cfg.nthreads,
+                        b_ref=b_ref,
+                    )
+                )
         if angle in (None, exp.ideal_deg):
             with timer(f"{exp.name}: Q = U = 0, {label}"):
-                sim0 = engine.simulate(unpolarised, scan, systematics=exp.systematics, pixels=obs,
-                                       **sim_kw)
-                res.zero_qu[angle] = spectra.residual_bb(sim0.qu, zero, mask, lmax_s, cfg.nthreads,
-                                                         b_ref=np.zeros_like(b_ref))
+                sim0 = engine.simulate(
+                    unpolarised, scan, systematics=exp.systematics, pixels=obs, **sim_kw
+                )
+                res.zero_qu[angle] = spectra.residual_bb(
+                    sim0.qu, zero, mask, lmax_s, cfg.nthreads, b_ref=np.zeros_like(b_ref)
+                )
     return res
 
 
@@ -172,22 +198,49 @@ def tidy_rows(results, cfg):
             _, total = spectra.bin_spectrum(res.residual(angle), edges)
             _, auto = spectra.bin_spectrum(res.auto[angle], edges)
             _, pred = spectra.bin_spectrum(res.predicted_cl[angle], edges)
-            pmap = (spectra.bin_spectrum(res.predicted_map[angle], edges)[1]
-                    if angle in res.predicted_map else np.full(len(edges) - 1, np.nan))
+            pmap = (
+                spectra.bin_spectrum(res.predicted_map[angle], edges)[1]
+                if angle in res.predicted_map
+                else np.full(len(edges) - 1, np.nan)
+            )
             for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
-                rows.append(dict(
-                    experiment=name, pbr_angle_deg="" if angle is None else angle,
-                    ell_lo=int(lo), ell_hi=int(hi) - 1, residual_bb=total[i],
-                    residual_auto_bb=auto[i], residual_cross_bb=total[i] - auto[i],
-                    predicted_bb=pred[i], predicted_map_bb=pmap[i],
-                    reduction=base[i] / total[i] if total[i] != 0 else np.inf,
-                    nside=cfg.nside, lmax=cfg.lmax, seed=cfg.seed, evaluation=cfg.evaluation))
+                rows.append(
+                    dict(
+                        experiment=name,
+                        pbr_angle_deg="" if angle is None else angle,
+                        ell_lo=int(lo),
+                        ell_hi=int(hi) - 1,
+                        residual_bb=total[i],
+                        residual_auto_bb=auto[i],
+                        residual_cross_bb=total[i] - auto[i],
+                        predicted_bb=pred[i],
+                        predicted_map_bb=pmap[i],
+                        reduction=base[i] / total[i] if total[i] != 0 else np.inf,
+                        nside=cfg.nside,
+                        lmax=cfg.lmax,
+                        seed=cfg.seed,
+                        evaluation=cfg.evaluation,
+                    )
+                )
     return rows
 
 
-CSV_COLUMNS = ("experiment", "pbr_angle_deg", "ell_lo", "ell_hi", "residual_bb",
-               "residual_auto_bb", "residual_cross_bb", "predicted_bb", "predicted_map_bb",
-               "reduction", "nside", "lmax", "seed", "evaluation")
+CSV_COLUMNS = (
+    "experiment",
+    "pbr_angle_deg",
+    "ell_lo",
+    "ell_hi",
+    "residual_bb",
+    "residual_auto_bb",
+    "residual_cross_bb",
+    "predicted_bb",
+    "predicted_map_bb",
+    "reduction",
+    "nside",
+    "lmax",
+    "seed",
+    "evaluation",
+)
 
 
 def config_dict(cfg):

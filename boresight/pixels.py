@@ -9,6 +9,7 @@ In-pixel positions: the HEALPix projection from a base face's (x, y) square to t
 equal-area (the Jacobian d(z, phi)/d(x, y) is constant on each face), so a point uniform in (x, y)
 inside a pixel's sub-square is uniform in solid angle inside the pixel.
 """
+
 import numba
 import numpy as np
 

@@ -1,5 +1,6 @@
 """Figures in the style of the paper: |residual| with the sign marked, analytic curve, reference
 curves, log axes; and survey footprints over a Galactic-emission proxy."""
+
 import contextlib
 import io
 import warnings
@@ -33,11 +34,17 @@ def residual_figure(res, cfg, angles, path_stem):
     for value, colour in zip(exp.reference_values, REF_COLOURS):
         ell = np.arange(res.references[value].size)
         name = "r" if exp.reference == "r" else r"A_{\rm lens}"
-        ax.plot(ell[2:], res.references[value][2:], color=colour, lw=1,
-                label=f"${name} = {value:g}$")
+        ax.plot(
+            ell[2:], res.references[value][2:], color=colour, lw=1, label=f"${name} = {value:g}$"
+        )
     ell_pred = np.arange(res.predicted_cl[None].size)
-    ax.plot(ell_pred[2:], np.abs(res.predicted_cl[None][2:]), "k--", lw=1.2,
-            label="analytic (no rotation)")
+    ax.plot(
+        ell_pred[2:],
+        np.abs(res.predicted_cl[None][2:]),
+        "k--",
+        lw=1.2,
+        label="analytic (no rotation)",
+    )
     for i, angle in enumerate(angles):
         centres, values = spectra.bin_spectrum(res.residual(angle), edges)
         label = "no rotation" if angle is None else f"rotation {angle:g}$^\\circ$"
@@ -71,8 +78,15 @@ def footprint_figure(mask, title, path_stem):
     nside = hp.npix2nside(mask.size)
     proxy = np.log10(galactic_proxy(nside))
     shown = np.where(mask > 0, proxy.max() + 0.3, proxy)
-    hp.mollview(shown, title=title, cmap="magma", cbar=True, min=proxy.min(),
-                unit="log10 Galactic proxy (footprint in white)", max=proxy.max() + 0.3)
+    hp.mollview(
+        shown,
+        title=title,
+        cmap="magma",
+        cbar=True,
+        min=proxy.min(),
+        unit="log10 Galactic proxy (footprint in white)",
+        max=proxy.max() + 0.3,
+    )
     fig = plt.gcf()
     with contextlib.redirect_stdout(io.StringIO()):  # healpy prints the grid spacing
         hp.graticule(dpar=30, dmer=60, alpha=0.4)

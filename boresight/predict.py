@@ -4,10 +4,10 @@ For the paper's Q pair (0 deg) and U pair (45 deg), naive map-making gives
 P_hat = (1/N) sum_j exp(2 i psi_j) (d_1 + i d_2), and to first order (docs/conventions.md):
 
   gain:     dP = 1/2 h_2 (dg_1 + i dg_2) T  - (dg_1 + dg_2)/4 P  - (dg_1 - dg_2)/4 h_4 P*   (exact)
-  leak:     dP = 1/2 h_2 (l_1 + i l_2) S                                                      (exact)
+  leak:     dP = 1/2 h_2 (l_1 + i l_2) S                                                    (exact)
   pointing: dP = -1/4 h_1 G c_1 - 1/4 h_3 G* c_3,   G = dT/dtheta + i dT/dphi / sin(theta),
             c_1 = rho_1 e^{-i chi_1} + rho_2 e^{-i(chi_2 - pi/4)},
-            c_3 = rho_1 e^{+i chi_1} + rho_2 e^{+i(chi_2 + 3 pi/4)}                           (O(rho))
+            c_3 = rho_1 e^{+i chi_1} + rho_2 e^{+i(chi_2 + 3 pi/4)}                         (O(rho))
 
 with h_n = <exp(i n psi)> over a pixel's crossings. The paper's eq. 6 is the complex conjugate of
 these forms (its h_n and gradient use the opposite orientation); amplitudes are identical.
@@ -17,6 +17,7 @@ Power spectra: each term c h_n F contributes C^EE = C^BB = |c|^2 / 2 * [coh_n C^
 (what Wallis et al. 2017 write as <|h_n|^2> C^FF) and a white part from the pixel-to-pixel scatter
 of h_n. Masked pseudo-C_ell follow through M^{BB,BB} and M^{BB,EE} (paper eq. 10).
 """
+
 import healpy as hp
 import numpy as np
 
@@ -29,8 +30,10 @@ COHERENT_BLOCK = 8  #: h_n is smoothed over (COHERENT_BLOCK)^2 pixels for the co
 
 def _qu_pairs(instrument):
     if instrument is not None and tuple(instrument.pair_angles_deg) != (0.0, 45.0):
-        raise ValueError("the analytic prediction needs the paper's pairs at (0, 45) deg, got "
-                         f"{instrument.pair_angles_deg}")
+        raise ValueError(
+            "the analytic prediction needs the paper's pairs at (0, 45) deg, got "
+            f"{instrument.pair_angles_deg}"
+        )
 
 
 def pointing_coefficients(rho, chi):
@@ -96,8 +99,13 @@ def leak_terms(systematics, cl_tt, cl_pol, template_cl=None):
     ell = np.arange(cl_tt.size)
     terms = [(2, 0.5 * (dg[0] + 1j * dg[1]), cl_tt), (4, (dg[0] - dg[1]) / 4, cl_pol)]
     if systematics.has_leak:
-        terms.append((2, 0.5 * (leak[0] + 1j * leak[1]), cl_tt if template_cl is None
-                      else template_cl[: cl_tt.size]))
+        terms.append(
+            (
+                2,
+                0.5 * (leak[0] + 1j * leak[1]),
+                cl_tt if template_cl is None else template_cl[: cl_tt.size],
+            )
+        )
     if systematics.has_pointing:
         c1, c3 = pointing_coefficients(rho, chi)
         grad = ell * (ell + 1) * cl_tt
@@ -117,8 +125,17 @@ def local_cl(sky, mask, lmax, nthreads=0):
     return cl[0], cl[1] + cl[2]
 
 
-def systematic_cl(h, mask, systematics, spectra, lmax, fwhm_arcmin, instrument=None,
-                  template_cl=None, field_cl=None):
+def systematic_cl(
+    h,
+    mask,
+    systematics,
+    spectra,
+    lmax,
+    fwhm_arcmin,
+    instrument=None,
+    template_cl=None,
+    field_cl=None,
+):
     """Full-sky spurious C^EE = C^BB [muK^2] (lmax+1,) predicted from h_n over the mask.
 
     field_cl: optional beam-smoothed (TT, EE + BB) to use instead of the theory (see local_cl).
@@ -142,16 +159,26 @@ def systematic_cl(h, mask, systematics, spectra, lmax, fwhm_arcmin, instrument=N
     return out
 
 
-def residual_pseudo_bb(h, mask, coupling, systematics, spectra, fwhm_arcmin, instrument=None,
-                       template_cl=None, field_cl=None):
+def residual_pseudo_bb(
+    h,
+    mask,
+    coupling,
+    systematics,
+    spectra,
+    fwhm_arcmin,
+    instrument=None,
+    template_cl=None,
+    field_cl=None,
+):
     """Predicted masked residual C_BB(sys) - C_BB(no sys) [muK^2] (paper eq. 10).
 
     Adds the common rescaling of the cosmological signal, (1 - (dg_1 + dg_2)/4)^2 - 1, to the
     leaked power M^{BB,BB} C^BB_sys + M^{BB,EE} C^EE_sys.
     """
     lmax = coupling.lmax
-    cl_sys = systematic_cl(h, mask, systematics, spectra, lmax, fwhm_arcmin, instrument,
-                           template_cl, field_cl)
+    cl_sys = systematic_cl(
+        h, mask, systematics, spectra, lmax, fwhm_arcmin, instrument, template_cl, field_cl
+    )
     dg = systematics.per_pair(2)[0]
     _, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
     scale = (1 - (dg[0] + dg[1]) / 4) ** 2 - 1

@@ -6,6 +6,7 @@ with R_l the residual pseudo-C_BB and T_l the pseudo-C_BB of tensors at r = 1 th
 mask, beam and pixel window (predict.reference_bb). Uniform weights: for the deep survey's
 30 <= l <= 300 the template's shape dominates the weights that cosmic variance would give.
 """
+
 import numpy as np
 
 from . import predict

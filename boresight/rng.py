@@ -8,6 +8,7 @@ SplitMix64 finalisers (Steele, Lea & Flood 2014), each a bijection on 64-bit int
 
 and a uniform double in [0, 1) is the top 53 bits of h. The GPU backend uses the same arithmetic.
 """
+
 import numba
 import numpy as np
 

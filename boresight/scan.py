@@ -6,6 +6,7 @@ rotation (PBR) repeats every hit at crossing angle + alpha for each alpha in ``r
 (``(0,)`` is no rotation; the paper's gain case is ``(0, 90)``). N_phi, R and the centre are scalars
 or per-pixel RING maps. Angles are measured on the sky from e_theta towards e_phi (COSMO).
 """
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,8 +45,9 @@ class SyntheticScan:
         _scalar_or_map("centre_rad", self.centre_rad, -4 * np.pi, 4 * np.pi)
         rot = np.asarray(self.rotations_deg, dtype=np.float64)
         if rot.ndim != 1 or rot.size == 0 or not np.isfinite(rot).all():
-            raise ValueError(f"rotations_deg must be a non-empty list of angles, got "
-                             f"{self.rotations_deg!r}")
+            raise ValueError(
+                f"rotations_deg must be a non-empty list of angles, got {self.rotations_deg!r}"
+            )
         if self.in_pixel not in ("random", "centre"):
             raise ValueError(f"in_pixel must be 'random' or 'centre', got {self.in_pixel!r}")
         if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
@@ -59,8 +61,11 @@ class SyntheticScan:
     def per_pixel(self, pixels, npix):
         """(n_phi, R, centre) for the given pixels, as int64/float64 arrays of pixels.size."""
         out = []
-        for name, dtype in (("n_phi", np.int64), ("range_rad", np.float64),
-                            ("centre_rad", np.float64)):
+        for name, dtype in (
+            ("n_phi", np.int64),
+            ("range_rad", np.float64),
+            ("centre_rad", np.float64),
+        ):
             v = np.asarray(getattr(self, name))
             if v.ndim == 0:
                 out.append(np.full(pixels.size, v, dtype=dtype))

@@ -4,6 +4,7 @@ Harmonic coefficients are drawn with numpy's Philox generator keyed by the seed 
 independent B), smoothed by a Gaussian beam (healpy.gauss_beam, polarised factors) and synthesised
 on a HEALPix RING grid with ducc0. The alm are kept for exact evaluation at arbitrary points.
 """
+
 from dataclasses import dataclass
 
 import healpy as hp
@@ -29,11 +30,18 @@ class SkyConfig:
     polarised: bool = True  #: False sets Q = U = 0 (the paper's zero-polarisation check)
 
     def __post_init__(self):
-        if not (isinstance(self.nside, (int, np.integer)) and 1 <= self.nside <= MAX_NSIDE
-                and self.nside & (self.nside - 1) == 0):
-            raise ValueError(f"nside must be a power of two in [1, {MAX_NSIDE}], got {self.nside!r}")
+        if not (
+            isinstance(self.nside, (int, np.integer))
+            and 1 <= self.nside <= MAX_NSIDE
+            and self.nside & (self.nside - 1) == 0
+        ):
+            raise ValueError(
+                f"nside must be a power of two in [1, {MAX_NSIDE}], got {self.nside!r}"
+            )
         if not 2 <= self.lmax <= 3 * self.nside - 1:
-            raise ValueError(f"lmax must be in [2, 3*nside-1={3 * self.nside - 1}], got {self.lmax}")
+            raise ValueError(
+                f"lmax must be in [2, 3*nside-1={3 * self.nside - 1}], got {self.lmax}"
+            )
         if not self.fwhm_arcmin >= 0:
             raise ValueError(f"fwhm_arcmin must be >= 0, got {self.fwhm_arcmin}")
         if self.seed < 0:
@@ -92,8 +100,9 @@ def gaussian_alm(cls, lmax, seed):
 def make_sky(config=SkyConfig(), spectra=None, nthreads=0):
     """Draw, smooth and synthesise the sky described by ``config`` (spectra: cached by default)."""
     spectra = load_spectra() if spectra is None else spectra
-    alm = gaussian_alm(spectra.total(r=config.r, a_lens=config.a_lens, lmax=config.lmax),
-                       config.lmax, config.seed)
+    alm = gaussian_alm(
+        spectra.total(r=config.r, a_lens=config.a_lens, lmax=config.lmax), config.lmax, config.seed
+    )
     beam = hp.gauss_beam(config.fwhm_arcmin * ARCMIN, lmax=config.lmax, pol=True)
     alm[0] = harmonics.almxfl(alm[0], beam[:, 0])
     alm[1] = harmonics.almxfl(alm[1], beam[:, 1])
@@ -103,5 +112,6 @@ def make_sky(config=SkyConfig(), spectra=None, nthreads=0):
     maps = np.empty((3, 12 * config.nside**2))
     maps[0] = harmonics.alm2map(alm[0], config.nside, nthreads=nthreads)
     maps[1:] = harmonics.alm2map(alm[1:], config.nside, spin=2, nthreads=nthreads)
-    return Sky(alm=alm, maps=maps, nside=config.nside, lmax=config.lmax,
-               fwhm_arcmin=config.fwhm_arcmin)
+    return Sky(
+        alm=alm, maps=maps, nside=config.nside, lmax=config.lmax, fwhm_arcmin=config.fwhm_arcmin
+    )

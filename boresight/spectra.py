@@ -3,6 +3,7 @@
 Spectra are anafast-equivalent (ducc0 transforms with 3 Jacobi iterations, beam not deconvolved),
 C_ell in muK^2 from ell = 0, in healpy's order TT, EE, BB, TE, EB, TB.
 """
+
 import numpy as np
 
 from . import harmonics
@@ -38,8 +39,9 @@ def _check(maps, mask):
 def pseudo_spectra(maps, mask, lmax, nthreads=0):
     """TT, EE, BB, TE, EB, TB pseudo-C_ell (6, lmax+1) of masked I, Q, U maps [muK^2]."""
     t, e, b = masked_alm(maps, mask, lmax, nthreads)
-    return np.array([harmonics.alm2cl(x, y) for x, y in ((t, t), (e, e), (b, b), (t, e), (e, b),
-                                                         (t, b))])
+    return np.array(
+        [harmonics.alm2cl(x, y) for x, y in ((t, t), (e, e), (b, b), (t, e), (e, b), (t, b))]
+    )
 
 
 def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):

@@ -3,6 +3,7 @@
 Each writes into a staging directory that replaces ``out_dir`` only when the job has finished, so
 an interrupted job leaves nothing behind, and an existing directory is kept unless ``force``.
 """
+
 import platform
 import subprocess
 import time
@@ -20,24 +21,41 @@ def _versions():
     import numba
 
     from . import __version__
-    return {"boresight": __version__, "numpy": np.__version__, "healpy": hp.__version__,
-            "ducc0": ducc0.__version__, "numba": numba.__version__,
-            "python": platform.python_version()}
+
+    return {
+        "boresight": __version__,
+        "numpy": np.__version__,
+        "healpy": hp.__version__,
+        "ducc0": ducc0.__version__,
+        "numba": numba.__version__,
+        "python": platform.python_version(),
+    }
 
 
 def _git_revision():
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
-                             capture_output=True, text=True, timeout=5)
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
         return out.stdout.strip() or "unknown"
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 
 
 def manifest(config, seeds, stages):
-    return {"config": config, "versions": _versions(), "seeds": seeds,
-            "git_revision": _git_revision(), "machine": platform.platform(),
-            "wall_time_s": stages, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    return {
+        "config": config,
+        "versions": _versions(),
+        "seeds": seeds,
+        "git_revision": _git_revision(),
+        "machine": platform.platform(),
+        "wall_time_s": stages,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
 
 
 def reproduce(out_dir, cfg=paper.StudyConfig.quick(), force=False, log=print, progress=False):
@@ -53,18 +71,28 @@ def reproduce(out_dir, cfg=paper.StudyConfig.quick(), force=False, log=print, pr
         wide, deep = results["pointing_wide"], results["gain_deep"]
         plots.residual_figure(wide, cfg, [None, 180.0], stage / "fig1_pointing_wide")
         plots.residual_figure(deep, cfg, [None, 90.0], stage / "fig2_gain_deep")
-        plots.residual_figure(wide, cfg, [None, 180.0, 179.0, 160.0], stage / "fig3_pointing_angles")
+        plots.residual_figure(
+            wide, cfg, [None, 180.0, 179.0, 160.0], stage / "fig3_pointing_angles"
+        )
         plots.residual_figure(deep, cfg, [None, 90.0, 89.0, 70.0], stage / "fig4_gain_angles")
         fig_nside = min(cfg.nside, 256)
-        plots.footprint_figure(masks.survey_mask("wide", fig_nside), "SO-like wide (LAT) footprint",
-                               stage / "fig5_wide_mask")
-        plots.footprint_figure(masks.survey_mask("deep", fig_nside), "SO-like deep (SAT) footprint",
-                               stage / "fig6_deep_mask")
+        plots.footprint_figure(
+            masks.survey_mask("wide", fig_nside),
+            "SO-like wide (LAT) footprint",
+            stage / "fig5_wide_mask",
+        )
+        plots.footprint_figure(
+            masks.survey_mask("deep", fig_nside),
+            "SO-like deep (SAT) footprint",
+            stage / "fig6_deep_mask",
+        )
         io.write_csv(stage / "results.csv", paper.tidy_rows(results, cfg), paper.CSV_COLUMNS)
         stages["outputs"] = round(time.perf_counter() - t0, 3)
         io.write_text(stage / "report.md", report.report_markdown(claims, cfg, stages))
-        io.write_json(stage / "manifest.json",
-                      manifest(paper.config_dict(cfg), {"sky": cfg.seed, "scan": cfg.seed}, stages))
+        io.write_json(
+            stage / "manifest.json",
+            manifest(paper.config_dict(cfg), {"sky": cfg.seed, "scan": cfg.seed}, stages),
+        )
     return claims
 
 
@@ -72,14 +100,20 @@ def _load_sky(study, nthreads):
     if study.sky_maps is None:
         return sky.make_sky(study.sky, nthreads=nthreads)
     maps = hp.read_map(study.sky_maps, field=(0, 1, 2))
-    return sky.Sky.from_maps(maps, lmax=study.sky.lmax, fwhm_arcmin=study.sky.fwhm_arcmin,
-                             nthreads=nthreads)
+    return sky.Sky.from_maps(
+        maps, lmax=study.sky.lmax, fwhm_arcmin=study.sky.fwhm_arcmin, nthreads=nthreads
+    )
 
 
 def _load_mask(study, nside):
     m = study.mask
-    mask = (masks.read_mask(m["file"], nside) if "file" in m else
-            np.ones(12 * nside**2) if m["survey"] == "none" else masks.survey_mask(m["survey"], nside))
+    mask = (
+        masks.read_mask(m["file"], nside)
+        if "file" in m
+        else np.ones(12 * nside**2)
+        if m["survey"] == "none"
+        else masks.survey_mask(m["survey"], nside)
+    )
     if "apodize_fwhm_deg" in m:
         mask = masks.apodize(mask, m["apodize_fwhm_deg"])
     return mask
@@ -97,37 +131,60 @@ def simulate(study, out_dir, force=False, log=print, progress=False):
     with timer("sky"):
         the_sky = _load_sky(study, nthreads)
         mask = _load_mask(study, the_sky.nside)
-    sim_kw = dict(pixels=mask > 0, evaluation=run["evaluation"], backend=run["backend"],
-                  chunk_pixels=run["chunk_pixels"], nthreads=nthreads, progress=progress)
+    sim_kw = dict(
+        pixels=mask > 0,
+        evaluation=run["evaluation"],
+        backend=run["backend"],
+        chunk_pixels=run["chunk_pixels"],
+        nthreads=nthreads,
+        progress=progress,
+    )
     with timer("simulate without systematics"):
         ref = engine.simulate(the_sky, study.scan, study.instrument, **sim_kw)
     with timer("simulate with systematics"):
-        sim = engine.simulate(the_sky, study.scan, study.instrument, study.systematics,
-                              leak_template=_template(study), **sim_kw)
+        sim = engine.simulate(
+            the_sky,
+            study.scan,
+            study.instrument,
+            study.systematics,
+            leak_template=_template(study),
+            **sim_kw,
+        )
     lmax = study.output["lmax"]
     with timer("spectra"):
         cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
         i_map = np.where(sim.valid, the_sky.maps[0], 0.0)
         pseudo = spectra.pseudo_spectra(np.array([i_map, *sim.qu]), mask, lmax, nthreads)
-    rows = [dict(ell=ell, residual_bb=cross[ell] + auto[ell], residual_cross_bb=cross[ell],
-                 residual_auto_bb=auto[ell], **{f"pseudo_{n}": pseudo[i, ell]
-                                                for i, n in enumerate(spectra.ORDER)})
-            for ell in range(lmax + 1)]
-    columns = ["ell", "residual_bb", "residual_cross_bb", "residual_auto_bb"] + \
-        [f"pseudo_{n}" for n in spectra.ORDER]
+    rows = [
+        dict(
+            ell=ell,
+            residual_bb=cross[ell] + auto[ell],
+            residual_cross_bb=cross[ell],
+            residual_auto_bb=auto[ell],
+            **{f"pseudo_{n}": pseudo[i, ell] for i, n in enumerate(spectra.ORDER)},
+        )
+        for ell in range(lmax + 1)
+    ]
+    columns = ["ell", "residual_bb", "residual_cross_bb", "residual_auto_bb"] + [
+        f"pseudo_{n}" for n in spectra.ORDER
+    ]
     with io.staged_dir(out_dir, force) as stage:
         if study.output["maps"]:
             for name, m in (("maps_systematics.fits", sim), ("maps_reference.fits", ref)):
-                io.write_maps(stage / name, [m.q, m.u, m.hits, m.rcond],
-                              ["Q", "U", "HITS", "RCOND"])
+                io.write_maps(
+                    stage / name, [m.q, m.u, m.hits, m.rcond], ["Q", "U", "HITS", "RCOND"]
+                )
             both = sim.valid & ref.valid
-            spurious = [np.where(both, a - b, hp.UNSEEN) for a, b in ((sim.q, ref.q), (sim.u, ref.u))]
+            spurious = [
+                np.where(both, a - b, hp.UNSEEN) for a, b in ((sim.q, ref.q), (sim.u, ref.u))
+            ]
             plots.map_figure(spurious, ["Q spurious", "U spurious"], stage / "maps_spurious.png")
         io.write_csv(stage / "spectra.csv", rows, columns)
         plots.spectrum_figure(rows, study, stage / "residual")
-        io.write_json(stage / "manifest.json",
-                      manifest(study.raw, {"sky": study.sky.seed, "scan": study.scan.seed},
-                               timer.stages))
+        io.write_json(
+            stage / "manifest.json",
+            manifest(study.raw, {"sky": study.sky.seed, "scan": study.scan.seed}, timer.stages),
+        )
     return rows
 
 
@@ -139,8 +196,9 @@ def predict_study(study, log=print):
     mask = _load_mask(study, nside)
     h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run["nthreads"])
     cp = coupling.coupling_matrices(mask, lmax, study.run["nthreads"])
-    pred = predict.residual_pseudo_bb(h, mask, cp, study.systematics, load_spectra(),
-                                      study.sky.fwhm_arcmin, study.instrument)
+    pred = predict.residual_pseudo_bb(
+        h, mask, cp, study.systematics, load_spectra(), study.sky.fwhm_arcmin, study.instrument
+    )
     return [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]
 
 
@@ -152,17 +210,33 @@ def scan_stats(study, out_dir, force=False, n_max=4, log=print):
     obs = mask > 0
     h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run["nthreads"])
     n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
-    rows = [dict(n=n, mean_abs_h2=float(np.mean(np.abs(h[n][obs]) ** 2)),
-                 mean_re=float(np.mean(h[n][obs].real)), mean_im=float(np.mean(h[n][obs].imag)))
-            for n in range(1, n_max + 1)]
+    rows = [
+        dict(
+            n=n,
+            mean_abs_h2=float(np.mean(np.abs(h[n][obs]) ** 2)),
+            mean_re=float(np.mean(h[n][obs].real)),
+            mean_im=float(np.mean(h[n][obs].imag)),
+        )
+        for n in range(1, n_max + 1)
+    ]
     with io.staged_dir(out_dir, force) as stage:
-        cols = [np.where(obs, h[n].real, hp.UNSEEN) for n in range(1, n_max + 1)] + \
-            [np.where(obs, h[n].imag, hp.UNSEEN) for n in range(1, n_max + 1)]
-        names = [f"RE_H{n}" for n in range(1, n_max + 1)] + [f"IM_H{n}" for n in range(1, n_max + 1)]
+        cols = [np.where(obs, h[n].real, hp.UNSEEN) for n in range(1, n_max + 1)] + [
+            np.where(obs, h[n].imag, hp.UNSEEN) for n in range(1, n_max + 1)
+        ]
+        names = [f"RE_H{n}" for n in range(1, n_max + 1)] + [
+            f"IM_H{n}" for n in range(1, n_max + 1)
+        ]
         io.write_maps(stage / "hn_maps.fits", cols, names, unit="")
-        io.write_maps(stage / "scan_maps.fits", [ncross, np.where(obs, n_phi, 0), np.where(obs, r, 0)],
-                      ["CROSSINGS", "N_PHI", "RANGE_RAD"], unit="")
+        io.write_maps(
+            stage / "scan_maps.fits",
+            [ncross, np.where(obs, n_phi, 0), np.where(obs, r, 0)],
+            ["CROSSINGS", "N_PHI", "RANGE_RAD"],
+            unit="",
+        )
         io.write_csv(stage / "hn_summary.csv", rows, ["n", "mean_abs_h2", "mean_re", "mean_im"])
-        plots.map_figure([np.where(obs, np.abs(h[n]) ** 2, hp.UNSEEN) for n in (1, 2)],
-                         ["|h_1|^2", "|h_2|^2"], stage / "hn_maps.png")
+        plots.map_figure(
+            [np.where(obs, np.abs(h[n]) ** 2, hp.UNSEEN) for n in (1, 2)],
+            ["|h_1|^2", "|h_2|^2"],
+            stage / "hn_maps.png",
+        )
     return rows

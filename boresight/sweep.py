@@ -14,6 +14,7 @@ skips them, so an interrupted sweep loses only its running points and a re-run c
 exactly the rows an uninterrupted run gives. Rows are sorted by point, so the table does not depend
 on the order in which workers finish.
 """
+
 import copy
 import csv
 import hashlib
@@ -29,8 +30,16 @@ from . import coupling, engine, io, predict, rbias, sky, spectra
 from .config import ConfigError, parse_study, tomllib
 from .cosmology import load_spectra
 
-POINT_COLUMNS = ("ell_lo", "ell_hi", "residual_bb", "residual_auto_bb", "residual_cross_bb",
-                 "predicted_bb", "delta_r", "predicted_delta_r")
+POINT_COLUMNS = (
+    "ell_lo",
+    "ell_hi",
+    "residual_bb",
+    "residual_auto_bb",
+    "residual_cross_bb",
+    "predicted_bb",
+    "delta_r",
+    "predicted_delta_r",
+)
 
 
 def load_sweep(path):
@@ -108,10 +117,18 @@ def run_point(base, base_dir, overrides):
     m = study.mask
     from .studies import _load_mask
 
-    mask = _load_mask(study, the_sky.nside) if m.get("survey", "none") != "none" or "file" in m \
+    mask = (
+        _load_mask(study, the_sky.nside)
+        if m.get("survey", "none") != "none" or "file" in m
         else np.ones(12 * the_sky.nside**2)
-    kw = dict(pixels=mask > 0, evaluation=study.run["evaluation"], backend=study.run["backend"],
-              chunk_pixels=study.run["chunk_pixels"], nthreads=nthreads)
+    )
+    kw = dict(
+        pixels=mask > 0,
+        evaluation=study.run["evaluation"],
+        backend=study.run["backend"],
+        chunk_pixels=study.run["chunk_pixels"],
+        nthreads=nthreads,
+    )
     ref = engine.simulate(the_sky, study.scan, study.instrument, **kw)
     sim = engine.simulate(the_sky, study.scan, study.instrument, study.systematics, **kw)
     cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
@@ -119,9 +136,16 @@ def run_point(base, base_dir, overrides):
     cp = coupling.coupling_matrices(mask, lmax, nthreads)
     h, _ = engine.scan_moments(study.scan, the_sky.nside, pixels=mask > 0, nthreads=nthreads)
     try:
-        pred = predict.residual_pseudo_bb(h, mask, cp, study.systematics, theory,
-                                          study.sky.fwhm_arcmin, study.instrument,
-                                          field_cl=predict.local_cl(the_sky, mask, lmax, nthreads))
+        pred = predict.residual_pseudo_bb(
+            h,
+            mask,
+            cp,
+            study.systematics,
+            theory,
+            study.sky.fwhm_arcmin,
+            study.instrument,
+            field_cl=predict.local_cl(the_sky, mask, lmax, nthreads),
+        )
     except ValueError:  # prediction needs the Q/U pair layout
         pred = np.full(lmax + 1, np.nan)
     template = rbias.tensor_template(cp, theory, study.sky.fwhm_arcmin, the_sky.nside)
@@ -130,9 +154,18 @@ def run_point(base, base_dir, overrides):
     edges = spectra.log_bins(study.output["lmin"], lmax, study.output["n_bands"])
     rows = []
     for lo, hi in zip(edges[:-1], edges[1:]):
-        rows.append(dict(ell_lo=int(lo), ell_hi=int(hi) - 1, residual_bb=total[lo:hi].mean(),
-                         residual_auto_bb=auto[lo:hi].mean(), residual_cross_bb=cross[lo:hi].mean(),
-                         predicted_bb=pred[lo:hi].mean(), delta_r=dr, predicted_delta_r=dr_pred))
+        rows.append(
+            dict(
+                ell_lo=int(lo),
+                ell_hi=int(hi) - 1,
+                residual_bb=total[lo:hi].mean(),
+                residual_auto_bb=auto[lo:hi].mean(),
+                residual_cross_bb=cross[lo:hi].mean(),
+                predicted_bb=pred[lo:hi].mean(),
+                delta_r=dr,
+                predicted_delta_r=dr_pred,
+            )
+        )
     return rows
 
 
@@ -159,6 +192,7 @@ def run_sweep(path, out_dir, scheduler=None, workers=2, force=False, log=print, 
             if not force:
                 raise FileExistsError(f"{out} holds another sweep or other files; use --force")
             import shutil
+
             shutil.rmtree(out)
     (out / "points").mkdir(parents=True, exist_ok=True)
     for stale in (out / "points").glob(".*"):  # temp files of a write that was killed
@@ -166,8 +200,9 @@ def run_sweep(path, out_dir, scheduler=None, workers=2, force=False, log=print, 
     io.write_json(marker, spec_id)
     todo = [p for p in points if not _point_file(out, p).exists()]
     log(f"sweep: {len(points)} points, {len(points) - len(todo)} already done")
-    bar = tqdm(total=len(points), initial=len(points) - len(todo), unit="point",
-               disable=not progress)
+    bar = tqdm(
+        total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress
+    )
 
     def finish(overrides, rows):
         io.write_json(_point_file(out, overrides), {"overrides": overrides, "rows": rows})
@@ -192,8 +227,9 @@ def _run_dask(todo, base, base_dir, scheduler, workers, finish):
         raise ImportError("sweeps on Dask need: pip install 'boresight[dask]'") from err
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+        cluster = LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        )
     client = Client(cluster if cluster is not None else scheduler)
     try:
         futures = {client.submit(run_point, base, base_dir, p, pure=False): p for p in todo}
@@ -213,8 +249,13 @@ def write_tables(out, points):
         f = _point_file(out, p)
         if f.exists():
             for r in json.loads(f.read_text())["rows"]:
-                rows.append({"point": i, **{k: json.dumps(v) if isinstance(v, list) else v
-                                            for k, v in p.items()}, **r})
+                rows.append(
+                    {
+                        "point": i,
+                        **{k: json.dumps(v) if isinstance(v, list) else v for k, v in p.items()},
+                        **r,
+                    }
+                )
     if not rows:
         return rows
     columns = _columns(points)
@@ -243,15 +284,25 @@ def ensemble(rows, keys):
         return []
     groups = {}
     for r in rows:
-        groups.setdefault(tuple(r[k] for k in group_keys) + (r["ell_lo"], r["ell_hi"]), []).append(r)
+        groups.setdefault(tuple(r[k] for k in group_keys) + (r["ell_lo"], r["ell_hi"]), []).append(
+            r
+        )
     out = []
     for key, members in groups.items():
         res = np.array([m["residual_bb"] for m in members])
         dr = np.array([m["delta_r"] for m in members])
-        out.append({**dict(zip(group_keys, key[:-2])), "ell_lo": key[-2], "ell_hi": key[-1],
-                    "n_realisations": len(members), "residual_bb_mean": res.mean(),
-                    "residual_bb_std": res.std(ddof=1) if len(res) > 1 else 0.0,
-                    "delta_r_mean": dr.mean(), "delta_r_std": dr.std(ddof=1) if len(dr) > 1 else 0.0})
+        out.append(
+            {
+                **dict(zip(group_keys, key[:-2])),
+                "ell_lo": key[-2],
+                "ell_hi": key[-1],
+                "n_realisations": len(members),
+                "residual_bb_mean": res.mean(),
+                "residual_bb_std": res.std(ddof=1) if len(res) > 1 else 0.0,
+                "delta_r_mean": dr.mean(),
+                "delta_r_std": dr.std(ddof=1) if len(dr) > 1 else 0.0,
+            }
+        )
     return out
 
 
@@ -278,6 +329,7 @@ def continuum_figure(rows, path_stem):
         return
     measured = [band_sum(a, "residual_auto_bb") / band_sum(0, "residual_auto_bb") for a in angles]
     closed = [band_sum(a, "predicted_bb") / band_sum(0, "predicted_bb") for a in angles]
+
     def first(angle, col):
         return next(r[col] for r in rows if r["pbr_angle_deg"] == angle)
 
@@ -288,8 +340,9 @@ def continuum_figure(rows, path_stem):
     ax.set_ylabel("residual power / no rotation")
     ax.legend()
     ax_r.semilogy(angles, [abs(first(a, "delta_r")) for a in angles], "o", label="simulation")
-    ax_r.semilogy(angles, [abs(first(a, "predicted_delta_r")) for a in angles], "k--",
-                  label="h_n prediction")
+    ax_r.semilogy(
+        angles, [abs(first(a, "predicted_delta_r")) for a in angles], "k--", label="h_n prediction"
+    )
     ax_r.set_xlabel("boresight rotation angle [deg]")
     ax_r.set_ylabel(rf"$|\Delta r|$ ({rbias.R_RANGE[0]} <= ell <= {rbias.R_RANGE[1]})")
     ax_r.legend()

@@ -4,19 +4,29 @@ Each kernel works on one chunk of pixels and runs in parallel over pixels (or hi
 number comes from :mod:`boresight.rng` keyed by (seed, pixel, hit), so results do not depend on the
 chunking or the thread count. ``boresight.tod_gpu`` implements the same kernels for CuPy.
 """
+
 import numba
 import numpy as np
 
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import STREAM_PSI, STREAM_U, STREAM_V, pixel_key, uniform_from_key
 
-__all__ = ["generate_hits", "offset_points", "interpolate", "accumulate", "moments", "to_host",
-           "to_device"]
+__all__ = [
+    "generate_hits",
+    "offset_points",
+    "interpolate",
+    "accumulate",
+    "moments",
+    "to_host",
+    "to_device",
+]
 
 
 def interpolate(maps, nside, theta, phi):
     """Bilinear interpolation of a (nfield, npix) or prepared interleaved stack at points."""
     return interpolate_interleaved(maps, nside, theta, phi)
+
+
 _TWOPI = 2.0 * np.pi
 
 
@@ -106,7 +116,11 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
                     if same_point:
                         i_b, q_b, u_b, s_b = i_a, q_a, u_a, s_a
                     else:
-                        i_b, q_b, u_b = values_b[0, h, k, m], values_b[1, h, k, m], values_b[2, h, k, m]
+                        i_b, q_b, u_b = (
+                            values_b[0, h, k, m],
+                            values_b[1, h, k, m],
+                            values_b[2, h, k, m],
+                        )
                         s_b = values_b[3, h, k, m] if nfield > 3 else 0.0
                     d_a = i_a + q_a * c + u_a * s + 0.5 * leak[m] * s_a
                     d_b = (1.0 - dg[m]) * (i_b - q_b * c - u_b * s) - 0.5 * leak[m] * s_b

@@ -7,13 +7,15 @@ the kernels are scatter-free per-pixel loops with 64-bit integer hashing, which 
 directly; spherical-harmonic transforms stay on ducc0 (CPU). Install with `pip install
 boresight[gpu]` (CuPy for CUDA 12; use cupy-cuda13x for CUDA 13).
 """
+
 import numpy as np
 
 try:
     import cupy as cp
 except ImportError as err:  # pragma: no cover - exercised where CuPy is missing
-    raise ImportError("backend 'gpu' needs CuPy: pip install 'boresight[gpu]' "
-                      "(or cupy-cuda13x for CUDA 13)") from err
+    raise ImportError(
+        "backend 'gpu' needs CuPy: pip install 'boresight[gpu]' (or cupy-cuda13x for CUDA 13)"
+    ) from err
 
 _THREADS = 256
 SOURCE = r"""
@@ -221,7 +223,10 @@ extern "C" __global__ void moments(const i64 *offsets, const double *psi, i64 np
     for (int n = 0; n <= nmax; ++n) {
         double re = 0, im = 0;
         for (i64 h = offsets[p]; h < offsets[p + 1]; ++h)
-            for (int k = 0; k < nk; ++k) { double a = n * (psi[h] + rot[k]); re += cos(a); im += sin(a); }
+            for (int k = 0; k < nk; ++k) {
+                double a = n * (psi[h] + rot[k]);
+                re += cos(a); im += sin(a);
+            }
         if (count > 0) { re /= count; im /= count; }
         out[2 * (p * (nmax + 1) + n)] = re; out[2 * (p * (nmax + 1) + n) + 1] = im;
     }
@@ -237,8 +242,9 @@ def _kernel(name):
             if cp.cuda.runtime.getDeviceCount() < 1:
                 raise RuntimeError
         except Exception as err:
-            raise RuntimeError("backend 'gpu': no CUDA GPU is visible (CuPy found no device)") \
-                from err
+            raise RuntimeError(
+                "backend 'gpu': no CUDA GPU is visible (CuPy found no device)"
+            ) from err
         _module = cp.RawModule(code=SOURCE, options=("--std=c++17",))
     return _module.get_function(name)
 
@@ -265,9 +271,23 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     offsets_d = _d(offsets, np.int64)
     nhit = int(offsets[-1])
     theta, phi, psi = (cp.empty(nhit) for _ in range(3))
-    _launch("generate_hits", pixels.size,
-            (_d(pixels, np.int64), offsets_d, _d(range_rad), _d(centre_rad), np.int64(pixels.size),
-             np.uint64(seed), np.int64(nside), np.int32(bool(centred)), theta, phi, psi))
+    _launch(
+        "generate_hits",
+        pixels.size,
+        (
+            _d(pixels, np.int64),
+            offsets_d,
+            _d(range_rad),
+            _d(centre_rad),
+            np.int64(pixels.size),
+            np.uint64(seed),
+            np.int64(nside),
+            np.int32(bool(centred)),
+            theta,
+            phi,
+            psi,
+        ),
+    )
     return theta, phi, psi
 
 
@@ -275,8 +295,24 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = cp.empty((nh, nk, nm))
     pb = cp.empty((nh, nk, nm))
-    _launch("offset_points", nh, (theta, phi, psi, np.int64(nh), _d(rotations), np.int32(nk),
-                                  _d(pair_angles), np.int32(nm), _d(rho), _d(chi), tb, pb))
+    _launch(
+        "offset_points",
+        nh,
+        (
+            theta,
+            phi,
+            psi,
+            np.int64(nh),
+            _d(rotations),
+            np.int32(nk),
+            _d(pair_angles),
+            np.int32(nm),
+            _d(rho),
+            _d(chi),
+            tb,
+            pb,
+        ),
+    )
     return tb, pb
 
 
@@ -285,8 +321,11 @@ def interpolate(stack, nside, theta, phi):
     stack = stack if isinstance(stack, cp.ndarray) else _d(stack)
     theta, phi = _d(theta), _d(phi)
     out = cp.empty((stack.shape[1], theta.size))
-    _launch("interpolate", theta.size, (stack, np.int32(stack.shape[1]), np.int64(nside), theta,
-                                        phi, np.int64(theta.size), out))
+    _launch(
+        "interpolate",
+        theta.size,
+        (stack, np.int32(stack.shape[1]), np.int64(nside), theta, phi, np.int64(theta.size), out),
+    )
     return out
 
 
@@ -296,16 +335,43 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
     va = _d(values_a)
     vb = _d(values_b) if values_b.shape[1] > 0 else None
     out = cp.empty((npix, 5))
-    _launch("accumulate", npix, (_d(offsets, np.int64), _d(psi), np.int64(npix), va,
-                                 vb if vb is not None else np.uint64(0), np.int64(va.shape[1]),
-                                 np.int32(va.shape[0]), np.int32(nk), np.int32(nm),
-                                 _d(np.cos(turn)), _d(np.sin(turn)), _d(dg), _d(leak), out))
+    _launch(
+        "accumulate",
+        npix,
+        (
+            _d(offsets, np.int64),
+            _d(psi),
+            np.int64(npix),
+            va,
+            vb if vb is not None else np.uint64(0),
+            np.int64(va.shape[1]),
+            np.int32(va.shape[0]),
+            np.int32(nk),
+            np.int32(nm),
+            _d(np.cos(turn)),
+            _d(np.sin(turn)),
+            _d(dg),
+            _d(leak),
+            out,
+        ),
+    )
     return out
 
 
 def moments(offsets, psi, rotations, n_max):
     npix = offsets.size - 1
     out = cp.empty((npix, n_max + 1), dtype=cp.complex128)
-    _launch("moments", npix, (_d(offsets, np.int64), _d(psi), np.int64(npix), _d(rotations),
-                              np.int32(rotations.size), np.int32(n_max), out))
+    _launch(
+        "moments",
+        npix,
+        (
+            _d(offsets, np.int64),
+            _d(psi),
+            np.int64(npix),
+            _d(rotations),
+            np.int32(rotations.size),
+            np.int32(n_max),
+            out,
+        ),
+    )
     return out

@@ -1,4 +1,5 @@
 """Regenerate boresight/data/planck2015_spectra.npz with CAMB (needs `pip install camb`)."""
+
 import sys
 from pathlib import Path
 

@@ -1,4 +1,5 @@
 """Shared low-resolution fixtures: CI runs on 2 cores, so skies here are Nside <= 512."""
+
 import numpy as np
 import pytest
 
@@ -18,8 +19,9 @@ def small_sky(theory):
 
 @pytest.fixture(scope="session")
 def small_sky_unpolarised(theory):
-    return sky.make_sky(sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=60.0, seed=7,
-                                      polarised=False), theory)
+    return sky.make_sky(
+        sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=60.0, seed=7, polarised=False), theory
+    )
 
 
 def rel_max(a, b):

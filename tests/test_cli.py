@@ -1,4 +1,5 @@
 """The command line end to end, and its handling of bad input (issue 4)."""
+
 import csv
 import os
 
@@ -15,19 +16,35 @@ EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples")
 def test_reproduce_quick_end_to_end(tmp_path):
     out = tmp_path / "paper"
     assert main(["-q", "reproduce", "--quick", "--out", str(out)]) == 0
-    for stem in ("fig1_pointing_wide", "fig2_gain_deep", "fig3_pointing_angles",
-                 "fig4_gain_angles", "fig5_wide_mask", "fig6_deep_mask"):
+    for stem in (
+        "fig1_pointing_wide",
+        "fig2_gain_deep",
+        "fig3_pointing_angles",
+        "fig4_gain_angles",
+        "fig5_wide_mask",
+        "fig6_deep_mask",
+    ):
         for ext in ("png", "pdf"):
             assert (out / f"{stem}.{ext}").stat().st_size > 1000
     with open(out / "results.csv") as f:
         rows = list(csv.DictReader(f))
     assert set(paper.CSV_COLUMNS) <= set(rows[0])
     assert {r["experiment"] for r in rows} == {"pointing_wide", "gain_deep"}
-    assert {r["pbr_angle_deg"] for r in rows} == {"", "180.0", "179.0", "160.0", "90.0", "89.0",
-                                                  "70.0"}
+    assert {r["pbr_angle_deg"] for r in rows} == {
+        "",
+        "180.0",
+        "179.0",
+        "160.0",
+        "90.0",
+        "89.0",
+        "70.0",
+    }
     report = (out / "report.md").read_text()
-    verdicts = [line.rsplit("|", 2)[-2].strip() for line in report.splitlines()
-                if line.startswith("| pointing_wide") or line.startswith("| gain_deep")]
+    verdicts = [
+        line.rsplit("|", 2)[-2].strip()
+        for line in report.splitlines()
+        if line.startswith("| pointing_wide") or line.startswith("| gain_deep")
+    ]
     assert len(verdicts) == 18 and set(verdicts) == {"reproduced"}
     assert '"git_revision"' in (out / "manifest.json").read_text()
     # An existing directory is kept without --force.
@@ -47,8 +64,10 @@ def _toml(config):
     def value(v):
         return repr(v) if not isinstance(v, bool) else str(v).lower()
 
-    return "".join(f"[{section}]\n" + "".join(f"{k} = {value(v)}\n" for k, v in body.items())
-                   for section, body in config.items())
+    return "".join(
+        f"[{section}]\n" + "".join(f"{k} = {value(v)}\n" for k, v in body.items())
+        for section, body in config.items()
+    )
 
 
 def _write(tmp_path, config):
@@ -57,16 +76,19 @@ def _write(tmp_path, config):
     return str(path)
 
 
-@pytest.mark.parametrize("section, key, value, message", [
-    ("sky", "colour", 1, "unknown key sky.colour"),
-    ("sky", "nside", "big", "sky.nside"),
-    ("sky", "nside", 48, "nside must be a power of two"),
-    ("systematics", "rho_arcmin", -0.1, "rho_arcmin must be >= 0"),
-    ("scan", "rotations_deg", [], "rotations_deg"),
-    ("mask", "file", "nowhere.fits", "file not found"),
-    ("telescope", "x", 1, "unknown section [telescope]"),
-    ("run", "evaluation", "magic", "run.evaluation"),
-])
+@pytest.mark.parametrize(
+    "section, key, value, message",
+    [
+        ("sky", "colour", 1, "unknown key sky.colour"),
+        ("sky", "nside", "big", "sky.nside"),
+        ("sky", "nside", 48, "nside must be a power of two"),
+        ("systematics", "rho_arcmin", -0.1, "rho_arcmin must be >= 0"),
+        ("scan", "rotations_deg", [], "rotations_deg"),
+        ("mask", "file", "nowhere.fits", "file not found"),
+        ("telescope", "x", 1, "unknown section [telescope]"),
+        ("run", "evaluation", "magic", "run.evaluation"),
+    ],
+)
 def test_bad_config_exits_2_and_writes_nothing(tmp_path, capsys, section, key, value, message):
     config = {k: dict(v) for k, v in BASE.items()}
     config.setdefault(section, {})[key] = value

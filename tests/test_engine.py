@@ -1,4 +1,5 @@
-"""The simulation engine against analytic identities (paper eq. 6, derived in docs/conventions.md)."""
+"""The simulation engine against analytic identities (paper eq. 6; see docs/conventions.md)."""
+
 import healpy as hp
 import numpy as np
 import pytest
@@ -80,10 +81,15 @@ def test_pointing_matches_first_order_with_quadratic_error(small_sky_unpolarised
 
 def test_pointing_first_order_cancels_with_180_rotation(small_sky_unpolarised):
     sysm = Systematics(rho_arcmin=0.5)
-    leak = engine.simulate(small_sky_unpolarised, SyntheticScan(**CENTRED), systematics=sysm,
-                           evaluation="exact")
-    pbr = engine.simulate(small_sky_unpolarised, SyntheticScan(**CENTRED, rotations_deg=(0, 180)),
-                          systematics=sysm, evaluation="exact")
+    leak = engine.simulate(
+        small_sky_unpolarised, SyntheticScan(**CENTRED), systematics=sysm, evaluation="exact"
+    )
+    pbr = engine.simulate(
+        small_sky_unpolarised,
+        SyntheticScan(**CENTRED, rotations_deg=(0, 180)),
+        systematics=sysm,
+        evaluation="exact",
+    )
     # The O(rho) part cancels; the O(rho^2) rest is ~ rho / beam scale ~ 0.5 / 25 of the leak.
     assert np.max(np.abs(pbr.q + 1j * pbr.u)) < 0.02 * np.max(np.abs(leak.q + 1j * leak.u))
 
@@ -94,8 +100,11 @@ def test_chunking_and_threads_do_not_change_results(small_sky):
     a = engine.simulate(small_sky, scan, systematics=sysm, chunk_pixels=1 << 16, nthreads=2)
     b = engine.simulate(small_sky, scan, systematics=sysm, chunk_pixels=777, nthreads=1)
     assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)
-    c = engine.simulate(small_sky, SyntheticScan(n_phi=3, range_rad=0.7, rotations_deg=(0, 90),
-                                                 seed=12), systematics=sysm)
+    c = engine.simulate(
+        small_sky,
+        SyntheticScan(n_phi=3, range_rad=0.7, rotations_deg=(0, 90), seed=12),
+        systematics=sysm,
+    )
     assert not np.array_equal(a.q, c.q)
 
 
@@ -136,8 +145,11 @@ def test_moments_rotation_closed_form():
         for n in range(1, 5):
             want = np.abs(h0[n]) ** 2 * np.cos(n * alpha * DEG / 2) ** 2
             assert np.allclose(np.abs(h1[n]) ** 2, want, rtol=1e-12, atol=1e-15)
-            assert np.isclose(predict.rotation_suppression(n, (0, alpha)),
-                              np.cos(n * alpha * DEG / 2) ** 2, rtol=1e-12)
+            assert np.isclose(
+                predict.rotation_suppression(n, (0, alpha)),
+                np.cos(n * alpha * DEG / 2) ** 2,
+                rtol=1e-12,
+            )
 
 
 def test_gradient_matches_finite_difference(small_sky_unpolarised):

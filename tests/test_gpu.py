@@ -1,4 +1,5 @@
 """GPU backend: the same maps as the CPU to <= 1e-12 relative (skipped without CuPy and a GPU)."""
+
 import importlib.util
 
 import numpy as np
@@ -30,14 +31,26 @@ def test_clear_error_without_cupy(small_sky):
 
 
 CASES = [
-    (SyntheticScan(n_phi=4, range_rad=0.719, rotations_deg=(0, 90), seed=3),
-     Systematics(dg=(0.01, -0.01)), "interp"),
-    (SyntheticScan(n_phi=2, range_rad=0.169, rotations_deg=(0, 179), seed=4),
-     Systematics(rho_arcmin=3.0, chi_deg=(10.0, -20.0)), "interp"),
-    (SyntheticScan(n_phi=np.arange(12 * 64**2) % 5 + 1, range_rad=1.0, in_pixel="centre"),
-     Systematics(dg=0.02, rho_arcmin=1.0, leak=(0.01, 0.0)), "interp"),
-    (SyntheticScan(n_phi=3, range_rad=0.5, rotations_deg=(0, 45, 90, 135), seed=5),
-     Systematics(rho_arcmin=2.0), "exact"),
+    (
+        SyntheticScan(n_phi=4, range_rad=0.719, rotations_deg=(0, 90), seed=3),
+        Systematics(dg=(0.01, -0.01)),
+        "interp",
+    ),
+    (
+        SyntheticScan(n_phi=2, range_rad=0.169, rotations_deg=(0, 179), seed=4),
+        Systematics(rho_arcmin=3.0, chi_deg=(10.0, -20.0)),
+        "interp",
+    ),
+    (
+        SyntheticScan(n_phi=np.arange(12 * 64**2) % 5 + 1, range_rad=1.0, in_pixel="centre"),
+        Systematics(dg=0.02, rho_arcmin=1.0, leak=(0.01, 0.0)),
+        "interp",
+    ),
+    (
+        SyntheticScan(n_phi=3, range_rad=0.5, rotations_deg=(0, 45, 90, 135), seed=5),
+        Systematics(rho_arcmin=2.0),
+        "exact",
+    ),
 ]
 
 

@@ -1,4 +1,5 @@
 """Analytic prediction against simulation (issue 3), at Nside 512 with the paper's 7' beam."""
+
 import numpy as np
 import pytest
 
@@ -15,8 +16,9 @@ CASES = {"wide": PAPER_POINTING, "deep": PAPER_GAIN}
 
 @pytest.fixture(scope="module")
 def paper_sky(theory):
-    return sky.make_sky(sky.SkyConfig(nside=NSIDE, lmax=3 * NSIDE - 1, fwhm_arcmin=7.0, seed=1),
-                        theory)
+    return sky.make_sky(
+        sky.SkyConfig(nside=NSIDE, lmax=3 * NSIDE - 1, fwhm_arcmin=7.0, seed=1), theory
+    )
 
 
 @pytest.fixture(scope="module")
@@ -29,8 +31,9 @@ def study(paper_sky):
         ref = engine.simulate(paper_sky, scan, pixels=obs)
         sim = engine.simulate(paper_sky, scan, systematics=sysm, pixels=obs)
         h, _ = engine.scan_moments(scan, NSIDE, pixels=obs)
-        out[survey] = dict(mask=mask, obs=obs, ref=ref, sim=sim, h=h,
-                           cp=coupling.coupling_matrices(mask, LMAX))
+        out[survey] = dict(
+            mask=mask, obs=obs, ref=ref, sim=sim, h=h, cp=coupling.coupling_matrices(mask, LMAX)
+        )
     return out
 
 
@@ -54,8 +57,15 @@ def test_cl_level_prediction_within_10_percent(survey, study, paper_sky, theory)
     cannot follow; the prediction uses the patch's own temperature spectrum (predict.local_cl).
     """
     s = study[survey]
-    pred = predict.residual_pseudo_bb(s["h"], s["mask"], s["cp"], CASES[survey], theory, 7.0,
-                                      field_cl=predict.local_cl(paper_sky, s["mask"], LMAX))
+    pred = predict.residual_pseudo_bb(
+        s["h"],
+        s["mask"],
+        s["cp"],
+        CASES[survey],
+        theory,
+        7.0,
+        field_cl=predict.local_cl(paper_sky, s["mask"], LMAX),
+    )
     auto = spectra.residual_bb_parts(s["sim"].qu, s["ref"].qu, s["mask"], LMAX)[1]
     _, w = spectra.bin_spectrum(auto, EDGES)
     _, g = spectra.bin_spectrum(pred, EDGES)
@@ -65,13 +75,16 @@ def test_cl_level_prediction_within_10_percent(survey, study, paper_sky, theory)
 def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
     """Q = U = 0: gain + 90 deg cancels to rounding; pointing + 180 deg leaves only O(rho^2)."""
     nside, lmax = 128, 200
-    s0 = sky.make_sky(sky.SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2,
-                                    polarised=False), theory)
+    s0 = sky.make_sky(
+        sky.SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2, polarised=False), theory
+    )
     mask = masks.survey_mask("deep", nside)
     cp = coupling.coupling_matrices(mask, lmax)
     zero = np.zeros((2, 12 * nside**2))
-    for survey, sysm, angle, floor in (("deep", PAPER_GAIN, 90, 1e-25),
-                                       ("wide", PAPER_POINTING, 180, 1e-4)):
+    for survey, sysm, angle, floor in (
+        ("deep", PAPER_GAIN, 90, 1e-25),
+        ("wide", PAPER_POINTING, 180, 1e-4),
+    ):
         # Exact evaluation: bilinear interpolation has kinks that turn T(x+d) + T(x-d) - 2 T(x)
         # into a first-order-in-rho floor; the band-limited sky leaves the true O(rho^2).
         base = engine.simulate(s0, paper_scan(survey), systematics=sysm, evaluation="exact")
@@ -82,8 +95,9 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         h, _ = engine.scan_moments(pbr_scan, nside)
         # The sky's own (zero) polarisation spectrum: theory EE would feed the h_4 P* term.
         local = predict.local_cl(s0, mask, lmax)
-        pred = np.abs(predict.residual_pseudo_bb(h, mask, cp, sysm, theory, 30.0,
-                                                 field_cl=local)[2:]).max()
+        pred = np.abs(
+            predict.residual_pseudo_bb(h, mask, cp, sysm, theory, 30.0, field_cl=local)[2:]
+        ).max()
         # Gain: exact cancellation, rounding of ~1e-16 squared. Pointing: the second-order term
         # relative to the first is ~ rho l_beam / 2 ~ 0.004, i.e. ~2e-5 in power.
         assert sim < floor * no_pbr, survey
@@ -98,8 +112,7 @@ def test_spectrum_suppression_follows_cos2(alpha, theory):
     sysm = Systematics(dg=(0.01, 0.01))
     ratios = []
     for rot in ((0.0,), (0.0, alpha)):
-        h, _ = engine.scan_moments(SyntheticScan(n_phi=3, range_rad=0.8, rotations_deg=rot),
-                                   nside)
+        h, _ = engine.scan_moments(SyntheticScan(n_phi=3, range_rad=0.8, rotations_deg=rot), nside)
         ratios.append(predict.systematic_cl(h, mask, sysm, theory, 60, 7.0)[2:])
     assert np.allclose(ratios[1] / ratios[0], np.cos(np.radians(alpha)) ** 2, rtol=1e-10)
 
@@ -108,5 +121,6 @@ def test_prediction_needs_qu_pairs(small_sky):
     from boresight.instrument import Instrument
 
     with pytest.raises(ValueError, match="pairs"):
-        predict.delta_p(small_sky, np.zeros((5, small_sky.maps.shape[1])), PAPER_GAIN,
-                        Instrument((0.0, 30.0)))
+        predict.delta_p(
+            small_sky, np.zeros((5, small_sky.maps.shape[1])), PAPER_GAIN, Instrument((0.0, 30.0))
+        )

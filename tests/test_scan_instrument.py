@@ -6,11 +6,19 @@ from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan, paper_scan
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    (dict(n_phi=0), "n_phi"), (dict(n_phi=2.5), "n_phi"), (dict(range_rad=7.0), "range_rad"),
-    (dict(range_rad=-0.1), "range_rad"), (dict(rotations_deg=()), "rotations_deg"),
-    (dict(in_pixel="corner"), "in_pixel"), (dict(seed=-3), "seed"),
-    (dict(range_rad=np.array([0.1, np.nan])), "range_rad")])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(n_phi=0), "n_phi"),
+        (dict(n_phi=2.5), "n_phi"),
+        (dict(range_rad=7.0), "range_rad"),
+        (dict(range_rad=-0.1), "range_rad"),
+        (dict(rotations_deg=()), "rotations_deg"),
+        (dict(in_pixel="corner"), "in_pixel"),
+        (dict(seed=-3), "seed"),
+        (dict(range_rad=np.array([0.1, np.nan])), "range_rad"),
+    ],
+)
 def test_bad_scan(kwargs, field):
     with pytest.raises(ValueError, match=field):
         SyntheticScan(**kwargs)
@@ -50,8 +58,9 @@ def test_paper_scans():
         paper_scan("medium")
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    (dict(rho_arcmin=-0.1), "rho_arcmin"), (dict(dg=(0.1, np.inf)), "dg")])
+@pytest.mark.parametrize(
+    "kwargs, field", [(dict(rho_arcmin=-0.1), "rho_arcmin"), (dict(dg=(0.1, np.inf)), "dg")]
+)
 def test_bad_systematics(kwargs, field):
     with pytest.raises(ValueError, match=field):
         Systematics(**kwargs)

@@ -56,9 +56,17 @@ def test_seed_reproducible_and_unpolarised_option(theory):
     assert np.array_equal(a.maps[0], d.maps[0]) and not d.maps[1:].any()
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    (dict(nside=-4), "nside"), (dict(nside=100), "nside"), (dict(nside=16, lmax=48), "lmax"),
-    (dict(fwhm_arcmin=-1.0), "fwhm_arcmin"), (dict(r=-0.1), "r"), (dict(seed=-1), "seed")])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(nside=-4), "nside"),
+        (dict(nside=100), "nside"),
+        (dict(nside=16, lmax=48), "lmax"),
+        (dict(fwhm_arcmin=-1.0), "fwhm_arcmin"),
+        (dict(r=-0.1), "r"),
+        (dict(seed=-1), "seed"),
+    ],
+)
 def test_bad_sky_config(kwargs, field):
     with pytest.raises(ValueError, match=field):
         sky.SkyConfig(**kwargs)

@@ -28,12 +28,15 @@ def test_residual_keeps_precision_of_tiny_differences(small_sky):
     b = spectra.masked_pol_alm(qu, mask, 150)[1]
     db = spectra.masked_pol_alm(dqu, mask, 150)[1]
     from boresight.harmonics import alm2cl
+
     exact = 2 * alm2cl(b, db) + alm2cl(db)
     err = rel_max(res[2:], exact[2:])
     assert err < 1e-8
     zero_t = np.zeros_like(qu[:1])
-    naive = spectra.pseudo_spectra(np.concatenate([zero_t, qu + dqu]), mask, 150)[2] - \
-        spectra.pseudo_spectra(np.concatenate([zero_t, qu]), mask, 150)[2]
+    naive = (
+        spectra.pseudo_spectra(np.concatenate([zero_t, qu + dqu]), mask, 150)[2]
+        - spectra.pseudo_spectra(np.concatenate([zero_t, qu]), mask, 150)[2]
+    )
     # Here the linear cross term dominates, so the naive route is "only" ~30x worse; for residuals
     # cancelled by rotation (auto term ~ 1e-14 of the signal) it resolves nothing.
     assert rel_max(naive[2:], exact[2:]) > 10 * err
@@ -71,8 +74,11 @@ def test_coupling_matches_direct_wigner_sum():
             big_l, w3 = big_l[keep], w3[keep]
             base = (2 * l2 + 1) / (4 * np.pi) * (2 * big_l + 1) * w[big_l] * w3**2
             parity = (-1.0) ** (l1 + l2 + big_l)
-            wants = [base.sum()] if s == 0 else [(base * (1 + parity) / 2).sum(),
-                                                 (base * (1 - parity) / 2).sum()]
+            wants = (
+                [base.sum()]
+                if s == 0
+                else [(base * (1 + parity) / 2).sum(), (base * (1 - parity) / 2).sum()]
+            )
             for m, want in zip(mats, wants):
                 assert np.isclose(m[l1, l2], want, rtol=1e-12, atol=1e-18)
 

@@ -1,4 +1,5 @@
 """Sweeps: serial and Dask give the same table, interrupted sweeps resume exactly (issue 7)."""
+
 import subprocess
 import sys
 import time
@@ -51,12 +52,22 @@ def test_serial_and_local_cluster_give_identical_tables(tmp_path):
 
 
 def test_interrupted_sweep_resumes_to_the_same_rows(tmp_path):
-    path = _sweep_files(tmp_path, 'pbr_angle_deg = [0, 30, 60, 80, 89, 90]')
+    path = _sweep_files(tmp_path, "pbr_angle_deg = [0, 30, 60, 80, 89, 90]")
     whole = tmp_path / "whole"
     sweep.run_sweep(path, whole, scheduler="serial", log=lambda m: None)
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "boresight.cli", "-q", "sweep", path, "--out", str(out),
-           "--scheduler", "serial"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "boresight.cli",
+        "-q",
+        "sweep",
+        path,
+        "--out",
+        str(out),
+        "--scheduler",
+        "serial",
+    ]
     proc = subprocess.Popen(cmd)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
