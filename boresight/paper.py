@@ -119,8 +119,8 @@ def run_study(cfg=StudyConfig(), experiments=EXPERIMENTS, log=lambda msg: None, 
     with timer("sky"):
         the_sky = sky.make_sky(sky_cfg, theory, cfg.nthreads)
         unpolarised = sky.Sky(
-            alm=the_sky.alm * np.array([[1], [0], [0]]),
-            maps=the_sky.maps * np.array([[1], [0], [0]]),
+            alm=_temperature_only(the_sky.alm),
+            maps=_temperature_only(the_sky.maps),
             nside=cfg.nside,
             lmax=cfg.lmax,
             fwhm_arcmin=cfg.fwhm_arcmin,
@@ -129,6 +129,13 @@ def run_study(cfg=StudyConfig(), experiments=EXPERIMENTS, log=lambda msg: None, 
     for exp in experiments:
         results[exp.name] = _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress)
     return results, timer.stages
+
+
+def _temperature_only(stack):
+    """(T, 0, 0) copy of a (3, n) stack; the zero rows stay untouched pages until used."""
+    out = np.zeros_like(stack)
+    out[0] = stack[0]
+    return out
 
 
 def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
@@ -177,6 +184,8 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
                         b_ref=b_ref,
                     )
                 )
+                del dp
+            del sim, h  # full-sky arrays: free them before the next angle allocates its own
         if angle in (None, exp.ideal_deg):
             with timer(f"{exp.name}: Q = U = 0, {label}"):
                 sim0 = engine.simulate(
@@ -185,6 +194,7 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
                 res.zero_qu[angle] = spectra.residual_bb(
                     sim0.qu, zero, mask, lmax_s, cfg.nthreads, b_ref=np.zeros_like(b_ref)
                 )
+                del sim0
     return res
 
 
