@@ -100,17 +100,12 @@ def simulate(
     "exact"; leak_template: map used by the additive leak (default: the sky's I). Returns
     :class:`boresight.mapmaking.Maps` on the full sky (unobserved pixels flagged).
     """
-    if evaluation not in METHODS:
-        raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
-    kernels = get_backend(backend)
-    nside, npix = sky.nside, 12 * sky.nside**2
+    binner = _Binner(sky, instrument, systematics, scan.rotations_rad, evaluation, leak_template,
+                     nthreads, backend)
+    kernels, nside, npix = binner.kernels, sky.nside, 12 * sky.nside**2
     if chunk_pixels is None:
         chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
     pix = _pixel_list(pixels, npix)
-    dg, rho, chi, leak = systematics.per_pair(instrument.n_pairs)
-    fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
-    rot, ang = scan.rotations_rad, instrument.pair_angles_rad
-    stack = kernels.to_device(fields.stack) if evaluation == "interp" else None
     q = np.full(npix, hp.UNSEEN)
     u = np.full(npix, hp.UNSEEN)
     rcond = np.zeros(npix)
@@ -118,21 +113,76 @@ def simulate(
     with threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
             offsets, theta, phi, psi = _hits(kernels, scan, nside, chunk)
-            values_a = fields_at(kernels, fields, stack, theta, phi, evaluation, nthreads)
-            if systematics.has_pointing:
-                tb, pb = kernels.offset_points(theta, phi, psi, rot, ang, rho, chi)
-                values_b = fields_at(
-                    kernels, fields, stack, tb.ravel(), pb.ravel(), evaluation, nthreads
-                )
-                values_b = values_b.reshape((fields.n_fields,) + tb.shape)
-            else:
-                values_b = np.empty((fields.n_fields, 0, rot.size, ang.size))
-            normal = kernels.to_host(
-                kernels.accumulate(offsets, psi, values_a, values_b, rot, ang, dg, leak)
-            )
+            normal = binner.normal(offsets, theta, phi, psi)
             q[chunk], u[chunk], rcond[chunk] = solve(normal, rcond_min)
-            ncross[chunk] = np.diff(kernels.to_host(offsets)) * rot.size
+            ncross[chunk] = np.diff(kernels.to_host(offsets)) * len(scan.rotations_deg)
     return Maps(q=q, u=u, hits=ncross, rcond=rcond)
+
+
+class _Binner:
+    """Sky evaluation, detector-B pointing and pair-difference binning of one chunk of hits
+    grouped by pixel: the part of the hot loop shared by synthetic scans and real sample streams."""
+
+    def __init__(self, sky, instrument, systematics, rotations, evaluation, leak_template,
+                 nthreads, backend):
+        if evaluation not in METHODS:
+            raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
+        self.kernels = get_backend(backend)
+        self.dg, self.rho, self.chi, self.leak = systematics.per_pair(instrument.n_pairs)
+        self.pointing = systematics.has_pointing
+        self.fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
+        self.rot, self.ang = np.asarray(rotations, dtype=np.float64), instrument.pair_angles_rad
+        self.stack = self.kernels.to_device(self.fields.stack) if evaluation == "interp" else None
+        self.evaluation, self.nthreads = evaluation, nthreads
+
+    def _at(self, theta, phi):
+        return fields_at(self.kernels, self.fields, self.stack, theta, phi, self.evaluation,
+                         self.nthreads)
+
+    def normal(self, offsets, theta, phi, psi):
+        """(npix_chunk, 5) normal-equation sums of the hits (offsets: hits of each pixel)."""
+        k, fields = self.kernels, self.fields
+        values_a = self._at(theta, phi)
+        if self.pointing:
+            tb, pb = k.offset_points(theta, phi, psi, self.rot, self.ang, self.rho, self.chi)
+            values_b = self._at(tb.ravel(), pb.ravel()).reshape((fields.n_fields,) + tb.shape)
+        else:
+            values_b = np.empty((fields.n_fields, 0, self.rot.size, self.ang.size))
+        return k.to_host(k.accumulate(offsets, psi, values_a, values_b, self.rot, self.ang,
+                                      self.dg, self.leak))
+
+
+def group_by_pixel(nside, theta, phi, psi):
+    """Sort samples by RING pixel: (pixels, offsets, theta, phi, psi) in pixel order."""
+    pix = hp.ang2pix(nside, theta, phi)
+    order = np.argsort(pix, kind="stable")
+    upix, counts = np.unique(pix[order], return_counts=True)
+    offsets = np.zeros(upix.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return upix, offsets, theta[order], phi[order], psi[order]
+
+
+def simulate_samples(sky, sample_chunks, instrument=Instrument(), systematics=Systematics(), *,
+                     evaluation="interp", leak_template=None, nthreads=0, backend="cpu",
+                     rcond_min=RCOND_MIN):
+    """Maps from streams of real samples, e.g. ``boresight.ground.pointing(schedule)``.
+
+    sample_chunks: iterable of (theta, phi, psi) arrays [rad] in any order. Each chunk is grouped
+    by pixel and binned with the same kernels as synthetic scans; the normal equations of all
+    chunks add up before the per-pixel solve, so memory is the chunk plus (npix, 5) sums.
+    """
+    binner = _Binner(sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads,
+                     backend)
+    npix = 12 * sky.nside**2
+    normal = np.zeros((npix, 5))
+    hits = np.zeros(npix, dtype=np.int64)
+    with threads(nthreads):
+        for theta, phi, psi in sample_chunks:
+            upix, offsets, theta, phi, psi = group_by_pixel(sky.nside, theta, phi, psi)
+            normal[upix] += binner.normal(offsets, theta, phi, psi)
+            hits[upix] += np.diff(offsets)
+    q, u, rcond = solve(normal, rcond_min)
+    return Maps(q=q, u=u, hits=hits, rcond=rcond)
 
 
 def fields_at(kernels, fields, stack, theta, phi, evaluation, nthreads):

@@ -1,0 +1,166 @@
+"""Real ground scans: constant-elevation scans (CES) from a site, with a boresight schedule.
+
+Each CES sweeps the azimuth as a triangle wave, centre +- throw / 2 at constant speed with
+instantaneous turnarounds, at fixed elevation and boresight angle. The Earth turns between and
+during CESs. Pointing is a rotation from the horizon frame to equatorial coordinates of date
+(CIRS, from the Earth Rotation Angle with UT1 = UTC + dut1). It ignores polar motion, refraction
+and diurnal aberration (each below 0.5 arcsec). Coordinates of date differ from ICRS by
+precession-nutation, about 0.35 deg in 2026: irrelevant for crossing-angle statistics and noted in
+FITS outputs.
+
+The crossing angle psi of a sample is the orientation on the sky of the focal plane's "up" axis
+(towards the zenith at zero boresight rotation), measured from e_theta towards e_phi like the
+synthetic scans' psi, plus the boresight angle: psi = pi - q + boresight, with q the parallactic
+angle (position angle of the zenith, east of north).
+"""
+
+import csv
+import os
+from dataclasses import dataclass, fields
+
+import numba
+import numpy as np
+
+from .constants import DEG
+
+UNIX_EPOCH_JD = 2440587.5
+#: Simons Observatory site, Cerro Toco, Atacama (deg, deg, m)
+ATACAMA = (-22.958, -67.787, 5200.0)
+
+
+@dataclass(frozen=True)
+class Site:
+    """Observatory position: latitude and east longitude [deg], altitude [m]."""
+
+    lat_deg: float = ATACAMA[0]
+    lon_deg: float = ATACAMA[1]
+    alt_m: float = ATACAMA[2]
+
+    def __post_init__(self):
+        if not -90 <= self.lat_deg <= 90:
+            raise ValueError(f"lat_deg must be in [-90, 90], got {self.lat_deg}")
+        if not -180 <= self.lon_deg <= 360:
+            raise ValueError(f"lon_deg must be in [-180, 360], got {self.lon_deg}")
+
+
+@dataclass(frozen=True)
+class CES:
+    """One constant-elevation scan. start_unix: UTC seconds since 1970; angles in deg."""
+
+    start_unix: float
+    duration_s: float
+    elevation_deg: float
+    az_centre_deg: float
+    az_throw_deg: float
+    speed_deg_s: float = 1.0
+    boresight_deg: float = 0.0
+
+    def __post_init__(self):
+        checks = {"duration_s": self.duration_s > 0, "elevation_deg": 0 < self.elevation_deg < 90,
+                  "az_throw_deg": 0 <= self.az_throw_deg <= 360, "speed_deg_s": self.speed_deg_s > 0}
+        for name, ok in checks.items():
+            if not ok:
+                raise ValueError(f"CES {name} = {getattr(self, name)} is out of range")
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A site, a list of CESs and the sample rate [Hz]."""
+
+    ces: tuple
+    site: Site = Site()
+    sample_rate_hz: float = 20.0
+    dut1_s: float = 0.0  #: UT1 - UTC [s]
+
+    def __post_init__(self):
+        if not self.ces:
+            raise ValueError("a schedule needs at least one CES")
+        if self.sample_rate_hz <= 0:
+            raise ValueError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}")
+
+    @property
+    def n_samples(self):
+        return sum(int(c.duration_s * self.sample_rate_hz) for c in self.ces)
+
+    def repeated(self, boresight_deg):
+        """The same CESs again, each with the boresight rotated by each angle in the list."""
+        ces = tuple(CES(**{**{f.name: getattr(c, f.name) for f in fields(CES)},
+                           "boresight_deg": c.boresight_deg + a})
+                    for a in boresight_deg for c in self.ces)
+        return Schedule(ces, self.site, self.sample_rate_hz, self.dut1_s)
+
+
+def load_schedule(path):
+    """A schedule from TOML ([site], sample_rate_hz, [[ces]]) or CSV (one CES per row)."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"schedule not found: {path}")
+    if path.endswith(".csv"):
+        with open(path) as f:
+            rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
+        return Schedule(tuple(CES(**r) for r in rows))
+    from .config import tomllib
+
+    with open(path, "rb") as f:
+        raw = tomllib.load(f)
+    site = Site(**raw.get("site", {}))
+    repeat = raw.get("repeat_boresight_deg")
+    sched = Schedule(tuple(CES(**c) for c in raw.get("ces", [])), site,
+                     raw.get("sample_rate_hz", 20.0), raw.get("dut1_s", 0.0))
+    return sched.repeated(repeat) if repeat else sched
+
+
+def earth_rotation_angle(jd_ut1):
+    """Earth Rotation Angle [rad] (IERS 2003) at UT1 Julian date(s)."""
+    t = jd_ut1 - 2451545.0
+    frac = np.mod(jd_ut1, 1.0)
+    return np.mod(2 * np.pi * (frac + 0.7790572732640 + 0.00273781191135448 * t), 2 * np.pi)
+
+
+@numba.njit(parallel=True, cache=True)
+def horizon_to_equatorial(az, el, local_era, lat):
+    """(az east of north, el) [rad] at local Earth rotation angles -> (theta, phi, q) [rad].
+
+    theta, phi: colatitude and right ascension of date; q: parallactic angle (east of north).
+    """
+    n = az.size
+    theta = np.empty(n)
+    phi = np.empty(n)
+    q = np.empty(n)
+    sl, cl = np.sin(lat), np.cos(lat)
+    for k in numba.prange(n):
+        se, ce = np.sin(el[k]), np.cos(el[k])
+        sa, ca = np.sin(az[k]), np.cos(az[k])
+        sd = sl * se + cl * ce * ca
+        dec = np.arcsin(min(1.0, max(-1.0, sd)))
+        ha = np.arctan2(-sa * ce, cl * se - sl * ce * ca)
+        theta[k] = 0.5 * np.pi - dec
+        phi[k] = (local_era[k] - ha) % (2 * np.pi)
+        q[k] = np.arctan2(np.sin(ha), np.tan(lat) * np.cos(dec) - sd * np.cos(ha))
+    return theta, phi, q
+
+
+def ces_samples(ces, schedule, start=0, stop=None):
+    """Times [unix s], azimuth and elevation [rad] of samples start..stop of a CES."""
+    n = int(ces.duration_s * schedule.sample_rate_hz)
+    stop = n if stop is None else min(stop, n)
+    k = np.arange(start, stop)
+    t = ces.start_unix + k / schedule.sample_rate_hz
+    sweep = ces.speed_deg_s * (k / schedule.sample_rate_hz)  # degrees travelled
+    throw = max(ces.az_throw_deg, 1e-12)
+    phase = np.mod(sweep, 2 * throw) / throw  # 0..2
+    tri = np.where(phase < 1, phase, 2 - phase) - 0.5  # -1/2..1/2
+    az = (ces.az_centre_deg + ces.az_throw_deg * tri) * DEG
+    el = np.full(k.size, ces.elevation_deg * DEG)
+    return t, az, el
+
+
+def pointing(schedule, chunk_samples=1 << 20):
+    """Yield (theta, phi, psi) [rad] chunks of the whole schedule, in time order."""
+    lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
+    for ces in schedule.ces:
+        n = int(ces.duration_s * schedule.sample_rate_hz)
+        for s in range(0, n, chunk_samples):
+            t, az, el = ces_samples(ces, schedule, s, s + chunk_samples)
+            era = earth_rotation_angle(t / 86400.0 + UNIX_EPOCH_JD + schedule.dut1_s / 86400.0)
+            theta, phi, q = horizon_to_equatorial(az, el, era + lon, lat)
+            yield theta, phi, np.pi - q + ces.boresight_deg * DEG

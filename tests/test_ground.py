@@ -1,0 +1,121 @@
+"""Real ground scans: pointing against astropy, geometry, rotation schedules, twins (issue 5)."""
+
+import numpy as np
+import pytest
+from conftest import rel_max
+
+from boresight import engine, ground, scanstats, tod_cpu
+from boresight.constants import DEG
+from boresight.instrument import Systematics
+from boresight.scan import SyntheticScan
+
+T0 = 1.79e9  # 2026-09-21, inside the IERS tables astropy ships
+
+
+def _night(site=ground.Site(), rate=10.0, n=6, el=50.0):
+    ces = tuple(ground.CES(start_unix=T0 + i * 3600, duration_s=1800, elevation_deg=el,
+                           az_centre_deg=140 if i < n // 2 else 220, az_throw_deg=30)
+                for i in range(n))
+    return ground.Schedule(ces, site, sample_rate_hz=rate)
+
+
+def test_pointing_matches_astropy():
+    """<= 1 arcsec in position and <= 0.01 deg in crossing angle against astropy's CIRS."""
+    u = pytest.importorskip("astropy.units")
+    from astropy.coordinates import CIRS, AltAz, EarthLocation, SkyCoord
+    from astropy.time import Time
+    from astropy.utils import iers
+
+    iers.conf.auto_download = False
+    site = ground.Site()
+    ces = ground.CES(start_unix=T0, duration_s=7200, elevation_deg=40, az_centre_deg=100,
+                     az_throw_deg=60, boresight_deg=30)
+    times = Time(ground.ces_samples(ces, ground.Schedule((ces,), site, 0.05))[0], format="unix")
+    sched = ground.Schedule((ces,), site, sample_rate_hz=0.05,
+                            dut1_s=float(np.mean(times.delta_ut1_utc)))
+    theta, phi, psi = next(ground.pointing(sched))
+    _, az, el = ground.ces_samples(ces, sched)
+    loc = EarthLocation(lat=site.lat_deg * u.deg, lon=site.lon_deg * u.deg,
+                        height=site.alt_m * u.m)
+    frame = AltAz(obstime=times, location=loc, pressure=0 * u.hPa)
+    cirs = CIRS(obstime=times, location=loc)
+    ref = SkyCoord(az=az * u.rad, alt=el * u.rad, frame=frame).transform_to(cirs)
+    up = SkyCoord(az=az * u.rad, alt=(el + 1e-5) * u.rad, frame=frame).transform_to(cirs)
+    ours = SkyCoord(ra=phi * u.rad, dec=(np.pi / 2 - theta) * u.rad, frame=cirs)
+    assert ours.separation(ref).arcsec.max() < 1.0
+    psi_astropy = np.pi - ref.position_angle(up).rad + 30 * DEG
+    assert np.degrees(np.abs(np.angle(np.exp(1j * (psi - psi_astropy))))).max() < 0.01
+
+
+def test_geometry_at_pole_and_equator():
+    era = np.zeros(5)
+    az = np.radians([0, 45, 90, 180, 300.0])
+    el = np.radians([10, 30, 50, 70, 89.0])
+    theta, _, _ = ground.horizon_to_equatorial(az, el, era, -np.pi / 2)  # south pole
+    assert np.allclose(theta, np.pi / 2 + el)  # dec = -el whatever the azimuth
+    theta, phi, _ = ground.horizon_to_equatorial(az, el, era, 0.0)  # equator
+    assert np.allclose(np.pi / 2 - theta, np.arcsin(np.cos(el) * np.cos(az)))
+    _, phi, q = ground.horizon_to_equatorial(np.array([90.0 * DEG]), np.zeros(1), era[:1], 0.0)
+    assert np.isclose(phi[0], np.pi / 2) and np.isclose(abs(q[0]), np.pi / 2)  # rising in the east
+
+
+def test_repeat_at_180_cancels_h1_h3():
+    stats = scanstats.characterise(ground.pointing(_night(rate=4).repeated([0, 180])), 64)
+    obs = stats.observed
+    assert obs.sum() > 300
+    assert np.abs(stats.h[1, obs]).max() < 1e-13 and np.abs(stats.h[3, obs]).max() < 1e-13
+    # h_2 survives a 180 deg repeat (except where rising and setting scans cross near 90 deg).
+    assert np.median(np.abs(stats.h[2, obs])) > 0.5
+
+
+def test_twin_reproduces_hn_power():
+    stats = scanstats.characterise(ground.pointing(_night()), 64)
+    twin = stats.synthetic_twin(seed=1)
+    h, _ = engine.scan_moments(twin, 64, pixels=stats.observed)
+    means = stats.survey_means()
+    for n in range(1, 5):
+        twin_mean = np.mean(np.abs(h[n, stats.observed]) ** 2)
+        assert abs(twin_mean / means[f"mean_abs_h{n}_sq"] - 1) < 0.10, n
+
+
+def test_distinct_angles_and_range():
+    """Known angles in one pixel: 3 separated values, two of them closer than the tolerance."""
+    nside = 8
+    theta = np.full(5, 1.0)
+    phi = np.full(5, 1.0)
+    psi = np.radians([10.0, 10.5, 50.0, 120.0, 10.2])
+    stats = scanstats.characterise([(theta, phi, psi)], nside, tolerance_deg=1.0)
+    p = np.flatnonzero(stats.observed)[0]
+    assert stats.n_distinct[p] == 3
+    assert abs(np.degrees(stats.range_rad[p]) - 110.0) <= 1.0  # 10 .. 120 deg, to a bin
+    assert abs(np.degrees(stats.centre_rad[p]) - 65.0) <= 1.0
+
+
+def test_sample_stream_uses_the_same_pipeline(small_sky):
+    """Synthetic hits fed as a sample stream give the synthetic engine's maps (to rounding)."""
+    scan = SyntheticScan(n_phi=3, range_rad=0.6, seed=4)
+    sysm = Systematics(dg=(0.01, -0.01), rho_arcmin=1.0)
+    pix = np.arange(12 * 64**2, dtype=np.int64)
+    offsets = np.arange(pix.size + 1, dtype=np.int64) * 3
+    n_phi, rng_rad, centre = scan.per_pixel(pix, pix.size)
+    theta, phi, psi = tod_cpu.generate_hits(4, 64, pix, offsets, rng_rad, centre, False)
+    order = np.random.default_rng(0).permutation(theta.size)  # any order, any chunking
+    chunks = [(theta[order[s:s + 10000]], phi[order[s:s + 10000]], psi[order[s:s + 10000]])
+              for s in range(0, theta.size, 10000)]
+    stream = engine.simulate_samples(small_sky, chunks, systematics=sysm)
+    direct = engine.simulate(small_sky, scan, systematics=sysm)
+    assert rel_max(stream.q, direct.q) < 1e-12 and rel_max(stream.u, direct.u) < 1e-12
+
+
+def test_schedule_files(tmp_path):
+    (tmp_path / "s.toml").write_text(
+        "sample_rate_hz = 5.0\nrepeat_boresight_deg = [0.0, 90.0]\n[site]\nlat_deg = -22.96\n"
+        "[[ces]]\nstart_unix = 1.79e9\nduration_s = 60\nelevation_deg = 45\n"
+        "az_centre_deg = 180\naz_throw_deg = 20\n")
+    sched = ground.load_schedule(str(tmp_path / "s.toml"))
+    assert len(sched.ces) == 2 and sched.ces[1].boresight_deg == 90 and sched.n_samples == 600
+    (tmp_path / "s.csv").write_text("start_unix,duration_s,elevation_deg,az_centre_deg,"
+                                    "az_throw_deg\n1.79e9,60,45,180,20\n")
+    assert ground.load_schedule(str(tmp_path / "s.csv")).ces[0].az_throw_deg == 20
+    with pytest.raises(ValueError, match="elevation_deg"):
+        ground.CES(start_unix=0, duration_s=1, elevation_deg=95, az_centre_deg=0, az_throw_deg=1)
