@@ -48,6 +48,13 @@ def _parser():
     )
     sw.add_argument("--workers", type=int, default=2, help="local cluster worker processes")
     sw.add_argument("--force", action="store_true", help="replace a different sweep in --out")
+    cs = sub.add_parser("compare-scans", help="residual B-modes of a CES schedule and its twin")
+    cs.add_argument("schedule", help="schedule file (TOML or CSV)")
+    cs.add_argument("--out", required=True, help="output directory")
+    cs.add_argument("--nside", type=int, default=128)
+    cs.add_argument("--systematic", choices=("gain", "pointing"), default="gain")
+    cs.add_argument("--fwhm-arcmin", type=float, default=30.0)
+    cs.add_argument("--force", action="store_true")
     pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
     pr.add_argument("config")
     pr.add_argument("--out", help="write prediction.csv into this directory")
@@ -105,6 +112,10 @@ def main(argv=None):
             )
             sweep.continuum_figure(rows, f"{args.out}/suppression")
             log.info("%d rows in %s/results.csv", len(rows), args.out)
+            return 0
+        if args.command == "compare-scans":
+            studies.compare_scans(args.schedule, args.out, args.nside, args.systematic,
+                                  args.fwhm_arcmin, force=args.force, log=log.info)
             return 0
         study = load_study(args.config)
         if args.command == "simulate":

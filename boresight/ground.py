@@ -16,7 +16,7 @@ angle (position angle of the zenith, east of north).
 
 import csv
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
@@ -71,23 +71,30 @@ class Schedule:
     site: Site = Site()
     sample_rate_hz: float = 20.0
     dut1_s: float = 0.0  #: UT1 - UTC [s]
+    repeat_boresight_deg: tuple = (0.0,)  #: the CES set is observed once per angle [deg]
 
     def __post_init__(self):
         if not self.ces:
             raise ValueError("a schedule needs at least one CES")
         if self.sample_rate_hz <= 0:
             raise ValueError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}")
+        if len(self.repeat_boresight_deg) == 0:
+            raise ValueError("repeat_boresight_deg needs at least one angle")
+        object.__setattr__(self, "repeat_boresight_deg",
+                           tuple(float(a) for a in self.repeat_boresight_deg))
 
     @property
     def n_samples(self):
-        return sum(int(c.duration_s * self.sample_rate_hz) for c in self.ces)
+        per_set = sum(int(c.duration_s * self.sample_rate_hz) for c in self.ces)
+        return per_set * len(self.repeat_boresight_deg)
 
     def repeated(self, boresight_deg):
-        """The same CESs again, each with the boresight rotated by each angle in the list."""
-        ces = tuple(CES(**{**{f.name: getattr(c, f.name) for f in fields(CES)},
-                           "boresight_deg": c.boresight_deg + a})
-                    for a in boresight_deg for c in self.ces)
-        return Schedule(ces, self.site, self.sample_rate_hz, self.dut1_s)
+        """This CES set observed once per boresight angle in the list (identical sky tracks)."""
+        return replace(self, repeat_boresight_deg=tuple(boresight_deg))
+
+    def single(self):
+        """The CES set observed once, without the boresight repeats."""
+        return replace(self, repeat_boresight_deg=(0.0,))
 
 
 def load_schedule(path):
@@ -103,10 +110,9 @@ def load_schedule(path):
     with open(path, "rb") as f:
         raw = tomllib.load(f)
     site = Site(**raw.get("site", {}))
-    repeat = raw.get("repeat_boresight_deg")
-    sched = Schedule(tuple(CES(**c) for c in raw.get("ces", [])), site,
-                     raw.get("sample_rate_hz", 20.0), raw.get("dut1_s", 0.0))
-    return sched.repeated(repeat) if repeat else sched
+    return Schedule(tuple(CES(**c) for c in raw.get("ces", [])), site,
+                    raw.get("sample_rate_hz", 20.0), raw.get("dut1_s", 0.0),
+                    tuple(raw.get("repeat_boresight_deg", (0.0,))))
 
 
 def earth_rotation_angle(jd_ut1):
@@ -155,12 +161,14 @@ def ces_samples(ces, schedule, start=0, stop=None):
 
 
 def pointing(schedule, chunk_samples=1 << 20):
-    """Yield (theta, phi, psi) [rad] chunks of the whole schedule, in time order."""
+    """Yield (theta, phi, psi) [rad] chunks of the whole schedule: the CES set in time order,
+    once per boresight repeat (the repeats follow identical sky tracks)."""
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
-    for ces in schedule.ces:
-        n = int(ces.duration_s * schedule.sample_rate_hz)
-        for s in range(0, n, chunk_samples):
-            t, az, el = ces_samples(ces, schedule, s, s + chunk_samples)
-            era = earth_rotation_angle(t / 86400.0 + UNIX_EPOCH_JD + schedule.dut1_s / 86400.0)
-            theta, phi, q = horizon_to_equatorial(az, el, era + lon, lat)
-            yield theta, phi, np.pi - q + ces.boresight_deg * DEG
+    for repeat in schedule.repeat_boresight_deg:
+        for ces in schedule.ces:
+            n = int(ces.duration_s * schedule.sample_rate_hz)
+            for s in range(0, n, chunk_samples):
+                t, az, el = ces_samples(ces, schedule, s, s + chunk_samples)
+                jd = t / 86400.0 + UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
+                theta, phi, q = horizon_to_equatorial(az, el, earth_rotation_angle(jd) + lon, lat)
+                yield theta, phi, np.pi - q + (ces.boresight_deg + repeat) * DEG

@@ -124,3 +124,21 @@ def spectrum_figure(rows, study, path_stem):
     for ext in ("png", "pdf"):
         fig.savefig(f"{path_stem}.{ext}", dpi=120)
     plt.close(fig)
+
+
+def compare_figure(edges, curves, systematic, path_stem):
+    """|residual C_BB| of a real scan and its synthetic twin, sign marked."""
+    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for (name, values), colour in zip(curves.items(), ("tab:orange", "tab:blue")):
+        _signed_points(ax, centres, values, colour, f"{name} scan")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(r"multipole $\ell$")
+    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
+    ax.set_title(f"{systematic}: real schedule and its synthetic twin")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    for ext in ("png", "pdf"):
+        fig.savefig(f"{path_stem}.{ext}", dpi=120)
+    plt.close(fig)

@@ -113,9 +113,31 @@ def test_schedule_files(tmp_path):
         "[[ces]]\nstart_unix = 1.79e9\nduration_s = 60\nelevation_deg = 45\n"
         "az_centre_deg = 180\naz_throw_deg = 20\n")
     sched = ground.load_schedule(str(tmp_path / "s.toml"))
-    assert len(sched.ces) == 2 and sched.ces[1].boresight_deg == 90 and sched.n_samples == 600
+    assert sched.repeat_boresight_deg == (0.0, 90.0) and sched.n_samples == 600
+    psi = np.concatenate([c[2] for c in ground.pointing(sched)])
+    assert np.allclose(psi[300:] - psi[:300], np.pi / 2)  # the repeat: same track, rotated
     (tmp_path / "s.csv").write_text("start_unix,duration_s,elevation_deg,az_centre_deg,"
                                     "az_throw_deg\n1.79e9,60,45,180,20\n")
     assert ground.load_schedule(str(tmp_path / "s.csv")).ces[0].az_throw_deg == 20
     with pytest.raises(ValueError, match="elevation_deg"):
         ground.CES(start_unix=0, duration_s=1, elevation_deg=95, az_centre_deg=0, az_throw_deg=1)
+
+
+def test_compare_scans_cli(tmp_path):
+    from boresight.cli import main
+
+    (tmp_path / "s.toml").write_text(
+        "sample_rate_hz = 2.0\nrepeat_boresight_deg = [0.0, 90.0]\n"
+        + "".join(f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 1800\n"
+                  f"elevation_deg = 50\naz_centre_deg = {134 if i % 2 else 226}\n"
+                  "az_throw_deg = 60\n" for i in range(4)))
+    out = tmp_path / "cmp"
+    assert main(["-q", "compare-scans", str(tmp_path / "s.toml"), "--out", str(out),
+                 "--nside", "32"]) == 0
+    assert (out / "compare.png").exists() and (out / "scan_maps.fits").exists()
+    lines = (out / "scan_stats.csv").read_text().splitlines()
+    real, twin = (dict(zip(lines[0].split(","), line.split(","))) for line in lines[1:])
+    # A 90 deg repeat cancels h_2 in the real scan and in its twin alike.
+    assert float(real["mean_abs_h2_sq"]) < 1e-25 and float(twin["mean_abs_h2_sq"]) < 1e-25
+    assert main(["-q", "compare-scans", str(tmp_path / "missing.toml"), "--out",
+                 str(tmp_path / "x")]) == 2
