@@ -56,8 +56,10 @@ class CES:
     boresight_deg: float = 0.0
 
     def __post_init__(self):
-        checks = {"duration_s": self.duration_s > 0, "elevation_deg": 0 < self.elevation_deg < 90,
-                  "az_throw_deg": 0 <= self.az_throw_deg <= 360, "speed_deg_s": self.speed_deg_s > 0}
+        checks = {"duration_s": self.duration_s > 0,
+                  "elevation_deg": 0 < self.elevation_deg < 90,
+                  "az_throw_deg": 0 <= self.az_throw_deg <= 360,
+                  "speed_deg_s": self.speed_deg_s > 0}
         for name, ok in checks.items():
             if not ok:
                 raise ValueError(f"CES {name} = {getattr(self, name)} is out of range")
@@ -122,6 +124,17 @@ def earth_rotation_angle(jd_ut1):
     return np.mod(2 * np.pi * (frac + 0.7790572732640 + 0.00273781191135448 * t), 2 * np.pi)
 
 
+@numba.njit(inline="always")
+def _to_equatorial(az, se, ce, local_era, sl, cl, tl):
+    """One sample: (theta, phi, q) from azimuth, sin/cos elevation, local ERA and latitude."""
+    sa, ca = np.sin(az), np.cos(az)
+    sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
+    dec = np.arcsin(sd)
+    ha = np.arctan2(-sa * ce, cl * se - sl * ce * ca)
+    q = np.arctan2(np.sin(ha), tl * np.cos(dec) - sd * np.cos(ha))
+    return 0.5 * np.pi - dec, (local_era - ha) % (2 * np.pi), q
+
+
 @numba.njit(parallel=True, cache=True)
 def horizon_to_equatorial(az, el, local_era, lat):
     """(az east of north, el) [rad] at local Earth rotation angles -> (theta, phi, q) [rad].
@@ -132,16 +145,10 @@ def horizon_to_equatorial(az, el, local_era, lat):
     theta = np.empty(n)
     phi = np.empty(n)
     q = np.empty(n)
-    sl, cl = np.sin(lat), np.cos(lat)
+    sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
     for k in numba.prange(n):
-        se, ce = np.sin(el[k]), np.cos(el[k])
-        sa, ca = np.sin(az[k]), np.cos(az[k])
-        sd = sl * se + cl * ce * ca
-        dec = np.arcsin(min(1.0, max(-1.0, sd)))
-        ha = np.arctan2(-sa * ce, cl * se - sl * ce * ca)
-        theta[k] = 0.5 * np.pi - dec
-        phi[k] = (local_era[k] - ha) % (2 * np.pi)
-        q[k] = np.arctan2(np.sin(ha), np.tan(lat) * np.cos(dec) - sd * np.cos(ha))
+        theta[k], phi[k], q[k] = _to_equatorial(az[k], np.sin(el[k]), np.cos(el[k]),
+                                                local_era[k], sl, cl, tl)
     return theta, phi, q
 
 
@@ -160,15 +167,43 @@ def ces_samples(ces, schedule, start=0, stop=None):
     return t, az, el
 
 
+@numba.njit(parallel=True, cache=True)
+def _ces_pointing(k0, n, start_unix, rate, az_centre, throw, speed, el, jd_offset, lon, lat,
+                  psi_offset):
+    """Fused :func:`ces_samples`, :func:`earth_rotation_angle` and :func:`horizon_to_equatorial`.
+
+    Angles in rad (throw, speed in rad and rad/s); returns theta, phi, psi of samples k0..k0+n-1.
+    """
+    theta = np.empty(n)
+    phi = np.empty(n)
+    psi = np.empty(n)
+    sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
+    se, ce = np.sin(el), np.cos(el)
+    span = max(throw, 1e-300)
+    for i in numba.prange(n):
+        k = k0 + i
+        t = k / rate
+        phase = (speed * t) % (2 * span) / span
+        tri = (phase if phase < 1 else 2 - phase) - 0.5
+        az = az_centre + throw * tri
+        jd = (start_unix + t) / 86400.0 + jd_offset
+        era = 2 * np.pi * ((jd % 1.0) + 0.7790572732640 + 0.00273781191135448 * (jd - 2451545.0))
+        theta[i], phi[i], q = _to_equatorial(az, se, ce, era + lon, sl, cl, tl)
+        psi[i] = np.pi - q + psi_offset
+    return theta, phi, psi
+
+
 def pointing(schedule, chunk_samples=1 << 20):
     """Yield (theta, phi, psi) [rad] chunks of the whole schedule: the CES set in time order,
     once per boresight repeat (the repeats follow identical sky tracks)."""
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
+    jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
     for repeat in schedule.repeat_boresight_deg:
-        for ces in schedule.ces:
-            n = int(ces.duration_s * schedule.sample_rate_hz)
+        for c in schedule.ces:
+            n = int(c.duration_s * schedule.sample_rate_hz)
             for s in range(0, n, chunk_samples):
-                t, az, el = ces_samples(ces, schedule, s, s + chunk_samples)
-                jd = t / 86400.0 + UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
-                theta, phi, q = horizon_to_equatorial(az, el, earth_rotation_angle(jd) + lon, lat)
-                yield theta, phi, np.pi - q + (ces.boresight_deg + repeat) * DEG
+                yield _ces_pointing(s, min(chunk_samples, n - s), c.start_unix,
+                                    schedule.sample_rate_hz, c.az_centre_deg * DEG,
+                                    c.az_throw_deg * DEG, c.speed_deg_s * DEG,
+                                    c.elevation_deg * DEG, jd_offset, lon, lat,
+                                    (c.boresight_deg + repeat) * DEG)
