@@ -26,6 +26,22 @@ def _signed_points(ax, ell, values, colour, label):
     ax.plot(ell[~pos], -values[~pos], "o", mfc="none", color=colour, ms=5)
 
 
+def _residual_axes(ax):
+    """Log axes labelled for |residual C_BB| against ell."""
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(r"multipole $\ell$")
+    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
+
+
+def _save(fig, path_stem):
+    """Write a figure as PNG and PDF and close it."""
+    fig.tight_layout()
+    for ext in ("png", "pdf"):
+        fig.savefig(f"{path_stem}.{ext}", dpi=120)
+    plt.close(fig)
+
+
 def residual_figure(res, cfg, angles, path_stem):
     """Residual pseudo-C_ell BB against ell for the given rotation angles (None: no rotation)."""
     exp = res.experiment
@@ -50,20 +66,14 @@ def residual_figure(res, cfg, angles, path_stem):
         label = "no rotation" if angle is None else f"rotation {angle:g}$^\\circ$"
         colour = ANGLE_COLOURS[None] if angle is None else ANGLE_COLOURS.get(i - 1, "tab:gray")
         _signed_points(ax, centres, values, colour, label)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
+    _residual_axes(ax)
     ax.set_xlim(edges[0], edges[-1])
     ticks = [t for t in (20, 50, 100, 200, 500, 1000, 2000, 4000) if edges[0] <= t <= edges[-1]]
     ax.set_xticks(ticks, [str(t) for t in ticks])
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax.set_xlabel(r"multipole $\ell$")
-    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
     ax.set_title(f"{exp.name.replace('_', ', ')}: Nside {cfg.nside}")
     ax.legend(fontsize=8, loc="lower left")
-    fig.tight_layout()
-    for ext in ("png", "pdf"):
-        fig.savefig(f"{path_stem}.{ext}", dpi=120)
-    plt.close(fig)
+    _save(fig, path_stem)
 
 
 def galactic_proxy(nside):
@@ -115,15 +125,9 @@ def spectrum_figure(rows, study, path_stem):
     centres, values = spectra.bin_spectrum(res, edges)
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     _signed_points(ax, centres, values, "tab:orange", "residual (band mean)")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(r"multipole $\ell$")
-    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
+    _residual_axes(ax)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    for ext in ("png", "pdf"):
-        fig.savefig(f"{path_stem}.{ext}", dpi=120)
-    plt.close(fig)
+    _save(fig, path_stem)
 
 
 def compare_figure(edges, curves, systematic, path_stem):
@@ -132,13 +136,7 @@ def compare_figure(edges, curves, systematic, path_stem):
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     for (name, values), colour in zip(curves.items(), ("tab:orange", "tab:blue")):
         _signed_points(ax, centres, values, colour, f"{name} scan")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel(r"multipole $\ell$")
-    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
+    _residual_axes(ax)
     ax.set_title(f"{systematic}: real schedule and its synthetic twin")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    for ext in ("png", "pdf"):
-        fig.savefig(f"{path_stem}.{ext}", dpi=120)
-    plt.close(fig)
+    _save(fig, path_stem)
