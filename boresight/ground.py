@@ -1,7 +1,8 @@
 """Real ground scans: constant-elevation scans (CES) from a site, with a boresight schedule.
 
-Each CES sweeps the azimuth as a triangle wave, centre +- throw / 2 at constant speed with
-instantaneous turnarounds, at fixed elevation and boresight angle. The Earth turns between and
+Each CES sweeps the azimuth between centre - throw / 2 and centre + throw / 2 at constant speed,
+reversing at each end in ``turnaround_s`` at constant deceleration (overshooting by
+speed * turnaround / 4), at fixed elevation and boresight angle. The Earth turns between and
 during CESs. Pointing is a rotation from the horizon frame to equatorial coordinates of date
 (CIRS, from the Earth Rotation Angle with UT1 = UTC + dut1). It ignores polar motion, refraction
 and diurnal aberration (each below 0.5 arcsec). Coordinates of date differ from ICRS by
@@ -54,12 +55,16 @@ class CES:
     az_throw_deg: float
     speed_deg_s: float = 1.0
     boresight_deg: float = 0.0
+    turnaround_s: float = 0.0  #: time to reverse at each end, at constant deceleration
 
     def __post_init__(self):
-        checks = {"duration_s": self.duration_s > 0,
-                  "elevation_deg": 0 < self.elevation_deg < 90,
-                  "az_throw_deg": 0 <= self.az_throw_deg <= 360,
-                  "speed_deg_s": self.speed_deg_s > 0}
+        checks = {
+            "duration_s": self.duration_s > 0,
+            "elevation_deg": 0 < self.elevation_deg < 90,
+            "az_throw_deg": 0 <= self.az_throw_deg <= 360,
+            "speed_deg_s": self.speed_deg_s > 0,
+            "turnaround_s": self.turnaround_s >= 0,
+        }
         for name, ok in checks.items():
             if not ok:
                 raise ValueError(f"CES {name} = {getattr(self, name)} is out of range")
@@ -82,8 +87,9 @@ class Schedule:
             raise ValueError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}")
         if len(self.repeat_boresight_deg) == 0:
             raise ValueError("repeat_boresight_deg needs at least one angle")
-        object.__setattr__(self, "repeat_boresight_deg",
-                           tuple(float(a) for a in self.repeat_boresight_deg))
+        object.__setattr__(
+            self, "repeat_boresight_deg", tuple(float(a) for a in self.repeat_boresight_deg)
+        )
 
     @property
     def n_samples(self):
@@ -112,9 +118,13 @@ def load_schedule(path):
     with open(path, "rb") as f:
         raw = tomllib.load(f)
     site = Site(**raw.get("site", {}))
-    return Schedule(tuple(CES(**c) for c in raw.get("ces", [])), site,
-                    raw.get("sample_rate_hz", 20.0), raw.get("dut1_s", 0.0),
-                    tuple(raw.get("repeat_boresight_deg", (0.0,))))
+    return Schedule(
+        tuple(CES(**c) for c in raw.get("ces", [])),
+        site,
+        raw.get("sample_rate_hz", 20.0),
+        raw.get("dut1_s", 0.0),
+        tuple(raw.get("repeat_boresight_deg", (0.0,))),
+    )
 
 
 def earth_rotation_angle(jd_ut1):
@@ -147,29 +157,64 @@ def horizon_to_equatorial(az, el, local_era, lat):
     q = np.empty(n)
     sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
     for k in numba.prange(n):
-        theta[k], phi[k], q[k] = _to_equatorial(az[k], np.sin(el[k]), np.cos(el[k]),
-                                                local_era[k], sl, cl, tl)
+        theta[k], phi[k], q[k] = _to_equatorial(
+            az[k], np.sin(el[k]), np.cos(el[k]), local_era[k], sl, cl, tl
+        )
     return theta, phi, q
+
+
+@numba.njit(inline="always")
+def _scan_offset(t, throw, speed, turnaround):
+    """Azimuth offset from the centre [rad] at time t [s] into a CES (throw [rad], speed [rad/s])."""
+    leg = throw / speed
+    u = t % (2 * (leg + turnaround))
+    if u < leg:
+        return -0.5 * throw + speed * u
+    u -= leg
+    if u < turnaround:
+        return 0.5 * throw + speed * u - speed * u * u / turnaround
+    u -= turnaround
+    if u < leg:
+        return 0.5 * throw - speed * u
+    u -= leg
+    return -0.5 * throw - speed * u + speed * u * u / turnaround
+
+
+@numba.njit(cache=True)
+def _scan_offsets(t, throw, speed, turnaround):
+    out = np.empty(t.size)
+    for i in range(t.size):
+        out[i] = _scan_offset(t[i], throw, speed, turnaround)
+    return out
 
 
 def ces_samples(ces, schedule, start=0, stop=None):
     """Times [unix s], azimuth and elevation [rad] of samples start..stop of a CES."""
     n = int(ces.duration_s * schedule.sample_rate_hz)
     stop = n if stop is None else min(stop, n)
-    k = np.arange(start, stop)
-    t = ces.start_unix + k / schedule.sample_rate_hz
-    sweep = ces.speed_deg_s * (k / schedule.sample_rate_hz)  # degrees travelled
-    throw = max(ces.az_throw_deg, 1e-12)
-    phase = np.mod(sweep, 2 * throw) / throw  # 0..2
-    tri = np.where(phase < 1, phase, 2 - phase) - 0.5  # -1/2..1/2
-    az = (ces.az_centre_deg + ces.az_throw_deg * tri) * DEG
-    el = np.full(k.size, ces.elevation_deg * DEG)
-    return t, az, el
+    t = np.arange(start, stop) / schedule.sample_rate_hz
+    az = ces.az_centre_deg * DEG + _scan_offsets(
+        t, max(ces.az_throw_deg, 1e-12) * DEG, ces.speed_deg_s * DEG, ces.turnaround_s
+    )
+    return ces.start_unix + t, az, np.full(t.size, ces.elevation_deg * DEG)
 
 
 @numba.njit(parallel=True, cache=True)
-def _ces_pointing(k0, n, start_unix, rate, az_centre, throw, speed, el, jd_offset, lon, lat,
-                  psi_offset):
+def _ces_pointing(
+    k0,
+    n,
+    start_unix,
+    rate,
+    az_centre,
+    throw,
+    speed,
+    turnaround,
+    el,
+    jd_offset,
+    lon,
+    lat,
+    psi_offset,
+):
     """Fused :func:`ces_samples`, :func:`earth_rotation_angle` and :func:`horizon_to_equatorial`.
 
     Angles in rad (throw, speed in rad and rad/s); returns theta, phi, psi of samples k0..k0+n-1.
@@ -179,13 +224,9 @@ def _ces_pointing(k0, n, start_unix, rate, az_centre, throw, speed, el, jd_offse
     psi = np.empty(n)
     sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
     se, ce = np.sin(el), np.cos(el)
-    span = max(throw, 1e-300)
     for i in numba.prange(n):
-        k = k0 + i
-        t = k / rate
-        phase = (speed * t) % (2 * span) / span
-        tri = (phase if phase < 1 else 2 - phase) - 0.5
-        az = az_centre + throw * tri
+        t = (k0 + i) / rate
+        az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
         jd = (start_unix + t) / 86400.0 + jd_offset
         era = 2 * np.pi * ((jd % 1.0) + 0.7790572732640 + 0.00273781191135448 * (jd - 2451545.0))
         theta[i], phi[i], q = _to_equatorial(az, se, ce, era + lon, sl, cl, tl)
@@ -202,8 +243,18 @@ def pointing(schedule, chunk_samples=1 << 20):
         for c in schedule.ces:
             n = int(c.duration_s * schedule.sample_rate_hz)
             for s in range(0, n, chunk_samples):
-                yield _ces_pointing(s, min(chunk_samples, n - s), c.start_unix,
-                                    schedule.sample_rate_hz, c.az_centre_deg * DEG,
-                                    c.az_throw_deg * DEG, c.speed_deg_s * DEG,
-                                    c.elevation_deg * DEG, jd_offset, lon, lat,
-                                    (c.boresight_deg + repeat) * DEG)
+                yield _ces_pointing(
+                    s,
+                    min(chunk_samples, n - s),
+                    c.start_unix,
+                    schedule.sample_rate_hz,
+                    c.az_centre_deg * DEG,
+                    c.az_throw_deg * DEG,
+                    c.speed_deg_s * DEG,
+                    c.turnaround_s,
+                    c.elevation_deg * DEG,
+                    jd_offset,
+                    lon,
+                    lat,
+                    (c.boresight_deg + repeat) * DEG,
+                )

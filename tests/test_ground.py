@@ -13,9 +13,16 @@ T0 = 1.79e9  # 2026-09-21, inside the IERS tables astropy ships
 
 
 def _night(site=ground.Site(), rate=10.0, n=6, el=50.0):
-    ces = tuple(ground.CES(start_unix=T0 + i * 3600, duration_s=1800, elevation_deg=el,
-                           az_centre_deg=140 if i < n // 2 else 220, az_throw_deg=30)
-                for i in range(n))
+    ces = tuple(
+        ground.CES(
+            start_unix=T0 + i * 3600,
+            duration_s=1800,
+            elevation_deg=el,
+            az_centre_deg=140 if i < n // 2 else 220,
+            az_throw_deg=30,
+        )
+        for i in range(n)
+    )
     return ground.Schedule(ces, site, sample_rate_hz=rate)
 
 
@@ -28,15 +35,21 @@ def test_pointing_matches_astropy():
 
     iers.conf.auto_download = False
     site = ground.Site()
-    ces = ground.CES(start_unix=T0, duration_s=7200, elevation_deg=40, az_centre_deg=100,
-                     az_throw_deg=60, boresight_deg=30)
+    ces = ground.CES(
+        start_unix=T0,
+        duration_s=7200,
+        elevation_deg=40,
+        az_centre_deg=100,
+        az_throw_deg=60,
+        boresight_deg=30,
+    )
     times = Time(ground.ces_samples(ces, ground.Schedule((ces,), site, 0.05))[0], format="unix")
-    sched = ground.Schedule((ces,), site, sample_rate_hz=0.05,
-                            dut1_s=float(np.mean(times.delta_ut1_utc)))
+    sched = ground.Schedule(
+        (ces,), site, sample_rate_hz=0.05, dut1_s=float(np.mean(times.delta_ut1_utc))
+    )
     theta, phi, psi = next(ground.pointing(sched))
     _, az, el = ground.ces_samples(ces, sched)
-    loc = EarthLocation(lat=site.lat_deg * u.deg, lon=site.lon_deg * u.deg,
-                        height=site.alt_m * u.m)
+    loc = EarthLocation(lat=site.lat_deg * u.deg, lon=site.lon_deg * u.deg, height=site.alt_m * u.m)
     frame = AltAz(obstime=times, location=loc, pressure=0 * u.hPa)
     cirs = CIRS(obstime=times, location=loc)
     ref = SkyCoord(az=az * u.rad, alt=el * u.rad, frame=frame).transform_to(cirs)
@@ -100,24 +113,51 @@ def test_sample_stream_uses_the_same_pipeline(small_sky):
     n_phi, rng_rad, centre = scan.per_pixel(pix, pix.size)
     theta, phi, psi = tod_cpu.generate_hits(4, 64, pix, offsets, rng_rad, centre, False)
     order = np.random.default_rng(0).permutation(theta.size)  # any order, any chunking
-    chunks = [(theta[order[s:s + 10000]], phi[order[s:s + 10000]], psi[order[s:s + 10000]])
-              for s in range(0, theta.size, 10000)]
+    chunks = [
+        (theta[order[s : s + 10000]], phi[order[s : s + 10000]], psi[order[s : s + 10000]])
+        for s in range(0, theta.size, 10000)
+    ]
     stream = engine.simulate_samples(small_sky, chunks, systematics=sysm)
     direct = engine.simulate(small_sky, scan, systematics=sysm)
     assert rel_max(stream.q, direct.q) < 1e-12 and rel_max(stream.u, direct.u) < 1e-12
+
+
+def test_turnaround_profile():
+    """Constant speed across the throw, a smooth reversal that overshoots by v tau / 4."""
+    ces = ground.CES(
+        start_unix=T0,
+        duration_s=100,
+        elevation_deg=45,
+        az_centre_deg=180,
+        az_throw_deg=10,
+        speed_deg_s=2.0,
+        turnaround_s=1.0,
+    )
+    _, az, _ = ground.ces_samples(ces, ground.Schedule((ces,), sample_rate_hz=1000.0))
+    offset = np.degrees(az) - 180
+    assert np.isclose(offset.min(), -5 - 0.5, atol=1e-3) and np.isclose(
+        offset.max(), 5.5, atol=1e-3
+    )
+    speed = np.abs(np.diff(offset)) * 1000.0
+    assert np.isclose(np.median(speed), 2.0, rtol=1e-6)  # the constant-speed legs
+    assert np.max(speed) <= 2.0 + 1e-6  # never faster than the scan speed
+    period = 2 * (5.0 + 1.0)  # two legs of throw / speed and two turnarounds [s]
+    assert np.allclose(offset[:1000], offset[int(period * 1000) : int(period * 1000) + 1000])
 
 
 def test_schedule_files(tmp_path):
     (tmp_path / "s.toml").write_text(
         "sample_rate_hz = 5.0\nrepeat_boresight_deg = [0.0, 90.0]\n[site]\nlat_deg = -22.96\n"
         "[[ces]]\nstart_unix = 1.79e9\nduration_s = 60\nelevation_deg = 45\n"
-        "az_centre_deg = 180\naz_throw_deg = 20\n")
+        "az_centre_deg = 180\naz_throw_deg = 20\n"
+    )
     sched = ground.load_schedule(str(tmp_path / "s.toml"))
     assert sched.repeat_boresight_deg == (0.0, 90.0) and sched.n_samples == 600
     psi = np.concatenate([c[2] for c in ground.pointing(sched)])
     assert np.allclose(psi[300:] - psi[:300], np.pi / 2)  # the repeat: same track, rotated
-    (tmp_path / "s.csv").write_text("start_unix,duration_s,elevation_deg,az_centre_deg,"
-                                    "az_throw_deg\n1.79e9,60,45,180,20\n")
+    (tmp_path / "s.csv").write_text(
+        "start_unix,duration_s,elevation_deg,az_centre_deg,az_throw_deg\n1.79e9,60,45,180,20\n"
+    )
     assert ground.load_schedule(str(tmp_path / "s.csv")).ces[0].az_throw_deg == 20
     with pytest.raises(ValueError, match="elevation_deg"):
         ground.CES(start_unix=0, duration_s=1, elevation_deg=95, az_centre_deg=0, az_throw_deg=1)
@@ -128,16 +168,24 @@ def test_compare_scans_cli(tmp_path):
 
     (tmp_path / "s.toml").write_text(
         "sample_rate_hz = 2.0\nrepeat_boresight_deg = [0.0, 90.0]\n"
-        + "".join(f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 1800\n"
-                  f"elevation_deg = 50\naz_centre_deg = {134 if i % 2 else 226}\n"
-                  "az_throw_deg = 60\n" for i in range(4)))
+        + "".join(
+            f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 1800\n"
+            f"elevation_deg = 50\naz_centre_deg = {134 if i % 2 else 226}\n"
+            "az_throw_deg = 60\n"
+            for i in range(4)
+        )
+    )
     out = tmp_path / "cmp"
-    assert main(["-q", "compare-scans", str(tmp_path / "s.toml"), "--out", str(out),
-                 "--nside", "32"]) == 0
+    assert (
+        main(["-q", "compare-scans", str(tmp_path / "s.toml"), "--out", str(out), "--nside", "32"])
+        == 0
+    )
     assert (out / "compare.png").exists() and (out / "scan_maps.fits").exists()
     lines = (out / "scan_stats.csv").read_text().splitlines()
     real, twin = (dict(zip(lines[0].split(","), line.split(","))) for line in lines[1:])
     # A 90 deg repeat cancels h_2 in the real scan and in its twin alike.
     assert float(real["mean_abs_h2_sq"]) < 1e-25 and float(twin["mean_abs_h2_sq"]) < 1e-25
-    assert main(["-q", "compare-scans", str(tmp_path / "missing.toml"), "--out",
-                 str(tmp_path / "x")]) == 2
+    assert (
+        main(["-q", "compare-scans", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "x")])
+        == 2
+    )
