@@ -165,7 +165,7 @@ def horizon_to_equatorial(az, el, local_era, lat):
 
 @numba.njit(inline="always")
 def _scan_offset(t, throw, speed, turnaround):
-    """Azimuth offset from the centre [rad] at time t [s] into a CES (throw [rad], speed [rad/s])."""
+    """Azimuth offset from the CES centre [rad] at time t [s] (throw [rad], speed [rad/s])."""
     leg = throw / speed
     u = t % (2 * (leg + turnaround))
     if u < leg:
