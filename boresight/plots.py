@@ -134,8 +134,9 @@ def compare_figure(edges, curves, systematic, path_stem):
     """|residual C_BB| of a real scan and its synthetic twin, sign marked."""
     centres = 0.5 * (edges[:-1] + edges[1:] - 1)
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
-    for (name, values), colour in zip(curves.items(), ("tab:orange", "tab:blue")):
-        _signed_points(ax, centres, values, colour, f"{name} scan")
+    colours = ("tab:orange", "tab:blue", "tab:red", "tab:green")
+    for (name, values), colour in zip(curves.items(), colours):
+        _signed_points(ax, centres, values, colour, name.replace("_", " "))
     _residual_axes(ax)
     ax.set_title(f"{systematic}: real schedule and its synthetic twin")
     ax.legend(fontsize=8)

@@ -243,8 +243,17 @@ def scan_stats(study, out_dir, force=False, n_max=4, log=print):
     return rows
 
 
-def compare_scans(schedule_path, out_dir, nside=128, systematic="gain", fwhm_arcmin=30.0,
-                  seed=1, tolerance_deg=1.0, force=False, log=print):
+def compare_scans(
+    schedule_path,
+    out_dir,
+    nside=128,
+    systematic="gain",
+    fwhm_arcmin=30.0,
+    seed=1,
+    tolerance_deg=1.0,
+    force=False,
+    log=print,
+):
     """The residual B-mode of a real schedule beside its synthetic twin (paper section 3.1).
 
     Writes scan_maps.fits (crossings, N_phi, R, |h_1..4|^2), scan_stats.csv (survey means of the
@@ -264,45 +273,89 @@ def compare_scans(schedule_path, out_dir, nside=128, systematic="gain", fwhm_arc
         # The twin takes (N_phi, R) of one pass of the CES set and repeats it at the schedule's
         # boresight angles, as the paper built its synthetic scans.
         single = scanstats.characterise(ground.pointing(schedule.single()), nside, tolerance_deg)
-        twin = replace(single.synthetic_twin(seed=seed),
-                       rotations_deg=schedule.repeat_boresight_deg)
+        twin = replace(
+            single.synthetic_twin(seed=seed), rotations_deg=schedule.repeat_boresight_deg
+        )
         obs = stats.observed
-    the_sky = sky.make_sky(sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin,
-                                         seed=seed))
-    with timer("simulate the real scan"):
-        real = [engine.simulate_samples(the_sky, ground.pointing(schedule), systematics=s)
-                for s in (engine.Systematics(), systematics)]
-    with timer("simulate the synthetic twin"):
-        synth = [engine.simulate(the_sky, twin, systematics=s, pixels=obs)
-                 for s in (engine.Systematics(), systematics)]
-    mask = (obs & real[0].valid & real[1].valid & synth[0].valid & synth[1].valid).astype(float)
+    the_sky = sky.make_sky(
+        sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)
+    )
+    # One pass of the CES set, and the whole schedule with its boresight repeats, each as the
+    # real scan and as its twin: the paper compared the unrotated scans.
+    cases = {
+        "real_one_pass": schedule.single(),
+        "twin_one_pass": replace(twin, rotations_deg=(0.0,)),
+        "real": schedule,
+        "twin": twin,
+    }
+    maps = {}
+    for name, scan in cases.items():
+        with timer(f"simulate {name.replace('_', ' ')}"):
+            if name.startswith("real"):
+                maps[name] = [
+                    engine.simulate_samples(the_sky, ground.pointing(scan), systematics=s)
+                    for s in (engine.Systematics(), systematics)
+                ]
+            else:
+                maps[name] = [
+                    engine.simulate(the_sky, scan, systematics=s, pixels=obs)
+                    for s in (engine.Systematics(), systematics)
+                ]
+    mask = obs.copy()
+    for ref, sim in maps.values():
+        mask &= ref.valid & sim.valid
+    mask = mask.astype(float)
     lmax = 2 * nside
     edges = spectra.log_bins(10, lmax, 12)
-    rows = []
-    curves = {}
-    for name, (ref, sim) in (("real", real), ("twin", synth)):
-        _, binned = spectra.bin_spectrum(spectra.residual_bb(sim.qu, ref.qu, mask, lmax), edges)
-        curves[name] = binned
-    for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
-        rows.append(dict(ell_lo=int(lo), ell_hi=int(hi) - 1, residual_real_bb=curves["real"][i],
-                         residual_twin_bb=curves["twin"][i]))
+    curves = {
+        name: spectra.bin_spectrum(spectra.residual_bb(sim.qu, ref.qu, mask, lmax), edges)[1]
+        for name, (ref, sim) in maps.items()
+    }
+    rows = [
+        dict(
+            ell_lo=int(lo),
+            ell_hi=int(hi) - 1,
+            **{f"residual_{name}_bb": curves[name][i] for name in curves},
+        )
+        for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))
+    ]
     twin_h, _ = engine.scan_moments(twin, nside, pixels=obs)
-    table = [dict(scan="real", **stats.survey_means()),
-             dict(scan="twin", pixels=int(obs.sum()),
-                  **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(twin_h[n, obs]) ** 2))
-                     for n in range(1, 5)})]
+    table = [
+        dict(scan="real", **stats.survey_means()),
+        dict(
+            scan="twin",
+            pixels=int(obs.sum()),
+            **{
+                f"mean_abs_h{n}_sq": float(np.mean(np.abs(twin_h[n, obs]) ** 2))
+                for n in range(1, 5)
+            },
+        ),
+    ]
     with io.staged_dir(out_dir, force) as stage:
         cols = [stats.hits, stats.n_distinct, stats.range_rad] + [
-            np.where(obs, np.abs(stats.h[n]) ** 2, hp.UNSEEN) for n in range(1, 5)]
-        io.write_maps(stage / "scan_maps.fits", cols,
-                      ["CROSSINGS", "N_PHI", "RANGE_RAD", "ABS_H1_SQ", "ABS_H2_SQ", "ABS_H3_SQ",
-                       "ABS_H4_SQ"], unit="")
+            np.where(obs, np.abs(stats.h[n]) ** 2, hp.UNSEEN) for n in range(1, 5)
+        ]
+        io.write_maps(
+            stage / "scan_maps.fits",
+            cols,
+            ["CROSSINGS", "N_PHI", "RANGE_RAD", "ABS_H1_SQ", "ABS_H2_SQ", "ABS_H3_SQ", "ABS_H4_SQ"],
+            unit="",
+        )
         io.write_csv(stage / "scan_stats.csv", table, list(table[0]))
         io.write_csv(stage / "compare.csv", rows, list(rows[0]))
         plots.compare_figure(edges, curves, systematic, stage / "compare")
-        io.write_json(stage / "manifest.json",
-                      manifest({"schedule": schedule_path, "nside": nside,
-                                "systematic": systematic, "fwhm_arcmin": fwhm_arcmin,
-                                "tolerance_deg": tolerance_deg}, {"sky": seed, "twin": seed},
-                               timer.stages))
+        io.write_json(
+            stage / "manifest.json",
+            manifest(
+                {
+                    "schedule": schedule_path,
+                    "nside": nside,
+                    "systematic": systematic,
+                    "fwhm_arcmin": fwhm_arcmin,
+                    "tolerance_deg": tolerance_deg,
+                },
+                {"sky": seed, "twin": seed},
+                timer.stages,
+            ),
+        )
     return rows
