@@ -299,9 +299,9 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
         "offset_points",
         nh,
         (
-            theta,
-            phi,
-            psi,
+            _d(theta),
+            _d(phi),
+            _d(psi),
             np.int64(nh),
             _d(rotations),
             np.int32(nk),
