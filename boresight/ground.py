@@ -127,11 +127,12 @@ def load_schedule(path):
     )
 
 
+@numba.njit(inline="always")
 def earth_rotation_angle(jd_ut1):
-    """Earth Rotation Angle [rad] (IERS 2003) at UT1 Julian date(s)."""
-    t = jd_ut1 - 2451545.0
-    frac = np.mod(jd_ut1, 1.0)
-    return np.mod(2 * np.pi * (frac + 0.7790572732640 + 0.00273781191135448 * t), 2 * np.pi)
+    """Earth Rotation Angle [rad] (IERS 2003, not reduced to [0, 2 pi)) at a UT1 Julian date."""
+    return (
+        2 * np.pi * ((jd_ut1 % 1.0) + 0.7790572732640 + 0.00273781191135448 * (jd_ut1 - 2451545.0))
+    )
 
 
 @numba.njit(inline="always")
@@ -228,8 +229,7 @@ def _ces_pointing(
         t = (k0 + i) / rate
         az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
         jd = (start_unix + t) / 86400.0 + jd_offset
-        era = 2 * np.pi * ((jd % 1.0) + 0.7790572732640 + 0.00273781191135448 * (jd - 2451545.0))
-        theta[i], phi[i], q = _to_equatorial(az, se, ce, era + lon, sl, cl, tl)
+        theta[i], phi[i], q = _to_equatorial(az, se, ce, earth_rotation_angle(jd) + lon, sl, cl, tl)
         psi[i] = np.pi - q + psi_offset
     return theta, phi, psi
 
