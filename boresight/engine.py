@@ -16,6 +16,7 @@ from . import harmonics
 from .evaluation import METHODS, SkyFields
 from .instrument import Instrument, Systematics
 from .mapmaking import RCOND_MIN, Maps, solve
+from .pixels import ang2pix_array
 
 BACKENDS = ("cpu", "gpu")
 #: pixels per chunk: small on the CPU (cache-resident), large on a GPU (enough threads)
@@ -100,8 +101,16 @@ def simulate(
     "exact"; leak_template: map used by the additive leak (default: the sky's I). Returns
     :class:`boresight.mapmaking.Maps` on the full sky (unobserved pixels flagged).
     """
-    binner = _Binner(sky, instrument, systematics, scan.rotations_rad, evaluation, leak_template,
-                     nthreads, backend)
+    binner = _Binner(
+        sky,
+        instrument,
+        systematics,
+        scan.rotations_rad,
+        evaluation,
+        leak_template,
+        nthreads,
+        backend,
+    )
     kernels, nside, npix = binner.kernels, sky.nside, 12 * sky.nside**2
     if chunk_pixels is None:
         chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
@@ -123,8 +132,9 @@ class _Binner:
     """Sky evaluation, detector-B pointing and pair-difference binning of one chunk of hits
     grouped by pixel: the part of the hot loop shared by synthetic scans and real sample streams."""
 
-    def __init__(self, sky, instrument, systematics, rotations, evaluation, leak_template,
-                 nthreads, backend):
+    def __init__(
+        self, sky, instrument, systematics, rotations, evaluation, leak_template, nthreads, backend
+    ):
         if evaluation not in METHODS:
             raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
         self.kernels = get_backend(backend)
@@ -136,11 +146,11 @@ class _Binner:
         self.evaluation, self.nthreads = evaluation, nthreads
 
     def _at(self, theta, phi):
-        return fields_at(self.kernels, self.fields, self.stack, theta, phi, self.evaluation,
-                         self.nthreads)
+        return fields_at(
+            self.kernels, self.fields, self.stack, theta, phi, self.evaluation, self.nthreads
+        )
 
-    def normal(self, offsets, theta, phi, psi):
-        """(npix_chunk, 5) normal-equation sums of the hits (offsets: hits of each pixel)."""
+    def _values(self, theta, phi, psi):
         k, fields = self.kernels, self.fields
         values_a = self._at(theta, phi)
         if self.pointing:
@@ -148,8 +158,22 @@ class _Binner:
             values_b = self._at(tb.ravel(), pb.ravel()).reshape((fields.n_fields,) + tb.shape)
         else:
             values_b = np.empty((fields.n_fields, 0, self.rot.size, self.ang.size))
-        return k.to_host(k.accumulate(offsets, psi, values_a, values_b, self.rot, self.ang,
-                                      self.dg, self.leak))
+        return values_a, values_b
+
+    def normal(self, offsets, theta, phi, psi):
+        """(npix_chunk, 5) normal-equation sums of the hits (offsets: hits of each pixel)."""
+        values_a, values_b = self._values(theta, phi, psi)
+        k = self.kernels
+        return k.to_host(
+            k.accumulate(offsets, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak)
+        )
+
+    def scatter(self, pixels, theta, phi, psi, normal):
+        """Add the normal-equation sums of hits in any order into the full-sky ``normal``."""
+        values_a, values_b = self._values(theta, phi, psi)
+        self.kernels.accumulate_scatter(
+            pixels, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak, normal
+        )
 
 
 def group_by_pixel(nside, theta, phi, psi):
@@ -162,25 +186,41 @@ def group_by_pixel(nside, theta, phi, psi):
     return upix, offsets, theta[order], phi[order], psi[order]
 
 
-def simulate_samples(sky, sample_chunks, instrument=Instrument(), systematics=Systematics(), *,
-                     evaluation="interp", leak_template=None, nthreads=0, backend="cpu",
-                     rcond_min=RCOND_MIN):
+def simulate_samples(
+    sky,
+    sample_chunks,
+    instrument=Instrument(),
+    systematics=Systematics(),
+    *,
+    evaluation="interp",
+    leak_template=None,
+    nthreads=0,
+    backend="cpu",
+    rcond_min=RCOND_MIN,
+):
     """Maps from streams of real samples, e.g. ``boresight.ground.pointing(schedule)``.
 
-    sample_chunks: iterable of (theta, phi, psi) arrays [rad] in any order. Each chunk is grouped
-    by pixel and binned with the same kernels as synthetic scans; the normal equations of all
-    chunks add up before the per-pixel solve, so memory is the chunk plus (npix, 5) sums.
+    sample_chunks: iterable of (theta, phi, psi) arrays [rad] in any order. The normal equations
+    of all chunks add up before the per-pixel solve, so memory is the chunk plus (npix, 5) sums.
+    On the CPU each sample's terms are scattered into its pixel's sums (no sort); a GPU backend
+    groups each chunk by pixel and bins it like a synthetic scan.
     """
-    binner = _Binner(sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads,
-                     backend)
+    binner = _Binner(
+        sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
+    )
     npix = 12 * sky.nside**2
     normal = np.zeros((npix, 5))
-    hits = np.zeros(npix, dtype=np.int64)
+    scatter = hasattr(binner.kernels, "accumulate_scatter")
     with threads(nthreads):
         for theta, phi, psi in sample_chunks:
-            upix, offsets, theta, phi, psi = group_by_pixel(sky.nside, theta, phi, psi)
-            normal[upix] += binner.normal(offsets, theta, phi, psi)
-            hits[upix] += np.diff(offsets)
+            if scatter:
+                pix = ang2pix_array(sky.nside, theta, phi)
+                binner.scatter(pix, theta, phi, psi, normal)
+            else:
+                upix, offsets, theta, phi, psi = group_by_pixel(sky.nside, theta, phi, psi)
+                normal[upix] += binner.normal(offsets, theta, phi, psi)
+    # c^2 + s^2 = 1 for every (sample, pair): the trace of each 2x2 system counts its samples.
+    hits = np.rint((normal[:, 0] + normal[:, 2]) / instrument.n_pairs).astype(np.int64)
     q, u, rcond = solve(normal, rcond_min)
     return Maps(q=q, u=u, hits=hits, rcond=rcond)
 

@@ -137,13 +137,18 @@ def earth_rotation_angle(jd_ut1):
 
 @numba.njit(inline="always")
 def _to_equatorial(az, se, ce, local_era, sl, cl, tl):
-    """One sample: (theta, phi, q) from azimuth, sin/cos elevation, local ERA and latitude."""
+    """One sample: (theta, phi, q) from azimuth, sin/cos elevation, local ERA and latitude.
+
+    sin H and cos H come from the hour angle's own atan2 arguments (their norm is cos(dec)).
+    """
     sa, ca = np.sin(az), np.cos(az)
     sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
-    dec = np.arcsin(sd)
-    ha = np.arctan2(-sa * ce, cl * se - sl * ce * ca)
-    q = np.arctan2(np.sin(ha), tl * np.cos(dec) - sd * np.cos(ha))
-    return 0.5 * np.pi - dec, (local_era - ha) % (2 * np.pi), q
+    y = -sa * ce  # cos(dec) sin(H)
+    x = cl * se - sl * ce * ca  # cos(dec) cos(H)
+    ha = np.arctan2(y, x)
+    cd = np.sqrt(x * x + y * y)
+    q = np.arctan2(y, tl * cd * cd - sd * x) if cd > 0 else 0.0
+    return np.arccos(sd), (local_era - ha) % (2 * np.pi), q
 
 
 @numba.njit(parallel=True, cache=True)

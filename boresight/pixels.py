@@ -203,6 +203,45 @@ def interp_weights(nside, theta, phi):
     return p0, p1, p2, p3, w0, w1, w2, w3
 
 
+@numba.njit(inline="always")
+def ang2pix(nside, theta, phi):
+    """RING pixel of (theta, phi) [rad], as healpy.ang2pix (Healpix C++ loc2pix)."""
+    z = np.cos(theta)
+    za = abs(z)
+    tt = (phi / _HALFPI) % 4.0
+    if za <= 2.0 / 3.0:
+        nl4 = 4 * nside
+        temp1 = nside * (0.5 + tt)
+        temp2 = nside * z * 0.75
+        jp = np.int64(temp1 - temp2)
+        jm = np.int64(temp1 + temp2)
+        ir = nside + 1 + jp - jm
+        kshift = 1 - (ir & 1)
+        ip = ((jp + jm - nside + kshift + 1 + 2 * nl4) >> 1) % nl4
+        return 2 * nside * (nside - 1) + (ir - 1) * nl4 + ip
+    tp = tt - np.int64(tt)
+    if za < 0.99:
+        tmp = nside * np.sqrt(3.0 * (1.0 - za))
+    else:
+        tmp = nside * np.sin(theta) / np.sqrt((1.0 + za) / 3.0)
+    jp = np.int64(tp * tmp)
+    jm = np.int64((1.0 - tp) * tmp)
+    ir = jp + jm + 1
+    ip = np.int64(tt * ir)
+    if z > 0:
+        return 2 * ir * (ir - 1) + ip
+    return 12 * nside * nside - 2 * ir * (ir + 1) + ip
+
+
+@numba.njit(parallel=True, cache=True)
+def ang2pix_array(nside, theta, phi):
+    """Vectorised :func:`ang2pix`."""
+    out = np.empty(theta.size, dtype=np.int64)
+    for k in numba.prange(theta.size):
+        out[k] = ang2pix(nside, theta[k], phi[k])
+    return out
+
+
 @numba.njit(parallel=True, cache=True)
 def pixel_points(nside, pixels, u, v):
     """Vectorised :func:`pixel_point`: arrays of pixels and fractions -> (theta, phi) arrays."""

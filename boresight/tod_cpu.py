@@ -16,6 +16,7 @@ __all__ = [
     "offset_points",
     "interpolate",
     "accumulate",
+    "accumulate_scatter",
     "moments",
     "to_host",
     "to_device",
@@ -83,6 +84,50 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     return tb, pb
 
 
+@numba.njit(cache=True)
+def _turns(rotations, pair_angles):
+    """cos, sin of 2 (alpha_k + angle_m): exp(2i(psi + alpha + angle)) = exp(2i psi) turn[k, m]."""
+    turn_c = np.empty((rotations.size, pair_angles.size))
+    turn_s = np.empty((rotations.size, pair_angles.size))
+    for k in range(rotations.size):
+        for m in range(pair_angles.size):
+            turn_c[k, m] = np.cos(2.0 * (rotations[k] + pair_angles[m]))
+            turn_s[k, m] = np.sin(2.0 * (rotations[k] + pair_angles[m]))
+    return turn_c, turn_s
+
+
+@numba.njit(inline="always")
+def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
+    """The five normal-equation terms of hit h over every rotation and pair: the physics of the
+    pair difference d = (d_A - d_B) / 2 with gain, pointing (values_b) and additive leak."""
+    nk, nm = turn_c.shape
+    nfield = values_a.shape[0]
+    same_point = values_b.shape[1] == 0
+    i_a, q_a, u_a = values_a[0, h], values_a[1, h], values_a[2, h]
+    s_a = values_a[3, h] if nfield > 3 else 0.0
+    c0 = np.cos(2.0 * psi[h])
+    s0 = np.sin(2.0 * psi[h])
+    a11 = a12 = a22 = b1 = b2 = 0.0
+    for k in range(nk):
+        for m in range(nm):
+            c = c0 * turn_c[k, m] - s0 * turn_s[k, m]
+            s = s0 * turn_c[k, m] + c0 * turn_s[k, m]
+            if same_point:
+                i_b, q_b, u_b, s_b = i_a, q_a, u_a, s_a
+            else:
+                i_b, q_b, u_b = values_b[0, h, k, m], values_b[1, h, k, m], values_b[2, h, k, m]
+                s_b = values_b[3, h, k, m] if nfield > 3 else 0.0
+            d_a = i_a + q_a * c + u_a * s + 0.5 * leak[m] * s_a
+            d_b = (1.0 - dg[m]) * (i_b - q_b * c - u_b * s) - 0.5 * leak[m] * s_b
+            d = 0.5 * (d_a - d_b)
+            a11 += c * c
+            a12 += c * s
+            a22 += s * s
+            b1 += c * d
+            b2 += s * d
+    return a11, a12, a22, b1, b2
+
+
 @numba.njit(parallel=True, cache=True)
 def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
@@ -91,51 +136,37 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
     where detector B looks, or an empty (F, 0, K, M) array when B looks where A does.
     Returns (npix_chunk, 5): sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
     """
-    nk, nm = rotations.size, pair_angles.size
-    nfield = values_a.shape[0]
-    same_point = values_b.shape[1] == 0
-    # exp(2i(psi + alpha + angle)) = exp(2i psi) * turn[k, m]: one sincos per hit.
-    turn_c = np.empty((nk, nm))
-    turn_s = np.empty((nk, nm))
-    for k in range(nk):
-        for m in range(nm):
-            turn_c[k, m] = np.cos(2.0 * (rotations[k] + pair_angles[m]))
-            turn_s[k, m] = np.sin(2.0 * (rotations[k] + pair_angles[m]))
+    turn_c, turn_s = _turns(rotations, pair_angles)
     out = np.zeros((offsets.size - 1, 5))
     for p in numba.prange(offsets.size - 1):
         a11 = a12 = a22 = b1 = b2 = 0.0
         for h in range(offsets[p], offsets[p + 1]):
-            i_a, q_a, u_a = values_a[0, h], values_a[1, h], values_a[2, h]
-            s_a = values_a[3, h] if nfield > 3 else 0.0
-            c0 = np.cos(2.0 * psi[h])
-            s0 = np.sin(2.0 * psi[h])
-            for k in range(nk):
-                for m in range(nm):
-                    c = c0 * turn_c[k, m] - s0 * turn_s[k, m]
-                    s = s0 * turn_c[k, m] + c0 * turn_s[k, m]
-                    if same_point:
-                        i_b, q_b, u_b, s_b = i_a, q_a, u_a, s_a
-                    else:
-                        i_b, q_b, u_b = (
-                            values_b[0, h, k, m],
-                            values_b[1, h, k, m],
-                            values_b[2, h, k, m],
-                        )
-                        s_b = values_b[3, h, k, m] if nfield > 3 else 0.0
-                    d_a = i_a + q_a * c + u_a * s + 0.5 * leak[m] * s_a
-                    d_b = (1.0 - dg[m]) * (i_b - q_b * c - u_b * s) - 0.5 * leak[m] * s_b
-                    d = 0.5 * (d_a - d_b)
-                    a11 += c * c
-                    a12 += c * s
-                    a22 += s * s
-                    b1 += c * d
-                    b2 += s * d
+            t = _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak)
+            a11 += t[0]
+            a12 += t[1]
+            a22 += t[2]
+            b1 += t[3]
+            b2 += t[4]
         out[p, 0] = a11
         out[p, 1] = a12
         out[p, 2] = a22
         out[p, 3] = b1
         out[p, 4] = b2
     return out
+
+
+@numba.njit(cache=True)
+def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
+    """:func:`accumulate` for hits in any order: adds each hit's terms into out[pixels[h]].
+
+    out (npix, 5) is the running full-sky sum; serial, so no two hits race for a pixel.
+    """
+    turn_c, turn_s = _turns(rotations, pair_angles)
+    for h in range(pixels.size):
+        t = _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak)
+        p = pixels[h]
+        for j in range(5):
+            out[p, j] += t[j]
 
 
 @numba.njit(parallel=True, cache=True)

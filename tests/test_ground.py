@@ -120,6 +120,7 @@ def test_sample_stream_uses_the_same_pipeline(small_sky):
     stream = engine.simulate_samples(small_sky, chunks, systematics=sysm)
     direct = engine.simulate(small_sky, scan, systematics=sysm)
     assert rel_max(stream.q, direct.q) < 1e-12 and rel_max(stream.u, direct.u) < 1e-12
+    assert np.array_equal(stream.hits, direct.hits)
 
 
 def test_turnaround_profile():
