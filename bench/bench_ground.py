@@ -1,30 +1,56 @@
-"""Real-scan throughput: pointing alone, and pointing + pair-difference binning of a CES schedule.
+"""Real-scan throughput on a 24-CES schedule (Nside 512 by default).
 
-Usage: python bench/bench_ground.py [NSIDE] (a 24-CES schedule at 100 Hz: 7.9 M samples).
+* pointing: ground.pointing alone (theta, phi, psi per sample);
+* pointing + hit binning: scanstats.characterise_schedule (hits, h_n and crossing-angle bitmaps
+  per pixel, pointing fused in). Timed at 100 and 400 Hz; the difference gives the steady-state
+  rate per sample, the rest is a fixed per-map cost (allocation and per-pixel finalisation);
+* pointing + TOD and maps: engine.simulate_samples (sky interpolation, pair differences, binning).
+
+Usage: python bench/bench_ground.py [NSIDE]
 """
+
 import sys
 import time
 
-from boresight import engine, ground, sky
+from boresight import engine, ground, scanstats, sky
+
+CES = tuple(
+    ground.CES(
+        start_unix=1.79e9 + i * 3600,
+        duration_s=3300,
+        elevation_deg=50,
+        az_centre_deg=134 if i % 2 else 226,
+        az_throw_deg=60,
+    )
+    for i in range(24)
+)
+
+
+def timed(fn, *args):
+    t0 = time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t0
 
 
 def main(nside):
-    ces = tuple(ground.CES(start_unix=1.79e9 + i * 3600, duration_s=3300, elevation_deg=50,
-                           az_centre_deg=134 if i % 2 else 226, az_throw_deg=60)
-                for i in range(24))
-    sched = ground.Schedule(ces, sample_rate_hz=100.0)
     s = sky.make_sky(sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=30.0, seed=1))
-    engine.simulate_samples(s, [next(ground.pointing(ground.Schedule(ces[:1], sample_rate_hz=1)))])
-    t0 = time.perf_counter()
-    for _ in ground.pointing(sched):
-        pass
-    t_point = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    engine.simulate_samples(s, ground.pointing(sched))
-    t_all = time.perf_counter() - t0
-    n = sched.n_samples
-    print(f"{'Nside':>6} {'samples':>9} {'pointing /s':>12} {'pointing+binning /s':>20}")
-    print(f"{nside:>6} {n:>9.2e} {n / t_point:>12.3e} {n / t_all:>20.3e}")
+    warm = ground.Schedule(CES[:1], sample_rate_hz=1.0)
+    scanstats.characterise_schedule(warm, nside)
+    engine.simulate_samples(s, ground.pointing(warm))
+    short, long = (ground.Schedule(CES, sample_rate_hz=r) for r in (100.0, 400.0))
+    t_point = timed(lambda: [None for _ in ground.pointing(short)])
+    t_short = timed(scanstats.characterise_schedule, short, nside)
+    t_long = timed(scanstats.characterise_schedule, long, nside)
+    t_tod = timed(lambda: engine.simulate_samples(s, ground.pointing(short)))
+    n_s, n_l = short.n_samples, long.n_samples
+    steady = (n_l - n_s) / (t_long - t_short)
+    print(f"Nside {nside}; samples/s on {n_s:.2e} ({n_l:.2e}) samples")
+    print(f"{'pointing':<32} {n_s / t_point:.3e}")
+    print(
+        f"{'pointing + hit binning':<32} {n_s / t_short:.3e} ({n_l / t_long:.3e}); steady state "
+        f"{steady:.3e}, fixed {t_short - n_s / steady:.2f} s"
+    )
+    print(f"{'pointing + TOD and maps':<32} {n_s / t_tod:.3e}")
 
 
 if __name__ == "__main__":

@@ -136,18 +136,29 @@ def earth_rotation_angle(jd_ut1):
 
 
 @numba.njit(inline="always")
+def _horizon_terms(az, se, ce, sl, cl):
+    """sin(dec), cos(dec) sin(H), cos(dec) cos(H) of a horizon direction (the rotation)."""
+    sa, ca = np.sin(az), np.cos(az)
+    sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
+    return sd, -sa * ce, cl * se - sl * ce * ca
+
+
+@numba.njit(inline="always")
+def _parallactic_terms(sd, x, y, tl):
+    """(y, X) with q = atan2(y, X) the parallactic angle; X = cos(dec)^2 tan(lat) - sin(dec) x."""
+    return y, tl * (x * x + y * y) - sd * x
+
+
+@numba.njit(inline="always")
 def _to_equatorial(az, se, ce, local_era, sl, cl, tl):
     """One sample: (theta, phi, q) from azimuth, sin/cos elevation, local ERA and latitude.
 
     sin H and cos H come from the hour angle's own atan2 arguments (their norm is cos(dec)).
     """
-    sa, ca = np.sin(az), np.cos(az)
-    sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
-    y = -sa * ce  # cos(dec) sin(H)
-    x = cl * se - sl * ce * ca  # cos(dec) cos(H)
+    sd, y, x = _horizon_terms(az, se, ce, sl, cl)
     ha = np.arctan2(y, x)
-    cd = np.sqrt(x * x + y * y)
-    q = np.arctan2(y, tl * cd * cd - sd * x) if cd > 0 else 0.0
+    qy, qx = _parallactic_terms(sd, x, y, tl)
+    q = np.arctan2(qy, qx) if x * x + y * y > 0 else 0.0
     return np.arccos(sd), (local_era - ha) % (2 * np.pi), q
 
 

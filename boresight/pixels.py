@@ -206,7 +206,12 @@ def interp_weights(nside, theta, phi):
 @numba.njit(inline="always")
 def ang2pix(nside, theta, phi):
     """RING pixel of (theta, phi) [rad], as healpy.ang2pix (Healpix C++ loc2pix)."""
-    z = np.cos(theta)
+    return zphi2pix(nside, np.cos(theta), np.sin(theta), phi)
+
+
+@numba.njit(inline="always")
+def zphi2pix(nside, z, sin_theta, phi):
+    """RING pixel from z = cos(theta), sin(theta) (used near the poles) and phi [rad]."""
     za = abs(z)
     tt = (phi / _HALFPI) % 4.0
     if za <= 2.0 / 3.0:
@@ -223,7 +228,7 @@ def ang2pix(nside, theta, phi):
     if za < 0.99:
         tmp = nside * np.sqrt(3.0 * (1.0 - za))
     else:
-        tmp = nside * np.sin(theta) / np.sqrt((1.0 + za) / 3.0)
+        tmp = nside * sin_theta / np.sqrt((1.0 + za) / 3.0)
     jp = np.int64(tp * tmp)
     jm = np.int64((1.0 - tp) * tmp)
     ir = jp + jm + 1

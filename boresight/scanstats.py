@@ -10,59 +10,149 @@ therefore count as one.
 
 from dataclasses import dataclass
 
-import healpy as hp
 import numba
 import numpy as np
 
-from .engine import group_by_pixel
+from .constants import DEG
+from .ground import (
+    UNIX_EPOCH_JD,
+    _horizon_terms,
+    _parallactic_terms,
+    _scan_offset,
+    earth_rotation_angle,
+)
+from .pixels import ang2pix_array, zphi2pix
 from .scan import SyntheticScan
 
 N_MAX = 4
 _WORD = 64
 
 
-@numba.njit(cache=True)
-def _mark(occupancy, pixels, offsets, psi, nbins):
-    for k in range(pixels.size):
-        for h in range(offsets[k], offsets[k + 1]):
-            b = int((psi[h] % (2 * np.pi)) / (2 * np.pi) * nbins) % nbins
-            occupancy[pixels[k], b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
+@numba.njit(inline="always")
+def _angle_bin(c, s, nbins):
+    """Bin of the angle whose (cos, sin) is (c, s) among nbins bins on [0, 2 pi)."""
+    return int((np.arctan2(s, c) % (2 * np.pi)) / (2 * np.pi) * nbins) % nbins
 
 
 @numba.njit(parallel=True, cache=True)
-def _runs(occupancy, nbins):
-    npix = occupancy.shape[0]
+def _unit_angles(psi, nbins):
+    """cos psi, sin psi and the angle bin of each sample."""
+    c = np.empty(psi.size)
+    s = np.empty(psi.size)
+    b = np.empty(psi.size, dtype=np.int32)
+    for k in numba.prange(psi.size):
+        c[k], s[k] = np.cos(psi[k]), np.sin(psi[k])
+        b[k] = _angle_bin(c[k], s[k], nbins)
+    return c, s, b
+
+
+@numba.njit(parallel=True, cache=True)
+def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
+    """Add samples to per-pixel sums of exp(i n psi) (n = 0..N_MAX), counts and angle bitmaps.
+
+    Each thread owns a range of pixel indices and scans every sample, so no two threads write the
+    same pixel; exp(i n psi) follows from exp(i psi) by multiplication.
+    """
+    npix = hits.size
+    for part in numba.prange(nparts):
+        lo = part * npix // nparts
+        hi = (part + 1) * npix // nparts
+        for k in range(pixels.size):
+            p = pixels[k]
+            if p < lo or p >= hi:
+                continue
+            hits[p] += 1
+            c, s = cos_psi[k], sin_psi[k]
+            re, im = 1.0, 0.0
+            for n in range(sums.shape[1]):
+                sums[p, n] += complex(re, im)
+                re, im = re * c - im * s, re * s + im * c
+            b = angle_bin[k]
+            occupancy[p, b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
+
+
+@numba.njit(parallel=True, cache=True)
+def _ces_hits(
+    k0,
+    n,
+    start_unix,
+    rate,
+    az_centre,
+    throw,
+    speed,
+    turnaround,
+    el,
+    jd_offset,
+    lon,
+    lat,
+    boresight,
+    nside,
+    nbins,
+):
+    """Pixel, cos psi, sin psi and angle bin of samples k0..k0+n-1 of a CES, without forming
+    theta or psi: cos(theta) = sin(dec) and exp(i psi) = -exp(-i q) exp(i boresight)."""
+    pix = np.empty(n, dtype=np.int64)
+    cos_psi = np.empty(n)
+    sin_psi = np.empty(n)
+    angle_bin = np.empty(n, dtype=np.int32)
+    sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
+    se, ce = np.sin(el), np.cos(el)
+    cb, sb = np.cos(boresight), np.sin(boresight)
+    for i in numba.prange(n):
+        t = (k0 + i) / rate
+        az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
+        sd, y, x = _horizon_terms(az, se, ce, sl, cl)
+        cd = np.sqrt(x * x + y * y)
+        phi = (
+            earth_rotation_angle((start_unix + t) / 86400.0 + jd_offset) + lon - np.arctan2(y, x)
+        ) % (2 * np.pi)
+        pix[i] = zphi2pix(nside, sd, cd, phi)
+        qy, qx = _parallactic_terms(sd, x, y, tl)
+        r = np.sqrt(qx * qx + qy * qy)
+        uc, us = (-qx / r, qy / r) if r > 0 else (-1.0, 0.0)  # -exp(-i q)
+        cos_psi[i] = uc * cb - us * sb
+        sin_psi[i] = uc * sb + us * cb
+        angle_bin[i] = _angle_bin(cos_psi[i], sin_psi[i], nbins)
+    return pix, cos_psi, sin_psi, angle_bin
+
+
+@numba.njit(parallel=True, cache=True)
+def _runs(occupancy, nbins, observed):
+    """Distinct angles, range and centre [bins] of each observed pixel's angle bitmap.
+
+    Walks the set bits only; runs of neighbouring occupied bins are one angle, and the occupied
+    arc is the complement of the largest circular gap.
+    """
+    npix, nwords = occupancy.shape
     n_distinct = np.zeros(npix, dtype=np.int64)
     range_bins = np.zeros(npix, dtype=np.int64)
     centre_bin = np.zeros(npix)
-    for p in numba.prange(npix):
-        occ = np.zeros(nbins, dtype=np.bool_)
+    for i in numba.prange(observed.size):
+        p = observed[i]
+        bins = np.empty(nbins, dtype=np.int64)
         count = 0
-        for b in range(nbins):
-            occ[b] = (occupancy[p, b // _WORD] >> np.uint64(b % _WORD)) & np.uint64(1)
-            count += occ[b]
+        for w in range(nwords):
+            x = occupancy[p, w]
+            while x:
+                low = x & (~x + np.uint64(1))
+                bins[count] = w * _WORD + int(np.log2(np.float64(low)))
+                count += 1
+                x ^= low
         if count == 0:
             continue
-        runs = 0
-        for b in range(nbins):
-            if occ[b] and not occ[(b - 1) % nbins]:
+        # Gap before bins[j] (empty bins between it and its predecessor, circularly).
+        runs, best_gap, best_j = 0, -1, 0
+        for j in range(count):
+            prev = bins[j - 1] if j > 0 else bins[count - 1] - nbins
+            gap = bins[j] - prev - 1
+            if gap > 0:
                 runs += 1
+            if gap > best_gap:
+                best_gap, best_j = gap, j
         n_distinct[p] = max(runs, 1)
-        # Largest circular gap of empty bins; the occupied arc is its complement.
-        best_len, best_end = 0, 0
-        length = 0
-        for b in range(2 * nbins):
-            if not occ[b % nbins]:
-                length += 1
-                if length > best_len:
-                    best_len, best_end = length, b
-            else:
-                length = 0
-        best_len = min(best_len, nbins)
-        first = (best_end + 1) % nbins  # first occupied bin after the largest gap
-        span = nbins - best_len - 1
+        span = nbins - best_gap - 1
         range_bins[p] = span
-        centre_bin[p] = first + 0.5 * span + 0.5
+        centre_bin[p] = bins[best_j] + 0.5 * span + 0.5
     return n_distinct, range_bins, centre_bin
 
 
@@ -85,9 +175,12 @@ class ScanStats:
     def survey_means(self, mask=None):
         """The paper's survey means over observed pixels (inside ``mask`` if given)."""
         sel = self.observed if mask is None else self.observed & (np.asarray(mask) > 0)
-        out = {"pixels": int(sel.sum()), "mean_hits": float(self.hits[sel].mean()),
-               "mean_n_phi": float(self.n_distinct[sel].mean()),
-               "mean_range_rad": float(self.range_rad[sel].mean())}
+        out = {
+            "pixels": int(sel.sum()),
+            "mean_hits": float(self.hits[sel].mean()),
+            "mean_n_phi": float(self.n_distinct[sel].mean()),
+            "mean_range_rad": float(self.range_rad[sel].mean()),
+        }
         for n in range(1, N_MAX + 1):
             out[f"mean_abs_h{n}_sq"] = float(np.mean(np.abs(self.h[n, sel]) ** 2))
         return out
@@ -96,34 +189,85 @@ class ScanStats:
         """The synthetic scan with this scan's N_phi and R: per pixel (maps) or survey means."""
         obs = self.observed
         if per_pixel:
-            return SyntheticScan(n_phi=np.where(obs, np.maximum(self.n_distinct, 1), 1),
-                                 range_rad=np.where(obs, self.range_rad, 0.0),
-                                 centre_rad=np.where(obs, self.centre_rad, 0.0), seed=seed,
-                                 in_pixel=in_pixel)
+            return SyntheticScan(
+                n_phi=np.where(obs, np.maximum(self.n_distinct, 1), 1),
+                range_rad=np.where(obs, self.range_rad, 0.0),
+                centre_rad=np.where(obs, self.centre_rad, 0.0),
+                seed=seed,
+                in_pixel=in_pixel,
+            )
         means = self.survey_means()
-        return SyntheticScan(n_phi=max(1, int(round(means["mean_n_phi"]))),
-                             range_rad=means["mean_range_rad"], seed=seed, in_pixel=in_pixel)
+        return SyntheticScan(
+            n_phi=max(1, int(round(means["mean_n_phi"]))),
+            range_rad=means["mean_range_rad"],
+            seed=seed,
+            in_pixel=in_pixel,
+        )
 
 
-def characterise(sample_chunks, nside, tolerance_deg=1.0):
-    """ScanStats of streams of (theta, phi, psi) samples [rad] at ``nside``."""
+def _stats(nside, tolerance_deg, binned_chunks):
+    """ScanStats from chunks of (pixels, cos psi, sin psi, angle bins) for nbins bins."""
     if not 0 < tolerance_deg <= 180:
         raise ValueError(f"tolerance_deg must be in (0, 180], got {tolerance_deg}")
     npix = 12 * nside**2
     nbins = int(round(360.0 / tolerance_deg))
     occupancy = np.zeros((npix, (nbins + _WORD - 1) // _WORD), dtype=np.uint64)
-    sums = np.zeros((N_MAX + 1, npix), dtype=np.complex128)
+    sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: one cache line
     hits = np.zeros(npix, dtype=np.int64)
-    for theta, phi, psi in sample_chunks:
-        pix = hp.ang2pix(nside, theta, phi)
-        hits += np.bincount(pix, minlength=npix)
-        for n in range(N_MAX + 1):
-            sums[n] += np.bincount(pix, np.cos(n * psi), npix) + 1j * np.bincount(
-                pix, np.sin(n * psi), npix)
-        upix, offsets, _, _, psi_sorted = group_by_pixel(nside, theta, phi, psi)
-        _mark(occupancy, upix, offsets, psi_sorted, nbins)
-    h = np.where(hits > 0, sums / np.maximum(hits, 1), 0)
-    n_distinct, range_bins, centre_bin = _runs(occupancy, nbins)
+    for chunk in binned_chunks(nbins):
+        _bin(*chunk, sums, hits, occupancy, numba.get_num_threads())
+    observed = np.flatnonzero(hits)
+    h = np.zeros((N_MAX + 1, npix), dtype=np.complex128)
+    h[:, observed] = (sums[observed] / hits[observed, None]).T
+    n_distinct, range_bins, centre_bin = _runs(occupancy, nbins, observed)
     width = 2 * np.pi / nbins
-    return ScanStats(hits=hits, h=h, n_distinct=n_distinct, range_rad=range_bins * width,
-                     centre_rad=np.mod(centre_bin * width, 2 * np.pi), tolerance_deg=tolerance_deg)
+    return ScanStats(
+        hits=hits,
+        h=h,
+        n_distinct=n_distinct,
+        range_rad=range_bins * width,
+        centre_rad=np.mod(centre_bin * width, 2 * np.pi),
+        tolerance_deg=tolerance_deg,
+    )
+
+
+def characterise(sample_chunks, nside, tolerance_deg=1.0):
+    """ScanStats of streams of (theta, phi, psi) samples [rad] at ``nside``."""
+
+    def binned(nbins):
+        for theta, phi, psi in sample_chunks:
+            yield (ang2pix_array(nside, theta, phi), *_unit_angles(psi, nbins))
+
+    return _stats(nside, tolerance_deg, binned)
+
+
+def characterise_schedule(schedule, nside, tolerance_deg=1.0, chunk_samples=1 << 20):
+    """ScanStats of a CES schedule, with pointing fused into the binning (no theta, phi, psi
+    arrays); equal to characterise(ground.pointing(schedule), ...) up to rounding."""
+    lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
+    jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
+
+    def binned(nbins):
+        for repeat in schedule.repeat_boresight_deg:
+            for c in schedule.ces:
+                n = int(c.duration_s * schedule.sample_rate_hz)
+                for s in range(0, n, chunk_samples):
+                    yield _ces_hits(
+                        s,
+                        min(chunk_samples, n - s),
+                        c.start_unix,
+                        schedule.sample_rate_hz,
+                        c.az_centre_deg * DEG,
+                        c.az_throw_deg * DEG,
+                        c.speed_deg_s * DEG,
+                        c.turnaround_s,
+                        c.elevation_deg * DEG,
+                        jd_offset,
+                        lon,
+                        lat,
+                        (c.boresight_deg + repeat) * DEG,
+                        nside,
+                        nbins,
+                    )
+
+    return _stats(nside, tolerance_deg, binned)

@@ -269,10 +269,10 @@ def compare_scans(
     io.check_output_dir(out_dir, force)
     timer = paper.Timer(log)
     with timer("characterise the schedule"):
-        stats = scanstats.characterise(ground.pointing(schedule), nside, tolerance_deg)
+        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
         # The twin takes (N_phi, R) of one pass of the CES set and repeats it at the schedule's
         # boresight angles, as the paper built its synthetic scans.
-        single = scanstats.characterise(ground.pointing(schedule.single()), nside, tolerance_deg)
+        single = scanstats.characterise_schedule(schedule.single(), nside, tolerance_deg)
         twin = replace(
             single.synthetic_twin(seed=seed), rotations_deg=schedule.repeat_boresight_deg
         )
