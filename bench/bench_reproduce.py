@@ -1,0 +1,39 @@
+"""Wall time of the paper reproduction, stage by stage, and its peak RSS.
+
+Usage: python bench/bench_reproduce.py [NSIDE [LMAX]] [--backend gpu]
+(default Nside 512 / lmax 1535, the --quick run; 2048 4000 is the paper's resolution).
+"""
+
+import json
+import resource
+import sys
+import tempfile
+import time
+
+from boresight import paper, studies
+
+
+def main(nside, lmax, backend):
+    cfg = paper.StudyConfig(nside=nside, lmax=lmax, backend=backend)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        claims = studies.reproduce(f"{tmp}/out", cfg, log=lambda msg: None)
+        total = time.perf_counter() - t0
+        with open(f"{tmp}/out/manifest.json") as f:
+            stages = json.load(f)
+    print(f"Nside {nside}, lmax {lmax}, backend {backend}")
+    print(f"{'stage':<48} {'s':>8}")
+    for name, seconds in stages["wall_time_s"].items():
+        print(f"{name:<48} {seconds:>8.1f}")
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    print(f"{'total':<48} {total:>8.1f}")
+    print(f"peak RSS {rss:.1f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} claims "
+          "reproduced")
+
+
+if __name__ == "__main__":
+    args = [a for a in sys.argv[1:] if a != "--backend" and a != "gpu"]
+    backend = "gpu" if "gpu" in sys.argv[1:] else "cpu"
+    nside = int(args[0]) if args else 512
+    lmax = int(args[1]) if len(args) > 1 else 3 * nside - 1
+    main(nside, lmax, backend)
