@@ -250,16 +250,18 @@ def _ces_pointing(
     return theta, phi, psi
 
 
-def pointing(schedule, chunk_samples=1 << 20):
-    """Yield (theta, phi, psi) [rad] chunks of the whole schedule: the CES set in time order,
-    once per boresight repeat (the repeats follow identical sky tracks)."""
+def chunk_arguments(schedule, chunk_samples=1 << 20):
+    """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time
+    order, once per boresight repeat. Each tuple is (first sample, samples, start [unix s], rate
+    [Hz], azimuth centre, throw [rad], speed [rad/s], turnaround [s], elevation [rad], UT1 Julian
+    date offset, longitude, latitude [rad], boresight angle [rad])."""
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
     jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
     for repeat in schedule.repeat_boresight_deg:
         for c in schedule.ces:
             n = int(c.duration_s * schedule.sample_rate_hz)
             for s in range(0, n, chunk_samples):
-                yield _ces_pointing(
+                yield (
                     s,
                     min(chunk_samples, n - s),
                     c.start_unix,
@@ -274,3 +276,10 @@ def pointing(schedule, chunk_samples=1 << 20):
                     lat,
                     (c.boresight_deg + repeat) * DEG,
                 )
+
+
+def pointing(schedule, chunk_samples=1 << 20):
+    """Yield (theta, phi, psi) [rad] chunks of the whole schedule: the CES set in time order,
+    once per boresight repeat (the repeats follow identical sky tracks)."""
+    for args in chunk_arguments(schedule, chunk_samples):
+        yield _ces_pointing(*args)

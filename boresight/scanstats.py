@@ -13,12 +13,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .constants import DEG
 from .ground import (
-    UNIX_EPOCH_JD,
     _horizon_terms,
     _parallactic_terms,
     _scan_offset,
+    chunk_arguments,
     earth_rotation_angle,
 )
 from .pixels import ang2pix_array, zphi2pix
@@ -244,30 +243,9 @@ def characterise(sample_chunks, nside, tolerance_deg=1.0):
 def characterise_schedule(schedule, nside, tolerance_deg=1.0, chunk_samples=1 << 20):
     """ScanStats of a CES schedule, with pointing fused into the binning (no theta, phi, psi
     arrays); equal to characterise(ground.pointing(schedule), ...) up to rounding."""
-    lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
-    jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
 
     def binned(nbins):
-        for repeat in schedule.repeat_boresight_deg:
-            for c in schedule.ces:
-                n = int(c.duration_s * schedule.sample_rate_hz)
-                for s in range(0, n, chunk_samples):
-                    yield _ces_hits(
-                        s,
-                        min(chunk_samples, n - s),
-                        c.start_unix,
-                        schedule.sample_rate_hz,
-                        c.az_centre_deg * DEG,
-                        c.az_throw_deg * DEG,
-                        c.speed_deg_s * DEG,
-                        c.turnaround_s,
-                        c.elevation_deg * DEG,
-                        jd_offset,
-                        lon,
-                        lat,
-                        (c.boresight_deg + repeat) * DEG,
-                        nside,
-                        nbins,
-                    )
+        for args in chunk_arguments(schedule, chunk_samples):
+            yield _ces_hits(*args, nside, nbins)
 
     return _stats(nside, tolerance_deg, binned)
