@@ -114,8 +114,15 @@ def main(argv=None):
             log.info("%d rows in %s/results.csv", len(rows), args.out)
             return 0
         if args.command == "compare-scans":
-            studies.compare_scans(args.schedule, args.out, args.nside, args.systematic,
-                                  args.fwhm_arcmin, force=args.force, log=log.info)
+            studies.compare_scans(
+                args.schedule,
+                args.out,
+                args.nside,
+                args.systematic,
+                args.fwhm_arcmin,
+                force=args.force,
+                log=log.info,
+            )
             return 0
         study = load_study(args.config)
         if args.command == "simulate":

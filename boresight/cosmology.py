@@ -7,6 +7,7 @@ combination of the cached arrays. ``scripts/make_spectra.py`` regenerates the ca
 
 from dataclasses import dataclass
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
@@ -96,19 +97,7 @@ def save_spectra(spectra, path):
 
 def load_spectra(path=None):
     """Load spectra from ``path``, or the cached paper spectra shipped with the package."""
-    if path is None:
-        path = resources.files("boresight.data").joinpath(CACHE_FILE)
-    with resources.as_file(path) if not isinstance(path, str) else _nullpath(path) as f:
+    source = resources.files("boresight.data").joinpath(CACHE_FILE) if path is None else Path(path)
+    with source.open("rb") as f:
         data = np.load(f)
         return Spectra(**{k: data[k] for k in FIELDS})
-
-
-class _nullpath:
-    def __init__(self, path):
-        self.path = path
-
-    def __enter__(self):
-        return self.path
-
-    def __exit__(self, *exc):
-        return False

@@ -216,6 +216,13 @@ def ces_samples(ces, schedule, start=0, stop=None):
     return ces.start_unix + t, az, np.full(t.size, ces.elevation_deg * DEG)
 
 
+@numba.njit(inline="always")
+def _azimuth_and_local_era(t, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon):
+    """Azimuth [rad] and local Earth rotation angle [rad] t seconds into a CES."""
+    az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
+    return az, earth_rotation_angle((start_unix + t) / 86400.0 + jd_offset) + lon
+
+
 @numba.njit(parallel=True, cache=True)
 def _ces_pointing(
     k0,
@@ -242,10 +249,10 @@ def _ces_pointing(
     sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
     se, ce = np.sin(el), np.cos(el)
     for i in numba.prange(n):
-        t = (k0 + i) / rate
-        az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
-        jd = (start_unix + t) / 86400.0 + jd_offset
-        theta[i], phi[i], q = _to_equatorial(az, se, ce, earth_rotation_angle(jd) + lon, sl, cl, tl)
+        az, local_era = _azimuth_and_local_era(
+            (k0 + i) / rate, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon
+        )
+        theta[i], phi[i], q = _to_equatorial(az, se, ce, local_era, sl, cl, tl)
         psi[i] = np.pi - q + psi_offset
     return theta, phi, psi
 

@@ -14,11 +14,10 @@ import numba
 import numpy as np
 
 from .ground import (
+    _azimuth_and_local_era,
     _horizon_terms,
     _parallactic_terms,
-    _scan_offset,
     chunk_arguments,
-    earth_rotation_angle,
 )
 from .pixels import ang2pix_array, zphi2pix
 from .scan import SyntheticScan
@@ -98,13 +97,12 @@ def _ces_hits(
     se, ce = np.sin(el), np.cos(el)
     cb, sb = np.cos(boresight), np.sin(boresight)
     for i in numba.prange(n):
-        t = (k0 + i) / rate
-        az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
+        az, local_era = _azimuth_and_local_era(
+            (k0 + i) / rate, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon
+        )
         sd, y, x = _horizon_terms(az, se, ce, sl, cl)
         cd = np.sqrt(x * x + y * y)
-        phi = (
-            earth_rotation_angle((start_unix + t) / 86400.0 + jd_offset) + lon - np.arctan2(y, x)
-        ) % (2 * np.pi)
+        phi = (local_era - np.arctan2(y, x)) % (2 * np.pi)
         pix[i] = zphi2pix(nside, sd, cd, phi)
         qy, qx = _parallactic_terms(sd, x, y, tl)
         r = np.sqrt(qx * qx + qy * qy)
