@@ -116,3 +116,12 @@ def test_delta_r_recovers_input_r(theory):
         maps = hp.synfast([zero, zero, cl_bb, zero], nside, new=True)
         estimates.append(rbias.delta_r(spectra.pseudo_spectra(maps, mask, lmax)[2], template))
     assert abs(np.mean(estimates) / 0.05 - 1) < 0.05
+
+
+def test_sweep_cli_writes_table_and_continuum_figure(tmp_path):
+    from boresight.cli import main
+
+    path = _sweep_files(tmp_path, "pbr_angle_deg = [0, 60, 90]")
+    out = tmp_path / "cli"
+    assert main(["-q", "sweep", path, "--out", str(out), "--scheduler", "serial"]) == 0
+    assert (out / "results.csv").exists() and (out / "suppression.png").stat().st_size > 1000
