@@ -1,9 +1,12 @@
 """GPU TOD core throughput (run on a machine with CuPy and a CUDA GPU).
 
-Times the three hot kernels (hits, interpolation, pair-difference binning) on device arrays for the
-paper's deep case with PBR (32 detector samples per pixel) over the full sky, with CUDA events, and
-the whole engine.simulate call (host solve and transfers included). Bandwidth counts the bytes each
-kernel must move at least: hit arrays written and read, four interpolation neighbours, outputs.
+Times the fused kernel ``tod_gpu.bin_scan`` (hits, interpolated sky, pair differences and
+normal equations; no per-hit arrays) over the full sky with CUDA events, for the paper's two
+cases with PBR: deep + gain (N_phi 4, 2 rotations, 2 pairs: 32 detector samples per pixel) and
+wide + pointing (N_phi 2: 16 samples per pixel, detector B interpolated separately), then the
+whole engine.simulate call (upload, solve on the GPU, download of q, u, rcond, hits).
+Bandwidth counts the bytes the kernel must move: per pixel its index, N_phi, R, centre (32 B),
+its sky fields (24 B; the neighbours are shared) and 5 sums (40 B).
 Usage: python bench/bench_gpu.py [NSIDE ...]
 """
 
@@ -17,55 +20,69 @@ from boresight import engine, instrument, sky, tod_gpu
 from boresight.evaluation import SkyFields
 from boresight.scan import SyntheticScan
 
+CASES = {
+    "deep + gain": (
+        SyntheticScan(n_phi=4, range_rad=0.719, rotations_deg=(0, 90), seed=1),
+        instrument.PAPER_GAIN,
+    ),
+    "wide + pointing": (
+        SyntheticScan(n_phi=2, range_rad=0.169, rotations_deg=(0, 180), seed=1),
+        instrument.PAPER_POINTING,
+    ),
+}
 
-def core(s, scan, nside, chunk):
-    fields = SkyFields(s)
-    stack = tod_gpu.to_device(fields.stack)
-    rot, ang = scan.rotations_rad, np.radians([0.0, 45.0])
-    dg, leak = np.array([0.01, -0.01]), np.zeros(2)
-    pixels = np.arange(12 * nside**2, dtype=np.int64)
+
+def core(the_sky, scan, systematics):
+    """Seconds of bin_scan over the full sky (inputs already on the GPU) and its sample count."""
+    nside, npix = the_sky.nside, 12 * the_sky.nside**2
+    stack = tod_gpu.to_device(SkyFields(the_sky).stack)
+    dg, rho, chi, leak = systematics.per_pair(2)
+    ang = instrument.Instrument().pair_angles_rad
+    n_phi, rng, centre = scan.per_pixel(np.arange(npix), npix)
+    args = [cp.arange(npix, dtype=cp.int64), cp.asarray(n_phi), cp.asarray(rng), cp.asarray(centre)]
     start, stop = cp.cuda.Event(), cp.cuda.Event()
-    total, nhit = 0.0, 0
-    for s0 in range(0, pixels.size, chunk):
-        pix = pixels[s0 : s0 + chunk]
-        n_phi, rng_rad, centre = scan.per_pixel(pix, pixels.size)
-        offsets = np.zeros(pix.size + 1, dtype=np.int64)
-        np.cumsum(n_phi, out=offsets[1:])
-        start.record()
-        th, ph, psi = tod_gpu.generate_hits(scan.seed, nside, pix, offsets, rng_rad, centre, False)
-        va = tod_gpu.interpolate(stack, nside, th, ph)
-        tod_gpu.accumulate(offsets, psi, va, np.empty((3, 0, 2, 2)), rot, ang, dg, leak)
-        stop.record()
-        stop.synchronize()
-        total += cp.cuda.get_elapsed_time(start, stop) / 1e3
-        nhit += th.size
-    return total, nhit
+    start.record()
+    tod_gpu.bin_scan(
+        scan.seed,
+        nside,
+        *args,
+        False,
+        stack,
+        scan.rotations_rad,
+        ang,
+        dg,
+        rho,
+        chi,
+        leak,
+        systematics.has_pointing,
+    )
+    stop.record()
+    stop.synchronize()
+    samples = int(n_phi.sum()) * len(scan.rotations_deg) * 2 * 2
+    return cp.cuda.get_elapsed_time(start, stop) / 1e3, samples
 
 
 def main(nsides):
     dev = cp.cuda.runtime.getDeviceProperties(0)
     print(f"device: {dev['name'].decode()}")
-    print(f"{'Nside':>6} {'core s':>8} {'det-samples/s':>14} {'GB/s':>7} {'simulate s':>11}")
-    scan = SyntheticScan(n_phi=4, range_rad=0.719, rotations_deg=(0, 90), seed=1)
+    print(
+        f"{'case':<16} {'Nside':>6} {'core s':>8} {'det-samples/s':>14} {'GB/s':>6} "
+        f"{'simulate s':>11}"
+    )
     for nside in nsides:
-        s = sky.make_sky(sky.SkyConfig(nside=nside, lmax=min(3 * nside - 1, 4000), seed=1))
-        chunk = 1 << 22
-        core(s, scan, nside, chunk)  # compile and warm up
-        t_core, nhit = core(s, scan, nside, chunk)
-        samples = nhit * 2 * 4
-        # Per hit: theta, phi, psi written then read (48 B), 3 fields out and in (48 B), 4 stack
-        # neighbours (4 x 24 B, mostly cached); per pixel: offsets and 5 sums (48 B).
-        nbytes = nhit * (48 + 48 + 96) + 12 * nside**2 * 48
-        t0 = time.perf_counter()
-        engine.simulate(
-            s, scan, systematics=instrument.PAPER_GAIN, backend="gpu", chunk_pixels=chunk
-        )
-        t_sim = time.perf_counter() - t0
-        print(
-            f"{nside:>6} {t_core:>8.3f} {samples / t_core:>14.3e} {nbytes / t_core / 1e9:>7.0f} "
-            f"{t_sim:>11.2f}",
-            flush=True,
-        )
+        the_sky = sky.make_sky(sky.SkyConfig(nside=nside, lmax=min(3 * nside - 1, 4000), seed=1))
+        for name, (scan, systematics) in CASES.items():
+            core(the_sky, scan, systematics)  # compile and warm up
+            t_core, samples = min(core(the_sky, scan, systematics) for _ in range(3))
+            nbytes = 12 * nside**2 * (32 + 24 + 40)
+            t0 = time.perf_counter()
+            engine.simulate(the_sky, scan, systematics=systematics, backend="gpu")
+            t_sim = time.perf_counter() - t0
+            print(
+                f"{name:<16} {nside:>6} {t_core:>8.4f} {samples / t_core:>14.3e} "
+                f"{nbytes / t_core / 1e9:>6.0f} {t_sim:>11.2f}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -1,8 +1,9 @@
 """The simulation engine: sky -> synthetic scan -> detectors and systematics -> PBR -> maps.
 
 ``simulate`` streams pixel chunks through the kernels of a backend (``tod_cpu`` or ``tod_gpu``):
-hits, detector-B pointing, sky evaluation, pair differences and per-pixel normal equations; memory
-is bounded by the chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
+hits, detector-B pointing, sky evaluation, pair differences and per-pixel normal equations (one
+fused kernel on the GPU), then solves each pixel where the sums lie; memory is bounded by the
+chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
 """
 
 import contextlib
@@ -118,14 +119,23 @@ def simulate(
     q = np.full(npix, hp.UNSEEN)
     u = np.full(npix, hp.UNSEEN)
     rcond = np.zeros(npix)
-    ncross = np.zeros(npix, dtype=np.int32)
+    ncross = np.zeros(npix, dtype=np.int64)
     with threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
-            offsets, theta, phi, psi = _hits(kernels, scan, nside, chunk)
-            normal = binner.normal(offsets, theta, phi, psi)
-            q[chunk], u[chunk], rcond[chunk] = solve(normal, rcond_min)
-            ncross[chunk] = np.diff(kernels.to_host(offsets)) * len(scan.rotations_deg)
+            normal = binner.scan_normal(scan, nside, chunk)
+            q[chunk], u[chunk], rcond[chunk], ncross[chunk] = _maps_from(
+                kernels, normal, instrument.n_pairs, rcond_min
+            )
     return Maps(q=q, u=u, hits=ncross, rcond=rcond)
+
+
+def _maps_from(kernels, normal, n_pairs, rcond_min):
+    """(q, u, rcond, hits) host arrays from normal-equation sums, solved where they lie.
+
+    c^2 + s^2 = 1 for every (sample, pair): the trace of each 2x2 system counts its samples.
+    """
+    hits = np.rint((normal[:, 0] + normal[:, 2]) / n_pairs).astype(np.int64)
+    return tuple(kernels.to_host(x) for x in solve(normal, rcond_min) + (hits,))
 
 
 class _Binner:
@@ -160,12 +170,33 @@ class _Binner:
             values_b = np.empty((fields.n_fields, 0, self.rot.size, self.ang.size))
         return values_a, values_b
 
-    def normal(self, offsets, theta, phi, psi):
-        """(npix_chunk, 5) normal-equation sums of the hits (offsets: hits of each pixel)."""
+    def scan_normal(self, scan, nside, chunk):
+        """(npix_chunk, 5) normal-equation sums of a synthetic scan over a chunk of pixels, on the
+        backend's device: one fused kernel where the backend has it (GPU, interpolated sky),
+        else hits -> sky at both detectors -> accumulate."""
+        if self.kernels.FUSED_SCAN and self.evaluation == "interp":
+            n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
+            return self.kernels.bin_scan(
+                scan.seed,
+                nside,
+                chunk,
+                n_phi,
+                rng_rad,
+                centre,
+                scan.in_pixel == "centre",
+                self.stack,
+                self.rot,
+                self.ang,
+                self.dg,
+                self.rho,
+                self.chi,
+                self.leak,
+                self.pointing,
+            )
+        offsets, theta, phi, psi = _hits(self.kernels, scan, nside, chunk)
         values_a, values_b = self._values(theta, phi, psi)
-        k = self.kernels
-        return k.to_host(
-            k.accumulate(offsets, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak)
+        return self.kernels.accumulate(
+            offsets, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak
         )
 
     def scatter(self, pixels, theta, phi, psi, normal):
@@ -174,16 +205,6 @@ class _Binner:
         self.kernels.accumulate_scatter(
             pixels, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak, normal
         )
-
-
-def group_by_pixel(nside, theta, phi, psi):
-    """Sort samples by RING pixel: (pixels, offsets, theta, phi, psi) in pixel order."""
-    pix = hp.ang2pix(nside, theta, phi)
-    order = np.argsort(pix, kind="stable")
-    upix, counts = np.unique(pix[order], return_counts=True)
-    offsets = np.zeros(upix.size + 1, dtype=np.int64)
-    np.cumsum(counts, out=offsets[1:])
-    return upix, offsets, theta[order], phi[order], psi[order]
 
 
 def simulate_samples(
@@ -202,26 +223,18 @@ def simulate_samples(
 
     sample_chunks: iterable of (theta, phi, psi) arrays [rad] in any order. The normal equations
     of all chunks add up before the per-pixel solve, so memory is the chunk plus (npix, 5) sums.
-    On the CPU each sample's terms are scattered into its pixel's sums (no sort); a GPU backend
-    groups each chunk by pixel and bins it like a synthetic scan.
+    Each sample's terms are added into its pixel's sums in sample order (a GPU sorts each chunk
+    by pixel first), so CPU and GPU agree to rounding.
     """
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
-    npix = 12 * sky.nside**2
-    normal = np.zeros((npix, 5))
-    scatter = hasattr(binner.kernels, "accumulate_scatter")
+    normal = binner.kernels.zeros((12 * sky.nside**2, 5))
     with threads(nthreads):
         for theta, phi, psi in sample_chunks:
-            if scatter:
-                pix = ang2pix_array(sky.nside, theta, phi)
-                binner.scatter(pix, theta, phi, psi, normal)
-            else:
-                upix, offsets, theta, phi, psi = group_by_pixel(sky.nside, theta, phi, psi)
-                normal[upix] += binner.normal(offsets, theta, phi, psi)
-    # c^2 + s^2 = 1 for every (sample, pair): the trace of each 2x2 system counts its samples.
-    hits = np.rint((normal[:, 0] + normal[:, 2]) / instrument.n_pairs).astype(np.int64)
-    q, u, rcond = solve(normal, rcond_min)
+            pix = ang2pix_array(sky.nside, theta, phi)
+            binner.scatter(pix, theta, phi, psi, normal)
+    q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
     return Maps(q=q, u=u, hits=hits, rcond=rcond)
 
 

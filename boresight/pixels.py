@@ -265,10 +265,17 @@ def interpolate_interleaved(maps, nside, theta, phi):
     """
     out = np.empty((maps.shape[1], theta.size))
     for k in numba.prange(theta.size):
-        p0, p1, p2, p3, w0, w1, w2, w3 = interp_weights(nside, theta[k], phi[k])
-        for f in range(maps.shape[1]):
-            out[f, k] = w0 * maps[p0, f] + w1 * maps[p1, f] + w2 * maps[p2, f] + w3 * maps[p3, f]
+        interpolate_point(maps, nside, theta[k], phi[k], out, k)
     return out
+
+
+@numba.njit(inline="always")
+def interpolate_point(maps, nside, theta, phi, out, column):
+    """Bilinear interpolation of the interleaved (npix, nfield) stack at one point into
+    out[f, column] (no array views in the hot loop)."""
+    p0, p1, p2, p3, w0, w1, w2, w3 = interp_weights(nside, theta, phi)
+    for f in range(maps.shape[1]):
+        out[f, column] = w0 * maps[p0, f] + w1 * maps[p1, f] + w2 * maps[p2, f] + w3 * maps[p3, f]
 
 
 def interpolate(maps, nside, theta, phi):

@@ -11,6 +11,10 @@ import numpy as np
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import STREAM_PSI, STREAM_U, STREAM_V, pixel_key, uniform_from_key
 
+#: whether the backend fuses a synthetic scan's hot loop into one kernel (bin_scan): not on the
+#: CPU, which is compute-bound; a fused numba loop measured 5 % slower than these staged kernels
+FUSED_SCAN = False
+
 __all__ = [
     "generate_hits",
     "offset_points",
@@ -20,6 +24,7 @@ __all__ = [
     "moments",
     "to_host",
     "to_device",
+    "zeros",
 ]
 
 
@@ -29,6 +34,19 @@ def interpolate(maps, nside, theta, phi):
 
 
 _TWOPI = 2.0 * np.pi
+
+
+@numba.njit(inline="always")
+def _draw_hit(key, j, nside, ix, iy, face, range_rad, centre_rad, centred):
+    """Position (theta, phi) and crossing angle psi [rad] of hit j of the pixel with this key."""
+    psi = centre_rad + range_rad * (uniform_from_key(key, j, STREAM_PSI) - 0.5)
+    if centred:
+        u = v = 0.5
+    else:
+        u = uniform_from_key(key, j, STREAM_U)
+        v = uniform_from_key(key, j, STREAM_V)
+    theta, phi = face_point(nside, ix, iy, face, u, v)
+    return theta, phi, psi
 
 
 @numba.njit(parallel=True, cache=True)
@@ -43,28 +61,31 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     phi = np.empty(nhit)
     psi = np.empty(nhit)
     for k in numba.prange(pixels.size):
-        p = pixels[k]
-        key = pixel_key(seed, p)
-        ix, iy, face = ring2xyf(nside, p)
+        key = pixel_key(seed, pixels[k])
+        ix, iy, face = ring2xyf(nside, pixels[k])
         for h in range(offsets[k], offsets[k + 1]):
-            j = h - offsets[k]
-            psi[h] = centre_rad[k] + range_rad[k] * (uniform_from_key(key, j, STREAM_PSI) - 0.5)
-            if centred:
-                u = v = 0.5
-            else:
-                u = uniform_from_key(key, j, STREAM_U)
-                v = uniform_from_key(key, j, STREAM_V)
-            theta[h], phi[h] = face_point(nside, ix, iy, face, u, v)
+            theta[h], phi[h], psi[h] = _draw_hit(
+                key, h - offsets[k], nside, ix, iy, face, range_rad[k], centre_rad[k], centred
+            )
     return theta, phi, psi
+
+
+@numba.njit(inline="always")
+def _offset_point(theta, phi, sin_theta, beta, rho):
+    """Where detector B looks: theta + rho cos(beta), phi + rho sin(beta) / sin(theta) [rad],
+    with beta = psi + rotation + pair angle + chi; points past a pole are folded back."""
+    t = theta + rho * np.cos(beta)
+    f = phi + rho * np.sin(beta) / sin_theta
+    if t < 0.0:
+        t, f = -t, f + np.pi
+    elif t > np.pi:
+        t, f = 2.0 * np.pi - t, f + np.pi
+    return t, f % _TWOPI
 
 
 @numba.njit(parallel=True, cache=True)
 def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
-    """Where detector B of each pair looks, for every (hit, rotation, pair): (H, K, M) arrays.
-
-    theta_B = theta + rho cos(beta), phi_B = phi + rho sin(beta) / sin(theta), with
-    beta = psi + rotation + pair angle + chi; points past a pole are folded back onto the sphere.
-    """
+    """Where detector B of each pair looks, for every (hit, rotation, pair): (H, K, M) arrays."""
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = np.empty((nh, nk, nm))
     pb = np.empty((nh, nk, nm))
@@ -73,14 +94,7 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
         for k in range(nk):
             for m in range(nm):
                 beta = psi[h] + rotations[k] + pair_angles[m] + chi[m]
-                t = theta[h] + rho[m] * np.cos(beta)
-                f = phi[h] + rho[m] * np.sin(beta) / sin_t
-                if t < 0.0:
-                    t, f = -t, f + np.pi
-                elif t > np.pi:
-                    t, f = 2.0 * np.pi - t, f + np.pi
-                tb[h, k, m] = t
-                pb[h, k, m] = f % _TWOPI
+                tb[h, k, m], pb[h, k, m] = _offset_point(theta[h], phi[h], sin_t, beta, rho[m])
     return tb, pb
 
 
@@ -97,14 +111,37 @@ def _turns(rotations, pair_angles):
 
 
 @numba.njit(inline="always")
+def _pair_difference(c, s, field_a, field_b, dg, leak):
+    """d = (d_A - d_B) / 2 of one pair at polarisation angle (c, s) = (cos, sin) 2a, with gain
+    (1 - dg on B), pointing (B sees field_b) and additive leak; fields are (I, Q, U, template)."""
+    i_a, q_a, u_a, s_a = field_a
+    i_b, q_b, u_b, s_b = field_b
+    d_a = i_a + q_a * c + u_a * s + 0.5 * leak * s_a
+    d_b = (1.0 - dg) * (i_b - q_b * c - u_b * s) - 0.5 * leak * s_b
+    return 0.5 * (d_a - d_b)
+
+
+@numba.njit(inline="always")
+def _fields(values, i):
+    """(I, Q, U, template) of point i of a (F, N) array (template 0 when F = 3)."""
+    return values[0, i], values[1, i], values[2, i], values[3, i] if values.shape[0] > 3 else 0.0
+
+
+@numba.njit(inline="always")
+def _flat(values_b):
+    """(F, H, K, M) values of detector B as (F, H K M)."""
+    return values_b.reshape(
+        (values_b.shape[0], values_b.shape[1] * values_b.shape[2] * values_b.shape[3])
+    )
+
+
+@numba.njit(inline="always")
 def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
-    """The five normal-equation terms of hit h over every rotation and pair: the physics of the
-    pair difference d = (d_A - d_B) / 2 with gain, pointing (values_b) and additive leak."""
+    """The five normal-equation terms of hit h over every rotation and pair: sum c^2, c s, s^2,
+    c d, s d. values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened,
+    or has no columns when B looks where A does."""
     nk, nm = turn_c.shape
-    nfield = values_a.shape[0]
-    same_point = values_b.shape[1] == 0
-    i_a, q_a, u_a = values_a[0, h], values_a[1, h], values_a[2, h]
-    s_a = values_a[3, h] if nfield > 3 else 0.0
+    field_a = _fields(values_a, h)
     c0 = np.cos(2.0 * psi[h])
     s0 = np.sin(2.0 * psi[h])
     a11 = a12 = a22 = b1 = b2 = 0.0
@@ -112,14 +149,10 @@ def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
         for m in range(nm):
             c = c0 * turn_c[k, m] - s0 * turn_s[k, m]
             s = s0 * turn_c[k, m] + c0 * turn_s[k, m]
-            if same_point:
-                i_b, q_b, u_b, s_b = i_a, q_a, u_a, s_a
-            else:
-                i_b, q_b, u_b = values_b[0, h, k, m], values_b[1, h, k, m], values_b[2, h, k, m]
-                s_b = values_b[3, h, k, m] if nfield > 3 else 0.0
-            d_a = i_a + q_a * c + u_a * s + 0.5 * leak[m] * s_a
-            d_b = (1.0 - dg[m]) * (i_b - q_b * c - u_b * s) - 0.5 * leak[m] * s_b
-            d = 0.5 * (d_a - d_b)
+            field_b = (
+                field_a if values_b.shape[1] == 0 else _fields(values_b, (h * nk + k) * nm + m)
+            )
+            d = _pair_difference(c, s, field_a, field_b, dg[m], leak[m])
             a11 += c * c
             a12 += c * s
             a22 += s * s
@@ -137,6 +170,7 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
     Returns (npix_chunk, 5): sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
     """
     turn_c, turn_s = _turns(rotations, pair_angles)
+    values_b = _flat(values_b)
     out = np.zeros((offsets.size - 1, 5))
     for p in numba.prange(offsets.size - 1):
         a11 = a12 = a22 = b1 = b2 = 0.0
@@ -162,6 +196,7 @@ def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, 
     out (npix, 5) is the running full-sky sum; serial, so no two hits race for a pixel.
     """
     turn_c, turn_s = _turns(rotations, pair_angles)
+    values_b = _flat(values_b)
     for h in range(pixels.size):
         t = _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak)
         p = pixels[h]
@@ -197,3 +232,8 @@ def to_host(array):
 def to_device(array):
     """Arrays the kernels read many times (the sky fields) stay where they are on the CPU."""
     return array
+
+
+def zeros(shape):
+    """A zeroed float64 accumulator where the kernels write (host memory)."""
+    return np.zeros(shape)

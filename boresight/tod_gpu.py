@@ -2,10 +2,14 @@
 
 The CUDA source below ports boresight.rng, boresight.pixels and boresight.tod_cpu line by line
 (same integer arithmetic for the counter-based random numbers), so CPU and GPU maps agree to the
-rounding of sin/cos/acos (tests/test_gpu.py: <= 1e-12 relative). CuPy is chosen over JAX because
-the kernels are scatter-free per-pixel loops with 64-bit integer hashing, which raw CUDA expresses
-directly; spherical-harmonic transforms stay on ducc0 (CPU). Install with `pip install
-boresight[gpu]` (CuPy for CUDA 12; use cupy-cuda13x for CUDA 13).
+rounding of sin/cos/acos (tests/test_gpu.py: <= 1e-12 relative). Synthetic scans with an
+interpolated sky run as one fused kernel (bin_scan, 7e10 detector samples/s on an H100); the
+staged kernels serve exact evaluation and real sample streams, which are sorted by pixel on the
+GPU so that sums add in sample order (deterministic, as on the CPU). CuPy is chosen over JAX
+because the kernels are per-pixel loops with 64-bit integer hashing, which raw CUDA expresses
+directly. Spherical-harmonic transforms stay on ducc0 (CPU): bench/bench_sht.py measured s2fft
+on the GPU 56 times slower. Install with `pip install boresight[gpu]` (CuPy for CUDA 12; use
+cupy-cuda13x for CUDA 13).
 """
 
 import numpy as np
@@ -18,6 +22,8 @@ except ImportError as err:  # pragma: no cover - exercised where CuPy is missing
     ) from err
 
 _THREADS = 256
+#: synthetic scans with an interpolated sky run as one kernel (bin_scan): no per-hit arrays
+FUSED_SCAN = True
 SOURCE = r"""
 typedef unsigned long long u64;
 typedef long long i64;
@@ -140,21 +146,74 @@ __device__ void interp_weights(i64 nside, double theta, double phi, i64 *p, doub
     }
 }
 
+__device__ __forceinline__ void draw_hit(u64 key, i64 j, i64 nside, i64 ix, i64 iy, i64 face,
+        double range, double centre, int centred, double *theta, double *phi, double *psi) {
+    *psi = centre + range * (uniform_from_key(key, (u64)j, 0) - 0.5);
+    double u = 0.5, v = 0.5;
+    if (!centred) { u = uniform_from_key(key, (u64)j, 1); v = uniform_from_key(key, (u64)j, 2); }
+    xyf2ang((ix + u) / nside, (iy + v) / nside, face, theta, phi);
+}
+__device__ __forceinline__ void offset_point(double theta, double phi, double sin_t, double beta,
+        double rho, double *tb, double *pb) {
+    double t = theta + rho * cos(beta), f = phi + rho * sin(beta) / sin_t;
+    if (t < 0.0) { t = -t; f += PI; } else if (t > PI) { t = TWOPI - t; f += PI; }
+    double r = fmod(f, TWOPI);
+    *tb = t; *pb = r < 0 ? r + TWOPI : r;
+}
+// (I, Q, U, template) at one point of the interleaved (npix, nf) stack; template 0 when nf = 3
+__device__ __forceinline__ void interp_point(const double *stack, int nf, i64 nside,
+        double theta, double phi, double *out) {
+    i64 p[4]; double w[4];
+    interp_weights(nside, theta, phi, p, w);
+    out[3] = 0.0;
+    for (int f = 0; f < nf; ++f)
+        out[f] = w[0] * stack[p[0] * nf + f] + w[1] * stack[p[1] * nf + f]
+               + w[2] * stack[p[2] * nf + f] + w[3] * stack[p[3] * nf + f];
+}
+struct Sums { double a11 = 0, a12 = 0, a22 = 0, b1 = 0, b2 = 0; };
+// Normal-equation terms of one hit over every rotation r and pair m (tod_cpu._hit_sums);
+// field_b(r, m, fb) fills what detector B sees.
+template <class FieldB>
+__device__ __forceinline__ Sums hit_sums(double psi, const double *fa, FieldB field_b, int nk,
+        int nm, const double *turn_c, const double *turn_s, const double *dg, const double *leak) {
+    Sums t;
+    double c0 = cos(2.0 * psi), s0 = sin(2.0 * psi);
+    for (int r = 0; r < nk; ++r) for (int m = 0; m < nm; ++m) {
+        double c = c0 * turn_c[r * nm + m] - s0 * turn_s[r * nm + m];
+        double s = s0 * turn_c[r * nm + m] + c0 * turn_s[r * nm + m];
+        double fb[4];
+        field_b(r, m, fb);
+        double da = fa[0] + fa[1] * c + fa[2] * s + 0.5 * leak[m] * fa[3];
+        double db = (1.0 - dg[m]) * (fb[0] - fb[1] * c - fb[2] * s) - 0.5 * leak[m] * fb[3];
+        double d = 0.5 * (da - db);
+        t.a11 += c * c; t.a12 += c * s; t.a22 += s * s; t.b1 += c * d; t.b2 += s * d;
+    }
+    return t;
+}
+__device__ __forceinline__ void add_sums(Sums &acc, const Sums &t) {
+    acc.a11 += t.a11; acc.a12 += t.a12; acc.a22 += t.a22; acc.b1 += t.b1; acc.b2 += t.b2;
+}
+__device__ __forceinline__ void store_sums(double *out, i64 p, const Sums &t) {
+    out[5 * p] = t.a11; out[5 * p + 1] = t.a12; out[5 * p + 2] = t.a22; out[5 * p + 3] = t.b1;
+    out[5 * p + 4] = t.b2;
+}
+// (I, Q, U, template) of point k of a field-major (nf, n) array
+__device__ __forceinline__ void load_fields(const double *v, int nf, i64 n, i64 k, double *out) {
+    out[3] = 0.0;
+    for (int f = 0; f < nf; ++f) out[f] = v[f * n + k];
+}
+
 extern "C" __global__ void generate_hits(const i64 *pixels, const i64 *offsets, const double *range,
         const double *centre, i64 n, u64 seed, i64 nside, int centred, double *theta, double *phi,
         double *psi) {
     i64 k = blockIdx.x * (i64)blockDim.x + threadIdx.x;
     if (k >= n) return;
-    i64 p = pixels[k], ix, iy, face;
-    u64 key = pixel_key(seed, (u64)p);
-    ring2xyf(nside, p, &ix, &iy, &face);
-    for (i64 h = offsets[k]; h < offsets[k + 1]; ++h) {
-        u64 j = (u64)(h - offsets[k]);
-        psi[h] = centre[k] + range[k] * (uniform_from_key(key, j, 0) - 0.5);
-        double u = 0.5, v = 0.5;
-        if (!centred) { u = uniform_from_key(key, j, 1); v = uniform_from_key(key, j, 2); }
-        xyf2ang((ix + u) / nside, (iy + v) / nside, face, &theta[h], &phi[h]);
-    }
+    i64 ix, iy, face;
+    u64 key = pixel_key(seed, (u64)pixels[k]);
+    ring2xyf(nside, pixels[k], &ix, &iy, &face);
+    for (i64 h = offsets[k]; h < offsets[k + 1]; ++h)
+        draw_hit(key, h - offsets[k], nside, ix, iy, face, range[k], centre[k], centred, &theta[h],
+                 &phi[h], &psi[h]);
 }
 
 extern "C" __global__ void offset_points(const double *theta, const double *phi,
@@ -164,13 +223,9 @@ extern "C" __global__ void offset_points(const double *theta, const double *phi,
     if (h >= nh) return;
     double sin_t = sin(theta[h]);
     for (int k = 0; k < nk; ++k) for (int m = 0; m < nm; ++m) {
-        double beta = psi[h] + rot[k] + ang[m] + chi[m];
-        double t = theta[h] + rho[m] * cos(beta), f = phi[h] + rho[m] * sin(beta) / sin_t;
-        if (t < 0.0) { t = -t; f += PI; } else if (t > PI) { t = TWOPI - t; f += PI; }
-        double r = fmod(f, TWOPI);
-        if (r < 0) r += TWOPI;
         i64 idx = (h * nk + k) * nm + m;
-        tb[idx] = t; pb[idx] = r;
+        offset_point(theta[h], phi[h], sin_t, psi[h] + rot[k] + ang[m] + chi[m], rho[m], &tb[idx],
+                     &pb[idx]);
     }
 }
 
@@ -178,41 +233,63 @@ extern "C" __global__ void interpolate(const double *stack, int nfield, i64 nsid
         const double *theta, const double *phi, i64 n, double *out) {
     i64 k = blockIdx.x * (i64)blockDim.x + threadIdx.x;
     if (k >= n) return;
-    i64 p[4]; double w[4];
-    interp_weights(nside, theta[k], phi[k], p, w);
-    for (int f = 0; f < nfield; ++f)
-        out[f * n + k] = w[0] * stack[p[0] * nfield + f] + w[1] * stack[p[1] * nfield + f]
-                       + w[2] * stack[p[2] * nfield + f] + w[3] * stack[p[3] * nfield + f];
+    double f[4];
+    interp_point(stack, nfield, nside, theta[k], phi[k], f);
+    for (int i = 0; i < nfield; ++i) out[i * n + k] = f[i];
 }
 
+// Sums of hit h of the field-major value arrays va (nf, nh) and vb (nf, nh, nk, nm) or null.
+__device__ __forceinline__ Sums stored_hit_sums(i64 h, const double *psi, const double *va,
+        const double *vb, i64 nh, int nf, int nk, int nm, const double *turn_c,
+        const double *turn_s, const double *dg, const double *leak) {
+    double fa[4];
+    load_fields(va, nf, nh, h, fa);
+    return hit_sums(psi[h], fa, [&](int r, int m, double *fb) {
+        if (vb) load_fields(vb, nf, nh * nk * nm, (h * nk + r) * nm + m, fb);
+        else for (int f = 0; f < 4; ++f) fb[f] = fa[f];
+    }, nk, nm, turn_c, turn_s, dg, leak);
+}
+
+// Adds the sums of each pixel's hits (offsets) onto its row of out: row target[p], or p when
+// target is null. Each row is added in hit order, as tod_cpu.accumulate(_scatter) do.
 extern "C" __global__ void accumulate(const i64 *offsets, const double *psi, i64 npix,
-        const double *va, const double *vb, i64 nh, int nfield, int nk, int nm,
+        const i64 *target, const double *va, const double *vb, i64 nh, int nf, int nk, int nm,
         const double *turn_c, const double *turn_s, const double *dg, const double *leak,
         double *out) {
     i64 p = blockIdx.x * (i64)blockDim.x + threadIdx.x;
     if (p >= npix) return;
-    double a11 = 0, a12 = 0, a22 = 0, b1 = 0, b2 = 0;
-    for (i64 h = offsets[p]; h < offsets[p + 1]; ++h) {
-        double ia = va[h], qa = va[nh + h], ua = va[2 * nh + h];
-        double sa = nfield > 3 ? va[3 * nh + h] : 0.0;
-        double c0 = cos(2.0 * psi[h]), s0 = sin(2.0 * psi[h]);
-        for (int k = 0; k < nk; ++k) for (int m = 0; m < nm; ++m) {
-            double c = c0 * turn_c[k * nm + m] - s0 * turn_s[k * nm + m];
-            double s = s0 * turn_c[k * nm + m] + c0 * turn_s[k * nm + m];
-            double ib = ia, qb = qa, ub = ua, sb = sa;
-            if (vb) {
-                i64 stride = nh * nk * nm, idx = (h * nk + k) * nm + m;
-                ib = vb[idx]; qb = vb[stride + idx]; ub = vb[2 * stride + idx];
-                sb = nfield > 3 ? vb[3 * stride + idx] : 0.0;
-            }
-            double da = ia + qa * c + ua * s + 0.5 * leak[m] * sa;
-            double db = (1.0 - dg[m]) * (ib - qb * c - ub * s) - 0.5 * leak[m] * sb;
-            double d = 0.5 * (da - db);
-            a11 += c * c; a12 += c * s; a22 += s * s; b1 += c * d; b2 += s * d;
-        }
+    i64 row = target ? target[p] : p;
+    const double *o = out + 5 * row;
+    Sums acc{o[0], o[1], o[2], o[3], o[4]};
+    for (i64 h = offsets[p]; h < offsets[p + 1]; ++h)
+        add_sums(acc, stored_hit_sums(h, psi, va, vb, nh, nf, nk, nm, turn_c, turn_s, dg, leak));
+    store_sums(out, row, acc);
+}
+
+extern "C" __global__ void bin_scan(const i64 *pixels, const i64 *n_phi, const double *range,
+        const double *centre, i64 n, u64 seed, i64 nside, int centred, const double *stack,
+        int nf, const double *rot, const double *ang, int nk, int nm, const double *turn_c,
+        const double *turn_s, const double *dg, const double *rho, const double *chi,
+        const double *leak, int pointing, double *out) {
+    i64 k = blockIdx.x * (i64)blockDim.x + threadIdx.x;
+    if (k >= n) return;
+    i64 ix, iy, face;
+    u64 key = pixel_key(seed, (u64)pixels[k]);
+    ring2xyf(nside, pixels[k], &ix, &iy, &face);
+    Sums acc;
+    for (i64 j = 0; j < n_phi[k]; ++j) {
+        double theta, phi, psi, fa[4];
+        draw_hit(key, j, nside, ix, iy, face, range[k], centre[k], centred, &theta, &phi, &psi);
+        interp_point(stack, nf, nside, theta, phi, fa);
+        double sin_t = pointing ? sin(theta) : 0.0;
+        add_sums(acc, hit_sums(psi, fa, [&](int r, int m, double *fb) {
+            if (!pointing) { for (int f = 0; f < 4; ++f) fb[f] = fa[f]; return; }
+            double tb, pb;
+            offset_point(theta, phi, sin_t, psi + rot[r] + ang[m] + chi[m], rho[m], &tb, &pb);
+            interp_point(stack, nf, nside, tb, pb, fb);
+        }, nk, nm, turn_c, turn_s, dg, leak));
     }
-    out[5 * p] = a11; out[5 * p + 1] = a12; out[5 * p + 2] = a22; out[5 * p + 3] = b1;
-    out[5 * p + 4] = b2;
+    store_sums(out, k, acc);
 }
 
 extern "C" __global__ void moments(const i64 *offsets, const double *psi, i64 npix,
@@ -267,6 +344,20 @@ def to_host(array):
     return cp.asnumpy(array) if isinstance(array, cp.ndarray) else array
 
 
+def _scan_args(seed, nside, pixels, counts, range_rad, centre_rad, centred):
+    """Kernel arguments of a chunk of a synthetic scan's pixels (counts: hit offsets or N_phi)."""
+    return (
+        _d(pixels, np.int64),
+        _d(counts, np.int64),
+        _d(range_rad),
+        _d(centre_rad),
+        np.int64(pixels.size),
+        np.uint64(seed),
+        np.int64(nside),
+        np.int32(bool(centred)),
+    )
+
+
 def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     offsets_d = _d(offsets, np.int64)
     nhit = int(offsets[-1])
@@ -274,19 +365,8 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     _launch(
         "generate_hits",
         pixels.size,
-        (
-            _d(pixels, np.int64),
-            offsets_d,
-            _d(range_rad),
-            _d(centre_rad),
-            np.int64(pixels.size),
-            np.uint64(seed),
-            np.int64(nside),
-            np.int32(bool(centred)),
-            theta,
-            phi,
-            psi,
-        ),
+        _scan_args(seed, nside, pixels, offsets_d, range_rad, centre_rad, centred)
+        + (theta, phi, psi),
     )
     return theta, phi, psi
 
@@ -329,31 +409,95 @@ def interpolate(stack, nside, theta, phi):
     return out
 
 
-def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
-    npix, nk, nm = offsets.size - 1, rotations.size, pair_angles.size
-    turn = 2.0 * (rotations[:, None] + pair_angles[None, :])
+def _physics(rotations, pair_angles, dg, leak):
+    """Device arrays of the per-(rotation, pair) turns cos, sin 2(alpha + angle), dg and leak."""
+    turn = 2.0 * (np.asarray(rotations)[:, None] + np.asarray(pair_angles)[None, :])
+    return (
+        np.int32(turn.shape[0]),
+        np.int32(turn.shape[1]),
+        _d(np.cos(turn)),
+        _d(np.sin(turn)),
+        _d(dg),
+        _d(leak),
+    )
+
+
+def _stored_values(values_a, values_b):
+    """Device arrays and sizes (va, vb or null, nh, nf) of interpolated fields at hits."""
     va = _d(values_a)
-    vb = _d(values_b) if values_b.shape[1] > 0 else None
-    out = cp.empty((npix, 5))
+    vb = _d(values_b) if values_b.shape[1] > 0 else np.uint64(0)
+    return va, vb, np.int64(va.shape[1]), np.int32(va.shape[0])
+
+
+def _accumulate(offsets, psi, target, values_a, values_b, rotations, pair_angles, dg, leak, out):
     _launch(
         "accumulate",
-        npix,
-        (
-            _d(offsets, np.int64),
-            _d(psi),
-            np.int64(npix),
-            va,
-            vb if vb is not None else np.uint64(0),
-            np.int64(va.shape[1]),
-            np.int32(va.shape[0]),
-            np.int32(nk),
-            np.int32(nm),
-            _d(np.cos(turn)),
-            _d(np.sin(turn)),
-            _d(dg),
-            _d(leak),
-            out,
-        ),
+        offsets.size - 1,
+        (_d(offsets, np.int64), _d(psi), np.int64(offsets.size - 1), target)
+        + _stored_values(values_a, values_b)
+        + _physics(rotations, pair_angles, dg, leak)
+        + (out,),
+    )
+
+
+def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
+    """Normal-equation sums (npix_chunk, 5) of hits grouped by pixel (tod_cpu.accumulate)."""
+    out = cp.zeros((offsets.size - 1, 5))
+    args = (values_a, values_b, rotations, pair_angles, dg, leak, out)
+    _accumulate(offsets, psi, np.uint64(0), *args)
+    return out
+
+
+def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
+    """Add each hit's sums into the device array out[pixels[h]] (tod_cpu.accumulate_scatter).
+
+    The hits are sorted by (pixel, position) on the GPU, so every pixel's sums are added in hit
+    order, as on the CPU: the result is deterministic and matches the CPU to rounding.
+    """
+    pixels = _d(pixels, np.int64)
+    order = cp.argsort(pixels * pixels.size + cp.arange(pixels.size))
+    target, counts = cp.unique(pixels[order], return_counts=True)
+    offsets = cp.zeros(target.size + 1, dtype=cp.int64)
+    cp.cumsum(counts, out=offsets[1:])
+    values_b = _d(values_b)[:, order] if values_b.shape[1] > 0 else values_b
+    args = (_d(values_a)[:, order], values_b, rotations, pair_angles, dg, leak, out)
+    _accumulate(offsets, _d(psi)[order], target, *args)
+
+
+def bin_scan(
+    seed,
+    nside,
+    pixels,
+    n_phi,
+    range_rad,
+    centre_rad,
+    centred,
+    stack,
+    rotations,
+    pair_angles,
+    dg,
+    rho,
+    chi,
+    leak,
+    pointing,
+):
+    """Normal-equation sums (npix_chunk, 5) of a synthetic scan over a chunk of pixels with an
+    interpolated sky, in one kernel: each thread draws its pixel's hits, interpolates the stack
+    where both detectors of every pair look and sums in registers. The same numbers as
+    generate_hits -> interpolate (-> offset_points) -> accumulate, without per-hit arrays."""
+    out = cp.empty((pixels.size, 5))
+    _launch(
+        "bin_scan",
+        pixels.size,
+        _scan_args(seed, nside, pixels, n_phi, range_rad, centre_rad, centred)
+        + (
+            stack,
+            np.int32(stack.shape[1]),
+            _d(rotations),
+            _d(pair_angles),
+        )
+        + _physics(rotations, pair_angles, dg, leak)[:4]
+        + (_d(dg), _d(rho), _d(chi), _d(leak), np.int32(bool(pointing)), out),
     )
     return out
 
@@ -375,3 +519,8 @@ def moments(offsets, psi, rotations, n_max):
         ),
     )
     return out
+
+
+def zeros(shape):
+    """A zeroed float64 accumulator where the kernels write (GPU memory)."""
+    return cp.zeros(shape)

@@ -94,13 +94,13 @@ def test_gpu_sample_streams_match_cpu(small_sky):
     """Real-scan sample streams (host arrays) through the GPU kernels, pointing included."""
     from boresight import ground
 
-    ces = ground.CES(start_unix=1.79e9, duration_s=600, elevation_deg=50, az_centre_deg=134,
-                     az_throw_deg=40)
+    ces = ground.CES(
+        start_unix=1.79e9, duration_s=600, elevation_deg=50, az_centre_deg=134, az_throw_deg=40
+    )
     sched = ground.Schedule((ces,), sample_rate_hz=20.0)
     sysm = Systematics(dg=(0.01, -0.01), rho_arcmin=1.0)
     a = engine.simulate_samples(small_sky, ground.pointing(sched), systematics=sysm)
-    b = engine.simulate_samples(small_sky, ground.pointing(sched), systematics=sysm,
-                                backend="gpu")
+    b = engine.simulate_samples(small_sky, ground.pointing(sched), systematics=sysm, backend="gpu")
     ok = a.valid
-    assert np.array_equal(ok, b.valid)
+    assert np.array_equal(ok, b.valid) and np.array_equal(a.hits, b.hits)
     assert np.max(np.abs(a.q[ok] - b.q[ok])) <= 1e-12 * np.max(np.abs(a.q[ok]))

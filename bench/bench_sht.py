@@ -1,0 +1,113 @@
+"""Spherical-harmonic transforms at the paper's size: ducc0 on the CPU against s2fft on a GPU.
+
+The reproduction spends its time in map -> alm transforms of masked spin-2 maps (HEALPix, 3
+Jacobi iterations: 4 adjoint and 3 forward syntheses each). This prints the time of one spin-0
+and one spin-2 adjoint synthesis with ducc0 on all cores and, where s2fft and a JAX GPU are
+importable, with s2fft's recursion-based JAX transform in float64 (first call, which compiles,
+and steady state), plus s2fft's spin-0 agreement with ducc0.
+Usage: python bench/bench_sht.py [NSIDE [LMAX]]   (default 2048 4000)
+"""
+
+import os
+import sys
+import time
+
+import ducc0
+import numpy as np
+
+from boresight import harmonics
+
+
+def timed(fn, repeat=3):
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def _row(name, spin, first, t):
+    print(f"{name:<26} {spin:>4} {first:>13.2f} {t:>9.3f}", flush=True)
+
+
+def ducc0_rows(nside, lmax, maps):
+    geom = harmonics.healpix_geometry(nside)
+    for spin, m in ((0, maps[:1]), (2, maps[1:])):
+        t, _ = timed(
+            lambda: ducc0.sht.adjoint_synthesis(
+                map=m, lmax=lmax, spin=spin, nthreads=os.cpu_count(), **geom
+            )
+        )
+        _row(f"ducc0 ({os.cpu_count()} threads)", spin, np.nan, t)
+    t, _ = timed(lambda: harmonics.map2alm(maps[1:], lmax, spin=2, nthreads=os.cpu_count()), 1)
+    _row("  the same, 3 iterations", 2, np.nan, t)
+
+
+def s2fft_rows(nside, lmax, maps):
+    try:
+        os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+        import s2fft
+
+        if jax.devices()[0].platform != "gpu":
+            return None
+    except Exception as err:  # noqa: BLE001 - any import or device failure means: not measured
+        print(f"s2fft not measured: {str(err)[:200]}")
+        return None
+    flm0 = None
+    for spin, f in ((0, maps[0]), (2, maps[1] + 1j * maps[2])):
+        f_dev = jax.device_put(f)
+
+        def run(f_dev=f_dev, spin=spin):
+            out = s2fft.forward(
+                f_dev,
+                2 * nside,  # s2fft's HEALPix FFT fails for other band limits (seen with 4001)
+                spin=spin,
+                nside=nside,
+                sampling="healpix",
+                method="jax",
+                reality=spin == 0,
+            )
+            return out.block_until_ready()
+
+        try:
+            t0 = time.perf_counter()
+            out = run()
+            first = time.perf_counter() - t0
+            t, out = timed(run)
+        except Exception as err:  # noqa: BLE001 - out of memory, unsupported size: not measured
+            print(f"s2fft spin {spin} failed: {str(err)[:200]}")
+            continue
+        _row(f"s2fft jax (GPU, L={2 * nside})", spin, first, t)
+        if spin == 0:
+            flm0 = np.asarray(out)
+    return flm0
+
+
+def main(nside, lmax):
+    rng = np.random.default_rng(1)
+    alm = rng.normal(size=(3, harmonics.n_alm(lmax))) + 0j
+    alm[:, : lmax + 1] = alm[:, : lmax + 1].real
+    maps = np.empty((3, 12 * nside**2))
+    maps[0] = harmonics.alm2map(alm[0], nside)
+    maps[1:] = harmonics.alm2map(alm[1:], nside, spin=2)
+    print(f"Nside {nside}, lmax {lmax}: one adjoint synthesis (map -> alm, no iteration)")
+    print(f"{'library':<26} {'spin':>4} {'first call s':>13} {'steady s':>9}", flush=True)
+    ducc0_rows(nside, lmax, maps)
+    flm0 = s2fft_rows(nside, lmax, maps)
+    if flm0 is not None:
+        ref = harmonics.map2alm(maps[0], lmax, iterations=0)
+        ell = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
+        em = np.concatenate([np.full(lmax + 1 - m, m) for m in range(lmax + 1)])
+        mine = flm0[ell, 2 * nside - 1 + em]
+        scale = np.vdot(ref, mine) / np.vdot(mine, mine)  # normalisation conventions differ
+        err = np.max(np.abs(mine * scale - ref)) / np.max(np.abs(ref))
+        print(f"s2fft spin-0 vs ducc0 (after one overall scale {abs(scale):.4g}): {err:.2e}")
+
+
+if __name__ == "__main__":
+    args = [int(a) for a in sys.argv[1:]]
+    main(*(args + [2048, 4000][len(args) :]))
