@@ -62,14 +62,14 @@ def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
     scale = 4 * np.pi / maps.shape[-1]
 
     def adjoint(m):
-        return (
-            ducc0.sht.adjoint_synthesis(map=m, lmax=lmax, spin=spin, nthreads=nthreads, **geom)
-            * scale
-        )
+        out = ducc0.sht.adjoint_synthesis(map=m, lmax=lmax, spin=spin, nthreads=nthreads, **geom)
+        out *= scale
+        return out
 
     alm = adjoint(maps)
-    for _ in range(iterations):
-        resid = maps - ducc0.sht.synthesis(alm=alm, lmax=lmax, spin=spin, nthreads=nthreads, **geom)
+    for _ in range(iterations):  # in place: full-sky temporaries cost as much as a transform
+        resid = ducc0.sht.synthesis(alm=alm, lmax=lmax, spin=spin, nthreads=nthreads, **geom)
+        np.subtract(maps, resid, out=resid)
         alm += adjoint(resid)
     return alm[0] if spin == 0 else alm
 

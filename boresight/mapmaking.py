@@ -35,8 +35,11 @@ class Maps:
     @property
     def qu(self):
         """(2, npix) array of Q, U with invalid pixels set to 0 (for transforms under a mask)."""
-        ok = self.valid
-        return np.array([np.where(ok, self.q, 0.0), np.where(ok, self.u, 0.0)])
+        qu = np.empty((2, self.q.size))
+        np.copyto(qu[0], self.q)
+        np.copyto(qu[1], self.u)
+        np.copyto(qu, 0.0, where=~self.valid)
+        return qu
 
 
 def solve(normal, rcond_min=RCOND_MIN):

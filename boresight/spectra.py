@@ -32,7 +32,10 @@ def _check(maps, mask):
     if maps.shape[-1] != np.shape(mask)[-1]:
         raise ValueError(f"maps have {maps.shape[-1]} pixels but the mask has {np.shape(mask)[-1]}")
     observed = np.asarray(mask) != 0
-    if not np.isfinite(maps[..., observed]).all() or (np.abs(maps[..., observed]) > 1e29).any():
+    # one pass each, no copies; NaN propagates through min and max and fails both comparisons
+    lo = np.min(maps, where=observed, initial=np.inf)
+    hi = np.max(maps, where=observed, initial=-np.inf)
+    if not (-1e29 <= lo and hi <= 1e29) and observed.any():
         raise ValueError("maps contain NaN or UNSEEN values inside the mask")
 
 
