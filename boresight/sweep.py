@@ -108,6 +108,19 @@ def point_key(overrides):
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+_COUPLING = {}  #: this worker's last coupling matrices, keyed by (mask digest, lmax)
+
+
+def _coupling_matrices(mask, lmax, nthreads):
+    """Coupling matrices of the mask, reused while a worker's points share mask and lmax (most
+    sweeps vary the scan or the systematics; at lmax 4000 a set costs ~10 s on 16 cores)."""
+    key = (hashlib.sha256(np.ascontiguousarray(mask).tobytes()).hexdigest(), lmax)
+    if key not in _COUPLING:
+        _COUPLING.clear()
+        _COUPLING[key] = coupling.coupling_matrices(mask, lmax, nthreads)
+    return _COUPLING[key]
+
+
 def run_point(base, base_dir, overrides):
     """Simulate one point; returns its rows (one per ell band). Pure: a task for any worker."""
     study = parse_study(apply_overrides(base, overrides), base_dir)
@@ -132,7 +145,7 @@ def run_point(base, base_dir, overrides):
     sim = engine.simulate(the_sky, study.scan, study.instrument, study.systematics, **kw)
     cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
     theory = load_spectra()
-    cp = coupling.coupling_matrices(mask, lmax, nthreads)
+    cp = _coupling_matrices(mask, lmax, nthreads)
     h, _ = engine.scan_moments(study.scan, the_sky.nside, pixels=mask > 0, nthreads=nthreads)
     try:
         pred = predict.residual_pseudo_bb(

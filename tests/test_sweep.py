@@ -125,3 +125,21 @@ def test_sweep_cli_writes_table_and_continuum_figure(tmp_path):
     out = tmp_path / "cli"
     assert main(["-q", "sweep", path, "--out", str(out), "--scheduler", "serial"]) == 0
     assert (out / "results.csv").exists() and (out / "suppression.png").stat().st_size > 1000
+
+
+def test_coupling_matrices_are_reused_for_the_same_mask(monkeypatch):
+    calls, original = [], coupling.coupling_matrices
+
+    def counting(mask, lmax, nthreads):
+        calls.append(lmax)
+        return original(mask, lmax, nthreads)
+
+    monkeypatch.setattr(sweep.coupling, "coupling_matrices", counting)
+    sweep._COUPLING.clear()
+    mask = masks.survey_mask("deep", 32)
+    first = sweep._coupling_matrices(mask, 60, 1)
+    again = sweep._coupling_matrices(mask.copy(), 60, 1)
+    assert again is first and calls == [60]
+    other = sweep._coupling_matrices(mask, 50, 1)
+    sweep._coupling_matrices(np.ones_like(mask), 50, 1)
+    assert calls == [60, 50, 50] and other.lmax == 50
