@@ -95,11 +95,17 @@ def evaluate(alm, theta, phi, spin=0, epsilon=1e-12, nthreads=0):
     return out[0] if spin == 0 else out
 
 
+@lru_cache(maxsize=4)
+def ell_of_alm(lmax):
+    """ell of every healpy-ordered alm index up to lmax (read-only; cached per lmax)."""
+    ell = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
+    ell.flags.writeable = False
+    return ell
+
+
 def almxfl(alm, fl):
     """Multiply alm (..., nalm) by a function of ell, fl (lmax+1,)."""
-    lmax = alm_lmax(alm.shape[-1])
-    ell = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
-    return alm * fl[ell]
+    return alm * fl[ell_of_alm(alm_lmax(alm.shape[-1]))]
 
 
 def alm2cl(alm1, alm2=None):
@@ -109,6 +115,6 @@ def alm2cl(alm1, alm2=None):
     prod = (alm1 * np.conj(alm2)).real
     cl = np.zeros(lmax + 1)
     cl += prod[: lmax + 1]  # m = 0
-    ell = np.concatenate([np.arange(m, lmax + 1) for m in range(1, lmax + 1)])
+    ell = ell_of_alm(lmax)[lmax + 1 :]
     cl += 2 * np.bincount(ell, weights=prod[lmax + 1 :], minlength=lmax + 1)
     return cl / (2 * np.arange(lmax + 1) + 1)

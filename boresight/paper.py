@@ -6,11 +6,13 @@ the computed verdicts and the report, :mod:`boresight.plots` into the figures.
 """
 
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from . import coupling, engine, masks, predict, sky, spectra
+from . import coupling, engine, harmonics, masks, predict, sky, spectra
 from .cosmology import load_spectra
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 from .scan import paper_scan
@@ -138,63 +140,110 @@ def _temperature_only(stack):
     return out
 
 
+class _Transforms:
+    """The study's spherical-harmonic transforms, run in order on one background thread.
+
+    ducc0 uses every core with the GIL released, so the transforms of one angle overlap the
+    simulation and prediction of the next. At most ``depth`` jobs are queued or running, since
+    each holds full-sky maps. Results are those of running the jobs in turn.
+    """
+
+    def __init__(self, depth=2):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="boresight-transforms")
+        self._queued = deque()
+        self._all = []
+        self.depth = depth
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
+
+    def submit(self, fn, *args):
+        """Queue fn(*args) once fewer than ``depth`` jobs wait; returns its Future."""
+        while len(self._queued) >= self.depth:
+            self._queued.popleft().result()
+        future = self._pool.submit(fn, *args)
+        self._queued.append(future)
+        self._all.append(future)
+        return future
+
+    def wait(self):
+        """Wait for every job; re-raises the first job's exception."""
+        for future in self._all:
+            future.result()
+
+
 def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
-    lmax_s = cfg.lmax_bands
+    lmax_s, nthreads = cfg.lmax_bands, cfg.nthreads
     sim_kw = dict(
-        evaluation=cfg.evaluation, nthreads=cfg.nthreads, backend=cfg.backend, progress=progress
+        evaluation=cfg.evaluation, nthreads=nthreads, backend=cfg.backend, progress=progress
     )
-    with timer(f"{exp.name}: mask and coupling"):
-        mask = masks.survey_mask(exp.survey, cfg.nside)
-        obs = mask > 0
-        cp = coupling.coupling_matrices(mask, lmax_s, cfg.nthreads)
-        local = predict.local_cl(the_sky, mask, lmax_s, cfg.nthreads)
-    res = ExperimentResult(exp, masks.fsky(mask))
-    key = "r" if exp.reference == "r" else "a_lens"
-    for value in exp.reference_values:
-        res.references[value] = predict.reference_bb(
-            cp, theory, cfg.fwhm_arcmin, cfg.nside, **{key: value}
-        )
-    with timer(f"{exp.name}: reference (no systematic)"):
-        ref = engine.simulate(the_sky, paper_scan(exp.survey, seed=cfg.seed), pixels=obs, **sim_kw)
-        b_ref = spectra.masked_pol_alm(ref.qu, mask, lmax_s, cfg.nthreads)[1]
-    zero = np.zeros_like(ref.qu)
-    for angle in (None,) + exp.angles_deg:
-        label = "no rotation" if angle is None else f"rotation {angle:g} deg"
-        scan = paper_scan(exp.survey, angle, seed=cfg.seed)
-        with timer(f"{exp.name}: {label}"):
-            sim = engine.simulate(the_sky, scan, systematics=exp.systematics, pixels=obs, **sim_kw)
-            res.cross[angle], res.auto[angle] = spectra.residual_bb_parts(
-                sim.qu, ref.qu, mask, lmax_s, cfg.nthreads, b_ref=b_ref
+    with _Transforms() as transforms:
+        with timer(f"{exp.name}: mask and coupling"):
+            mask = masks.survey_mask(exp.survey, cfg.nside)
+            obs = mask > 0
+            local = transforms.submit(predict.local_cl, the_sky, mask, lmax_s, nthreads)
+            cp = coupling.coupling_matrices(mask, lmax_s, nthreads)
+        res = ExperimentResult(exp, masks.fsky(mask))
+        key = "r" if exp.reference == "r" else "a_lens"
+        for value in exp.reference_values:
+            res.references[value] = predict.reference_bb(
+                cp, theory, cfg.fwhm_arcmin, cfg.nside, **{key: value}
             )
-            h, _ = engine.scan_moments(
-                scan, cfg.nside, pixels=obs, nthreads=cfg.nthreads, backend=cfg.backend
+
+        def b_of(qu):
+            return spectra.masked_pol_alm(qu, mask, lmax_s, nthreads)[1]
+
+        def parts_of(d_qu, b_ref):
+            return spectra.difference_bb_parts(d_qu, b_ref, mask, lmax_s, nthreads)
+
+        def residual(angle, sim, ref_qu, b_ref):
+            d_qu = sim.qu
+            d_qu -= ref_qu
+            res.cross[angle], res.auto[angle] = parts_of(d_qu, b_ref.result())
+
+        def predicted_map(angle, dp, b_ref):
+            res.predicted_map[angle] = sum(parts_of(np.array([dp.real, dp.imag]), b_ref.result()))
+
+        def zero_qu(angle, sim0):
+            res.zero_qu[angle] = sum(parts_of(sim0.qu, np.zeros(harmonics.n_alm(lmax_s), complex)))
+
+        with timer(f"{exp.name}: reference (no systematic)"):
+            ref = engine.simulate(
+                the_sky, paper_scan(exp.survey, seed=cfg.seed), pixels=obs, **sim_kw
             )
-            res.predicted_cl[angle] = predict.residual_pseudo_bb(
-                h, mask, cp, exp.systematics, theory, cfg.fwhm_arcmin, field_cl=local
-            )
-            if angle in (None, exp.ideal_deg):  # the map-level check needs no other angle
-                dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=cfg.nthreads) * obs
-                res.predicted_map[angle] = sum(
-                    spectra.residual_bb_parts(
-                        ref.qu + np.array([dp.real, dp.imag]),
-                        ref.qu,
-                        mask,
-                        lmax_s,
-                        cfg.nthreads,
-                        b_ref=b_ref,
+            ref_qu = ref.qu
+            b_ref = transforms.submit(b_of, ref_qu)
+        for angle in (None,) + exp.angles_deg:
+            label = "no rotation" if angle is None else f"rotation {angle:g} deg"
+            scan = paper_scan(exp.survey, angle, seed=cfg.seed)
+            with timer(f"{exp.name}: {label}"):
+                sim = engine.simulate(
+                    the_sky, scan, systematics=exp.systematics, pixels=obs, **sim_kw
+                )
+                transforms.submit(residual, angle, sim, ref_qu, b_ref)
+                h, _ = engine.scan_moments(
+                    scan, cfg.nside, pixels=obs, nthreads=nthreads, backend=cfg.backend
+                )
+                res.predicted_cl[angle] = predict.residual_pseudo_bb(
+                    h, mask, cp, exp.systematics, theory, cfg.fwhm_arcmin, field_cl=local.result()
+                )
+                if angle in (None, exp.ideal_deg):  # the map-level check needs no other angle
+                    dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=nthreads)
+                    dp *= obs
+                    transforms.submit(predicted_map, angle, dp, b_ref)
+                del sim, h  # full-sky arrays: free them before the next angle allocates its own
+            if angle in (None, exp.ideal_deg):
+                with timer(f"{exp.name}: Q = U = 0, {label}"):
+                    sim0 = engine.simulate(
+                        unpolarised, scan, systematics=exp.systematics, pixels=obs, **sim_kw
                     )
-                )
-                del dp
-            del sim, h  # full-sky arrays: free them before the next angle allocates its own
-        if angle in (None, exp.ideal_deg):
-            with timer(f"{exp.name}: Q = U = 0, {label}"):
-                sim0 = engine.simulate(
-                    unpolarised, scan, systematics=exp.systematics, pixels=obs, **sim_kw
-                )
-                res.zero_qu[angle] = spectra.residual_bb(
-                    sim0.qu, zero, mask, lmax_s, cfg.nthreads, b_ref=np.zeros_like(b_ref)
-                )
-                del sim0
+                    transforms.submit(zero_qu, angle, sim0)
+                    del sim0
+        with timer(f"{exp.name}: transforms still running"):
+            transforms.wait()
     return res
 
 

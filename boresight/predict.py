@@ -19,10 +19,12 @@ of h_n. Masked pseudo-C_ell follow through M^{BB,BB} and M^{BB,EE} (paper eq. 10
 """
 
 import healpy as hp
+import numba
 import numpy as np
 
 from . import harmonics
 from .constants import ARCMIN
+from .engine import threads
 
 N_MAX = 4  #: highest spin moment the predictions use
 COHERENT_BLOCK = 8  #: h_n is smoothed over (COHERENT_BLOCK)^2 pixels for the coherent part
@@ -49,41 +51,80 @@ def delta_p(sky, h, systematics, instrument=None, template=None, nthreads=0):
     Gain and leak terms are exact for pixel-centre hits; pointing is first order in rho.
     """
     _qu_pairs(instrument)
+    if h.shape[0] < 5 or h.shape[1] != sky.maps.shape[1]:
+        raise ValueError(f"h must have shape (>= 5, {sky.maps.shape[1]}), got {h.shape}")
     dg, rho, chi, leak = systematics.per_pair(2)
     t = sky.maps[0]
-    p = sky.maps[1] + 1j * sky.maps[2]
-    out = 0.5 * h[2] * (dg[0] + 1j * dg[1]) * t
-    out -= (dg[0] + dg[1]) / 4 * p + (dg[0] - dg[1]) / 4 * h[4] * np.conj(p)
-    if systematics.has_leak:
-        s = t if template is None else template
-        out += 0.5 * h[2] * (leak[0] + 1j * leak[1]) * s
+    none = np.empty(0)
+    s = (
+        (t if template is None else np.asarray(template, np.float64))
+        if systematics.has_leak
+        else none
+    )
+    grad = none[None].repeat(2, 0)
+    c1 = c3 = 0j
     if systematics.has_pointing:
-        g = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads)
-        grad = g[0] + 1j * g[1]
+        grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads)
         c1, c3 = pointing_coefficients(rho, chi)
-        out -= 0.25 * (h[1] * grad * c1 + h[3] * np.conj(grad) * c3)
+    out = np.empty(t.size, dtype=np.complex128)
+    with threads(nthreads):
+        _delta_p(
+            h,
+            t,
+            sky.maps[1],
+            sky.maps[2],
+            s,
+            grad[0],
+            grad[1],
+            0.5 * (dg[0] + 1j * dg[1]),
+            (dg[0] + dg[1]) / 4,
+            (dg[0] - dg[1]) / 4,
+            0.5 * (leak[0] + 1j * leak[1]),
+            c1,
+            c3,
+            out,
+        )
     return out
 
 
-def coherent_power(hn, mask, block=COHERENT_BLOCK):
-    """(<|h_n|^2>, coherent part) over the mask: h_n averaged in blocks of block^2 pixels.
+@numba.njit(parallel=True, cache=True)
+def _delta_p(h, t, q, u, s, grad_theta, grad_phi, a2, common, a4, leak2, c1, c3, out):
+    """The gain, leak (if s is not empty) and pointing (if grad is not empty) terms of delta_p."""
+    for i in numba.prange(t.size):
+        p = complex(q[i], u[i])
+        v = a2 * h[2, i] * t[i] - common * p - a4 * h[4, i] * p.conjugate()
+        if s.size:
+            v += leak2 * h[2, i] * s[i]
+        if grad_theta.size:
+            g = complex(grad_theta[i], grad_phi[i])
+            v -= 0.25 * (h[1, i] * g * c1 + h[3, i] * g.conjugate() * c3)
+        out[i] = v
 
-    Blocks are the NEST parents at nside / block; only observed pixels are visited.
-    """
-    nside = hp.npix2nside(hn.size)
-    w = np.asarray(mask, dtype=np.float64)
-    obs = np.flatnonzero(w)
-    wo, ho = w[obs], hn[obs]
-    total = np.sum(wo * np.abs(ho) ** 2) / wo.sum()
-    if nside < block:
-        return total, total
-    parent = hp.ring2nest(nside, obs) // (block * block)
-    wsum = np.bincount(parent, weights=wo)
-    mean_re = np.bincount(parent, weights=wo * ho.real)
-    mean_im = np.bincount(parent, weights=wo * ho.imag)
-    used = wsum > 0
-    coherent = np.sum((mean_re[used] ** 2 + mean_im[used] ** 2) / wsum[used]) / wo.sum()
-    return total, coherent
+
+class PixelBlocks:
+    """A mask's observed pixels and their blocks of block^2 pixels (the NEST parents at
+    nside / block), built once per mask and used for every h_n."""
+
+    def __init__(self, mask, block=COHERENT_BLOCK):
+        nside = hp.npix2nside(np.size(mask))
+        w = np.asarray(mask, dtype=np.float64)
+        self.obs = np.flatnonzero(w)
+        self.weight = w[self.obs]
+        self.parent = hp.ring2nest(nside, self.obs) // (block * block) if nside >= block else None
+        if self.parent is not None:
+            self.block_weight = np.bincount(self.parent, weights=self.weight)
+            self.used = self.block_weight > 0
+
+    def coherent_power(self, hn):
+        """(<|h_n|^2>, coherent part) over the mask: the coherent part averages h_n in blocks."""
+        wo, ho = self.weight, hn[self.obs]
+        total = np.sum(wo * np.abs(ho) ** 2) / wo.sum()
+        if self.parent is None:
+            return total, total
+        mean_re = np.bincount(self.parent, weights=wo * ho.real)[self.used]
+        mean_im = np.bincount(self.parent, weights=wo * ho.imag)[self.used]
+        coherent = np.sum((mean_re**2 + mean_im**2) / self.block_weight[self.used]) / wo.sum()
+        return total, coherent
 
 
 def field_spectra(spectra, lmax, fwhm_arcmin):
@@ -148,10 +189,11 @@ def systematic_cl(
     omega_pix = 4 * np.pi / h.shape[1]
     ell = np.arange(lmax + 1)
     out = np.zeros(lmax + 1)
+    blocks = PixelBlocks(mask)
     for n, c, cl_ff in leak_terms(systematics, cl_tt, cl_pol, template_cl):
         if c == 0:
             continue
-        total, coherent = coherent_power(h[n], mask)
+        total, coherent = blocks.coherent_power(h[n])
         variance = np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff)
         white = (total - coherent) * omega_pix * variance
         out += 0.5 * abs(c) ** 2 * (coherent * cl_ff + white)

@@ -81,7 +81,7 @@ def gaussian_alm(cls, lmax, seed):
     tt, ee, bb, te = (np.asarray(c[: lmax + 1], dtype=np.float64) for c in cls)
     rng = np.random.Generator(np.random.Philox(key=seed))
     nalm = harmonics.n_alm(lmax)
-    ell = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
+    ell = harmonics.ell_of_alm(lmax)
     real = np.arange(nalm) <= lmax  # m = 0: real coefficients of unit variance
     g = rng.standard_normal((3, nalm)) + 1j * rng.standard_normal((3, nalm))
     g[:, real] = g[:, real].real * np.sqrt(2.0)

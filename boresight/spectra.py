@@ -55,10 +55,15 @@ def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
     systematic is uncorrelated with the polarisation; the auto part is what leakage adds on average.
     ``b_ref``: the B alm of the masked reference, when already computed.
     """
-    qu_sys, qu_ref = np.asarray(qu_sys), np.asarray(qu_ref)
     if b_ref is None:
         b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads)[1]
-    d_b = masked_pol_alm(qu_sys - qu_ref, mask, lmax, nthreads)[1]
+    return difference_bb_parts(np.subtract(qu_sys, qu_ref), b_ref, mask, lmax, nthreads)
+
+
+def difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads=0):
+    """(cross, auto) of residual_bb_parts from the difference map d_qu = sys - ref (2, npix) and
+    the B alm of the masked reference."""
+    d_b = masked_pol_alm(d_qu, mask, lmax, nthreads)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 
