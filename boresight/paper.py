@@ -199,22 +199,22 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
         def parts_of(d_qu, b_ref):
             return spectra.difference_bb_parts(d_qu, b_ref, mask, lmax_s, nthreads)
 
-        def residual(angle, sim, ref_qu, b_ref):
-            d_qu = sim.qu
+        def residual(angle, d_qu, ref_qu, b_ref):
             d_qu -= ref_qu
             res.cross[angle], res.auto[angle] = parts_of(d_qu, b_ref.result())
 
         def predicted_map(angle, dp, b_ref):
             res.predicted_map[angle] = sum(parts_of(np.array([dp.real, dp.imag]), b_ref.result()))
 
-        def zero_qu(angle, sim0):
-            res.zero_qu[angle] = sum(parts_of(sim0.qu, np.zeros(harmonics.n_alm(lmax_s), complex)))
+        def zero_qu(angle, qu):
+            res.zero_qu[angle] = sum(parts_of(qu, np.zeros(harmonics.n_alm(lmax_s), complex)))
 
         with timer(f"{exp.name}: reference (no systematic)"):
             ref = engine.simulate(
                 the_sky, paper_scan(exp.survey, seed=cfg.seed), pixels=obs, **sim_kw
             )
             ref_qu = ref.qu
+            del ref
             b_ref = transforms.submit(b_of, ref_qu)
         for angle in (None,) + exp.angles_deg:
             label = "no rotation" if angle is None else f"rotation {angle:g} deg"
@@ -223,7 +223,8 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
                 sim = engine.simulate(
                     the_sky, scan, systematics=exp.systematics, pixels=obs, **sim_kw
                 )
-                transforms.submit(residual, angle, sim, ref_qu, b_ref)
+                transforms.submit(residual, angle, sim.qu, ref_qu, b_ref)
+                del sim  # full-sky arrays: free them before the next ones are allocated
                 h, _ = engine.scan_moments(
                     scan, cfg.nside, pixels=obs, nthreads=nthreads, backend=cfg.backend
                 )
@@ -234,13 +235,13 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
                     dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=nthreads)
                     dp *= obs
                     transforms.submit(predicted_map, angle, dp, b_ref)
-                del sim, h  # full-sky arrays: free them before the next angle allocates its own
+                del h
             if angle in (None, exp.ideal_deg):
                 with timer(f"{exp.name}: Q = U = 0, {label}"):
                     sim0 = engine.simulate(
                         unpolarised, scan, systematics=exp.systematics, pixels=obs, **sim_kw
                     )
-                    transforms.submit(zero_qu, angle, sim0)
+                    transforms.submit(zero_qu, angle, sim0.qu)
                     del sim0
         with timer(f"{exp.name}: transforms still running"):
             transforms.wait()
