@@ -27,8 +27,10 @@ def main(nside, lmax, backend):
         print(f"{name:<48} {seconds:>8.1f}")
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(f"{'total':<48} {total:>8.1f}")
-    print(f"peak RSS {rss:.1f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} claims "
-          "reproduced")
+    print(
+        f"peak RSS {rss:.1f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} claims "
+        "reproduced"
+    )
 
 
 if __name__ == "__main__":

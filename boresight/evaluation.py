@@ -5,6 +5,8 @@ alm at each point with ducc0's synthesis_general (accuracy ``EXACT_EPSILON``), w
 second-order pointing terms that interpolation smears.
 """
 
+from functools import cached_property
+
 import numpy as np
 
 from . import harmonics
@@ -25,11 +27,18 @@ class SkyFields:
         self.nside = sky.nside
         self.alm = sky.alm
         self.n_fields = 3 if template is None else 4
-        self.stack = np.empty((sky.maps.shape[1], self.n_fields))
-        self.stack[:, :3] = sky.maps.T
-        if template is not None:
-            self.stack[:, 3] = template
         self.template_alm = template_alm
+        self._sky, self._template = sky, template
+
+    @cached_property
+    def stack(self):
+        """(npix, n_fields) interleaved fields; without a template, the sky's own (built once)."""
+        if self._template is None:
+            return self._sky.interleaved
+        stack = np.empty((self._sky.maps.shape[1], self.n_fields))
+        stack[:, :3] = self._sky.maps.T
+        stack[:, 3] = self._template
+        return stack
 
     def evaluate(self, theta, phi, method, nthreads=0):
         """Fields at points: (n_fields, npoints) for flat arrays theta, phi [rad]."""

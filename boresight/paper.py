@@ -2,7 +2,9 @@
 partial boresight rotation, the analytic predictions, the reference curves and the Q = U = 0 check.
 
 ``run_study`` returns plain arrays per experiment; :mod:`boresight.report` turns them into the CSV,
-the computed verdicts and the report, :mod:`boresight.plots` into the figures.
+the computed verdicts and the report, :mod:`boresight.plots` into the figures. The pseudo-spectra
+(most of the time at lmax 4000) are transformed on a background thread while the next rotation
+angle is simulated and predicted; the stage times in the manifest are the main thread's.
 """
 
 import time

@@ -6,6 +6,7 @@ on a HEALPix RING grid with ducc0. The alm are kept for exact evaluation at arbi
 """
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import healpy as hp
 import numpy as np
@@ -59,6 +60,12 @@ class Sky:
     nside: int
     lmax: int
     fwhm_arcmin: float
+
+    @cached_property
+    def interleaved(self):
+        """I, Q, U per pixel, shape (npix, 3): the layout the interpolation kernels read (a pixel's
+        fields share a cache line). Built from ``maps`` on first use and kept."""
+        return np.ascontiguousarray(self.maps.T)
 
     @classmethod
     def from_maps(cls, maps, lmax=None, fwhm_arcmin=0.0, nthreads=0):

@@ -57,10 +57,18 @@ def test_interpolation_matches_healpy(nside):
 @pytest.mark.parametrize("nside", [1, 2, 16, 512, 8192])
 def test_ang2pix_matches_healpy(nside):
     rng = np.random.default_rng(nside)
-    theta = np.concatenate([np.arccos(rng.uniform(-1, 1, 200000)),
-                            [0.0, np.pi, 1e-12, np.pi - 1e-12, np.arccos(2 / 3), np.arccos(-2 / 3)],
-                            np.arccos(rng.uniform(0.985, 1.0, 20000))])  # the polar-cap branch
-    phi = np.concatenate([rng.uniform(0, 2 * np.pi, 200000), [0.0, 1.0, 2 * np.pi - 1e-12, 3.0,
-                                                              0.5, 6.0],
-                          rng.uniform(0, 2 * np.pi, 20000)])
+    theta = np.concatenate(
+        [
+            np.arccos(rng.uniform(-1, 1, 200000)),
+            [0.0, np.pi, 1e-12, np.pi - 1e-12, np.arccos(2 / 3), np.arccos(-2 / 3)],
+            np.arccos(rng.uniform(0.985, 1.0, 20000)),
+        ]
+    )  # the polar-cap branch
+    phi = np.concatenate(
+        [
+            rng.uniform(0, 2 * np.pi, 200000),
+            [0.0, 1.0, 2 * np.pi - 1e-12, 3.0, 0.5, 6.0],
+            rng.uniform(0, 2 * np.pi, 20000),
+        ]
+    )
     assert np.array_equal(pixels.ang2pix_array(nside, theta, phi), hp.ang2pix(nside, theta, phi))

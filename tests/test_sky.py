@@ -77,3 +77,14 @@ def test_from_maps_rejects_nan():
     m[1, 5] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         sky.Sky.from_maps(m)
+
+
+def test_interleaved_fields_are_built_once(small_sky):
+    """The kernels' (npix, fields) layout holds the maps, and every simulation shares one copy."""
+    from boresight.evaluation import SkyFields
+
+    np.testing.assert_array_equal(small_sky.interleaved, small_sky.maps.T)
+    assert SkyFields(small_sky).stack is SkyFields(small_sky).stack is small_sky.interleaved
+    template = np.arange(small_sky.maps.shape[1], dtype=float)
+    stack = SkyFields(small_sky, template).stack
+    np.testing.assert_array_equal(stack, np.vstack([small_sky.maps, template]).T)
