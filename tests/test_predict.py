@@ -124,3 +124,27 @@ def test_prediction_needs_qu_pairs(small_sky):
         predict.delta_p(
             small_sky, np.zeros((5, small_sky.maps.shape[1])), PAPER_GAIN, Instrument((0.0, 30.0))
         )
+
+
+def test_coherent_power_of_constant_and_white_h():
+    """A constant h_n is all coherent; white h_n keeps 1 / block^2 of its power after averaging
+    in blocks of block^2 pixels (the mask's edge blocks hold fewer pixels, so a little more)."""
+    nside = 256
+    mask = masks.survey_mask("deep", nside)
+    blocks = predict.PixelBlocks(mask)
+    total, coherent = blocks.coherent_power(np.full(mask.size, 0.3 - 0.4j))
+    assert total == pytest.approx(0.25, rel=1e-13) and coherent == pytest.approx(0.25, rel=1e-13)
+    rng = np.random.default_rng(5)
+    white = rng.standard_normal(mask.size) + 1j * rng.standard_normal(mask.size)
+    total, coherent = blocks.coherent_power(white)
+    n_obs = np.count_nonzero(mask)
+    assert total == pytest.approx(2.0, abs=5 * 2 / np.sqrt(n_obs))
+    # expectation: 2 sum_b (sum_{i in b} w_i^2 / W_b) / sum w, from E[h_i h_j*] = 2 delta_ij
+    w = mask[blocks.obs]
+    expected = 2 * np.sum(
+        np.bincount(blocks.parent, w**2)[blocks.used] / blocks.block_weight[blocks.used]
+    )
+    expected /= w.sum()
+    n_blocks = np.count_nonzero(blocks.used)
+    assert coherent == pytest.approx(expected, rel=5 / np.sqrt(n_blocks))
+    assert 1.0 / predict.COHERENT_BLOCK**2 < expected / 2 < 1.2 / predict.COHERENT_BLOCK**2
