@@ -147,7 +147,8 @@ class _Transforms:
 
     ducc0 uses every core with the GIL released, so the transforms of one angle overlap the
     simulation and prediction of the next. At most ``depth`` jobs are queued or running, since
-    each holds full-sky maps. Results are those of running the jobs in turn.
+    each holds full-sky maps. Results are those of running the jobs in turn. Jobs must not call
+    numba's parallel kernels, which run on the main thread (its threading layer is not re-entrant).
     """
 
     def __init__(self, depth=2):
