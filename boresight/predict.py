@@ -55,13 +55,9 @@ def delta_p(sky, h, systematics, instrument=None, template=None, nthreads=0):
         raise ValueError(f"h must have shape (>= 5, {sky.maps.shape[1]}), got {h.shape}")
     dg, rho, chi, leak = systematics.per_pair(2)
     t = sky.maps[0]
-    none = np.empty(0)
-    s = (
-        (t if template is None else np.asarray(template, np.float64))
-        if systematics.has_leak
-        else none
-    )
-    grad = none[None].repeat(2, 0)
+    s, grad = np.empty(0), np.empty((2, 0))  # an empty field switches its term off
+    if systematics.has_leak:
+        s = t if template is None else np.asarray(template, dtype=np.float64)
     c1 = c3 = 0j
     if systematics.has_pointing:
         grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads)

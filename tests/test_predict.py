@@ -148,3 +148,9 @@ def test_coherent_power_of_constant_and_white_h():
     n_blocks = np.count_nonzero(blocks.used)
     assert coherent == pytest.approx(expected, rel=5 / np.sqrt(n_blocks))
     assert 1.0 / predict.COHERENT_BLOCK**2 < expected / 2 < 1.2 / predict.COHERENT_BLOCK**2
+
+
+def test_delta_p_needs_the_moments_up_to_h4(small_sky):
+    h = np.zeros((4, small_sky.maps.shape[1]), dtype=complex)
+    with pytest.raises(ValueError, match="h must have shape"):
+        predict.delta_p(small_sky, h, PAPER_GAIN)
