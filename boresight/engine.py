@@ -156,9 +156,12 @@ class _Binner:
         self.evaluation, self.nthreads = evaluation, nthreads
 
     def _at(self, theta, phi):
-        return fields_at(
-            self.kernels, self.fields, self.stack, theta, phi, self.evaluation, self.nthreads
-        )
+        """The fields at points: the backend interpolates the stack on its device, or ducc0
+        evaluates the alm exactly on the CPU."""
+        k = self.kernels
+        if self.evaluation == "interp":
+            return k.interpolate(self.stack, self.fields.nside, theta, phi)
+        return self.fields.exact(k.to_host(theta), k.to_host(phi), self.nthreads)
 
     def _values(self, theta, phi, psi):
         k, fields = self.kernels, self.fields
@@ -236,14 +239,6 @@ def simulate_samples(
             binner.scatter(pix, theta, phi, psi, normal)
     q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
     return Maps(q=q, u=u, hits=hits, rcond=rcond)
-
-
-def fields_at(kernels, fields, stack, theta, phi, evaluation, nthreads):
-    """Evaluate the sky fields at points: the backend interpolates ``stack`` (the fields on the
-    backend's device), or ducc0 evaluates the alm exactly on the CPU."""
-    if evaluation == "interp":
-        return kernels.interpolate(stack, fields.nside, theta, phi)
-    return fields.evaluate(kernels.to_host(theta), kernels.to_host(phi), "exact", nthreads)
 
 
 def _sky_fields(sky, systematics, template, evaluation, nthreads):

@@ -1,6 +1,7 @@
 """Sky evaluation at hit positions: bilinear HEALPix interpolation or exact band-limited synthesis.
 
-"interp" interpolates the pixelised maps (what the paper did); "exact" evaluates the beam-smoothed
+"interp" interpolates the pixelised maps (what the paper did; the backend kernels read ``stack``);
+"exact" evaluates the beam-smoothed
 alm at each point with ducc0's synthesis_general (accuracy ``EXACT_EPSILON``), which keeps the
 second-order pointing terms that interpolation smears.
 """
@@ -10,7 +11,6 @@ from functools import cached_property
 import numpy as np
 
 from . import harmonics
-from .pixels import interpolate_interleaved
 
 METHODS = ("interp", "exact")
 EXACT_EPSILON = 1e-11  #: ducc0 relative accuracy of exact evaluation
@@ -40,10 +40,8 @@ class SkyFields:
         stack[:, 3] = self._template
         return stack
 
-    def evaluate(self, theta, phi, method, nthreads=0):
-        """Fields at points: (n_fields, npoints) for flat arrays theta, phi [rad]."""
-        if method == "interp":
-            return interpolate_interleaved(self.stack, self.nside, theta, phi)
+    def exact(self, theta, phi, nthreads=0):
+        """Band-limited fields at points: (n_fields, npoints) for flat arrays theta, phi [rad]."""
         out = np.empty((self.n_fields, theta.size))
         out[0] = harmonics.evaluate(
             self.alm[0], theta, phi, epsilon=EXACT_EPSILON, nthreads=nthreads

@@ -209,8 +209,8 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
         def predicted_map(angle, dp, b_ref):
             res.predicted_map[angle] = sum(parts_of(np.array([dp.real, dp.imag]), b_ref.result()))
 
-        def zero_qu(angle, qu):
-            res.zero_qu[angle] = sum(parts_of(qu, np.zeros(harmonics.n_alm(lmax_s), complex)))
+        def zero_qu(angle, qu):  # the reference is zero: the residual is the auto part alone
+            res.zero_qu[angle] = harmonics.alm2cl(b_of(qu))
 
         with timer(f"{exp.name}: reference (no systematic)"):
             ref = engine.simulate(

@@ -276,8 +276,3 @@ def interpolate_point(maps, nside, theta, phi, out, column):
     p0, p1, p2, p3, w0, w1, w2, w3 = interp_weights(nside, theta, phi)
     for f in range(maps.shape[1]):
         out[f, column] = w0 * maps[p0, f] + w1 * maps[p1, f] + w2 * maps[p2, f] + w3 * maps[p3, f]
-
-
-def interpolate(maps, nside, theta, phi):
-    """Bilinear interpolation of a (nfield, npix) map stack at points -> (nfield, npoints)."""
-    return interpolate_interleaved(np.ascontiguousarray(np.asarray(maps).T), nside, theta, phi)

@@ -67,9 +67,9 @@ def difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads=0):
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 
-def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
+def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0):
     """C_BB(sys) - C_BB(ref) [muK^2] of masked Q, U maps (see residual_bb_parts)."""
-    return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads, b_ref))
+    return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads))
 
 
 def linear_bins(lmin, lmax, width):

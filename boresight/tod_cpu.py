@@ -29,7 +29,7 @@ __all__ = [
 
 
 def interpolate(maps, nside, theta, phi):
-    """Bilinear interpolation of a (nfield, npix) or prepared interleaved stack at points."""
+    """Bilinear interpolation of the interleaved (npix, nfield) stack -> (nfield, npoints)."""
     return interpolate_interleaved(maps, nside, theta, phi)
 
 

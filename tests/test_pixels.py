@@ -49,7 +49,7 @@ def test_interpolation_matches_healpy(nside):
     maps = rng.normal(size=(3, 12 * nside**2))
     theta = np.concatenate([np.arccos(rng.uniform(-1, 1, 3000)), [0.0, np.pi, 1e-9, np.pi - 1e-9]])
     phi = rng.uniform(0, 2 * np.pi, theta.size)
-    got = pixels.interpolate(maps, nside, theta, phi)
+    got = pixels.interpolate_interleaved(np.ascontiguousarray(maps.T), nside, theta, phi)
     want = np.array([hp.get_interp_val(m, theta, phi) for m in maps])
     assert np.allclose(got, want, rtol=0, atol=1e-13)
 
