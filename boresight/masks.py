@@ -63,6 +63,20 @@ def read_mask(path, nside=None):
     return mask
 
 
+def from_config(spec, nside):
+    """The mask a study's [mask] table describes: survey ('deep', 'wide', 'none': full sky) or
+    file, optionally apodized by apodize_fwhm_deg."""
+    if "file" in spec:
+        mask = read_mask(spec["file"], nside)
+    elif spec["survey"] == "none":
+        mask = np.ones(12 * nside**2)
+    else:
+        mask = survey_mask(spec["survey"], nside)
+    if "apodize_fwhm_deg" in spec:
+        mask = apodize(mask, spec["apodize_fwhm_deg"])
+    return mask
+
+
 def fsky(mask):
     """Observed sky fraction: mean of the mask."""
     return float(np.mean(mask))

@@ -5,9 +5,9 @@ an interrupted job leaves nothing behind, and an existing directory is kept unle
 """
 
 import platform
-from dataclasses import replace
 import subprocess
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import healpy as hp
@@ -106,20 +106,6 @@ def _load_sky(study, nthreads):
     )
 
 
-def _load_mask(study, nside):
-    m = study.mask
-    mask = (
-        masks.read_mask(m["file"], nside)
-        if "file" in m
-        else np.ones(12 * nside**2)
-        if m["survey"] == "none"
-        else masks.survey_mask(m["survey"], nside)
-    )
-    if "apodize_fwhm_deg" in m:
-        mask = masks.apodize(mask, m["apodize_fwhm_deg"])
-    return mask
-
-
 def _template(study):
     return None if study.leak_template is None else hp.read_map(study.leak_template)
 
@@ -131,7 +117,7 @@ def simulate(study, out_dir, force=False, log=print, progress=False):
     run, nthreads = study.run, study.run["nthreads"]
     with timer("sky"):
         the_sky = _load_sky(study, nthreads)
-        mask = _load_mask(study, the_sky.nside)
+        mask = masks.from_config(study.mask, the_sky.nside)
     sim_kw = dict(
         pixels=mask > 0,
         evaluation=run["evaluation"],
@@ -194,7 +180,7 @@ def predict_study(study, log=print):
     if study.sky_maps is not None:
         raise ValueError("predict uses the theory spectra; remove sky.maps from the config")
     nside, lmax = study.sky.nside, study.output["lmax"]
-    mask = _load_mask(study, nside)
+    mask = masks.from_config(study.mask, nside)
     h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run["nthreads"])
     cp = coupling.coupling_matrices(mask, lmax, study.run["nthreads"])
     pred = predict.residual_pseudo_bb(
@@ -207,7 +193,7 @@ def scan_stats(study, out_dir, force=False, n_max=4, log=print):
     """Write h_n (n = 1..n_max), hit, N_phi and R maps of the study's scan, and a summary."""
     io.check_output_dir(out_dir, force)
     nside = study.sky.nside
-    mask = _load_mask(study, nside)
+    mask = masks.from_config(study.mask, nside)
     obs = mask > 0
     h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run["nthreads"])
     n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
@@ -260,7 +246,7 @@ def compare_scans(
     real scan and the twin), compare.csv and compare.png/pdf. Returns the binned rows.
     """
     from . import ground, scanstats
-    from .instrument import PAPER_GAIN, PAPER_POINTING
+    from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 
     systematics = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}.get(systematic)
     if systematics is None:
@@ -294,12 +280,12 @@ def compare_scans(
             if name.startswith("real"):
                 maps[name] = [
                     engine.simulate_samples(the_sky, ground.pointing(scan), systematics=s)
-                    for s in (engine.Systematics(), systematics)
+                    for s in (Systematics(), systematics)
                 ]
             else:
                 maps[name] = [
                     engine.simulate(the_sky, scan, systematics=s, pixels=obs)
-                    for s in (engine.Systematics(), systematics)
+                    for s in (Systematics(), systematics)
                 ]
     mask = obs.copy()
     for ref, sim in maps.values():

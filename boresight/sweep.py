@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import coupling, engine, io, predict, rbias, sky, spectra
+from . import coupling, engine, io, masks, predict, rbias, sky, spectra
 from .config import ConfigError, parse_study, tomllib
 from .cosmology import load_spectra
 
@@ -126,14 +126,7 @@ def run_point(base, base_dir, overrides):
     study = parse_study(apply_overrides(base, overrides), base_dir)
     nthreads, lmax = study.run["nthreads"], study.output["lmax"]
     the_sky = sky.make_sky(study.sky, nthreads=nthreads)
-    m = study.mask
-    from .studies import _load_mask
-
-    mask = (
-        _load_mask(study, the_sky.nside)
-        if m.get("survey", "none") != "none" or "file" in m
-        else np.ones(12 * the_sky.nside**2)
-    )
+    mask = masks.from_config(study.mask, the_sky.nside)
     kw = dict(
         pixels=mask > 0,
         evaluation=study.run["evaluation"],
@@ -164,21 +157,20 @@ def run_point(base, base_dir, overrides):
     total = cross + auto
     dr, dr_pred = rbias.delta_r(total, template), rbias.delta_r(pred, template)
     edges = spectra.log_bins(study.output["lmin"], lmax, study.output["n_bands"])
-    rows = []
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        rows.append(
-            dict(
-                ell_lo=int(lo),
-                ell_hi=int(hi) - 1,
-                residual_bb=total[lo:hi].mean(),
-                residual_auto_bb=auto[lo:hi].mean(),
-                residual_cross_bb=cross[lo:hi].mean(),
-                predicted_bb=pred[lo:hi].mean(),
-                delta_r=dr,
-                predicted_delta_r=dr_pred,
-            )
+    binned = spectra.bin_spectrum(np.array([total, auto, cross, pred]), edges)[1]
+    return [
+        dict(
+            ell_lo=int(lo),
+            ell_hi=int(hi) - 1,
+            residual_bb=b[0],
+            residual_auto_bb=b[1],
+            residual_cross_bb=b[2],
+            predicted_bb=b[3],
+            delta_r=dr,
+            predicted_delta_r=dr_pred,
         )
-    return rows
+        for lo, hi, b in zip(edges[:-1], edges[1:], binned.T)
+    ]
 
 
 def _columns(points):

@@ -32,3 +32,15 @@ def test_apodize_and_read(tmp_path):
         masks.read_mask(str(tmp_path / "missing.fits"))
     with pytest.raises(ValueError, match="survey"):
         masks.survey_mask("ultra", 16)
+
+
+def test_mask_from_a_study_config(tmp_path):
+    nside = 32
+    assert np.array_equal(masks.from_config({"survey": "none"}, nside), np.ones(12 * nside**2))
+    deep = masks.survey_mask("deep", nside)
+    assert np.array_equal(masks.from_config({"survey": "deep"}, nside), deep)
+    apod = masks.from_config({"survey": "deep", "apodize_fwhm_deg": 5.0}, nside)
+    assert np.array_equal(apod, masks.apodize(deep, 5.0)) and 0 < apod.sum() < deep.sum()
+    path = tmp_path / "mask.fits"
+    hp.write_map(path, deep)
+    assert np.array_equal(masks.from_config({"file": str(path)}, nside), deep)
