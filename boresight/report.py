@@ -36,8 +36,7 @@ def _reduction(res, cfg, angle, lo=0, hi=np.inf, part="total"):
 
 
 def _ratio_to_reference(res, cfg, angle, value, lo=0, hi=np.inf):
-    _, ref = spectra.bin_spectrum(res.references[value], cfg.edges())
-    centres, _ = spectra.bin_spectrum(res.references[value], cfg.edges())
+    centres, ref = spectra.bin_spectrum(res.references[value], cfg.edges())
     keep = (centres >= lo) & (centres <= hi)
     return _bands(res, cfg, angle, "total", lo, hi) / ref[keep]
 
