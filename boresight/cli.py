@@ -1,15 +1,18 @@
-"""Command line: `boresight reproduce | simulate | predict | scan-stats`.
+"""Command line: `boresight reproduce | simulate | predict | scan-stats | compare-scans | sweep`.
 
 Exit codes: 0 success, 1 a claim of `reproduce` not reproduced, 2 bad input (config, arguments,
-existing output directory); nothing is written when the input is bad.
+output directory, memory), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM); nothing is written
+when the input is bad, and an interrupted job leaves no output behind (a sweep keeps its finished
+points).
 """
 
 import argparse
 import logging
+import signal
 import sys
 
 from . import paper, studies
-from .config import ConfigError, load_study
+from .config import ConfigError, check_backend, check_threads, load_study
 
 log = logging.getLogger("boresight")
 
@@ -18,6 +21,11 @@ def _parser():
     p = argparse.ArgumentParser(prog="boresight", description=__doc__.splitlines()[0])
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     p.add_argument("-v", "--verbose", action="store_true", help="debug output")
+    p.add_argument(
+        "--no-memory-check",
+        action="store_true",
+        help="run even when the memory estimate exceeds this machine's memory",
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("reproduce", help="the paper's study: figures, results.csv, report.md")
@@ -48,6 +56,9 @@ def _parser():
     )
     sw.add_argument("--workers", type=int, default=2, help="local cluster worker processes")
     sw.add_argument("--force", action="store_true", help="replace a different sweep in --out")
+    sw.add_argument(
+        "--repair", action="store_true", help="recompute corrupt point files, keep the rest"
+    )
     cs = sub.add_parser("compare-scans", help="residual B-modes of a CES schedule and its twin")
     cs.add_argument("schedule", help="schedule file (TOML or CSV)")
     cs.add_argument("--out", required=True, help="output directory")
@@ -64,12 +75,17 @@ def _parser():
 
 def _study_config(args):
     defaults = paper.StudyConfig.quick() if args.quick else paper.StudyConfig()
-    nside = args.nside or defaults.nside
-    lmax = args.lmax or (min(3 * nside - 1, defaults.lmax) if args.nside else defaults.lmax)
-    if nside < 16 or nside & (nside - 1):
-        raise ValueError(f"--nside must be a power of two >= 16, got {nside}")
+    nside = defaults.nside if args.nside is None else args.nside
+    if args.lmax is not None:
+        lmax = args.lmax
+    else:
+        lmax = defaults.lmax if args.nside is None else min(3 * nside - 1, defaults.lmax)
+    if nside < 16 or nside > 8192 or nside & (nside - 1):
+        raise ValueError(f"--nside must be a power of two in [16, 8192], got {nside}")
     if not 2 <= lmax <= 3 * nside - 1:
         raise ValueError(f"--lmax must be in [2, {3 * nside - 1}], got {lmax}")
+    check_threads("--threads", args.threads)
+    check_backend("--backend", args.backend)
     return paper.StudyConfig(
         nside=nside,
         lmax=lmax,
@@ -80,75 +96,105 @@ def _study_config(args):
     )
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the job unwinds and removes what it was writing."""
+
+
+def _terminate(signum, frame):
+    raise Terminated
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     progress = sys.stderr.isatty() and not args.quiet
+    memory_check = not args.no_memory_check
+    previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        if args.command == "reproduce":
-            claims = studies.reproduce(
-                args.out, _study_config(args), args.force, log.info, progress
-            )
-            bad = [c for c in claims if not c.reproduced]
-            log.info(
-                "%d of %d claims reproduced; see %s/report.md",
-                len(claims) - len(bad),
-                len(claims),
-                args.out,
-            )
-            return 1 if bad else 0
-        if args.command == "sweep":
-            from . import sweep
-
-            rows = sweep.run_sweep(
-                args.sweep_file,
-                args.out,
-                args.scheduler,
-                args.workers,
-                args.force,
-                log.info,
-                progress,
-            )
-            sweep.continuum_figure(rows, f"{args.out}/suppression")
-            log.info("%d rows in %s/results.csv", len(rows), args.out)
-            return 0
-        if args.command == "compare-scans":
-            studies.compare_scans(
-                args.schedule,
-                args.out,
-                args.nside,
-                args.systematic,
-                args.fwhm_arcmin,
-                force=args.force,
-                log=log.info,
-            )
-            return 0
-        study = load_study(args.config)
-        if args.command == "simulate":
-            studies.simulate(study, args.out, args.force, log.info, progress)
-        elif args.command == "scan-stats":
-            for row in studies.scan_stats(study, args.out, args.force, log=log.info):
-                log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
-        else:
-            if args.out:
-                from . import io
-
-                io.check_output_dir(args.out, args.force)
-            rows = studies.predict_study(study, log.info)
-            if args.out:
-                with io.staged_dir(args.out, args.force) as stage:
-                    io.write_csv(stage / "prediction.csv", rows, ["ell", "predicted_bb"])
-            else:
-                print("ell,predicted_bb")
-                for row in rows:
-                    print(f"{row['ell']},{row['predicted_bb']:.6e}")
-    except (ConfigError, FileExistsError, FileNotFoundError, ValueError) as err:
+        return _run(args, progress, memory_check)
+    except (ConfigError, OSError, ValueError, TypeError) as err:
         print(f"boresight: error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("boresight: interrupted; nothing was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        kept = (
+            f"finished points are kept in {args.out}; re-run to resume"
+            if args.command == "sweep"
+            else "nothing was written"
+        )
+        print(
+            f"boresight: {'terminated' if isinstance(err, Terminated) else 'interrupted'}; {kept}",
+            file=sys.stderr,
+        )
+        return 143 if isinstance(err, Terminated) else 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args, progress, memory_check):
+    """Run the parsed command; returns the exit code."""
+    if args.command == "reproduce":
+        claims = studies.reproduce(
+            args.out, _study_config(args), args.force, log.info, progress, memory_check
+        )
+        bad = [c for c in claims if not c.reproduced]
+        log.info(
+            "%d of %d claims reproduced; see %s/report.md",
+            len(claims) - len(bad),
+            len(claims),
+            args.out,
+        )
+        return 1 if bad else 0
+    if args.command == "sweep":
+        from . import sweep
+
+        rows = sweep.run_sweep(
+            args.sweep_file,
+            args.out,
+            args.scheduler,
+            args.workers,
+            args.force,
+            log.info,
+            progress,
+            args.repair,
+        )
+        sweep.continuum_figure(rows, f"{args.out}/suppression")
+        log.info("%d rows in %s/results.csv", len(rows), args.out)
+        return 0
+    if args.command == "compare-scans":
+        studies.compare_scans(
+            args.schedule,
+            args.out,
+            args.nside,
+            args.systematic,
+            args.fwhm_arcmin,
+            force=args.force,
+            log=log.info,
+            memory_check=memory_check,
+        )
+        return 0
+    study = load_study(args.config)
+    if args.command == "simulate":
+        studies.simulate(study, args.out, args.force, log.info, progress, memory_check)
+    elif args.command == "scan-stats":
+        rows = studies.scan_stats(
+            study, args.out, args.force, log=log.info, memory_check=memory_check
+        )
+        for row in rows:
+            log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
+    else:
+        if args.out:
+            from . import io
+
+            io.check_output_dir(args.out, args.force, [args.config])
+        rows = studies.predict_study(study, log.info, memory_check)
+        if args.out:
+            with io.staged_dir(args.out, args.force, [args.config]) as stage:
+                io.write_csv(stage / "prediction.csv", rows, ["ell", "predicted_bb"])
+        else:
+            print("ell,predicted_bb")
+            for row in rows:
+                print(f"{row['ell']},{row['predicted_bb']:.6e}")
     return 0
 
 

@@ -5,10 +5,11 @@ out of range and missing files raise :class:`ConfigError` naming the key and wha
 """
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import io, validation
 from .evaluation import METHODS
 from .instrument import Instrument, Systematics
 from .scan import SyntheticScan
@@ -88,6 +89,26 @@ class Study:
     run: dict
     output: dict
     raw: dict
+    source: str = None  #: the TOML file it was read from (None when built from a dict)
+
+
+def check_threads(key, nthreads):
+    """ConfigError unless 0 <= nthreads <= the cores numba may use (0: all)."""
+    import numba
+
+    most = numba.config.NUMBA_NUM_THREADS
+    if not 0 <= nthreads <= most:
+        raise ConfigError(f"{key} = {nthreads}; allowed: 0 (all cores) to {most}")
+
+
+def check_backend(key, backend):
+    """ConfigError unless the backend is known and, for 'gpu', CuPy is installed."""
+    import importlib.util
+
+    if backend not in ("cpu", "gpu"):
+        raise ConfigError(f"{key} = {backend!r}; allowed: 'cpu', 'gpu'")
+    if backend == "gpu" and importlib.util.find_spec("cupy") is None:
+        raise ConfigError(f"{key} = 'gpu' needs CuPy: pip install 'boresight[gpu]'")
 
 
 def _check_types(raw):
@@ -112,61 +133,86 @@ def _check_types(raw):
 
 def _file(section, key, path, base):
     full = path if os.path.isabs(path) else os.path.join(base, path)
-    if not os.path.exists(full):
-        raise ConfigError(f"{section}.{key}: file not found: {full}")
+    if not os.path.isfile(full):
+        raise ConfigError(f"{section}.{key}: file not found (or not a file): {full}")
     return full
 
 
-def _map_or_value(section, key, value, base, dtype):
+def _fits(section, key, path, base, min_fields=1, npix=None):
+    """The full path of a HEALPix FITS file, checked from its header: at least ``min_fields``
+    columns and, when given, ``npix`` pixels."""
+    full = _file(section, key, path, base)
+    try:
+        nfields, have = io.fits_map_shape(full)
+    except ValueError as err:
+        raise ConfigError(f"{section}.{key}: {err}") from None
+    if nfields < min_fields:
+        raise ConfigError(f"{section}.{key}: {full} has {nfields} map(s); needs {min_fields}")
+    if npix is not None and have != npix:
+        raise ConfigError(f"{section}.{key}: {full} has {have} pixels; sky.nside needs {npix}")
+    return full
+
+
+def _map_or_value(section, key, value, base, dtype, npix):
     if isinstance(value, str):
         import healpy as hp
 
-        return hp.read_map(_file(section, key, value, base)).astype(dtype)
+        m = hp.read_map(_fits(section, key, value, base, npix=npix))
+        if not np.isfinite(m).all():
+            raise ConfigError(f"{section}.{key}: the map holds NaN or infinite values")
+        return m.astype(dtype)
     return value
 
 
 def _build(section, cls, kwargs):
     try:
         return cls(**kwargs)
-    except ValueError as err:
+    except (ValueError, TypeError) as err:
         raise ConfigError(f"[{section}] {err}") from None
+
+
+def read_toml(path, what="config"):
+    """The parsed TOML of ``path``; a ConfigError names the file when it cannot be read."""
+    if not os.path.isfile(path):
+        raise ConfigError(f"{what} file not found (or not a file): {path}")
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path} is not valid TOML: {err}") from None
 
 
 def load_study(path):
     """Read and validate a TOML study file; returns a :class:`Study`."""
-    if not os.path.exists(path):
-        raise ConfigError(f"config file not found: {path}")
+    raw = read_toml(path)
     try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path} is not valid TOML: {err}") from None
-    return parse_study(raw, os.path.dirname(os.path.abspath(path)))
+        study = parse_study(raw, os.path.dirname(os.path.abspath(path)))
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None
+    return replace(study, source=str(path))
 
 
 def parse_study(raw, base="."):
     """Validate a study given as a dict (the parsed TOML); paths are relative to ``base``."""
     _check_types(raw)
     sky_raw = dict(raw.get("sky", {}))
+    if "nside" not in sky_raw:
+        raise ConfigError("sky.nside is required (a power of two; the paper's 2048 needs ~20 GiB)")
     sky_maps = sky_raw.pop("maps", None)
-    if sky_maps is not None:
-        sky_maps = _file("sky", "maps", sky_maps, base)
     sky_cfg = _build("sky", SkyConfig, sky_raw)
+    npix = 12 * sky_cfg.nside**2
+    if sky_maps is not None:
+        sky_maps = _fits("sky", "maps", sky_maps, base, min_fields=3, npix=npix)
     scan_raw = dict(raw.get("scan", {}))
-    scan_raw["n_phi"] = _map_or_value("scan", "n_phi", scan_raw.get("n_phi", 4), base, np.int64)
+    scan_raw["n_phi"] = _map_or_value(
+        "scan", "n_phi", scan_raw.get("n_phi", 4), base, np.int64, npix
+    )
     for key in ("range_rad", "centre_rad"):
         if key in scan_raw:
-            scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, np.float64)
+            scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, np.float64, npix)
     if "rotations_deg" in scan_raw:
         scan_raw["rotations_deg"] = tuple(scan_raw["rotations_deg"])
     scan = _build("scan", SyntheticScan, scan_raw)
-    for key in ("n_phi", "range_rad", "centre_rad"):
-        v = np.asarray(getattr(scan, key))
-        if v.ndim == 1 and v.size != 12 * sky_cfg.nside**2:
-            raise ConfigError(
-                f"scan.{key} map has {v.size} pixels; sky.nside = {sky_cfg.nside} "
-                f"needs {12 * sky_cfg.nside**2}"
-            )
     inst_raw = dict(raw.get("instrument", {}))
     if "pair_angles_deg" in inst_raw:
         inst_raw["pair_angles_deg"] = tuple(inst_raw["pair_angles_deg"])
@@ -174,7 +220,7 @@ def parse_study(raw, base="."):
     sys_raw = dict(raw.get("systematics", {}))
     template = sys_raw.pop("leak_template", None)
     if template is not None:
-        template = _file("systematics", "leak_template", template, base)
+        template = _fits("systematics", "leak_template", template, base, npix=npix)
     systematics = _build(
         "systematics",
         Systematics,
@@ -188,11 +234,14 @@ def parse_study(raw, base="."):
     if "file" in mask:
         if "survey" in mask:
             raise ConfigError("[mask] give either survey or file, not both")
-        mask["file"] = _file("mask", "file", mask["file"], base)
+        mask["file"] = _fits("mask", "file", mask["file"], base)
     elif mask.setdefault("survey", "none") not in ("deep", "wide", "none"):
         raise ConfigError(f"mask.survey = {mask['survey']!r}; allowed: 'deep', 'wide', 'none'")
-    if mask.get("apodize_fwhm_deg", 1) <= 0:
-        raise ConfigError("mask.apodize_fwhm_deg must be > 0")
+    if "apodize_fwhm_deg" in mask:
+        try:
+            validation.number("mask.apodize_fwhm_deg", mask["apodize_fwhm_deg"], 1e-3, 180.0)
+        except (TypeError, ValueError) as err:
+            raise ConfigError(str(err)) from None
     run = {
         "evaluation": "interp",
         "backend": "cpu",
@@ -206,6 +255,8 @@ def parse_study(raw, base="."):
         raise ConfigError(f"run.backend = {run['backend']!r}; allowed: 'cpu', 'gpu'")
     if (run["chunk_pixels"] is not None and run["chunk_pixels"] < 1) or run["nthreads"] < 0:
         raise ConfigError("run.chunk_pixels must be >= 1 and run.nthreads >= 0")
+    check_threads("run.nthreads", run["nthreads"])
+    check_backend("run.backend", run["backend"])
     output = {
         "lmax": min(sky_cfg.lmax, 2 * sky_cfg.nside),
         "n_bands": 14,

@@ -18,6 +18,7 @@ from .evaluation import METHODS, SkyFields
 from .instrument import Instrument, Systematics
 from .mapmaking import RCOND_MIN, Maps, solve
 from .pixels import ang2pix_array
+from .sky import MAX_NSIDE
 
 BACKENDS = ("cpu", "gpu")
 #: pixels per chunk: small on the CPU (cache-resident), large on a GPU (enough threads)
@@ -49,17 +50,49 @@ def threads(nthreads):
 
 
 def _pixel_list(pixels, npix):
+    """Sorted unique int64 RING indices from ``pixels``: None (all), a boolean map of npix
+    entries, or a 1-d array of integer indices in [0, npix). Anything else is a ValueError (a
+    float 0/1 mask would otherwise read as the pixel indices 0 and 1)."""
     if pixels is None:
         return np.arange(npix, dtype=np.int64)
     pixels = np.asarray(pixels)
+    if pixels.ndim != 1:
+        raise ValueError(f"pixels must be 1-d (indices or a boolean map), got shape {pixels.shape}")
     if pixels.dtype == bool:
         if pixels.size != npix:
             raise ValueError(f"pixel mask has {pixels.size} entries, the sky has {npix}")
         return np.flatnonzero(pixels).astype(np.int64)
+    if not np.issubdtype(pixels.dtype, np.integer):
+        raise ValueError(
+            f"pixels must be integer RING indices or a boolean map, got dtype {pixels.dtype} "
+            "(for a 0/1 mask pass mask > 0)"
+        )
     pixels = np.unique(pixels.astype(np.int64))
     if pixels.size and (pixels[0] < 0 or pixels[-1] >= npix):
         raise ValueError(f"pixel indices must lie in [0, {npix})")
     return pixels
+
+
+def _check_nside(nside):
+    if isinstance(nside, bool) or not isinstance(nside, (int, np.integer)):
+        raise TypeError(f"nside must be an integer power of two, got {nside!r}")
+    if not 1 <= nside <= MAX_NSIDE or nside & (nside - 1):
+        raise ValueError(f"nside must be a power of two in [1, {MAX_NSIDE}], got {nside}")
+
+
+def check_samples(theta, phi, psi):
+    """Sample arrays of one chunk as float64: equal lengths, finite, theta in [0, pi]."""
+    theta, phi, psi = (np.ascontiguousarray(x, dtype=np.float64) for x in (theta, phi, psi))
+    if not theta.ndim == phi.ndim == psi.ndim == 1 or not theta.size == phi.size == psi.size:
+        raise ValueError(
+            f"theta, phi, psi must be 1-d of equal length, got {theta.shape}, {phi.shape}, "
+            f"{psi.shape}"
+        )
+    if not (np.isfinite(phi).all() and np.isfinite(psi).all()):
+        raise ValueError("phi and psi must be finite (a sample has NaN or infinite pointing)")
+    if not ((theta >= 0) & (theta <= np.pi)).all():
+        raise ValueError("theta must lie in [0, pi] (a sample has NaN or out-of-range pointing)")
+    return theta, phi, psi
 
 
 def _chunks(pixels, chunk_pixels, progress, label):
@@ -234,7 +267,8 @@ def simulate_samples(
     )
     normal = binner.kernels.zeros((12 * sky.nside**2, 5))
     with threads(nthreads):
-        for theta, phi, psi in sample_chunks:
+        for chunk in sample_chunks:
+            theta, phi, psi = check_samples(*chunk)
             pix = ang2pix_array(sky.nside, theta, phi)
             binner.scatter(pix, theta, phi, psi, normal)
     q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
@@ -275,6 +309,7 @@ def scan_moments(
     Returns (h, crossings): complex (n_max + 1, npix) (0 where unobserved) and int (npix,).
     """
     kernels = get_backend(backend)
+    _check_nside(nside)
     npix = 12 * nside**2
     pix = _pixel_list(pixels, npix)
     chunk_pixels = DEFAULT_CHUNK_PIXELS[backend] if chunk_pixels is None else chunk_pixels

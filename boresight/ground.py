@@ -22,6 +22,8 @@ from dataclasses import dataclass, replace
 import numba
 import numpy as np
 
+from . import validation
+from .config import ConfigError, tomllib
 from .constants import DEG
 
 UNIX_EPOCH_JD = 2440587.5
@@ -38,10 +40,9 @@ class Site:
     alt_m: float = ATACAMA[2]
 
     def __post_init__(self):
-        if not -90 <= self.lat_deg <= 90:
-            raise ValueError(f"lat_deg must be in [-90, 90], got {self.lat_deg}")
-        if not -180 <= self.lon_deg <= 360:
-            raise ValueError(f"lon_deg must be in [-180, 360], got {self.lon_deg}")
+        validation.number("lat_deg", self.lat_deg, -90.0, 90.0)
+        validation.number("lon_deg", self.lon_deg, -180.0, 360.0)
+        validation.number("alt_m", self.alt_m, -500.0, 1e5)
 
 
 @dataclass(frozen=True)
@@ -58,16 +59,27 @@ class CES:
     turnaround_s: float = 0.0  #: time to reverse at each end, at constant deceleration
 
     def __post_init__(self):
-        checks = {
-            "duration_s": self.duration_s > 0,
-            "elevation_deg": 0 < self.elevation_deg < 90,
-            "az_throw_deg": 0 <= self.az_throw_deg <= 360,
-            "speed_deg_s": self.speed_deg_s > 0,
-            "turnaround_s": self.turnaround_s >= 0,
-        }
-        for name, ok in checks.items():
-            if not ok:
-                raise ValueError(f"CES {name} = {getattr(self, name)} is out of range")
+        for name, (lo, hi) in CES_LIMITS.items():
+            validation.number(f"CES {name}", getattr(self, name), lo, hi)
+        if not 0 < self.elevation_deg < 90:
+            raise ValueError(f"CES elevation_deg = {self.elevation_deg} must lie in (0, 90)")
+        if self.duration_s <= 0 or self.speed_deg_s <= 0:
+            raise ValueError("CES duration_s and speed_deg_s must be > 0")
+
+
+#: allowed range of every CES field: start between 1970 and 2100, speeds and times of real mounts
+CES_LIMITS = {
+    "start_unix": (0.0, 4.1e9),
+    "duration_s": (0.0, 1e7),
+    "elevation_deg": (0.0, 90.0),
+    "az_centre_deg": (-720.0, 720.0),
+    "az_throw_deg": (0.0, 360.0),
+    "speed_deg_s": (0.0, 100.0),
+    "boresight_deg": (-3600.0, 3600.0),
+    "turnaround_s": (0.0, 3600.0),
+}
+#: the CES fields a schedule must give (the others have defaults)
+CES_REQUIRED = ("start_unix", "duration_s", "elevation_deg", "az_centre_deg", "az_throw_deg")
 
 
 @dataclass(frozen=True)
@@ -81,15 +93,16 @@ class Schedule:
     repeat_boresight_deg: tuple = (0.0,)  #: the CES set is observed once per angle [deg]
 
     def __post_init__(self):
-        if not self.ces:
+        if not self.ces or not all(isinstance(c, CES) for c in self.ces):
             raise ValueError("a schedule needs at least one CES")
-        if self.sample_rate_hz <= 0:
-            raise ValueError(f"sample_rate_hz must be > 0, got {self.sample_rate_hz}")
-        if len(self.repeat_boresight_deg) == 0:
-            raise ValueError("repeat_boresight_deg needs at least one angle")
-        object.__setattr__(
-            self, "repeat_boresight_deg", tuple(float(a) for a in self.repeat_boresight_deg)
+        validation.number("sample_rate_hz", self.sample_rate_hz, 1e-3, 1e4)
+        validation.number("dut1_s", self.dut1_s, -1.0, 1.0)
+        rep = validation.numbers_array(
+            "repeat_boresight_deg", self.repeat_boresight_deg, -3600.0, 3600.0
         )
+        if rep.ndim != 1 or rep.size == 0:
+            raise ValueError("repeat_boresight_deg needs at least one angle")
+        object.__setattr__(self, "repeat_boresight_deg", tuple(float(a) for a in rep))
 
     @property
     def n_samples(self):
@@ -105,25 +118,94 @@ class Schedule:
         return replace(self, repeat_boresight_deg=(0.0,))
 
 
-def load_schedule(path):
-    """A schedule from TOML ([site], sample_rate_hz, [[ces]]) or CSV (one CES per row)."""
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"schedule not found: {path}")
-    if path.endswith(".csv"):
-        with open(path) as f:
-            rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(f)]
-        return Schedule(tuple(CES(**r) for r in rows))
-    from .config import tomllib
+class ScheduleError(ConfigError):
+    """A schedule file that cannot be read, with the file, row and key in the message."""
 
+
+def load_schedule(path):
+    """A schedule from TOML ([site], sample_rate_hz, dut1_s, repeat_boresight_deg, [[ces]]) or
+    CSV (one CES per row, a header naming CES fields). Raises :class:`ScheduleError`."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise ScheduleError(f"schedule not found (or not a file): {path}")
+    try:
+        if path.endswith(".csv"):
+            return Schedule(_csv_rows(path))
+        return _toml_schedule(path)
+    except ScheduleError:
+        raise
+    except (ValueError, TypeError) as err:
+        raise ScheduleError(f"schedule {path}: {err}") from None
+
+
+def _ces(fields, where):
+    """A CES from a dict of fields, with ``where`` (file and row) in every error."""
+    unknown = sorted(set(fields) - set(CES_LIMITS))
+    missing = [k for k in CES_REQUIRED if k not in fields]
+    if unknown or missing:
+        raise ScheduleError(
+            f"{where}: unknown keys {unknown}, missing keys {missing}; CES keys: "
+            f"{list(CES_LIMITS)}"
+        )
+    try:
+        return CES(**fields)
+    except (ValueError, TypeError) as err:
+        raise ScheduleError(f"{where}: {err}") from None
+
+
+def _csv_rows(path):
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        rows = []
+        for i, row in enumerate(reader, start=2):
+            where = f"schedule {path}, line {i}"
+            if None in row or None in row.values():
+                raise ScheduleError(
+                    f"{where}: the row has a different number of values than the header"
+                )
+            fields = {}
+            for key, text in row.items():
+                try:
+                    fields[key] = float(text)
+                except ValueError:
+                    raise ScheduleError(f"{where}: {key} = {text!r} is not a number") from None
+            rows.append(_ces(fields, where))
+    if not rows:
+        raise ScheduleError(f"schedule {path} has no CES rows")
+    return tuple(rows)
+
+
+SCHEDULE_KEYS = ("site", "ces", "sample_rate_hz", "dut1_s", "repeat_boresight_deg")
+
+
+def _toml_schedule(path):
     with open(path, "rb") as f:
-        raw = tomllib.load(f)
-    site = Site(**raw.get("site", {}))
+        try:
+            raw = tomllib.load(f)
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+            raise ScheduleError(f"schedule {path} is not valid TOML: {err}") from None
+    unknown = sorted(set(raw) - set(SCHEDULE_KEYS))
+    if unknown:
+        raise ScheduleError(
+            f"schedule {path}: unknown keys {unknown}; allowed: {list(SCHEDULE_KEYS)}"
+        )
+    site, ces = raw.get("site", {}), raw.get("ces", [])
+    if not isinstance(site, dict) or not isinstance(ces, list):
+        raise ScheduleError(f"schedule {path}: [site] must be a table and [[ces]] a list of tables")
+    bad_site = sorted(set(site) - {"lat_deg", "lon_deg", "alt_m"})
+    if bad_site:
+        raise ScheduleError(f"schedule {path}: unknown [site] keys {bad_site}")
+    if not all(isinstance(c, dict) for c in ces):
+        raise ScheduleError(f"schedule {path}: every [[ces]] must be a table")
+    repeat = raw.get("repeat_boresight_deg", [0.0])
+    if not isinstance(repeat, list):
+        raise ScheduleError(f"schedule {path}: repeat_boresight_deg must be a list of angles")
     return Schedule(
-        tuple(CES(**c) for c in raw.get("ces", [])),
-        site,
+        tuple(_ces(c, f"schedule {path}, [[ces]] number {i + 1}") for i, c in enumerate(ces)),
+        Site(**site),
         raw.get("sample_rate_hz", 20.0),
         raw.get("dut1_s", 0.0),
-        tuple(raw.get("repeat_boresight_deg", (0.0,))),
+        tuple(repeat),
     )
 
 

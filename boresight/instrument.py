@@ -17,7 +17,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import validation
 from .constants import ARCMIN, DEG
+
+MAX_ANGLE_DEG = 3600.0  #: angles beyond ten turns are input mistakes
+#: allowed range of each systematic parameter: detector B's gain 1 - dg stays in [0, 2]; pointing
+#: offsets up to 10 deg (far beyond any pair, still handled exactly by the engine)
+LIMITS = {
+    "dg": (-1.0, 1.0),
+    "rho_arcmin": (0.0, 600.0),
+    "chi_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG),
+    "leak": (-1.0, 1.0),
+}
 
 
 @dataclass(frozen=True)
@@ -27,8 +38,10 @@ class Instrument:
     pair_angles_deg: tuple = (0.0, 45.0)
 
     def __post_init__(self):
-        a = np.asarray(self.pair_angles_deg, dtype=np.float64)
-        if a.ndim != 1 or a.size == 0 or not np.isfinite(a).all():
+        a = validation.numbers_array(
+            "pair_angles_deg", self.pair_angles_deg, -MAX_ANGLE_DEG, MAX_ANGLE_DEG
+        )
+        if a.ndim != 1 or a.size == 0:
             raise ValueError(
                 f"pair_angles_deg must be a non-empty list, got {self.pair_angles_deg!r}"
             )
@@ -53,14 +66,8 @@ class Systematics:
     leak: object = 0.0
 
     def __post_init__(self):
-        if (np.asarray(self.rho_arcmin) < 0).any():
-            raise ValueError(f"rho_arcmin must be >= 0, got {self.rho_arcmin!r}")
-        for name in ("dg", "rho_arcmin", "chi_deg", "leak"):
-            v = np.asarray(getattr(self, name), dtype=np.float64)
-            if v.ndim > 1 or not np.isfinite(v).all():
-                raise ValueError(
-                    f"{name} must be a finite scalar or list, got {getattr(self, name)!r}"
-                )
+        for name, (lo, hi) in LIMITS.items():
+            validation.numbers_array(name, getattr(self, name), lo, hi)
 
     def per_pair(self, n_pairs):
         """Arrays (dg, rho [rad], chi [rad], leak), each of length n_pairs."""

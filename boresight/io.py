@@ -7,6 +7,7 @@ half-written file or a half-filled output directory.
 
 import contextlib
 import csv
+import glob
 import json
 import os
 import shutil
@@ -16,12 +17,18 @@ from pathlib import Path
 import healpy as hp
 import numpy as np
 
+#: header cards of every map file; units are per column (TUNITn), set by :func:`write_maps`
 FITS_HEADER = [
     ("POLCCONV", "COSMO", "Q/U polarisation convention (HEALPix)"),
     ("COORDSYS", "C", "equatorial coordinates"),
-    ("TUNIT", "uK", "maps in micro-Kelvin CMB"),
     ("CREATOR", "boresight", ""),
 ]
+#: the file that marks a directory as boresight's own: only such a directory is ever replaced
+MARKER = ".boresight-output"
+
+
+class OutputError(ValueError):
+    """An output path boresight must not or cannot write (found before any work)."""
 
 
 @contextlib.contextmanager
@@ -38,19 +45,44 @@ def atomic_path(path):
             os.remove(tmp)
 
 
-def write_maps(path, maps, names, unit="uK"):
-    """Write RING maps (nmap, npix) as a FITS table healpy.read_map reads, with units and
-    conventions in the header; healpy.UNSEEN marks invalid pixels."""
+def write_maps(path, maps, names, units, comments=()):
+    """Write RING maps (nmap, npix) as a FITS table healpy.read_map reads.
+
+    names, units: one per map (units "" for counts and ratios); comments: extra COMMENT cards.
+    Conventions go in the header; healpy.UNSEEN marks invalid pixels.
+    """
+    if len(units) != len(names):
+        raise ValueError(f"{len(names)} column names but {len(units)} units")
     with atomic_path(path) as tmp:
         hp.write_map(
             tmp,
             np.asarray(maps, dtype=np.float64),
             column_names=list(names),
-            column_units=[unit] * len(names),
-            extra_header=FITS_HEADER,
+            column_units=list(units),
+            extra_header=FITS_HEADER + [("COMMENT", c) for c in comments],
             overwrite=True,
             dtype=np.float64,
         )
+
+
+def fits_map_shape(path):
+    """(number of columns, pixels per column) of a HEALPix FITS map file, from its header only.
+
+    Raises ValueError naming the file when it is not a FITS binary table of HEALPix maps.
+    """
+    from astropy.io import fits  # a dependency of healpy
+
+    try:
+        with fits.open(path, memmap=True) as hdus:
+            if len(hdus) < 2 or not isinstance(hdus[1], fits.BinTableHDU):
+                raise ValueError("no binary table in extension 1")
+            header = hdus[1].header
+            nside = header.get("NSIDE")
+            nfields = int(header["TFIELDS"])
+            npix = 12 * int(nside) ** 2 if nside else int(header["NAXIS2"])
+    except (OSError, KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path} is not a HEALPix FITS map ({err})") from None
+    return nfields, npix
 
 
 def write_csv(path, rows, columns):
@@ -81,27 +113,138 @@ def _jsonable(obj):
     return str(obj)
 
 
-def check_output_dir(path, force):
-    """Refuse to overwrite an existing non-empty directory unless ``force`` (before any work)."""
+def check_output_path(path, inputs=()):
+    """Check, before any work, that ``path`` is a safe place for an output directory.
+
+    Refused (:class:`OutputError`): a symlink; the current directory, one of its ancestors or the
+    home directory; a directory that holds one of ``inputs``; an existing file; a place where no
+    directory can be created. Stale staging directories of killed runs beside it are removed.
+    Returns the resolved path.
+    """
     path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise FileExistsError(f"output path {path} exists and is not a directory")
-    if path.is_dir() and any(path.iterdir()) and not force:
-        raise FileExistsError(f"output directory {path} exists; use --force to overwrite it")
+    if path.is_symlink():
+        raise OutputError(f"output path {path} is a symbolic link; give the real directory")
+    target = path.resolve()
+    cwd = Path.cwd().resolve()
+    if target == cwd or target in cwd.parents or target == Path.home().resolve():
+        raise OutputError(
+            f"output path {path} is the current directory, one of its parents or the home "
+            "directory; give a new directory for the outputs"
+        )
+    for item in inputs:  # files, or directories whose contents are inputs
+        if item is not None and (
+            target == Path(item).resolve() or target in Path(item).resolve().parents
+        ):
+            raise OutputError(f"output directory {path} holds the input {item}")
+    if target.exists() and not target.is_dir():
+        raise OutputError(f"output path {path} exists and is not a directory")
+    _check_writable(target.parent)
+    _remove_stale(target)
+    return target
+
+
+def is_own(path):
+    """Whether ``path`` is a directory that boresight created (it holds :data:`MARKER`)."""
+    path = Path(path)
+    return not path.is_symlink() and (path / MARKER).is_file()
+
+
+def check_output_dir(path, force, inputs=()):
+    """:func:`check_output_path`, and an existing non-empty directory is refused unless ``force``
+    and boresight created it (:data:`MARKER`). Raises OutputError or FileExistsError."""
+    target = check_output_path(path, inputs)
+    if target.is_dir() and any(target.iterdir()):
+        if not force:
+            raise FileExistsError(f"output directory {path} exists; use --force to overwrite it")
+        if not is_own(target):
+            raise OutputError(
+                f"output directory {path} was not written by boresight (no {MARKER}); "
+                "remove it yourself or choose another --out"
+            )
+
+
+def _check_writable(directory):
+    """Create and remove a probe in the nearest existing ancestor of ``directory``."""
+    existing = directory
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputError(f"cannot create the output directory: {existing} is not a directory")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".boresight-probe.", dir=existing))
+    except OSError as err:
+        raise OutputError(f"cannot write in {existing}: {err.strerror}") from None
+
+
+def _stage_name(target, kind):
+    return f".{target.name}.{kind}.{os.getpid()}."
+
+
+def _remove_stale(target):
+    """Remove staging and replaced directories of ``target`` left by runs that were killed."""
+    if not target.parent.is_dir():
+        return
+    for kind in ("staging", "old"):
+        for stale in target.parent.glob(f".{glob.escape(target.name)}.{kind}.*"):
+            try:
+                pid = int(stale.name[len(target.name) + len(kind) + 3 :].split(".")[0])
+            except ValueError:
+                continue
+            if stale.is_dir() and (stale / MARKER).exists() and not _alive(pid):
+                shutil.rmtree(stale, ignore_errors=True)
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def make_output_dir(path):
+    """Create ``path`` (and its parents) as boresight's own directory, marked with MARKER."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / MARKER).touch()
+    return path
+
+
+def remove_output_dir(path):
+    """Remove a directory that boresight created (it holds MARKER); refuse any other."""
+    path = Path(path)
+    if not is_own(path):
+        raise OutputError(f"{path} was not written by boresight (no {MARKER}); not removing it")
+    shutil.rmtree(path)
 
 
 @contextlib.contextmanager
-def staged_dir(path, force=False):
-    """Yield a staging directory that replaces ``path`` when the block finishes without error."""
+def staged_dir(path, force=False, inputs=()):
+    """Yield a staging directory that replaces ``path`` when the block finishes without error.
+
+    The checks of :func:`check_output_dir` run again first. The staging directory carries
+    :data:`MARKER`; a replaced output is renamed aside before the staging directory takes its
+    place and is removed after, so a kill at any moment leaves either the old or the new output
+    (and at most a hidden staging or old directory, which the next run removes).
+    """
     path = Path(path)
-    check_output_dir(path, force)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{path.name}.staging.", dir=path.parent))
+    check_output_dir(path, force, inputs)
+    target = path.resolve()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=_stage_name(target, "staging"), dir=target.parent))
     try:
+        (stage / MARKER).touch()
         yield stage
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(stage, path)
+        old = None
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=_stage_name(target, "old"), dir=target.parent))
+            (old / MARKER).touch()  # an empty old output has no marker of its own
+            os.replace(target, old / "replaced")
+        os.replace(stage, target)
+        if old is not None:
+            shutil.rmtree(old)
     finally:
         if stage.exists():
             shutil.rmtree(stage)

@@ -15,6 +15,7 @@ import os
 import healpy as hp
 import numpy as np
 
+from . import io, validation
 from .constants import DEG
 
 FOOTPRINTS = {
@@ -44,16 +45,16 @@ def survey_mask(name, nside):
 
 def apodize(mask, fwhm_deg):
     """Smooth a binary mask's edges inwards: mask * clip(Gaussian-smoothed mask, 0, 1)."""
-    if fwhm_deg <= 0:
-        raise ValueError(f"fwhm_deg must be > 0, got {fwhm_deg}")
+    validation.number("apodize fwhm_deg", fwhm_deg, 1e-3, 180.0)
     smooth = hp.smoothing(mask, fwhm=fwhm_deg * DEG, iter=0)
     return mask * np.clip(2.0 * smooth - 1.0, 0.0, 1.0)
 
 
 def read_mask(path, nside=None):
     """A user mask from a HEALPix FITS file (values in [0, 1]), optionally regraded to ``nside``."""
-    if not os.path.exists(path):
+    if not os.path.isfile(path):
         raise FileNotFoundError(f"mask file not found: {path}")
+    io.fits_map_shape(path)  # a ValueError naming the file if it is no HEALPix map
     mask = hp.read_map(path, dtype=np.float64)
     mask[mask == hp.UNSEEN] = 0.0
     if not np.isfinite(mask).all() or mask.min() < 0 or mask.max() > 1:
@@ -74,6 +75,8 @@ def from_config(spec, nside):
         mask = survey_mask(spec["survey"], nside)
     if "apodize_fwhm_deg" in spec:
         mask = apodize(mask, spec["apodize_fwhm_deg"])
+    if not (mask > 0).any():
+        raise ValueError(f"[mask] {spec} leaves no observed pixel at Nside {nside}")
     return mask
 
 

@@ -27,9 +27,13 @@ def _signed_points(ax, ell, values, colour, label):
 
 
 def _residual_axes(ax):
-    """Log axes labelled for |residual C_BB| against ell."""
+    """Log axes labelled for |residual C_BB| against ell (linear in y, with a note, when the
+    residual is zero everywhere: a study without a systematic)."""
     ax.set_xscale("log")
-    ax.set_yscale("log")
+    if any((np.asarray(line.get_ydata()) > 0).any() for line in ax.get_lines()):
+        ax.set_yscale("log")
+    else:
+        ax.text(0.5, 0.5, "no residual (zero everywhere)", transform=ax.transAxes, ha="center")
     ax.set_xlabel(r"multipole $\ell$")
     ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$] (open: negative)")
 

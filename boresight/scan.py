@@ -11,12 +11,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import validation
 from .constants import DEG
+from .instrument import MAX_ANGLE_DEG
+from .sky import MAX_SEED
+
+
+#: most crossing angles per pixel of a synthetic scan (real scans have thousands of samples per
+#: pixel but the paper's characterisation needs a handful of distinct angles)
+MAX_N_PHI = 100_000
 
 
 def _scalar_or_map(name, value, lo, hi):
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim > 1 or not np.isfinite(arr).all() or (arr < lo).any() or (arr > hi).any():
+    arr = np.asarray(value)
+    if arr.ndim > 1 or arr.dtype == bool or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must be a finite scalar or 1-d map with values in [{lo}, {hi}]")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all() or (arr < lo).any() or (arr > hi).any():
         raise ValueError(f"{name} must be a finite scalar or 1-d map with values in [{lo}, {hi}]")
     return arr
 
@@ -39,19 +50,28 @@ class SyntheticScan:
 
     def __post_init__(self):
         nphi = np.asarray(self.n_phi)
-        if not np.issubdtype(nphi.dtype, np.integer) or nphi.ndim > 1 or (nphi < 1).any():
-            raise ValueError(f"n_phi must be an integer >= 1 or an integer map, got {self.n_phi!r}")
+        if (
+            not np.issubdtype(nphi.dtype, np.integer)
+            or nphi.ndim > 1
+            or (nphi < 1).any()
+            or (nphi > MAX_N_PHI).any()
+        ):
+            raise ValueError(
+                f"n_phi must be an integer in [1, {MAX_N_PHI}] or such an integer map, "
+                f"got {self.n_phi!r}"
+            )
         _scalar_or_map("range_rad", self.range_rad, 0.0, 2 * np.pi)
         _scalar_or_map("centre_rad", self.centre_rad, -4 * np.pi, 4 * np.pi)
-        rot = np.asarray(self.rotations_deg, dtype=np.float64)
-        if rot.ndim != 1 or rot.size == 0 or not np.isfinite(rot).all():
+        rot = validation.numbers_array(
+            "rotations_deg", self.rotations_deg, -MAX_ANGLE_DEG, MAX_ANGLE_DEG
+        )
+        if rot.ndim != 1 or rot.size == 0:
             raise ValueError(
                 f"rotations_deg must be a non-empty list of angles, got {self.rotations_deg!r}"
             )
         if self.in_pixel not in ("random", "centre"):
             raise ValueError(f"in_pixel must be 'random' or 'centre', got {self.in_pixel!r}")
-        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
-            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        validation.integer("seed", self.seed, 0, MAX_SEED)
         object.__setattr__(self, "rotations_deg", tuple(float(a) for a in rot))
 
     @property

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from .engine import check_samples
 from .ground import (
     _azimuth_and_local_era,
     _horizon_terms,
@@ -232,7 +233,8 @@ def characterise(sample_chunks, nside, tolerance_deg=1.0):
     """ScanStats of streams of (theta, phi, psi) samples [rad] at ``nside``."""
 
     def binned(nbins):
-        for theta, phi, psi in sample_chunks:
+        for chunk in sample_chunks:
+            theta, phi, psi = check_samples(*chunk)
             yield (ang2pix_array(nside, theta, phi), *_unit_angles(psi, nbins))
 
     return _stats(nside, tolerance_deg, binned)

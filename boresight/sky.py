@@ -11,11 +11,14 @@ from functools import cached_property
 import healpy as hp
 import numpy as np
 
-from . import harmonics
+from . import harmonics, validation
 from .constants import ARCMIN
 from .cosmology import load_spectra
 
 MAX_NSIDE = 8192
+MAX_SEED = 2**63 - 1  #: seeds key 64-bit counter-based generators
+MAX_FWHM_ARCMIN = 10800.0  #: a beam wider than the sphere's half-circumference is no beam
+MAX_AMPLITUDE = 100.0  #: upper bound on r and A_lens (either far beyond any physical value)
 
 
 @dataclass(frozen=True)
@@ -31,24 +34,16 @@ class SkyConfig:
     polarised: bool = True  #: False sets Q = U = 0 (the paper's zero-polarisation check)
 
     def __post_init__(self):
-        if not (
-            isinstance(self.nside, (int, np.integer))
-            and 1 <= self.nside <= MAX_NSIDE
-            and self.nside & (self.nside - 1) == 0
-        ):
-            raise ValueError(
-                f"nside must be a power of two in [1, {MAX_NSIDE}], got {self.nside!r}"
-            )
-        if not 2 <= self.lmax <= 3 * self.nside - 1:
-            raise ValueError(
-                f"lmax must be in [2, 3*nside-1={3 * self.nside - 1}], got {self.lmax}"
-            )
-        if not self.fwhm_arcmin >= 0:
-            raise ValueError(f"fwhm_arcmin must be >= 0, got {self.fwhm_arcmin}")
-        if self.seed < 0:
-            raise ValueError(f"seed must be >= 0, got {self.seed}")
-        if not (self.r >= 0 and self.a_lens >= 0):
-            raise ValueError(f"r and a_lens must be >= 0, got r={self.r}, a_lens={self.a_lens}")
+        nside = validation.integer("nside", self.nside, 1, MAX_NSIDE)
+        if nside & (nside - 1):
+            raise ValueError(f"nside must be a power of two in [1, {MAX_NSIDE}], got {nside}")
+        validation.integer("lmax", self.lmax, 2, 3 * nside - 1)
+        validation.number("fwhm_arcmin", self.fwhm_arcmin, 0.0, MAX_FWHM_ARCMIN)
+        validation.integer("seed", self.seed, 0, MAX_SEED)
+        validation.number("r", self.r, 0.0, MAX_AMPLITUDE)
+        validation.number("a_lens", self.a_lens, 0.0, MAX_AMPLITUDE)
+        if not isinstance(self.polarised, (bool, np.bool_)):
+            raise TypeError(f"polarised must be true or false, got {self.polarised!r}")
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from pathlib import Path
 import healpy as hp
 import numpy as np
 
-from . import coupling, engine, io, masks, paper, plots, predict, report, sky, spectra
+from . import coupling, engine, io, masks, paper, plots, predict, report, resources, sky, spectra
 from .cosmology import load_spectra
 
 
@@ -59,12 +59,50 @@ def manifest(config, seeds, stages):
     }
 
 
-def reproduce(out_dir, cfg=paper.StudyConfig.quick(), force=False, log=print, progress=False):
+def check_memory(job, study, check=True):
+    """Refuse (MemoryLimitError) a study whose estimated memory exceeds the machine's."""
+    chunk = study.run["chunk_pixels"] or engine.DEFAULT_CHUNK_PIXELS[study.run["backend"]]
+    estimate = resources.estimate_bytes(
+        job,
+        study.sky.nside,
+        max(study.sky.lmax, study.output["lmax"]),
+        resources.n_phi_max(study.scan.n_phi),
+        len(study.scan.rotations_deg),
+        study.instrument.n_pairs,
+        chunk,
+    )
+    resources.require(job, estimate, check)
+
+
+def _inputs(study):
+    """The files a study reads: the output directory may not hold them."""
+    return [study.source, study.sky_maps, study.leak_template, study.mask.get("file")]
+
+
+def require_finite(what, values):
+    """ValueError unless every value is finite: no job reports NaN or infinity as a result."""
+    if not np.isfinite(values).all():
+        raise ValueError(f"{what} holds NaN or infinite values; nothing was written")
+
+
+def reproduce(
+    out_dir,
+    cfg=paper.StudyConfig.quick(),
+    force=False,
+    log=print,
+    progress=False,
+    memory_check=True,
+):
     """Run the paper's study and write figures, results.csv, report.md and manifest.json.
 
     Returns the list of :class:`boresight.report.Claim` with computed verdicts.
     """
     io.check_output_dir(out_dir, force)
+    resources.require(
+        "reproduce",
+        resources.estimate_bytes("reproduce", cfg.nside, cfg.lmax, 4, 2, 2, 1 << 16),
+        memory_check,
+    )
     results, stages = paper.run_study(cfg, log=log, progress=progress)
     claims = report.evaluate_claims(results, cfg)
     with io.staged_dir(out_dir, force) as stage:
@@ -110,14 +148,15 @@ def _template(study):
     return None if study.leak_template is None else hp.read_map(study.leak_template)
 
 
-def simulate(study, out_dir, force=False, log=print, progress=False):
+def simulate(study, out_dir, force=False, log=print, progress=False, memory_check=True):
     """Simulate a study with and without its systematics; write maps, spectra, figures."""
-    io.check_output_dir(out_dir, force)
+    io.check_output_dir(out_dir, force, _inputs(study))
+    check_memory("simulate", study, memory_check)
     timer = paper.Timer(log)
     run, nthreads = study.run, study.run["nthreads"]
     with timer("sky"):
+        mask = masks.from_config(study.mask, study.sky.nside)
         the_sky = _load_sky(study, nthreads)
-        mask = masks.from_config(study.mask, the_sky.nside)
     sim_kw = dict(
         pixels=mask > 0,
         evaluation=run["evaluation"],
@@ -142,6 +181,8 @@ def simulate(study, out_dir, force=False, log=print, progress=False):
         cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
         i_map = np.where(sim.valid, the_sky.maps[0], 0.0)
         pseudo = spectra.pseudo_spectra(np.array([i_map, *sim.qu]), mask, lmax, nthreads)
+    require_finite("the residual spectrum", cross + auto)
+    require_finite("the pseudo-spectra", pseudo)
     rows = [
         dict(
             ell=ell,
@@ -155,11 +196,18 @@ def simulate(study, out_dir, force=False, log=print, progress=False):
     columns = ["ell", "residual_bb", "residual_cross_bb", "residual_auto_bb"] + [
         f"pseudo_{n}" for n in spectra.ORDER
     ]
-    with io.staged_dir(out_dir, force) as stage:
+    with io.staged_dir(out_dir, force, _inputs(study)) as stage:
         if study.output["maps"]:
             for name, m in (("maps_systematics.fits", sim), ("maps_reference.fits", ref)):
                 io.write_maps(
-                    stage / name, [m.q, m.u, m.hits, m.rcond], ["Q", "U", "HITS", "RCOND"]
+                    stage / name,
+                    [np.where(m.valid, the_sky.maps[0], hp.UNSEEN), m.q, m.u, m.hits, m.rcond],
+                    ["I", "Q", "U", "HITS", "RCOND"],
+                    ["uK", "uK", "uK", "", ""],
+                    comments=[
+                        "I is the input sky's I where Q, U are valid: pair differences do not",
+                        "measure I. HITS: hits x rotations; RCOND: 2x2 reciprocal condition.",
+                    ],
                 )
             both = sim.valid & ref.valid
             spurious = [
@@ -175,10 +223,11 @@ def simulate(study, out_dir, force=False, log=print, progress=False):
     return rows
 
 
-def predict_study(study, log=print):
+def predict_study(study, log=print, memory_check=True):
     """Analytic prediction of a study's residual pseudo-C_BB (no TOD simulation)."""
     if study.sky_maps is not None:
         raise ValueError("predict uses the theory spectra; remove sky.maps from the config")
+    check_memory("predict", study, memory_check)
     nside, lmax = study.sky.nside, study.output["lmax"]
     mask = masks.from_config(study.mask, nside)
     h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run["nthreads"])
@@ -186,12 +235,14 @@ def predict_study(study, log=print):
     pred = predict.residual_pseudo_bb(
         h, mask, cp, study.systematics, load_spectra(), study.sky.fwhm_arcmin, study.instrument
     )
+    require_finite("the predicted spectrum", pred)
     return [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]
 
 
-def scan_stats(study, out_dir, force=False, n_max=4, log=print):
+def scan_stats(study, out_dir, force=False, n_max=4, log=print, memory_check=True):
     """Write h_n (n = 1..n_max), hit, N_phi and R maps of the study's scan, and a summary."""
-    io.check_output_dir(out_dir, force)
+    io.check_output_dir(out_dir, force, _inputs(study))
+    check_memory("scan-stats", study, memory_check)
     nside = study.sky.nside
     mask = masks.from_config(study.mask, nside)
     obs = mask > 0
@@ -206,19 +257,20 @@ def scan_stats(study, out_dir, force=False, n_max=4, log=print):
         )
         for n in range(1, n_max + 1)
     ]
-    with io.staged_dir(out_dir, force) as stage:
+    require_finite("the h_n summary", [list(r.values()) for r in rows])
+    with io.staged_dir(out_dir, force, _inputs(study)) as stage:
         cols = [np.where(obs, h[n].real, hp.UNSEEN) for n in range(1, n_max + 1)] + [
             np.where(obs, h[n].imag, hp.UNSEEN) for n in range(1, n_max + 1)
         ]
         names = [f"RE_H{n}" for n in range(1, n_max + 1)] + [
             f"IM_H{n}" for n in range(1, n_max + 1)
         ]
-        io.write_maps(stage / "hn_maps.fits", cols, names, unit="")
+        io.write_maps(stage / "hn_maps.fits", cols, names, [""] * len(names))
         io.write_maps(
             stage / "scan_maps.fits",
             [ncross, np.where(obs, n_phi, 0), np.where(obs, r, 0)],
             ["CROSSINGS", "N_PHI", "RANGE_RAD"],
-            unit="",
+            ["", "", "rad"],
         )
         io.write_csv(stage / "hn_summary.csv", rows, ["n", "mean_abs_h2", "mean_re", "mean_im"])
         plots.map_figure(
@@ -239,6 +291,7 @@ def compare_scans(
     tolerance_deg=1.0,
     force=False,
     log=print,
+    memory_check=True,
 ):
     """The residual B-mode of a real schedule beside its synthetic twin (paper section 3.1).
 
@@ -252,7 +305,15 @@ def compare_scans(
     if systematics is None:
         raise ValueError(f"systematic must be 'gain' or 'pointing', got {systematic!r}")
     schedule = ground.load_schedule(schedule_path)
-    io.check_output_dir(out_dir, force)
+    sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)  # validate
+    io.check_output_dir(out_dir, force, [schedule_path])
+    resources.require(
+        "compare-scans",
+        resources.estimate_bytes(
+            "compare-scans", nside, 2 * nside, 1, 1, 2, min(schedule.n_samples, 1 << 20)
+        ),
+        memory_check,
+    )
     timer = paper.Timer(log)
     with timer("characterise the schedule"):
         stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
@@ -305,6 +366,7 @@ def compare_scans(
         )
         for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))
     ]
+    require_finite("the residual spectra", list(curves.values()))
     twin_h, _ = engine.scan_moments(twin, nside, pixels=obs)
     table = [
         dict(scan="real", **stats.survey_means()),
@@ -317,7 +379,7 @@ def compare_scans(
             },
         ),
     ]
-    with io.staged_dir(out_dir, force) as stage:
+    with io.staged_dir(out_dir, force, [schedule_path]) as stage:
         cols = [stats.hits, stats.n_distinct, stats.range_rad] + [
             np.where(obs, np.abs(stats.h[n]) ** 2, hp.UNSEEN) for n in range(1, 5)
         ]
@@ -325,7 +387,7 @@ def compare_scans(
             stage / "scan_maps.fits",
             cols,
             ["CROSSINGS", "N_PHI", "RANGE_RAD", "ABS_H1_SQ", "ABS_H2_SQ", "ABS_H3_SQ", "ABS_H4_SQ"],
-            unit="",
+            ["", "", "rad", "", "", "", ""],
         )
         io.write_csv(stage / "scan_stats.csv", table, list(table[0]))
         io.write_csv(stage / "compare.csv", rows, list(rows[0]))

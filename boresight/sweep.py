@@ -26,9 +26,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import coupling, engine, io, masks, predict, rbias, sky, spectra
-from .config import ConfigError, parse_study, tomllib
+from . import __version__
+from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
 
+CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
 POINT_COLUMNS = (
     "ell_lo",
     "ell_hi",
@@ -42,28 +44,35 @@ POINT_COLUMNS = (
 
 
 def load_sweep(path):
-    """Read a sweep file -> (base raw config, base directory, list of override dicts)."""
-    if not os.path.exists(path):
-        raise ConfigError(f"sweep file not found: {path}")
-    with open(path, "rb") as f:
-        try:
-            spec = tomllib.load(f)
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError(f"{path} is not valid TOML: {err}") from None
+    """Read a sweep file -> (base raw config, base directory, list of override dicts).
+
+    Every point is validated as a study before any work; errors name the sweep file or the key.
+    """
+    spec = read_toml(path, "sweep")
     unknown = set(spec) - {"base", "mode", "parameters"}
     if unknown:
         raise ConfigError(f"unknown sweep keys {sorted(unknown)}; allowed: base, mode, parameters")
+    if not isinstance(spec.get("base"), str):
+        raise ConfigError(f"{path}: sweep needs base = 'STUDY.toml' (a file name)")
+    if not isinstance(spec.get("parameters", {}), dict):
+        raise ConfigError(f"{path}: [parameters] must be a table of value lists")
+    if not isinstance(spec.get("mode", "grid"), str):
+        raise ConfigError(f"{path}: mode must be 'grid' or 'list'")
     base_dir = os.path.dirname(os.path.abspath(path))
-    if "base" not in spec:
-        raise ConfigError("sweep needs base = 'STUDY.toml'")
     base_path = os.path.join(base_dir, spec["base"])
-    if not os.path.exists(base_path):
-        raise ConfigError(f"base: file not found: {base_path}")
-    with open(base_path, "rb") as f:
-        base = tomllib.load(f)
+    base = read_toml(base_path, "sweep base")
     points = expand(spec.get("parameters", {}), spec.get("mode", "grid"))
     for overrides in points:  # validate every point before any work
-        parse_study(apply_overrides(base, overrides), os.path.dirname(base_path))
+        try:
+            study = parse_study(apply_overrides(base, overrides), os.path.dirname(base_path))
+        except ConfigError as err:
+            raise ConfigError(f"{path}, point {overrides}: {err}") from None
+        if study.output["lmax"] <= rbias.R_RANGE[0]:
+            raise ConfigError(
+                f"{path}: sweeps report delta_r over {rbias.R_RANGE[0]} <= ell <= "
+                f"{rbias.R_RANGE[1]}; output.lmax = {study.output['lmax']} must be > "
+                f"{rbias.R_RANGE[0]}"
+            )
     return base, os.path.dirname(base_path), points
 
 
@@ -92,19 +101,33 @@ def apply_overrides(base, overrides):
     raw = copy.deepcopy(base)
     for key, value in overrides.items():
         if key == "pbr_angle_deg":
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f"sweep pbr_angle_deg = {value!r}; allowed: numbers [deg]")
             section, name = "scan", "rotations_deg"
-            value = [0.0] if value in (0, None) else [0.0, float(value)]
+            value = [0.0] if value == 0 else [0.0, float(value)]
         elif key.count(".") == 1:
             section, name = key.split(".")
         else:
             raise ConfigError(f"sweep parameter {key!r}: use 'section.key' or 'pbr_angle_deg'")
-        raw.setdefault(section, {})[name] = value
+        if not isinstance(raw.setdefault(section, {}), dict):
+            raise ConfigError(f"sweep parameter {key!r}: [{section}] is not a table in the base")
+        raw[section][name] = value
     return raw
 
 
-def point_key(overrides):
-    """A stable file name for a point: hash of its overrides."""
-    text = json.dumps(overrides, sort_keys=True)
+def point_key(base, base_dir, overrides):
+    """A point's file name: a hash of its whole resolved config (the base with the overrides
+    applied, the files it names with their size and modification time, and the package version),
+    so an edited base config or input file is a new point, never an old result."""
+    raw = apply_overrides(base, overrides)
+    files = {}
+    for section in raw.values():
+        for value in section.values() if isinstance(section, dict) else ():
+            full = os.path.join(base_dir, value) if isinstance(value, str) else None
+            if full is not None and os.path.isfile(full):
+                stat = os.stat(full)
+                files[value] = [stat.st_size, stat.st_mtime_ns]
+    text = json.dumps({"config": raw, "files": files, "version": __version__}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -177,82 +200,167 @@ def _columns(points):
     return ["point"] + list(points[0]) + list(POINT_COLUMNS)
 
 
-def _point_file(out, overrides):
-    return Path(out) / "points" / f"{point_key(overrides)}.json"
+def _n_bands(base, base_dir, overrides):
+    out = parse_study(apply_overrides(base, overrides), base_dir).output
+    return len(spectra.log_bins(out["lmin"], out["lmax"], out["n_bands"])) - 1
 
 
-def run_sweep(path, out_dir, scheduler=None, workers=2, force=False, log=print, progress=False):
-    """Run (or resume) a sweep; writes points/, results.csv, results.parquet, ensemble.csv.
+class CorruptPointError(ConfigError):
+    """A point file that cannot be read back (truncated, edited, or of another point)."""
 
-    scheduler: None for a local Dask cluster of ``workers`` processes, "serial" for no Dask, or
-    the address of an existing Dask scheduler. Returns the table as a list of rows.
-    """
-    base, base_dir, points = load_sweep(path)
-    out = Path(out_dir)
-    spec_id = {"sweep": os.path.abspath(path), "points": points}
+
+def read_point(path, key, n_bands):
+    """The rows of a finished point's file, validated: its key, one row per band, every column,
+    finite residuals. Raises :class:`CorruptPointError` naming the file."""
+    try:
+        data = json.loads(Path(path).read_text())
+        rows = data["rows"]
+        ok = data.get("key") == key and isinstance(rows, list) and len(rows) == n_bands
+        ok = ok and all(isinstance(r, dict) and set(POINT_COLUMNS) <= set(r) for r in rows)
+        ok = ok and all(
+            np.isfinite(float(r[c])) for r in rows for c in POINT_COLUMNS if "pred" not in c
+        )
+    except (OSError, ValueError, TypeError, KeyError):
+        ok = False
+    if not ok:
+        raise CorruptPointError(
+            f"sweep point file {path} is corrupt or incomplete; re-run with --repair to "
+            "recompute it"
+        )
+    return rows
+
+
+def _open_sweep_dir(out, spec_id, force, repair):
+    """Check, create or reset the sweep directory; a different or unreadable sweep.json needs
+    ``force`` (start again) or, when unreadable, ``repair`` (keep the valid points)."""
     marker = out / "sweep.json"
-    if out.exists() and any(out.iterdir()):
-        if not marker.exists() or json.loads(marker.read_text())["points"] != points:
-            if not force:
-                raise FileExistsError(f"{out} holds another sweep or other files; use --force")
-            import shutil
-
-            shutil.rmtree(out)
-    (out / "points").mkdir(parents=True, exist_ok=True)
+    if out.is_dir() and any(out.iterdir()):
+        if not io.is_own(out):
+            raise io.OutputError(
+                f"{out} holds files boresight did not write (no {io.MARKER}); choose another --out"
+            )
+        try:
+            same = json.loads(marker.read_text())["keys"] == spec_id["keys"]
+            readable = True
+        except (OSError, ValueError, TypeError, KeyError):
+            same = readable = False
+        if not same and force:
+            io.remove_output_dir(out)
+        elif not same and not (repair and not readable):
+            why = "holds another sweep" if readable else "has an unreadable sweep.json"
+            raise FileExistsError(f"{out} {why}; use --force to start again or --repair")
+    io.make_output_dir(out)
+    (out / "points").mkdir(exist_ok=True)
     for stale in (out / "points").glob(".*"):  # temp files of a write that was killed
         stale.unlink()
     io.write_json(marker, spec_id)
-    todo = [p for p in points if not _point_file(out, p).exists()]
+
+
+def run_sweep(
+    path,
+    out_dir,
+    scheduler=None,
+    workers=2,
+    force=False,
+    log=print,
+    progress=False,
+    repair=False,
+):
+    """Run (or resume) a sweep; writes points/, results.csv, results.parquet, ensemble.csv.
+
+    scheduler: None for a local Dask cluster of ``workers`` processes, "serial" for no Dask, or
+    the address of an existing Dask scheduler. A point's file is keyed by a hash of its resolved
+    config (:func:`point_key`) and validated when read; ``repair`` recomputes corrupt ones (as
+    ``force`` does, which also starts a different sweep afresh). Returns the table's rows.
+    """
+    base, base_dir, points = load_sweep(path)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"--workers = {workers!r}; allowed: an integer >= 1")
+    if scheduler != "serial":
+        _dask()  # before anything is written
+    out = io.check_output_path(out_dir, [path, base_dir])
+    keys = [point_key(base, base_dir, p) for p in points]
+    spec_id = {"sweep": os.path.abspath(path), "points": points, "keys": keys}
+    _open_sweep_dir(out, spec_id, force, repair)
+    bands = {k: _n_bands(base, base_dir, p) for k, p in zip(keys, points)}
+    todo = []
+    for p, key in zip(points, keys):
+        f = out / "points" / f"{key}.json"
+        if not f.exists():
+            todo.append((p, key))
+            continue
+        try:
+            read_point(f, key, bands[key])
+        except CorruptPointError:
+            if not (repair or force):
+                raise
+            f.unlink()
+            todo.append((p, key))
     log(f"sweep: {len(points)} points, {len(points) - len(todo)} already done")
     bar = tqdm(
         total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress
     )
 
-    def finish(overrides, rows):
-        io.write_json(_point_file(out, overrides), {"overrides": overrides, "rows": rows})
+    def finish(overrides, key, rows):
+        path = out / "points" / f"{key}.json"
+        io.write_json(path, {"overrides": overrides, "key": key, "rows": rows})
         bar.update(1)
 
     try:
         if scheduler == "serial":
-            for p in todo:
-                finish(p, run_point(base, base_dir, p))
+            for p, key in todo:
+                finish(p, key, run_point(base, base_dir, p))
         elif todo:
             _run_dask(todo, base, base_dir, scheduler, workers, finish)
     finally:  # also on Ctrl-C: the table holds every finished point, a re-run adds the rest
         bar.close()
-        rows = write_tables(out, points)
+        rows = write_tables(out, points, keys, bands)
     return rows
 
 
-def _run_dask(todo, base, base_dir, scheduler, workers, finish):
+def _dask():
     try:
-        from dask.distributed import Client, LocalCluster, as_completed
-    except ImportError as err:
-        raise ImportError("sweeps on Dask need: pip install 'boresight[dask]'") from err
+        from dask import distributed
+    except ImportError:
+        raise ConfigError(
+            "sweeps on Dask need: pip install 'boresight[dask]' (or use --scheduler serial)"
+        ) from None
+    return distributed
+
+
+def _run_dask(todo, base, base_dir, scheduler, workers, finish):
+    distributed = _dask()
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(
+        cluster = distributed.LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
         )
-    client = Client(cluster if cluster is not None else scheduler)
     try:
-        futures = {client.submit(run_point, base, base_dir, p, pure=False): p for p in todo}
-        for fut in as_completed(futures):
-            finish(futures[fut], fut.result())
+        client = distributed.Client(
+            cluster if cluster is not None else scheduler, timeout=CONNECT_TIMEOUT
+        )
+    except (OSError, TimeoutError) as err:
+        raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None
+    try:
+        futures = {
+            client.submit(run_point, base, base_dir, p, pure=False): (p, key) for p, key in todo
+        }
+        for fut in distributed.as_completed(futures):
+            finish(*futures[fut], fut.result())
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
 
 
-def write_tables(out, points):
+def write_tables(out, points, keys, bands):
     """Assemble finished points (in sweep order) into results.csv, .parquet and ensemble.csv."""
     out = Path(out)
     rows = []
-    for i, p in enumerate(points):
-        f = _point_file(out, p)
+    for i, (p, key) in enumerate(zip(points, keys)):
+        f = out / "points" / f"{key}.json"
         if f.exists():
-            for r in json.loads(f.read_text())["rows"]:
+            for r in read_point(f, key, bands[key]):
                 rows.append(
                     {
                         "point": i,
@@ -324,8 +432,8 @@ def continuum_figure(rows, path_stem):
         return sum(r[col] for r in rows if r["pbr_angle_deg"] == angle)
 
     angles = sorted({r["pbr_angle_deg"] for r in rows})
-    if 0 not in angles:
-        return
+    if 0 not in angles or band_sum(0, "residual_auto_bb") == 0 or band_sum(0, "predicted_bb") == 0:
+        return  # nothing to normalise by: the base study has no systematic
     measured = [band_sum(a, "residual_auto_bb") / band_sum(0, "residual_auto_bb") for a in angles]
     closed = [band_sum(a, "predicted_bb") / band_sum(0, "predicted_bb") for a in angles]
 

@@ -103,7 +103,7 @@ def test_bad_config_exits_2_and_writes_nothing(tmp_path, capsys, section, key, v
 def test_simulate_writes_healpy_readable_maps(tmp_path):
     out = tmp_path / "sim"
     assert main(["-q", "simulate", _write(tmp_path, BASE), "--out", str(out)]) == 0
-    q, u, hits = hp.read_map(str(out / "maps_systematics.fits"), field=(0, 1, 2))
+    q, u, hits = hp.read_map(str(out / "maps_systematics.fits"), field=(1, 2, 3))  # I, Q, U, HITS
     header = dict(hp.read_map(str(out / "maps_systematics.fits"), h=True)[1])
     assert header["POLCCONV"] == "COSMO" and header["ORDERING"] == "RING"
     assert q.size == 12 * 32**2 and np.all(hits[q != hp.UNSEEN] == 6)

@@ -1,0 +1,55 @@
+"""Checks for numbers at the package's boundary: finite, of the right type, within range.
+
+Each check raises ``ValueError`` (or ``TypeError`` for a value of the wrong kind) with a message
+that names the field and what is allowed, so that a config error, an API error and a CLI error read
+the same. NaN and infinity never pass: every comparison below is written so that NaN fails it.
+"""
+
+import numbers
+
+import numpy as np
+
+
+def _describe(lo, hi):
+    if lo is None and hi is None:
+        return "a finite number"
+    if hi is None:
+        return f"finite and >= {lo:g}"
+    if lo is None:
+        return f"finite and <= {hi:g}"
+    return f">= {lo:g} and <= {hi:g} (finite)"
+
+
+def number(name, value, lo=None, hi=None):
+    """``value`` as a float if it is a real, finite number within [lo, hi] (bounds optional)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number {_describe(lo, hi)}, got {value!r}")
+    x = float(value)
+    if not (np.isfinite(x) and (lo is None or x >= lo) and (hi is None or x <= hi)):
+        raise ValueError(f"{name} must be {_describe(lo, hi)}, got {value!r}")
+    return x
+
+
+def integer(name, value, lo=None, hi=None):
+    """``value`` as an int if it is an integer (not a bool) within [lo, hi]."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} = {value!r} is not an integer")
+    if not ((lo is None or value >= lo) and (hi is None or value <= hi)):
+        bounds = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise ValueError(f"{name} = {value!r} is out of range; allowed: an integer {bounds}")
+    return int(value)
+
+
+def numbers_array(name, value, lo=None, hi=None):
+    """A float64 array of a scalar or a 1-d sequence of real numbers, each finite in [lo, hi]."""
+    items = np.asarray(value, dtype=object)
+    if items.ndim > 1:
+        raise ValueError(f"{name} must be a number or a 1-d list of numbers, got {value!r}")
+    for item in items.ravel():
+        if isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Real):
+            raise TypeError(f"{name} must hold numbers {_describe(lo, hi)}, got {value!r}")
+    arr = items.astype(np.float64)
+    ok = np.isfinite(arr).all() and (lo is None or (arr >= lo).all())
+    if not ok or (hi is not None and not (arr <= hi).all()):
+        raise ValueError(f"{name} must be {_describe(lo, hi)}, got {value!r}")
+    return arr

@@ -1,0 +1,60 @@
+"""Kills at random moments (issue 17): a run killed with SIGKILL and run again gives the output of
+an uninterrupted run, and leaves nothing behind (no staging or replaced directories)."""
+
+import random
+import subprocess
+import sys
+import time
+
+import healpy as hp
+import numpy as np
+
+from boresight.cli import main
+
+STUDY = """
+[sky]
+nside = 16
+lmax = 47
+fwhm_arcmin = 240.0
+seed = 3
+[scan]
+n_phi = 3
+rotations_deg = [0.0, 90.0]
+[systematics]
+dg = [0.01, -0.01]
+[mask]
+survey = "deep"
+[output]
+lmax = 40
+"""
+
+
+def _outputs(out):
+    """What a run produces, without its timings: spectra and the maps."""
+    maps = [
+        hp.read_map(str(out / f), field=None)
+        for f in ("maps_systematics.fits", "maps_reference.fits")
+    ]
+    return (out / "spectra.csv").read_text(), np.array(maps)
+
+
+def test_sigkill_at_random_moments_then_rerun_equals_an_uninterrupted_run(tmp_path):
+    config = tmp_path / "study.toml"
+    config.write_text(STUDY)
+    cmd = [sys.executable, "-m", "boresight.cli", "-q", "simulate", str(config), "--force"]
+    t0 = time.perf_counter()
+    subprocess.run([*cmd, "--out", str(tmp_path / "whole")], check=True)
+    duration = time.perf_counter() - t0
+    spectra, maps = _outputs(tmp_path / "whole")
+    rng = random.Random(17)
+    out = tmp_path / "killed"
+    for trial in range(4):
+        proc = subprocess.Popen([*cmd, "--out", str(out)])
+        time.sleep(rng.uniform(0.3, duration))  # from the imports to the final rename
+        proc.kill()
+        proc.wait()
+        assert main(["-q", "simulate", str(config), "--out", str(out), "--force"]) == 0
+        again_spectra, again_maps = _outputs(out)
+        assert again_spectra == spectra and np.array_equal(again_maps, maps), trial
+        left = sorted(p.name for p in tmp_path.iterdir())
+        assert left == ["killed", "study.toml", "whole"], left

@@ -1,0 +1,533 @@
+"""Nothing lost, nothing silent (issue 17): one test per numbered defect, each of which failed before
+the fix. Bad input ends in exit 2 with one line naming the key or file, before any work; output
+directories that boresight did not create are never removed."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import healpy as hp
+import numpy as np
+import pytest
+
+from boresight import engine, ground, io, sweep
+from boresight.cli import main
+from boresight.config import ConfigError, parse_study
+from boresight.scan import SyntheticScan
+
+STUDY = """
+[sky]
+nside = 16
+lmax = 47
+fwhm_arcmin = 240.0
+[scan]
+n_phi = 3
+range_rad = 0.5
+rotations_deg = [0.0, 90.0]
+[systematics]
+dg = [0.01, -0.01]
+[mask]
+survey = "wide"
+[output]
+lmax = 40
+n_bands = 3
+"""
+CSV_HEADER = "start_unix,duration_s,elevation_deg,az_centre_deg,az_throw_deg,speed_deg_s\n"
+CSV_ROW = "1790028800,60,50,133.6,60,1\n"
+
+
+@pytest.fixture
+def study_file(tmp_path):
+    path = tmp_path / "study.toml"
+    path.write_text(STUDY)
+    return path
+
+
+def _study(**sections):
+    """STUDY with some keys replaced: _study(sky={"r": 1.0})."""
+    text = STUDY
+    for section, body in sections.items():
+        extra = "".join(f"{k} = {v}\n" for k, v in body.items())
+        text = text.replace(f"[{section}]\n", f"[{section}]\n{extra}", 1)
+    return text
+
+
+def _error(capsys):
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    return err
+
+
+def _listing(path):
+    return sorted(str(p.relative_to(path)) for p in path.rglob("*"))
+
+
+# 1. Data loss -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", ["simulate", "scan-stats", "sweep"])
+def test_cwd_as_out_is_refused_and_nothing_is_deleted(tmp_path, monkeypatch, capsys, command):
+    (tmp_path / "study.toml").write_text(STUDY)
+    (tmp_path / "sweep.toml").write_text('base = "study.toml"\n[parameters]\n"sky.seed" = [1]\n')
+    (tmp_path / "precious.txt").write_text("keep me")
+    monkeypatch.chdir(tmp_path)
+    before = _listing(tmp_path)
+    source = "sweep.toml" if command == "sweep" else "study.toml"
+    extra = ["--scheduler", "serial"] if command == "sweep" else []
+    assert main([command, source, "--out", ".", "--force", *extra]) == 2
+    assert "current directory" in _error(capsys)
+    assert _listing(tmp_path) == before
+
+
+def test_force_never_removes_a_directory_boresight_did_not_write(tmp_path, study_file, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.tex").write_text("years of work")
+    assert main(["simulate", str(study_file), "--out", str(out), "--force"]) == 2
+    assert "not written by boresight" in _error(capsys)
+    assert (out / "thesis.tex").read_text() == "years of work"
+
+
+def test_out_may_not_hold_an_input(tmp_path, study_file, capsys):
+    assert main(["-q", "simulate", str(study_file), "--out", str(tmp_path), "--force"]) == 2
+    assert "holds the input" in _error(capsys)
+    assert study_file.exists()
+
+
+def test_force_replaces_boresight_own_output(tmp_path, study_file):
+    out = tmp_path / "out"
+    assert main(["-q", "simulate", str(study_file), "--out", str(out)]) == 0
+    (out / "extra.txt").write_text("from the first run")
+    assert main(["-q", "simulate", str(study_file), "--out", str(out), "--force"]) == 0
+    assert not (out / "extra.txt").exists() and (out / io.MARKER).exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+# 2. Segmentation fault --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "row",
+    ["nan,600,50,133.6,60,1\n", "1790028800,600,50,nan,60,1\n", "1790028800,600,50,1,60,inf\n"],
+)
+def test_nan_schedule_is_an_error_not_a_crash(tmp_path, capsys, row):
+    path = tmp_path / "s.csv"
+    path.write_text(CSV_HEADER + row)
+    cmd = [sys.executable, "-m", "boresight.cli", "compare-scans", str(path), "--nside", "16"]
+    proc = subprocess.run([*cmd, "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    assert "line 2" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_simulate_samples_rejects_bad_pointing(small_sky):
+    good = np.full(4, 1.0)
+    for theta, phi, psi in [
+        (np.array([1.0, np.nan, 1.0, 1.0]), good, good),
+        (good, good, np.array([0.0, np.inf, 0.0, 0.0])),
+        (good, good[:3], good),
+        (np.full(4, 4.0), good, good),
+    ]:
+        with pytest.raises(ValueError):
+            engine.simulate_samples(small_sky, [(theta, phi, psi)])
+
+
+# 3. Stale sweeps --------------------------------------------------------------------------------
+
+
+def _sweep(tmp_path, parameters='pbr_angle_deg = [0, 90]\n"sky.seed" = [1]'):
+    (tmp_path / "study.toml").write_text(STUDY)
+    path = tmp_path / "sweep.toml"
+    path.write_text(f'base = "study.toml"\n[parameters]\n{parameters}\n')
+    return str(path)
+
+
+def _quiet(*_):
+    pass
+
+
+def test_editing_the_base_config_recomputes_every_point(tmp_path):
+    path = _sweep(tmp_path)
+    out = tmp_path / "out"
+    first = sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    (tmp_path / "study.toml").write_text(STUDY.replace("0.01, -0.01", "0.05, -0.05"))
+    with pytest.raises(FileExistsError, match="another sweep"):
+        sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    messages = []
+    again = sweep.run_sweep(path, out, scheduler="serial", log=messages.append, force=True)
+    assert "0 already done" in messages[0]
+    # The residual is quadratic in dg at no rotation: 25 times larger.
+    ratio = again[0]["residual_auto_bb"] / first[0]["residual_auto_bb"]
+    assert abs(ratio / 25 - 1) < 1e-6  # exact up to rounding: the same sky and scan
+
+
+# 4. Corrupt sweep state -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda text: text[: len(text) // 2],  # truncated by a kill
+        lambda text: json.dumps({**json.loads(text), "rows": []}),
+        lambda text: json.dumps({k: v for k, v in json.loads(text).items() if k != "rows"}),
+    ],
+)
+def test_corrupt_point_file_is_named_and_repaired(tmp_path, damage):
+    path = _sweep(tmp_path)
+    out = tmp_path / "out"
+    sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    whole = (out / "results.csv").read_text()
+    victim = sorted((out / "points").glob("*.json"))[0]
+    victim.write_text(damage(victim.read_text()))
+    with pytest.raises(ConfigError, match=victim.name):
+        sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    sweep.run_sweep(path, out, scheduler="serial", log=_quiet, repair=True)
+    assert (out / "results.csv").read_text() == whole
+
+
+def test_truncated_sweep_json_is_repaired_or_forced(tmp_path):
+    path = _sweep(tmp_path)
+    out = tmp_path / "out"
+    sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    whole = (out / "results.csv").read_text()
+    marker = out / "sweep.json"
+    marker.write_text(marker.read_text()[:20])
+    with pytest.raises(FileExistsError, match="unreadable"):
+        sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    messages = []
+    sweep.run_sweep(path, out, scheduler="serial", log=messages.append, repair=True)
+    assert "2 already done" in messages[0] and (out / "results.csv").read_text() == whole
+    marker.write_text("{")
+    sweep.run_sweep(path, out, scheduler="serial", log=_quiet, force=True)
+    assert (out / "results.csv").read_text() == whole
+
+
+# 5. Silent NaN results --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "sections, key",
+    [
+        ({"mask": {"apodize_fwhm_deg": "nan"}}, "apodize_fwhm_deg"),
+        ({"mask": {"apodize_fwhm_deg": "inf"}}, "apodize_fwhm_deg"),
+        ({"sky": {"r": "inf"}}, "r must be"),
+        ({"sky": {"a_lens": "nan"}}, "a_lens must be"),
+        ({"systematics": {"rho_arcmin": "1e30"}}, "rho_arcmin must be"),
+        ({"scan": {"centre_rad": "nan"}}, "centre_rad"),
+    ],
+)
+def test_nan_and_inf_are_config_errors(tmp_path, capsys, sections, key):
+    text = _study(**sections)
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    for command in ("predict", "scan-stats", "simulate"):
+        out = ["--out", str(tmp_path / "o")] if command != "predict" else []
+        assert main([command, str(path), *out]) == 2
+        assert key in _error(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+def test_infinite_beam_and_empty_mask_are_config_errors(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text(STUDY.replace("fwhm_arcmin = 240.0", "fwhm_arcmin = inf"))
+    assert main(["predict", str(path)]) == 2
+    assert "fwhm_arcmin" in _error(capsys)
+    hp.write_map(str(tmp_path / "zero.fits"), np.zeros(12 * 16**2), dtype=np.float64)
+    path.write_text(STUDY.replace('survey = "wide"', 'file = "zero.fits"'))
+    for command in ("predict", "scan-stats"):
+        out = ["--out", str(tmp_path / "o")] if command != "predict" else []
+        assert main([command, str(path), *out]) == 2
+        assert "no observed pixel" in _error(capsys)
+
+
+# 6. A float mask read as pixel indices ----------------------------------------------------------
+
+
+def test_pixels_must_be_indices_or_a_boolean_map(small_sky):
+    scan = SyntheticScan(n_phi=2)
+    float_mask = np.zeros(12 * 64**2)
+    float_mask[:100] = 1.0
+    for bad in (float_mask, np.array([1.5, 2.0]), np.arange(12).reshape(3, 4)):
+        with pytest.raises(ValueError, match="pixels"):
+            engine.simulate(small_sky, scan, pixels=bad)
+        with pytest.raises(ValueError, match="pixels"):
+            engine.scan_moments(scan, 64, pixels=bad)
+    with pytest.raises(ValueError, match="power of two"):
+        engine.scan_moments(scan, 100)
+    # The boolean form of the same mask observes its 100 pixels.
+    assert np.count_nonzero(engine.simulate(small_sky, scan, pixels=float_mask > 0).hits) == 100
+
+
+# 7. An unwritable output is found before the work -----------------------------------------------
+
+
+def _no_work(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("work started before the output path was checked")
+
+    monkeypatch.setattr(engine, "simulate", refuse)
+    monkeypatch.setattr(engine, "scan_moments", refuse)
+
+
+@pytest.mark.parametrize("command", ["simulate", "scan-stats"])
+def test_unwritable_or_symlinked_out_fails_before_work(
+    tmp_path, study_file, monkeypatch, capsys, command
+):
+    _no_work(monkeypatch)
+    # /proc refuses new directories even to root (permission bits do not stop root).
+    assert main([command, str(study_file), "--out", "/proc/boresight-out"]) == 2
+    assert "cannot" in _error(capsys)
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    assert main([command, str(study_file), "--out", str(tmp_path / "link")]) == 2
+    assert "symbolic link" in _error(capsys)
+    (tmp_path / "file").write_text("")
+    assert main([command, str(study_file), "--out", str(tmp_path / "file" / "sub")]) == 2
+    assert "not a directory" in _error(capsys)
+
+
+# 8. Resource limits -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "old, new",
+    [("nside = 16\nlmax = 47", "nside = 8192\nlmax = 16000"), ("n_phi = 3", "n_phi = 90000")],
+)
+def test_memory_estimate_refuses_before_allocating(tmp_path, monkeypatch, capsys, old, new):
+    _no_work(monkeypatch)
+    monkeypatch.setattr("boresight.resources.available_bytes", lambda: 24 * 2.0**30)
+    path = tmp_path / "big.toml"
+    path.write_text(STUDY.replace(old, new))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "GiB" in _error(capsys) and not (tmp_path / "o").exists()
+
+
+def test_bad_worker_counts_empty_config_and_zero_resolution(tmp_path, capsys):
+    path = _sweep(tmp_path)
+    for workers in ("0", "-1"):
+        assert main(["sweep", path, "--out", str(tmp_path / "o"), "--workers", workers]) == 2
+        assert "--workers" in _error(capsys)
+    empty = tmp_path / "empty.toml"
+    empty.write_text("")
+    assert main(["simulate", str(empty), "--out", str(tmp_path / "o")]) == 2
+    assert "sky.nside is required" in _error(capsys)
+    for flag in ("--nside", "--lmax"):
+        assert main(["reproduce", flag, "0", "--out", str(tmp_path / "o")]) == 2
+        assert flag in _error(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+# 9. Tracebacks instead of one-line errors -------------------------------------------------------
+
+
+def _not_fits(tmp_path):
+    path = tmp_path / "junk.fits"
+    path.write_text("this is not FITS")
+    hp.write_map(str(tmp_path / "one.fits"), np.ones(12 * 16**2), dtype=np.float64)
+    return path
+
+
+@pytest.mark.parametrize(
+    "replace, key",
+    [
+        (('survey = "wide"', 'file = "junk.fits"'), "mask.file"),
+        (("[sky]\n", '[sky]\nmaps = "junk.fits"\n'), "sky.maps"),
+        (("[sky]\n", '[sky]\nmaps = "one.fits"\n'), "sky.maps"),
+        (("dg = [0.01, -0.01]", 'leak_template = "junk.fits"\nleak = 0.1'), "leak_template"),
+        (("dg = [0.01, -0.01]", 'rho_arcmin = ["a", "b"]'), "rho_arcmin"),
+        (("[output]", "[run]\nnthreads = 100000\n[output]"), "run.nthreads"),
+    ],
+)
+def test_bad_files_and_values_give_one_line(tmp_path, capsys, replace, key):
+    _not_fits(tmp_path)
+    path = tmp_path / "bad.toml"
+    path.write_text(STUDY.replace(*replace))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert key in _error(capsys)
+
+
+def test_directory_and_binary_configs_give_one_line(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "not a file" in _error(capsys)
+    garbage = tmp_path / "garbage.toml"
+    garbage.write_bytes(bytes(range(256)))
+    assert main(["simulate", str(garbage), "--out", str(tmp_path / "o")]) == 2
+    assert "not valid TOML" in _error(capsys)
+
+
+def test_gpu_backend_without_cupy_is_a_config_error(tmp_path, capsys):
+    pytest.importorskip("numpy")
+    import importlib.util
+
+    if importlib.util.find_spec("cupy") is not None:
+        pytest.skip("CuPy is installed here")
+    path = tmp_path / "gpu.toml"
+    path.write_text(STUDY.replace("[output]", '[run]\nbackend = "gpu"\n[output]'))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "boresight[gpu]" in _error(capsys)
+
+
+@pytest.mark.parametrize(
+    "text, where",
+    [
+        ("start_unix,duration_s,elevation_deg,az_centre_deg\n1790028800,60,50,133\n", "missing"),
+        (CSV_HEADER.replace("\n", ",colour\n") + CSV_ROW.replace("\n", ",red\n"), "colour"),
+        (CSV_HEADER + "1790028800,60,50\n", "line 2"),
+        (CSV_HEADER + "2026-01-01,60,50,133.6,60,1\n", "start_unix"),
+    ],
+)
+def test_bad_csv_schedules_name_the_row(tmp_path, text, where):
+    path = tmp_path / "s.csv"
+    path.write_text(text)
+    with pytest.raises(ground.ScheduleError, match=where):
+        ground.load_schedule(path)
+
+
+@pytest.mark.parametrize(
+    "text, where",
+    [
+        (
+            "[[ces]]\nstart_unix = 1\nduration_s = 60\nelevation_deg = 50\naz_centre_deg = 1\n"
+            "az_throw_deg = 10\ncolour = 1\n",
+            "colour",
+        ),
+        (
+            "[[ces]]\nstart_unix = 2026-01-01T00:00:00\nduration_s = 60\nelevation_deg = 50\n"
+            "az_centre_deg = 1\naz_throw_deg = 10\n",
+            "start_unix",
+        ),
+        (
+            "repeat_boresight = [0, 90]\n[[ces]]\nstart_unix = 1\nduration_s = 60\n"
+            "elevation_deg = 50\naz_centre_deg = 1\naz_throw_deg = 10\n",
+            "repeat_boresight",
+        ),
+        ("this is = not [toml", "not valid TOML"),
+    ],
+)
+def test_bad_toml_schedules_name_the_key(tmp_path, text, where):
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    with pytest.raises(ground.ScheduleError, match=where):
+        ground.load_schedule(path)
+
+
+def test_sweep_file_errors_are_one_line(tmp_path, capsys, monkeypatch):
+    (tmp_path / "study.toml").write_text(STUDY.replace("lmax = 40", "lmax = 30"))
+    out = tmp_path / "o"
+    for text, key in (
+        ('base = "study.toml"\n[parameters]\n"sky.seed" = [1]\n', "output.lmax"),
+        ('base = "study.toml"\nparameters = 3\n', "parameters"),
+        ("base = 3\n", "base"),
+        ('base = "study.toml"\n[parameters]\npbr_angle_deg = [true, false]\n', "pbr_angle_deg"),
+    ):
+        (tmp_path / "sweep.toml").write_text(text)
+        assert main(["sweep", str(tmp_path / "sweep.toml"), "--out", str(out)]) == 2
+        assert key in _error(capsys)
+    path = _sweep(tmp_path)
+    (tmp_path / "file").write_text("")
+    assert main(["sweep", path, "--out", str(tmp_path / "file"), "--scheduler", "serial"]) == 2
+    assert "not a directory" in _error(capsys)
+    real_dask = sweep._dask
+
+    def no_dask():
+        raise ConfigError("sweeps on Dask need: pip install 'boresight[dask]'")
+
+    monkeypatch.setattr(sweep, "_dask", no_dask)
+    assert main(["sweep", path, "--out", str(out)]) == 2
+    assert "boresight[dask]" in _error(capsys)
+    assert not out.exists()  # checked before sweep.json is written
+    monkeypatch.setattr(sweep, "_dask", real_dask)
+    pytest.importorskip("dask.distributed")
+    monkeypatch.setattr(sweep, "CONNECT_TIMEOUT", "1s")
+    assert main(["sweep", path, "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "cannot reach the Dask scheduler" in _error(capsys)
+
+
+def test_rotation_sweep_without_a_systematic_finishes(tmp_path):
+    (tmp_path / "study.toml").write_text(STUDY.replace("dg = [0.01, -0.01]", ""))
+    path = tmp_path / "sweep.toml"
+    path.write_text('base = "study.toml"\n[parameters]\npbr_angle_deg = [0, 90]\n')
+    out = tmp_path / "o"
+    assert main(["-q", "sweep", str(path), "--out", str(out), "--scheduler", "serial"]) == 0
+    assert (out / "results.csv").exists() and not (out / "suppression.png").exists()
+
+
+# 10. Smaller defects ----------------------------------------------------------------------------
+
+
+def test_stale_staging_directories_of_dead_runs_are_removed(tmp_path, study_file):
+    dead = 2**22 + 12345  # above Linux's default pid_max: never a live process
+    stale = tmp_path / f".out.staging.{dead}.abc"
+    stale.mkdir()
+    (stale / io.MARKER).touch()
+    replaced = tmp_path / f".out.old.{dead}.xyz"  # killed between the two renames
+    replaced.mkdir()
+    (replaced / io.MARKER).touch()
+    foreign = tmp_path / f".out.staging.{dead}.mine"  # no marker: not ours, kept
+    foreign.mkdir()
+    assert main(["-q", "simulate", str(study_file), "--out", str(tmp_path / "out")]) == 0
+    assert not stale.exists() and not replaced.exists() and foreign.exists()
+
+
+def test_sigterm_is_handled_like_ctrl_c(tmp_path, study_file):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "boresight.cli", "reproduce", "--quick", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    first = proc.stderr.readline()  # the first stage's log line: the study has started
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert "sky" in first
+    assert proc.returncode == 143 and "terminated; nothing was written" in err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_interrupted_sweep_says_what_it_kept(tmp_path, capsys, monkeypatch):
+    path = _sweep(tmp_path)
+    calls = []
+
+    def interrupt_second(*args):
+        calls.append(args)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return original(*args)
+
+    original = sweep.run_point
+    monkeypatch.setattr(sweep, "run_point", interrupt_second)
+    out = tmp_path / "o"
+    assert main(["sweep", path, "--out", str(out), "--scheduler", "serial"]) == 130
+    assert "finished points are kept" in capsys.readouterr().err
+    assert len(list((out / "points").glob("*.json"))) == 1 and (out / "results.csv").exists()
+
+
+def test_boolean_rotation_angles_are_errors():
+    raw = parse_study({"sky": {"nside": 16, "lmax": 47}}).raw
+    with pytest.raises(ConfigError, match="pbr_angle_deg"):
+        sweep.apply_overrides(raw, {"pbr_angle_deg": True})
+
+
+def test_fits_columns_are_i_q_u_with_their_own_units(tmp_path, study_file):
+    out = tmp_path / "out"
+    assert main(["-q", "simulate", str(study_file), "--out", str(out)]) == 0
+    path = str(out / "maps_systematics.fits")
+    i, q, u = hp.read_map(path, field=(0, 1, 2))
+    header = dict(hp.read_map(path, h=True)[1])
+    assert [header[f"TTYPE{k}"] for k in range(1, 6)] == ["I", "Q", "U", "HITS", "RCOND"]
+    assert [header.get(f"TUNIT{k}") for k in range(1, 6)] == ["uK", "uK", "uK", None, None]
+    assert "TUNIT" not in header
+    seen = q != hp.UNSEEN
+    assert seen.any() and np.all((i != hp.UNSEEN) == seen)
+    hn = dict(hp.read_map(str(_scan_stats(tmp_path, study_file) / "hn_maps.fits"), h=True)[1])
+    assert not [k for k in hn if k.startswith("TUNIT")]
+
+
+def _scan_stats(tmp_path, study_file):
+    out = tmp_path / "stats"
+    assert main(["-q", "scan-stats", str(study_file), "--out", str(out)]) == 0
+    return out
+
+
+def test_writes_stay_inside_out(tmp_path, study_file):
+    before = set(os.listdir(tmp_path))
+    assert main(["-q", "simulate", str(study_file), "--out", str(tmp_path / "out")]) == 0
+    assert set(os.listdir(tmp_path)) - before == {"out"}
