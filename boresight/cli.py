@@ -12,7 +12,8 @@ import signal
 import sys
 
 from . import paper, studies
-from .config import ConfigError, check_backend, check_threads, load_study
+from .config import ConfigError, check_backend, load_study
+from .threads import check_threads
 
 log = logging.getLogger("boresight")
 
@@ -146,7 +147,7 @@ def _run(args, progress, memory_check):
         )
         return 1 if bad else 0
     if args.command == "sweep":
-        from . import sweep
+        from . import plots, sweep
 
         rows = sweep.run_sweep(
             args.sweep_file,
@@ -158,7 +159,7 @@ def _run(args, progress, memory_check):
             progress,
             args.repair,
         )
-        sweep.continuum_figure(rows, f"{args.out}/suppression")
+        plots.continuum_figure(rows, f"{args.out}/suppression")
         log.info("%d rows in %s/results.csv", len(rows), args.out)
         return 0
     if args.command == "compare-scans":

@@ -14,6 +14,7 @@ from .evaluation import METHODS
 from .instrument import Instrument, Systematics
 from .scan import SyntheticScan
 from .sky import SkyConfig
+from .threads import check_threads
 
 try:
     import tomllib
@@ -90,15 +91,6 @@ class Study:
     output: dict
     raw: dict
     source: str = None  #: the TOML file it was read from (None when built from a dict)
-
-
-def check_threads(key, nthreads):
-    """ConfigError unless 0 <= nthreads <= the cores numba may use (0: all)."""
-    import numba
-
-    most = numba.config.NUMBA_NUM_THREADS
-    if not 0 <= nthreads <= most:
-        raise ConfigError(f"{key} = {nthreads}; allowed: 0 (all cores) to {most}")
 
 
 def check_backend(key, backend):
@@ -255,7 +247,10 @@ def parse_study(raw, base="."):
         raise ConfigError(f"run.backend = {run['backend']!r}; allowed: 'cpu', 'gpu'")
     if (run["chunk_pixels"] is not None and run["chunk_pixels"] < 1) or run["nthreads"] < 0:
         raise ConfigError("run.chunk_pixels must be >= 1 and run.nthreads >= 0")
-    check_threads("run.nthreads", run["nthreads"])
+    try:
+        check_threads("run.nthreads", run["nthreads"])
+    except (TypeError, ValueError) as err:
+        raise ConfigError(str(err)) from None
     check_backend("run.backend", run["backend"])
     output = {
         "lmax": min(sky_cfg.lmax, 2 * sky_cfg.nside),

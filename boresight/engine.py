@@ -6,10 +6,7 @@ fused kernel on the GPU), then solves each pixel where the sums lie; memory is b
 chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
 """
 
-import contextlib
-
 import healpy as hp
-import numba
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -19,6 +16,7 @@ from .instrument import Instrument, Systematics
 from .mapmaking import RCOND_MIN, Maps, solve
 from .pixels import ang2pix_array
 from .sky import MAX_NSIDE
+from .threads import numba_threads
 
 BACKENDS = ("cpu", "gpu")
 #: pixels per chunk: small on the CPU (cache-resident), large on a GPU (enough threads)
@@ -36,17 +34,6 @@ def get_backend(name):
 
         return tod_gpu
     raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
-
-
-@contextlib.contextmanager
-def threads(nthreads):
-    """Run numba kernels on ``nthreads`` threads (0: all cores)."""
-    old = numba.get_num_threads()
-    numba.set_num_threads(nthreads if nthreads > 0 else numba.config.NUMBA_NUM_THREADS)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(old)
 
 
 def _pixel_list(pixels, npix):
@@ -153,7 +140,7 @@ def simulate(
     u = np.full(npix, hp.UNSEEN)
     rcond = np.zeros(npix)
     ncross = np.zeros(npix, dtype=np.int64)
-    with threads(nthreads):
+    with numba_threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
             normal = binner.scan_normal(scan, nside, chunk)
             q[chunk], u[chunk], rcond[chunk], ncross[chunk] = _maps_from(
@@ -266,7 +253,7 @@ def simulate_samples(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
     normal = binner.kernels.zeros((12 * sky.nside**2, 5))
-    with threads(nthreads):
+    with numba_threads(nthreads):
         for chunk in sample_chunks:
             theta, phi, psi = check_samples(*chunk)
             pix = ang2pix_array(sky.nside, theta, phi)
@@ -315,7 +302,7 @@ def scan_moments(
     chunk_pixels = DEFAULT_CHUNK_PIXELS[backend] if chunk_pixels is None else chunk_pixels
     h = np.zeros((n_max + 1, npix), dtype=np.complex128)
     ncross = np.zeros(npix, dtype=np.int64)
-    with threads(nthreads):
+    with numba_threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "scan moments"):
             offsets, _, _, psi = _hits(kernels, scan, nside, chunk)
             h[:, chunk] = kernels.to_host(

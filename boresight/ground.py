@@ -218,7 +218,7 @@ def earth_rotation_angle(jd_ut1):
 
 
 @numba.njit(inline="always")
-def _horizon_terms(az, se, ce, sl, cl):
+def horizon_terms(az, se, ce, sl, cl):
     """sin(dec), cos(dec) sin(H), cos(dec) cos(H) of a horizon direction (the rotation)."""
     sa, ca = np.sin(az), np.cos(az)
     sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
@@ -226,7 +226,7 @@ def _horizon_terms(az, se, ce, sl, cl):
 
 
 @numba.njit(inline="always")
-def _parallactic_terms(sd, x, y, tl):
+def parallactic_terms(sd, x, y, tl):
     """(y, X) with q = atan2(y, X) the parallactic angle; X = cos(dec)^2 tan(lat) - sin(dec) x."""
     return y, tl * (x * x + y * y) - sd * x
 
@@ -237,9 +237,9 @@ def _to_equatorial(az, se, ce, local_era, sl, cl, tl):
 
     sin H and cos H come from the hour angle's own atan2 arguments (their norm is cos(dec)).
     """
-    sd, y, x = _horizon_terms(az, se, ce, sl, cl)
+    sd, y, x = horizon_terms(az, se, ce, sl, cl)
     ha = np.arctan2(y, x)
-    qy, qx = _parallactic_terms(sd, x, y, tl)
+    qy, qx = parallactic_terms(sd, x, y, tl)
     q = np.arctan2(qy, qx) if x * x + y * y > 0 else 0.0
     return np.arccos(sd), (local_era - ha) % (2 * np.pi), q
 
@@ -299,7 +299,7 @@ def ces_samples(ces, schedule, start=0, stop=None):
 
 
 @numba.njit(inline="always")
-def _azimuth_and_local_era(t, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon):
+def azimuth_and_local_era(t, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon):
     """Azimuth [rad] and local Earth rotation angle [rad] t seconds into a CES."""
     az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
     return az, earth_rotation_angle((start_unix + t) / 86400.0 + jd_offset) + lon
@@ -331,7 +331,7 @@ def _ces_pointing(
     sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
     se, ce = np.sin(el), np.cos(el)
     for i in numba.prange(n):
-        az, local_era = _azimuth_and_local_era(
+        az, local_era = azimuth_and_local_era(
             (k0 + i) / rate, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon
         )
         theta[i], phi[i], q = _to_equatorial(az, se, ce, local_era, sl, cl, tl)

@@ -7,14 +7,13 @@ the computed verdicts and the report, :mod:`boresight.plots` into the figures. T
 angle is simulated and predicted; the stage times in the manifest are the main thread's.
 """
 
-import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from . import coupling, engine, harmonics, masks, predict, sky, spectra
+from . import coupling, engine, harmonics, masks, predict, provenance, sky, spectra
 from .cosmology import load_spectra
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 from .scan import paper_scan
@@ -92,30 +91,9 @@ class ExperimentResult:
         return self.cross[angle] + self.auto[angle]
 
 
-class Timer:
-    """Wall time of each named stage, for the manifest."""
-
-    def __init__(self, log):
-        self.stages = {}
-        self.log = log
-
-    def __call__(self, name):
-        timer = self
-
-        class _Stage:
-            def __enter__(self):
-                timer.log(f"{name} ...")
-                self.t0 = time.perf_counter()
-
-            def __exit__(self, *exc):
-                timer.stages[name] = round(time.perf_counter() - self.t0, 3)
-
-        return _Stage()
-
-
 def run_study(cfg=StudyConfig(), experiments=EXPERIMENTS, log=lambda msg: None, progress=False):
     """Run the paper's study; returns ({name: ExperimentResult}, {stage: seconds})."""
-    timer = Timer(log)
+    timer = provenance.Timer(log)
     theory = load_spectra()
     sky_cfg = sky.SkyConfig(
         nside=cfg.nside, lmax=cfg.lmax, fwhm_arcmin=cfg.fwhm_arcmin, seed=cfg.seed
@@ -188,12 +166,12 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
             mask = masks.survey_mask(exp.survey, cfg.nside)
             obs = mask > 0
             local = transforms.submit(predict.local_cl, the_sky, mask, lmax_s, nthreads)
-            cp = coupling.coupling_matrices(mask, lmax_s, nthreads)
+            couplings = coupling.coupling_matrices(mask, lmax_s, nthreads)
         res = ExperimentResult(exp, masks.fsky(mask))
         key = "r" if exp.reference == "r" else "a_lens"
         for value in exp.reference_values:
             res.references[value] = predict.reference_bb(
-                cp, theory, cfg.fwhm_arcmin, cfg.nside, **{key: value}
+                couplings, theory, cfg.fwhm_arcmin, cfg.nside, **{key: value}
             )
 
         def b_of(qu):
@@ -232,7 +210,13 @@ def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
                     scan, cfg.nside, pixels=obs, nthreads=nthreads, backend=cfg.backend
                 )
                 res.predicted_cl[angle] = predict.residual_pseudo_bb(
-                    h, mask, cp, exp.systematics, theory, cfg.fwhm_arcmin, field_cl=local.result()
+                    h,
+                    mask,
+                    couplings,
+                    exp.systematics,
+                    theory,
+                    cfg.fwhm_arcmin,
+                    field_cl=local.result(),
                 )
                 if angle in (None, exp.ideal_deg):  # the map-level check needs no other angle
                     dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=nthreads)

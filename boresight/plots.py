@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from . import spectra  # noqa: E402
+from . import predict, spectra  # noqa: E402
 
 ANGLE_COLOURS = {None: "tab:orange", 0: "tab:blue", 1: "tab:green", 2: "tab:red"}
 REF_COLOURS = ("tab:purple", "tab:red", "tab:green")
@@ -145,3 +145,39 @@ def compare_figure(edges, curves, systematic, path_stem):
     ax.set_title(f"{systematic}: real schedule and its synthetic twin")
     ax.legend(fontsize=8)
     _save(fig, path_stem)
+
+
+def continuum_figure(rows, path_stem):
+    """Leaked-power suppression and |delta r| against rotation angle, with the h_n prediction,
+    when the sweep varies pbr_angle_deg (skipped otherwise; seeds are pooled)."""
+    if not rows or "pbr_angle_deg" not in rows[0]:
+        return
+
+    def band_sum(angle, col):
+        return sum(r[col] for r in rows if r["pbr_angle_deg"] == angle)
+
+    angles = sorted({r["pbr_angle_deg"] for r in rows})
+    if 0 not in angles or band_sum(0, "residual_auto_bb") == 0 or band_sum(0, "predicted_bb") == 0:
+        return  # nothing to normalise by: the base study has no systematic
+    measured = [band_sum(a, "residual_auto_bb") / band_sum(0, "residual_auto_bb") for a in angles]
+    closed = [band_sum(a, "predicted_bb") / band_sum(0, "predicted_bb") for a in angles]
+
+    def first(angle, col):
+        return next(r[col] for r in rows if r["pbr_angle_deg"] == angle)
+
+    fig, (ax, ax_r) = plt.subplots(1, 2, figsize=(10, 4))
+    ax.semilogy(angles, measured, "o", label="simulation (leaked power)")
+    ax.semilogy(angles, closed, "k--", label="h_n prediction")
+    ax.set_xlabel("boresight rotation angle [deg]")
+    ax.set_ylabel("residual power / no rotation")
+    ax.legend()
+    ax_r.semilogy(angles, [abs(first(a, "delta_r")) for a in angles], "o", label="simulation")
+    ax_r.semilogy(
+        angles, [abs(first(a, "predicted_delta_r")) for a in angles], "k--", label="h_n prediction"
+    )
+    ax_r.set_xlabel("boresight rotation angle [deg]")
+    ax_r.set_ylabel(rf"$|\Delta r|$ ({predict.R_RANGE[0]} <= ell <= {predict.R_RANGE[1]})")
+    ax_r.legend()
+    fig.tight_layout()
+    fig.savefig(f"{path_stem}.png", dpi=110)
+    plt.close(fig)

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import harmonics
 from .constants import ARCMIN
-from .engine import threads
+from .threads import numba_threads
 
 N_MAX = 4  #: highest spin moment the predictions use
 COHERENT_BLOCK = 8  #: h_n is smoothed over (COHERENT_BLOCK)^2 pixels for the coherent part
@@ -63,7 +63,7 @@ def delta_p(sky, h, systematics, instrument=None, template=None, nthreads=0):
         grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads)
         c1, c3 = pointing_coefficients(rho, chi)
     out = np.empty(t.size, dtype=np.complex128)
-    with threads(nthreads):
+    with numba_threads(nthreads):
         _delta_p(
             h,
             t,
@@ -248,3 +248,28 @@ def reference_bb(coupling, spectra, fwhm_arcmin, nside, r=0.0, a_lens=0.0):
     pixwin = pixel_window(nside, lmax)
     cl = spectra.bb(r=r, a_lens=a_lens)[: lmax + 1] * (beam * pixwin) ** 2
     return coupling.even @ cl
+
+
+# The bias on the tensor-to-scalar ratio r that a residual B-mode spectrum implies.
+#
+# Estimator: the least-squares amplitude of the tensor template over a multipole range,
+#     delta_r = sum_l R_l T_l / sum_l T_l^2,   lmin <= l <= lmax,
+# with R_l the residual pseudo-C_BB and T_l the pseudo-C_BB of tensors at r = 1 through the same
+# mask, beam and pixel window (reference_bb). Uniform weights: for the deep survey's
+# 30 <= l <= 300 the template's shape dominates the weights that cosmic variance would give.
+
+R_RANGE = (30, 300)  #: the deep survey's primordial range
+
+
+def tensor_template(coupling, spectra, fwhm_arcmin, nside):
+    """Pseudo-C_BB [muK^2] of tensors at r = 1 through the mask's coupling matrix."""
+    return reference_bb(coupling, spectra, fwhm_arcmin, nside, r=1.0)
+
+
+def delta_r(residual, template, lmin=R_RANGE[0], lmax=R_RANGE[1]):
+    """Tensor-to-scalar ratio a residual pseudo-C_BB would fake (least-squares amplitude)."""
+    lmax = min(lmax, residual.size - 1, template.size - 1)
+    if lmin >= lmax:
+        raise ValueError(f"empty multipole range [{lmin}, {lmax}] for delta_r")
+    s = slice(lmin, lmax + 1)
+    return float(np.sum(residual[s] * template[s]) / np.sum(template[s] ** 2))

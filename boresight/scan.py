@@ -16,7 +16,6 @@ from .constants import DEG
 from .instrument import MAX_ANGLE_DEG
 from .sky import MAX_SEED
 
-
 #: most crossing angles per pixel of a synthetic scan (real scans have thousands of samples per
 #: pixel but the paper's characterisation needs a handful of distinct angles)
 MAX_N_PHI = 100_000

@@ -15,9 +15,9 @@ import numpy as np
 
 from .engine import check_samples
 from .ground import (
-    _azimuth_and_local_era,
-    _horizon_terms,
-    _parallactic_terms,
+    azimuth_and_local_era,
+    horizon_terms,
+    parallactic_terms,
     chunk_arguments,
 )
 from .pixels import ang2pix_array, zphi2pix
@@ -98,14 +98,14 @@ def _ces_hits(
     se, ce = np.sin(el), np.cos(el)
     cb, sb = np.cos(boresight), np.sin(boresight)
     for i in numba.prange(n):
-        az, local_era = _azimuth_and_local_era(
+        az, local_era = azimuth_and_local_era(
             (k0 + i) / rate, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon
         )
-        sd, y, x = _horizon_terms(az, se, ce, sl, cl)
+        sd, y, x = horizon_terms(az, se, ce, sl, cl)
         cd = np.sqrt(x * x + y * y)
         phi = (local_era - np.arctan2(y, x)) % (2 * np.pi)
         pix[i] = zphi2pix(nside, sd, cd, phi)
-        qy, qx = _parallactic_terms(sd, x, y, tl)
+        qy, qx = parallactic_terms(sd, x, y, tl)
         r = np.sqrt(qx * qx + qy * qy)
         uc, us = (-qx / r, qy / r) if r > 0 else (-1.0, 0.0)  # -exp(-i q)
         cos_psi[i] = uc * cb - us * sb

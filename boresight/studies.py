@@ -4,8 +4,6 @@ Each writes into a staging directory that replaces ``out_dir`` only when the job
 an interrupted job leaves nothing behind, and an existing directory is kept unless ``force``.
 """
 
-import platform
-import subprocess
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -13,50 +11,21 @@ from pathlib import Path
 import healpy as hp
 import numpy as np
 
-from . import coupling, engine, io, masks, paper, plots, predict, report, resources, sky, spectra
+from . import (
+    coupling,
+    engine,
+    io,
+    masks,
+    paper,
+    plots,
+    predict,
+    provenance,
+    report,
+    resources,
+    sky,
+    spectra,
+)
 from .cosmology import load_spectra
-
-
-def _versions():
-    import ducc0
-    import numba
-
-    from . import __version__
-
-    return {
-        "boresight": __version__,
-        "numpy": np.__version__,
-        "healpy": hp.__version__,
-        "ducc0": ducc0.__version__,
-        "numba": numba.__version__,
-        "python": platform.python_version(),
-    }
-
-
-def _git_revision():
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        )
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def manifest(config, seeds, stages):
-    return {
-        "config": config,
-        "versions": _versions(),
-        "seeds": seeds,
-        "git_revision": _git_revision(),
-        "machine": platform.platform(),
-        "wall_time_s": stages,
-        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
 
 
 def check_memory(job, study, check=True):
@@ -130,7 +99,9 @@ def reproduce(
         io.write_text(stage / "report.md", report.report_markdown(claims, cfg, stages))
         io.write_json(
             stage / "manifest.json",
-            manifest(paper.config_dict(cfg), {"sky": cfg.seed, "scan": cfg.seed}, stages),
+            provenance.manifest(
+                paper.config_dict(cfg), {"sky": cfg.seed, "scan": cfg.seed}, stages
+            ),
         )
     return claims
 
@@ -152,7 +123,7 @@ def simulate(study, out_dir, force=False, log=print, progress=False, memory_chec
     """Simulate a study with and without its systematics; write maps, spectra, figures."""
     io.check_output_dir(out_dir, force, _inputs(study))
     check_memory("simulate", study, memory_check)
-    timer = paper.Timer(log)
+    timer = provenance.Timer(log)
     run, nthreads = study.run, study.run["nthreads"]
     with timer("sky"):
         mask = masks.from_config(study.mask, study.sky.nside)
@@ -218,7 +189,9 @@ def simulate(study, out_dir, force=False, log=print, progress=False, memory_chec
         plots.spectrum_figure(rows, study, stage / "residual")
         io.write_json(
             stage / "manifest.json",
-            manifest(study.raw, {"sky": study.sky.seed, "scan": study.scan.seed}, timer.stages),
+            provenance.manifest(
+                study.raw, {"sky": study.sky.seed, "scan": study.scan.seed}, timer.stages
+            ),
         )
     return rows
 
@@ -231,9 +204,15 @@ def predict_study(study, log=print, memory_check=True):
     nside, lmax = study.sky.nside, study.output["lmax"]
     mask = masks.from_config(study.mask, nside)
     h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run["nthreads"])
-    cp = coupling.coupling_matrices(mask, lmax, study.run["nthreads"])
+    couplings = coupling.coupling_matrices(mask, lmax, study.run["nthreads"])
     pred = predict.residual_pseudo_bb(
-        h, mask, cp, study.systematics, load_spectra(), study.sky.fwhm_arcmin, study.instrument
+        h,
+        mask,
+        couplings,
+        study.systematics,
+        load_spectra(),
+        study.sky.fwhm_arcmin,
+        study.instrument,
     )
     require_finite("the predicted spectrum", pred)
     return [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]
@@ -314,7 +293,7 @@ def compare_scans(
         ),
         memory_check,
     )
-    timer = paper.Timer(log)
+    timer = provenance.Timer(log)
     with timer("characterise the schedule"):
         stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
         # The twin takes (N_phi, R) of one pass of the CES set and repeats it at the schedule's
@@ -394,7 +373,7 @@ def compare_scans(
         plots.compare_figure(edges, curves, systematic, stage / "compare")
         io.write_json(
             stage / "manifest.json",
-            manifest(
+            provenance.manifest(
                 {
                     "schedule": schedule_path,
                     "nside": nside,

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import coupling, engine, io, masks, predict, rbias, sky, spectra
+from . import coupling, engine, io, masks, predict, sky, spectra
 from . import __version__
 from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
@@ -67,11 +67,11 @@ def load_sweep(path):
             study = parse_study(apply_overrides(base, overrides), os.path.dirname(base_path))
         except ConfigError as err:
             raise ConfigError(f"{path}, point {overrides}: {err}") from None
-        if study.output["lmax"] <= rbias.R_RANGE[0]:
+        if study.output["lmax"] <= predict.R_RANGE[0]:
             raise ConfigError(
-                f"{path}: sweeps report delta_r over {rbias.R_RANGE[0]} <= ell <= "
-                f"{rbias.R_RANGE[1]}; output.lmax = {study.output['lmax']} must be > "
-                f"{rbias.R_RANGE[0]}"
+                f"{path}: sweeps report delta_r over {predict.R_RANGE[0]} <= ell <= "
+                f"{predict.R_RANGE[1]}; output.lmax = {study.output['lmax']} must be > "
+                f"{predict.R_RANGE[0]}"
             )
     return base, os.path.dirname(base_path), points
 
@@ -161,13 +161,13 @@ def run_point(base, base_dir, overrides):
     sim = engine.simulate(the_sky, study.scan, study.instrument, study.systematics, **kw)
     cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
     theory = load_spectra()
-    cp = _coupling_matrices(mask, lmax, nthreads)
+    couplings = _coupling_matrices(mask, lmax, nthreads)
     h, _ = engine.scan_moments(study.scan, the_sky.nside, pixels=mask > 0, nthreads=nthreads)
     try:
         pred = predict.residual_pseudo_bb(
             h,
             mask,
-            cp,
+            couplings,
             study.systematics,
             theory,
             study.sky.fwhm_arcmin,
@@ -176,9 +176,9 @@ def run_point(base, base_dir, overrides):
         )
     except ValueError:  # prediction needs the Q/U pair layout
         pred = np.full(lmax + 1, np.nan)
-    template = rbias.tensor_template(cp, theory, study.sky.fwhm_arcmin, the_sky.nside)
+    template = predict.tensor_template(couplings, theory, study.sky.fwhm_arcmin, the_sky.nside)
     total = cross + auto
-    dr, dr_pred = rbias.delta_r(total, template), rbias.delta_r(pred, template)
+    dr, dr_pred = predict.delta_r(total, template), predict.delta_r(pred, template)
     edges = spectra.log_bins(study.output["lmin"], lmax, study.output["n_bands"])
     binned = spectra.bin_spectrum(np.array([total, auto, cross, pred]), edges)[1]
     return [
@@ -416,43 +416,3 @@ def ensemble(rows, keys):
             }
         )
     return out
-
-
-def continuum_figure(rows, path_stem):
-    """Leaked-power suppression and |delta r| against rotation angle, with the h_n prediction,
-    when the sweep varies pbr_angle_deg (skipped otherwise; seeds are pooled)."""
-    if not rows or "pbr_angle_deg" not in rows[0]:
-        return
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def band_sum(angle, col):
-        return sum(r[col] for r in rows if r["pbr_angle_deg"] == angle)
-
-    angles = sorted({r["pbr_angle_deg"] for r in rows})
-    if 0 not in angles or band_sum(0, "residual_auto_bb") == 0 or band_sum(0, "predicted_bb") == 0:
-        return  # nothing to normalise by: the base study has no systematic
-    measured = [band_sum(a, "residual_auto_bb") / band_sum(0, "residual_auto_bb") for a in angles]
-    closed = [band_sum(a, "predicted_bb") / band_sum(0, "predicted_bb") for a in angles]
-
-    def first(angle, col):
-        return next(r[col] for r in rows if r["pbr_angle_deg"] == angle)
-
-    fig, (ax, ax_r) = plt.subplots(1, 2, figsize=(10, 4))
-    ax.semilogy(angles, measured, "o", label="simulation (leaked power)")
-    ax.semilogy(angles, closed, "k--", label="h_n prediction")
-    ax.set_xlabel("boresight rotation angle [deg]")
-    ax.set_ylabel("residual power / no rotation")
-    ax.legend()
-    ax_r.semilogy(angles, [abs(first(a, "delta_r")) for a in angles], "o", label="simulation")
-    ax_r.semilogy(
-        angles, [abs(first(a, "predicted_delta_r")) for a in angles], "k--", label="h_n prediction"
-    )
-    ax_r.set_xlabel("boresight rotation angle [deg]")
-    ax_r.set_ylabel(rf"$|\Delta r|$ ({rbias.R_RANGE[0]} <= ell <= {rbias.R_RANGE[1]})")
-    ax_r.legend()
-    fig.tight_layout()
-    fig.savefig(f"{path_stem}.png", dpi=110)
-    plt.close(fig)

@@ -32,7 +32,12 @@ def study(paper_sky):
         sim = engine.simulate(paper_sky, scan, systematics=sysm, pixels=obs)
         h, _ = engine.scan_moments(scan, NSIDE, pixels=obs)
         out[survey] = dict(
-            mask=mask, obs=obs, ref=ref, sim=sim, h=h, cp=coupling.coupling_matrices(mask, LMAX)
+            mask=mask,
+            obs=obs,
+            ref=ref,
+            sim=sim,
+            h=h,
+            couplings=coupling.coupling_matrices(mask, LMAX),
         )
     return out
 
@@ -60,7 +65,7 @@ def test_cl_level_prediction_within_10_percent(survey, study, paper_sky, theory)
     pred = predict.residual_pseudo_bb(
         s["h"],
         s["mask"],
-        s["cp"],
+        s["couplings"],
         CASES[survey],
         theory,
         7.0,
@@ -79,7 +84,7 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         sky.SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2, polarised=False), theory
     )
     mask = masks.survey_mask("deep", nside)
-    cp = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.coupling_matrices(mask, lmax)
     zero = np.zeros((2, 12 * nside**2))
     for survey, sysm, angle, floor in (
         ("deep", PAPER_GAIN, 90, 1e-25),
@@ -96,7 +101,7 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         # The sky's own (zero) polarisation spectrum: theory EE would feed the h_4 P* term.
         local = predict.local_cl(s0, mask, lmax)
         pred = np.abs(
-            predict.residual_pseudo_bb(h, mask, cp, sysm, theory, 30.0, field_cl=local)[2:]
+            predict.residual_pseudo_bb(h, mask, couplings, sysm, theory, 30.0, field_cl=local)[2:]
         ).max()
         # Gain: exact cancellation, rounding of ~1e-16 squared. Pointing: the second-order term
         # relative to the first is ~ rho l_beam / 2 ~ 0.004, i.e. ~2e-5 in power.

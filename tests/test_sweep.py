@@ -8,7 +8,7 @@ import healpy as hp
 import numpy as np
 import pytest
 
-from boresight import coupling, masks, predict, rbias, spectra, sweep
+from boresight import coupling, masks, predict, spectra, sweep
 from boresight.config import ConfigError
 
 STUDY = """
@@ -103,18 +103,18 @@ def test_delta_r_recovers_input_r(theory):
     """
     nside, lmax = 256, 400
     mask = masks.survey_mask("deep", nside)
-    cp = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.coupling_matrices(mask, lmax)
     beam = hp.gauss_beam(np.radians(7 / 60), lmax=3 * nside - 1, pol=True)[:, 2]
     # The template carries the package's pixel window; give the sky the same one.
     window = predict.pixel_window(nside, 3 * nside - 1)
     cl_bb = 0.05 * theory.bb_tensor[: 3 * nside] * (beam * window) ** 2
     zero = np.zeros_like(cl_bb)
-    template = rbias.tensor_template(cp, theory, 7.0, nside)
+    template = predict.tensor_template(couplings, theory, 7.0, nside)
     estimates = []
     for seed in range(8):
         np.random.seed(seed)
         maps = hp.synfast([zero, zero, cl_bb, zero], nside, new=True)
-        estimates.append(rbias.delta_r(spectra.pseudo_spectra(maps, mask, lmax)[2], template))
+        estimates.append(predict.delta_r(spectra.pseudo_spectra(maps, mask, lmax)[2], template))
     assert abs(np.mean(estimates) / 0.05 - 1) < 0.05
 
 

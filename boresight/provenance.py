@@ -1,0 +1,77 @@
+"""Provenance of a run: the time of each stage, package versions, the git revision, the machine.
+
+Every job writes a ``manifest.json`` from :func:`manifest`, so a result can be traced to the code
+and the inputs that made it.
+"""
+
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import healpy as hp
+import numpy as np
+
+
+class Timer:
+    """Wall time of each named stage, for the manifest."""
+
+    def __init__(self, log):
+        self.stages = {}
+        self.log = log
+
+    def __call__(self, name):
+        timer = self
+
+        class _Stage:
+            def __enter__(self):
+                timer.log(f"{name} ...")
+                self.t0 = time.perf_counter()
+
+            def __exit__(self, *exc):
+                timer.stages[name] = round(time.perf_counter() - self.t0, 3)
+
+        return _Stage()
+
+
+def _versions():
+    import ducc0
+    import numba
+
+    from . import __version__
+
+    return {
+        "boresight": __version__,
+        "numpy": np.__version__,
+        "healpy": hp.__version__,
+        "ducc0": ducc0.__version__,
+        "numba": numba.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def _git_revision():
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        )
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def manifest(config, seeds, stages):
+    """The manifest of a run: its config, seeds, stage times [s], versions, revision, machine."""
+    return {
+        "config": config,
+        "versions": _versions(),
+        "seeds": seeds,
+        "git_revision": _git_revision(),
+        "machine": platform.platform(),
+        "wall_time_s": stages,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }

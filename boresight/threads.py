@@ -1,0 +1,37 @@
+"""How many CPU threads the numba kernels use, set per call and checked at the boundary."""
+
+import contextlib
+
+import numba
+
+
+def max_threads():
+    """The most threads numba may use on this machine (its NUMBA_NUM_THREADS)."""
+    return numba.config.NUMBA_NUM_THREADS
+
+
+def check_threads(name, nthreads):
+    """ValueError unless ``nthreads`` is an integer from 0 (all cores) to :func:`max_threads`.
+
+    Parameters
+    ----------
+    name : str
+        The option's name in messages (``run.nthreads``, ``--threads``).
+    nthreads : int
+        Requested thread count.
+    """
+    if isinstance(nthreads, bool) or not isinstance(nthreads, int):
+        raise TypeError(f"{name} = {nthreads!r} must be an integer")
+    if not 0 <= nthreads <= max_threads():
+        raise ValueError(f"{name} = {nthreads}; allowed: 0 (all cores) to {max_threads()}")
+
+
+@contextlib.contextmanager
+def numba_threads(nthreads):
+    """Run numba kernels on ``nthreads`` threads inside the block (0: all cores)."""
+    old = numba.get_num_threads()
+    numba.set_num_threads(nthreads if nthreads > 0 else max_threads())
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
