@@ -11,13 +11,14 @@ import tempfile
 import time
 
 from boresight import paper, studies
+from boresight.config import RunOptions
 
 
 def main(nside, lmax, backend):
-    cfg = paper.StudyConfig(nside=nside, lmax=lmax, backend=backend)
+    study = paper.preset(nside=nside, lmax=lmax, run=RunOptions(backend=backend))
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        claims = studies.reproduce(f"{tmp}/out", cfg, log=lambda msg: None)
+        claims = studies.reproduce(f"{tmp}/out", study, log=lambda msg: None)
         total = time.perf_counter() - t0
         with open(f"{tmp}/out/manifest.json") as f:
             stages = json.load(f)

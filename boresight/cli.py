@@ -12,8 +12,10 @@ import signal
 import sys
 
 from . import paper, studies
-from .config import ConfigError, check_backend, load_study
-from .threads import check_threads
+from dataclasses import replace
+
+from .config import ConfigError, RunOptions, add_flags, load_study, read_toml
+from .sky import SkyConfig
 
 log = logging.getLogger("boresight")
 
@@ -31,12 +33,9 @@ def _parser():
 
     r = sub.add_parser("reproduce", help="the paper's study: figures, results.csv, report.md")
     r.add_argument("--quick", action="store_true", help="Nside 512 / lmax 1535 (minutes)")
-    r.add_argument("--nside", type=int, help="HEALPix Nside (default 2048, quick 512)")
-    r.add_argument("--lmax", type=int, help="band limit (default 4000, quick 3*nside-1)")
-    r.add_argument("--seed", type=int, default=1)
-    r.add_argument("--evaluation", choices=("interp", "exact"), default="interp")
-    r.add_argument("--backend", choices=("cpu", "gpu"), default="cpu")
-    r.add_argument("--threads", type=int, default=0, help="0: all cores")
+    r.add_argument("--config", help="a study file whose [sky], [run], [output] tables apply")
+    add_flags(r, SkyConfig, ("nside", "lmax", "fwhm_arcmin", "seed"), paper_defaults=True)
+    add_flags(r, RunOptions)
     r.add_argument("--out", default="boresight-paper", help="output directory")
     r.add_argument("--force", action="store_true", help="overwrite an existing output directory")
 
@@ -74,27 +73,31 @@ def _parser():
     return p
 
 
-def _study_config(args):
-    defaults = paper.StudyConfig.quick() if args.quick else paper.StudyConfig()
-    nside = defaults.nside if args.nside is None else args.nside
-    if args.lmax is not None:
-        lmax = args.lmax
-    else:
-        lmax = defaults.lmax if args.nside is None else min(3 * nside - 1, defaults.lmax)
-    if nside < 16 or nside > 8192 or nside & (nside - 1):
-        raise ValueError(f"--nside must be a power of two in [16, 8192], got {nside}")
-    if not 2 <= lmax <= 3 * nside - 1:
-        raise ValueError(f"--lmax must be in [2, {3 * nside - 1}], got {lmax}")
-    check_threads("--threads", args.threads)
-    check_backend("--backend", args.backend)
-    return paper.StudyConfig(
-        nside=nside,
-        lmax=lmax,
-        seed=args.seed,
-        evaluation=args.evaluation,
-        backend=args.backend,
-        nthreads=args.threads,
-    )
+def _reproduce_study(args):
+    """The paper's study (:func:`paper.preset` or a --config file) with the flags applied."""
+    raw = read_toml(args.config) if args.config else {}
+    study = paper.from_raw(raw, args.quick)
+    sky_cfg, run = study.sky, study.run
+    if args.nside is not None:
+        if not 16 <= args.nside <= 8192 or args.nside & (args.nside - 1):
+            raise ValueError(f"--nside must be a power of two in [16, 8192], got {args.nside}")
+        lmax = min(3 * args.nside - 1, sky_cfg.lmax) if args.lmax is None else args.lmax
+        sky_cfg = replace(sky_cfg, nside=args.nside, lmax=lmax)
+    for name in ("lmax", "fwhm_arcmin", "seed"):
+        if getattr(args, name) is not None:
+            try:
+                sky_cfg = replace(sky_cfg, **{name: getattr(args, name)})
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"--{name.replace('_', '-')}: {err}") from None
+    flags = {f: getattr(args, f) for f in vars(RunOptions()) if getattr(args, f) is not None}
+    try:
+        run = replace(run, **flags)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"--{str(err).split()[0]}: {err}") from None
+    scan = replace(study.scan, seed=sky_cfg.seed) if args.seed is not None else study.scan
+    given = "lmax" in raw.get("output", {})
+    output = study.output if given else replace(study.output, lmax=None)  # 2 Nside of the sky
+    return replace(study, sky=sky_cfg, scan=scan, run=run, output=output)
 
 
 class Terminated(KeyboardInterrupt):
@@ -136,7 +139,7 @@ def _run(args, progress, memory_check):
     """Run the parsed command; returns the exit code."""
     if args.command == "reproduce":
         claims = studies.reproduce(
-            args.out, _study_config(args), args.force, log.info, progress, memory_check
+            args.out, _reproduce_study(args), args.force, log.info, progress, memory_check
         )
         bad = [c for c in claims if not c.reproduced]
         log.info(

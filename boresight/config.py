@@ -1,9 +1,18 @@
-"""Study configuration files (TOML) for `boresight simulate`, `predict` and `scan-stats`.
+"""The study: one config model for every command, read from TOML or built in Python.
 
-A config is validated whole before any work starts: unknown sections or keys, wrong types, values
-out of range and missing files raise :class:`ConfigError` naming the key and what is allowed.
+A study file has one table per pipeline stage. Each table is a frozen dataclass that owns its
+defaults, its allowed values and its validation: ``[sky]`` :class:`~boresight.sky.SkyConfig`,
+``[scan]`` :class:`~boresight.scan.SyntheticScan`, ``[instrument]``
+:class:`~boresight.instrument.Instrument`, ``[systematics]``
+:class:`~boresight.instrument.Systematics`, ``[mask]`` :class:`MaskSpec`, ``[run]``
+:class:`RunOptions` and ``[output]`` :class:`OutputOptions`. The schema below (types and help of
+every key), the error messages and the command-line flags (:func:`add_flags`) are read from their
+fields. A config is validated whole before any work starts: unknown sections or keys, wrong types,
+values out of range and missing files raise :class:`ConfigError` naming the key and the file.
 """
 
+import dataclasses
+import importlib.util
 import os
 from dataclasses import dataclass, replace
 
@@ -12,9 +21,11 @@ import numpy as np
 from . import io, validation
 from .evaluation import METHODS
 from .instrument import Instrument, Systematics
+from .masks import SURVEYS
 from .scan import SyntheticScan
 from .sky import SkyConfig
 from .threads import check_threads
+from .validation import option
 
 try:
     import tomllib
@@ -26,96 +37,182 @@ class ConfigError(ValueError):
     """A configuration problem, with the offending key in the message."""
 
 
-NUM = (int, float)
-LIST_OR_NUM = (int, float, list)
-#: section -> key -> (allowed types, description of allowed values)
-SCHEMA = {
-    "sky": {
-        "nside": (int, "a power of two, 1..8192"),
-        "lmax": (int, "2..3*nside-1"),
-        "fwhm_arcmin": (NUM, ">= 0"),
-        "seed": (int, ">= 0"),
-        "r": (NUM, ">= 0"),
-        "a_lens": (NUM, ">= 0"),
-        "polarised": (bool, "true or false"),
-        "maps": (str, "a FITS file with I, Q, U maps (RING)"),
-    },
-    "scan": {
-        "n_phi": ((int, str), "an integer >= 1 or a FITS map"),
-        "range_rad": ((int, float, str), "a number in [0, 2 pi] or a FITS map"),
-        "centre_rad": ((int, float, str), "a number or a FITS map"),
-        "rotations_deg": (list, "a non-empty list of angles [deg]"),
-        "in_pixel": (str, "'random' or 'centre'"),
-        "seed": (int, ">= 0"),
-    },
-    "instrument": {"pair_angles_deg": (list, "a non-empty list of pair angles [deg]")},
-    "systematics": {
-        "dg": (LIST_OR_NUM, "a number or one per pair"),
-        "rho_arcmin": (LIST_OR_NUM, ">= 0, a number or one per pair"),
-        "chi_deg": (LIST_OR_NUM, "a number or one per pair"),
-        "leak": (LIST_OR_NUM, "a number or one per pair"),
-        "leak_template": (str, "a FITS map"),
-    },
-    "mask": {
-        "survey": (str, "'deep', 'wide' or 'none'"),
-        "file": (str, "a FITS mask"),
-        "apodize_fwhm_deg": (NUM, "> 0"),
-    },
-    "run": {
-        "evaluation": (str, f"one of {METHODS}"),
-        "backend": (str, "'cpu' or 'gpu'"),
-        "chunk_pixels": (int, ">= 1"),
-        "nthreads": (int, ">= 0"),
-    },
-    "output": {
-        "lmax": (int, "2..3*nside-1"),
-        "n_bands": (int, ">= 1"),
-        "lmin": (int, ">= 2"),
-        "maps": (bool, "true or false"),
-    },
+BACKENDS = ("cpu", "gpu")
+
+
+def check_backend(name, backend):
+    """ConfigError unless the backend is known and, for 'gpu', CuPy is installed."""
+    if backend not in BACKENDS:
+        raise ConfigError(f"{name} = {backend!r}; allowed: {BACKENDS}")
+    if backend == "gpu" and importlib.util.find_spec("cupy") is None:
+        raise ConfigError(f"{name} = 'gpu' needs CuPy: pip install 'boresight[gpu]'")
+
+
+@dataclass(frozen=True)
+class MaskSpec:
+    """Where the study looks: an SO-like survey footprint or a FITS mask, optionally apodized."""
+
+    survey: str = option("none", "survey footprint ('none': full sky)", choices=SURVEYS)
+    file: str = option(
+        None, "a HEALPix FITS mask with weights in [0, 1] (instead of survey)", (str,)
+    )
+    apodize_fwhm_deg: float = option(None, "apodisation FWHM [deg], in [0.001, 180]", (int, float))
+
+    def __post_init__(self):
+        if self.survey not in SURVEYS:
+            raise ValueError(f"survey = {self.survey!r}; allowed: {SURVEYS}")
+        if self.apodize_fwhm_deg is not None:
+            validation.number("apodize_fwhm_deg", self.apodize_fwhm_deg, 1e-3, 180.0)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How the engine runs; results do not depend on chunk_pixels, nthreads or the backend."""
+
+    evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
+    backend: str = option("cpu", "kernels: numba (cpu) or CuPy (gpu)", choices=BACKENDS)
+    chunk_pixels: int = option(None, "pixels per chunk, >= 1 (default: the backend's)", (int,))
+    nthreads: int = option(0, "CPU threads, 0 for all cores")
+
+    def __post_init__(self):
+        if self.evaluation not in METHODS:
+            raise ValueError(f"evaluation = {self.evaluation!r}; allowed: {METHODS}")
+        check_backend("backend", self.backend)
+        if self.chunk_pixels is not None:
+            validation.integer("chunk_pixels", self.chunk_pixels, 1)
+        check_threads("nthreads", self.nthreads)
+
+    def engine_kwargs(self):
+        """The keyword arguments :func:`boresight.engine.simulate` takes from these options."""
+        return dict(
+            evaluation=self.evaluation,
+            backend=self.backend,
+            chunk_pixels=self.chunk_pixels,
+            nthreads=self.nthreads,
+        )
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """What a study writes: spectra up to lmax, bands, FITS maps."""
+
+    lmax: int = option(
+        None, "highest multipole of the spectra (default min(sky.lmax, 2 nside))", (int,)
+    )
+    n_bands: int = option(14, "logarithmic ell bands, >= 1")
+    lmin: int = option(20, "lowest multipole of the bands, >= 2")
+    maps: bool = option(True, "write the FITS maps")
+
+    def resolved(self, sky):
+        """These options with lmax set for ``sky`` and checked against it."""
+        lmax = min(sky.lmax, 2 * sky.nside) if self.lmax is None else self.lmax
+        validation.integer("lmax", lmax, 2, 3 * sky.nside - 1)
+        validation.integer("n_bands", self.n_bands, 1)
+        validation.integer("lmin", self.lmin, 2, lmax - 1)
+        return replace(self, lmax=lmax)
+
+    def edges(self):
+        """Band edges: about n_bands logarithmic bands from lmin to lmax."""
+        from .spectra import log_bins
+
+        return log_bins(self.lmin, self.lmax, self.n_bands)
+
+
+#: the tables of a study file and the dataclass behind each
+SECTIONS = {
+    "sky": SkyConfig,
+    "scan": SyntheticScan,
+    "instrument": Instrument,
+    "systematics": Systematics,
+    "mask": MaskSpec,
+    "run": RunOptions,
+    "output": OutputOptions,
 }
+#: keys that name input files rather than dataclass fields
+FILE_KEYS = {
+    "sky": {"maps": ((str,), "a FITS file with I, Q, U maps (RING) instead of a random sky")},
+    "systematics": {"leak_template": ((str,), "a FITS map the additive leak scales")},
+}
+
+
+def schema():
+    """section -> key -> (allowed TOML types, help), read from the section dataclasses."""
+    return {
+        section: {
+            **{
+                f.name: (f.metadata["types"], _help(f))
+                for f in dataclasses.fields(cls)
+                if f.metadata
+            },
+            **FILE_KEYS.get(section, {}),
+        }
+        for section, cls in SECTIONS.items()
+    }
+
+
+def _help(f):
+    choices = f.metadata.get("choices")
+    return f.metadata["help"] + (f"; one of {choices}" if choices else "")
 
 
 @dataclass(frozen=True)
 class Study:
-    """A validated study: the dataclasses of each stage plus run and output options."""
+    """A validated study: the dataclass of each stage, the input files, the raw table."""
 
     sky: SkyConfig
-    sky_maps: str
-    scan: SyntheticScan
-    instrument: Instrument
-    systematics: Systematics
-    leak_template: str
-    mask: dict
-    run: dict
-    output: dict
-    raw: dict
-    source: str = None  #: the TOML file it was read from (None when built from a dict)
+    scan: SyntheticScan = SyntheticScan()
+    instrument: Instrument = Instrument()
+    systematics: Systematics = Systematics()
+    mask: MaskSpec = MaskSpec()
+    run: RunOptions = RunOptions()
+    output: OutputOptions = OutputOptions()
+    sky_maps: str = None  #: FITS file of I, Q, U replacing the random sky
+    leak_template: str = None  #: FITS map of the additive leak
+    raw: dict = None  #: the parsed TOML the study came from
+    source: str = None  #: the TOML file it was read from
+
+    def __post_init__(self):
+        object.__setattr__(self, "output", self.output.resolved(self.sky))
+
+    @property
+    def inputs(self):
+        """The files the study reads (an output directory may not hold them)."""
+        return [f for f in (self.source, self.sky_maps, self.leak_template, self.mask.file) if f]
 
 
-def check_backend(key, backend):
-    """ConfigError unless the backend is known and, for 'gpu', CuPy is installed."""
-    import importlib.util
-
-    if backend not in ("cpu", "gpu"):
-        raise ConfigError(f"{key} = {backend!r}; allowed: 'cpu', 'gpu'")
-    if backend == "gpu" and importlib.util.find_spec("cupy") is None:
-        raise ConfigError(f"{key} = 'gpu' needs CuPy: pip install 'boresight[gpu]'")
+def add_flags(parser, cls, names=None, paper_defaults=False):
+    """Add --name flags for fields of a section dataclass (all, or ``names``) with its help,
+    types and choices. Flags default to None, "not given"; the help states the dataclass default,
+    or with ``paper_defaults`` that the paper's preset decides."""
+    for f in dataclasses.fields(cls):
+        if names is not None and f.name not in names or not f.metadata:
+            continue
+        types = [t for t in f.metadata["types"] if t in (int, float, str)]
+        kind = float if float in types else types[0] if types else str
+        parser.add_argument(
+            "--" + f.name.replace("_", "-"),
+            type=kind,
+            choices=f.metadata.get("choices"),
+            help=_help(f)
+            + (
+                " (default: the paper's)"
+                if paper_defaults
+                else f" (default {f.default})" if f.default is not None else ""
+            ),
+        )
 
 
 def _check_types(raw):
+    known = schema()
     for section, body in raw.items():
-        if section not in SCHEMA:
-            raise ConfigError(f"unknown section [{section}]; allowed: {sorted(SCHEMA)}")
+        if section not in known:
+            raise ConfigError(f"unknown section [{section}]; allowed: {sorted(known)}")
         if not isinstance(body, dict):
             raise ConfigError(f"[{section}] must be a table")
         for key, value in body.items():
-            if key not in SCHEMA[section]:
-                raise ConfigError(
-                    f"unknown key {section}.{key}; allowed: {sorted(SCHEMA[section])}"
-                )
-            types, allowed = SCHEMA[section][key]
-            types = types if isinstance(types, tuple) else (types,)
+            if key not in known[section]:
+                raise ConfigError(f"unknown key {section}.{key}; allowed: {sorted(known[section])}")
+            types, allowed = known[section][key]
             bad_bool = isinstance(value, bool) and bool not in types
             if bad_bool or not isinstance(value, types):
                 raise ConfigError(
@@ -157,10 +254,15 @@ def _map_or_value(section, key, value, base, dtype, npix):
 
 
 def _build(section, cls, kwargs):
+    """cls(**kwargs), its errors as ConfigError naming section.key where the message starts with
+    a field's name."""
     try:
         return cls(**kwargs)
     except (ValueError, TypeError) as err:
-        raise ConfigError(f"[{section}] {err}") from None
+        names = {f.name for f in dataclasses.fields(cls)}
+        text = str(err)
+        where = f"{section}." if text.split(" ")[0] in names else f"[{section}] "
+        raise ConfigError(where + text) from None
 
 
 def read_toml(path, what="config"):
@@ -184,6 +286,10 @@ def load_study(path):
     return replace(study, source=str(path))
 
 
+def _tuples(body, keys):
+    return {k: tuple(v) if k in keys and isinstance(v, list) else v for k, v in body.items()}
+
+
 def parse_study(raw, base="."):
     """Validate a study given as a dict (the parsed TOML); paths are relative to ``base``."""
     _check_types(raw)
@@ -195,72 +301,43 @@ def parse_study(raw, base="."):
     npix = 12 * sky_cfg.nside**2
     if sky_maps is not None:
         sky_maps = _fits("sky", "maps", sky_maps, base, min_fields=3, npix=npix)
-    scan_raw = dict(raw.get("scan", {}))
-    scan_raw["n_phi"] = _map_or_value(
-        "scan", "n_phi", scan_raw.get("n_phi", 4), base, np.int64, npix
-    )
-    for key in ("range_rad", "centre_rad"):
+    scan_raw = _tuples(raw.get("scan", {}), ("rotations_deg",))
+    for key, dtype in (("n_phi", np.int64), ("range_rad", np.float64), ("centre_rad", np.float64)):
         if key in scan_raw:
-            scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, np.float64, npix)
-    if "rotations_deg" in scan_raw:
-        scan_raw["rotations_deg"] = tuple(scan_raw["rotations_deg"])
+            scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, dtype, npix)
     scan = _build("scan", SyntheticScan, scan_raw)
-    inst_raw = dict(raw.get("instrument", {}))
-    if "pair_angles_deg" in inst_raw:
-        inst_raw["pair_angles_deg"] = tuple(inst_raw["pair_angles_deg"])
-    instrument = _build("instrument", Instrument, inst_raw)
+    instrument = _build(
+        "instrument", Instrument, _tuples(raw.get("instrument", {}), ("pair_angles_deg",))
+    )
     sys_raw = dict(raw.get("systematics", {}))
     template = sys_raw.pop("leak_template", None)
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
-    systematics = _build(
-        "systematics",
-        Systematics,
-        {k: tuple(v) if isinstance(v, list) else v for k, v in sys_raw.items()},
-    )
+    systematics = _build("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
     try:
         systematics.per_pair(instrument.n_pairs)
     except ValueError as err:
         raise ConfigError(f"[systematics] {err}") from None
-    mask = dict(raw.get("mask", {"survey": "none"}))
-    if "file" in mask:
-        if "survey" in mask:
+    mask_raw = dict(raw.get("mask", {}))
+    if "file" in mask_raw:
+        if "survey" in mask_raw:
             raise ConfigError("[mask] give either survey or file, not both")
-        mask["file"] = _fits("mask", "file", mask["file"], base)
-    elif mask.setdefault("survey", "none") not in ("deep", "wide", "none"):
-        raise ConfigError(f"mask.survey = {mask['survey']!r}; allowed: 'deep', 'wide', 'none'")
-    if "apodize_fwhm_deg" in mask:
-        try:
-            validation.number("mask.apodize_fwhm_deg", mask["apodize_fwhm_deg"], 1e-3, 180.0)
-        except (TypeError, ValueError) as err:
-            raise ConfigError(str(err)) from None
-    run = {
-        "evaluation": "interp",
-        "backend": "cpu",
-        "chunk_pixels": None,
-        "nthreads": 0,
-        **raw.get("run", {}),
-    }
-    if run["evaluation"] not in METHODS:
-        raise ConfigError(f"run.evaluation = {run['evaluation']!r}; allowed: {METHODS}")
-    if run["backend"] not in ("cpu", "gpu"):
-        raise ConfigError(f"run.backend = {run['backend']!r}; allowed: 'cpu', 'gpu'")
-    if (run["chunk_pixels"] is not None and run["chunk_pixels"] < 1) or run["nthreads"] < 0:
-        raise ConfigError("run.chunk_pixels must be >= 1 and run.nthreads >= 0")
+        mask_raw["file"] = _fits("mask", "file", mask_raw["file"], base)
+    mask = _build("mask", MaskSpec, mask_raw)
+    run = _build("run", RunOptions, raw.get("run", {}))
+    output = _build("output", OutputOptions, raw.get("output", {}))
     try:
-        check_threads("run.nthreads", run["nthreads"])
-    except (TypeError, ValueError) as err:
-        raise ConfigError(str(err)) from None
-    check_backend("run.backend", run["backend"])
-    output = {
-        "lmax": min(sky_cfg.lmax, 2 * sky_cfg.nside),
-        "n_bands": 14,
-        "lmin": 20,
-        "maps": True,
-        **raw.get("output", {}),
-    }
-    if not 2 <= output["lmax"] <= 3 * sky_cfg.nside - 1:
-        raise ConfigError(f"output.lmax = {output['lmax']}; allowed: 2..{3 * sky_cfg.nside - 1}")
-    if output["n_bands"] < 1 or not 2 <= output["lmin"] < output["lmax"]:
-        raise ConfigError("output.n_bands must be >= 1 and 2 <= output.lmin < output.lmax")
-    return Study(sky_cfg, sky_maps, scan, instrument, systematics, template, mask, run, output, raw)
+        return Study(
+            sky_cfg, scan, instrument, systematics, mask, run, output, sky_maps, template, raw
+        )
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"[output] {err}") from None
+
+
+def as_dict(study):
+    """The study's sections as plain dicts (for manifests): what a study file would hold."""
+    return {
+        section: dataclasses.asdict(getattr(study, section))
+        for section in SECTIONS
+        if not (section == "mask" and study.mask is None)
+    } | {"sky_maps": study.sky_maps, "leak_template": study.leak_template}

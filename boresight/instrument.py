@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import validation
+from .validation import option
 from .constants import ARCMIN, DEG
 
 MAX_ANGLE_DEG = 3600.0  #: angles beyond ten turns are input mistakes
@@ -35,7 +36,7 @@ LIMITS = {
 class Instrument:
     """Polarisation angles of the detector pairs [deg]; the paper's Q and U pairs by default."""
 
-    pair_angles_deg: tuple = (0.0, 45.0)
+    pair_angles_deg: tuple = option((0.0, 45.0), "polarisation angles of the pairs [deg]")
 
     def __post_init__(self):
         a = validation.numbers_array(
@@ -60,10 +61,14 @@ class Instrument:
 class Systematics:
     """Per-pair differential systematics; scalars apply to every pair, tuples give one per pair."""
 
-    dg: object = 0.0
-    rho_arcmin: object = 0.0
-    chi_deg: object = 0.0
-    leak: object = 0.0
+    dg: object = option(0.0, "differential gain, a number or one per pair", (int, float, list))
+    rho_arcmin: object = option(
+        0.0, "differential pointing [arcmin], >= 0, a number or one per pair", (int, float, list)
+    )
+    chi_deg: object = option(
+        0.0, "pointing offset direction [deg], a number or one per pair", (int, float, list)
+    )
+    leak: object = option(0.0, "additive leak, a number or one per pair", (int, float, list))
 
     def __post_init__(self):
         for name, (lo, hi) in LIMITS.items():

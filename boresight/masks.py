@@ -36,6 +36,10 @@ def footprint(ra_deg, dec_deg, galactic_cut_deg, nside):
     return mask.astype(np.float64)
 
 
+#: the names a study's [mask] survey may take; "none" is the full sky
+SURVEYS = (*FOOTPRINTS, "none")
+
+
 def survey_mask(name, nside):
     """The SO-like 'deep' or 'wide' binary mask at ``nside`` (RING, float 0/1)."""
     if name not in FOOTPRINTS:
@@ -65,16 +69,16 @@ def read_mask(path, nside=None):
 
 
 def from_config(spec, nside):
-    """The mask a study's [mask] table describes: survey ('deep', 'wide', 'none': full sky) or
-    file, optionally apodized by apodize_fwhm_deg."""
-    if "file" in spec:
-        mask = read_mask(spec["file"], nside)
-    elif spec["survey"] == "none":
+    """The mask a study's :class:`boresight.config.MaskSpec` describes at ``nside``: its file, or
+    its survey ('none': full sky), apodized when apodize_fwhm_deg is set. RING, (npix,)."""
+    if spec.file is not None:
+        mask = read_mask(spec.file, nside)
+    elif spec.survey == "none":
         mask = np.ones(12 * nside**2)
     else:
-        mask = survey_mask(spec["survey"], nside)
-    if "apodize_fwhm_deg" in spec:
-        mask = apodize(mask, spec["apodize_fwhm_deg"])
+        mask = survey_mask(spec.survey, nside)
+    if spec.apodize_fwhm_deg is not None:
+        mask = apodize(mask, spec.apodize_fwhm_deg)
     if not (mask > 0).any():
         raise ValueError(f"[mask] {spec} leaves no observed pixel at Nside {nside}")
     return mask

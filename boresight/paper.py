@@ -1,22 +1,25 @@
-"""The paper's study as a recipe: wide survey + pointing, deep survey + gain, with and without
-partial boresight rotation, the analytic predictions, the reference curves and the Q = U = 0 check.
+"""The paper's study as a preset of the one residual job: wide survey + pointing and deep survey +
+gain, with and without partial boresight rotation, the analytic predictions, the reference curves
+and the Q = U = 0 check.
 
-``run_study`` returns plain arrays per experiment; :mod:`boresight.report` turns them into the CSV,
-the computed verdicts and the report, :mod:`boresight.plots` into the figures. The pseudo-spectra
-(most of the time at lmax 4000) are transformed on a background thread while the next rotation
-angle is simulated and predicted; the stage times in the manifest are the main thread's.
+A reproduction is a :class:`boresight.config.Study` (sky, run and output sections; :func:`preset`
+gives the paper's and the quick resolution) run through :func:`boresight.residual.residual` once
+per experiment and rotation angle. Every spectrum is binned once, by :func:`band_table`, and
+results.csv, the report's claims and the figures read that table. The pseudo-spectra (most of the
+time at lmax 4000) are transformed on a background thread while the next rotation angle is
+simulated and predicted; the stage times in the manifest are the main thread's.
 """
 
-from collections import deque
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import coupling, engine, harmonics, masks, predict, provenance, sky, spectra
+from . import coupling, masks, predict, provenance, residual, sky
+from .config import ConfigError, OutputOptions, RunOptions, Study, _build, _check_types
 from .cosmology import load_spectra
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
-from .scan import paper_scan
+from .scan import SyntheticScan, paper_scan
+from .sky import SkyConfig
 
 
 @dataclass(frozen=True)
@@ -46,70 +49,96 @@ EXPERIMENTS = (
 )
 
 
-@dataclass(frozen=True)
-class StudyConfig:
-    """Resolution and numerics of the reproduction; the defaults are the paper's."""
+def preset(quick=False, run=None, **sky_fields):
+    """The paper's study: Nside 2048, lmax 4000, a 7 arcmin beam and seed 1, or with ``quick``
+    Nside 512 and lmax 1535 (minutes on a laptop); ``sky_fields`` override those and ``run`` the
+    run options. Bands: 14 from ell = 20 to min(lmax, 2 Nside). The scan seed is the sky's."""
+    nside, lmax = (512, 1535) if quick else (2048, 4000)
+    sky_cfg = SkyConfig(
+        **{"nside": nside, "lmax": lmax, "fwhm_arcmin": 7.0, "seed": 1, **sky_fields}
+    )
+    return Study(sky_cfg, SyntheticScan(seed=sky_cfg.seed), run=run or RunOptions())
 
-    nside: int = 2048
-    lmax: int = 4000
-    fwhm_arcmin: float = 7.0
-    seed: int = 1
-    evaluation: str = "interp"
-    lmin_bands: int = 20
-    n_bands: int = 14
-    nthreads: int = 0
-    backend: str = "cpu"
 
-    @classmethod
-    def quick(cls, **overrides):
-        """Reduced resolution that still shows every effect (Nside 512, lmax 1535)."""
-        return cls(**{"nside": 512, "lmax": 1535, **overrides})
+#: sections a reproduction takes from a study file; the experiments fix the rest
+REPRODUCE_SECTIONS = ("sky", "scan", "run", "output")
 
-    @property
-    def lmax_bands(self):
-        """Highest multipole of the bands: 2 Nside, beyond which pixelisation dominates."""
-        return min(self.lmax, 2 * self.nside)
 
-    def edges(self):
-        return spectra.log_bins(self.lmin_bands, self.lmax_bands, self.n_bands)
+def from_raw(raw, quick=False):
+    """The paper's study with the [sky], [run] and [output] tables (and scan.seed) of a study
+    file applied over :func:`preset`: what ``boresight reproduce --config FILE`` runs."""
+    _check_types(raw)
+    fixed = sorted(set(raw) - set(REPRODUCE_SECTIONS))
+    scan_keys = sorted(set(raw.get("scan", {})) - {"seed"})
+    if fixed or scan_keys:
+        raise ConfigError(
+            f"reproduce runs the paper's experiments, which set {fixed or scan_keys}; "
+            f"a reproduction takes only {REPRODUCE_SECTIONS} (scan: seed only)"
+        )
+    base = preset(quick)
+    sky_cfg = _build("sky", SkyConfig, {**vars(base.sky), **raw.get("sky", {})})
+    seed = raw.get("scan", {}).get("seed", sky_cfg.seed)
+    run = _build("run", RunOptions, raw.get("run", {}))
+    output = _build("output", OutputOptions, raw.get("output", {}))
+    try:
+        return Study(sky_cfg, SyntheticScan(seed=seed), run=run, output=output, raw=raw)
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"[output] {err}") from None
 
 
 @dataclass
 class ExperimentResult:
-    """Unbinned spectra [muK^2] of one experiment, keyed by rotation angle (None: no rotation)."""
+    """One experiment's residual jobs, keyed by rotation angle (None: no rotation)."""
 
     experiment: Experiment
     fsky: float
-    cross: dict = field(default_factory=dict)  #: 2 Re<B, dB> per angle
-    auto: dict = field(default_factory=dict)  #: <dB, dB> per angle
-    predicted_cl: dict = field(default_factory=dict)  #: eq. 10 per angle
-    predicted_map: dict = field(default_factory=dict)  #: predicted-map residual (no / ideal angle)
-    zero_qu: dict = field(default_factory=dict)  #: residual with Q = U = 0 input per angle
+    residuals: dict = field(default_factory=dict)  #: residual.Residual per angle
+    zero_qu_residuals: dict = field(default_factory=dict)  #: Q = U = 0 input, no / ideal angle
     references: dict = field(default_factory=dict)  #: pseudo-C_ell BB per reference value
 
     def residual(self, angle):
-        return self.cross[angle] + self.auto[angle]
+        """C_BB(sys) - C_BB(no sys) [muK^2], (lmax + 1,)."""
+        return self.residuals[angle].total
+
+    @property
+    def cross(self):
+        return {a: r.cross for a, r in self.residuals.items()}
+
+    @property
+    def auto(self):
+        return {a: r.auto for a, r in self.residuals.items()}
+
+    @property
+    def predicted_cl(self):
+        return {a: r.predicted_cl for a, r in self.residuals.items()}
+
+    @property
+    def predicted_map(self):
+        return {a: r.predicted_map for a, r in self.residuals.items() if r.predicted_map_parts}
+
+    @property
+    def zero_qu(self):
+        return {a: r.auto for a, r in self.zero_qu_residuals.items()}
 
 
-def run_study(cfg=StudyConfig(), experiments=EXPERIMENTS, log=lambda msg: None, progress=False):
+def run_study(study=preset(), experiments=EXPERIMENTS, log=lambda msg: None, progress=False):
     """Run the paper's study; returns ({name: ExperimentResult}, {stage: seconds})."""
     timer = provenance.Timer(log)
     theory = load_spectra()
-    sky_cfg = sky.SkyConfig(
-        nside=cfg.nside, lmax=cfg.lmax, fwhm_arcmin=cfg.fwhm_arcmin, seed=cfg.seed
-    )
     with timer("sky"):
-        the_sky = sky.make_sky(sky_cfg, theory, cfg.nthreads)
+        the_sky = sky.make_sky(study.sky, theory, study.run.nthreads)
         unpolarised = sky.Sky(
             alm=_temperature_only(the_sky.alm),
             maps=_temperature_only(the_sky.maps),
-            nside=cfg.nside,
-            lmax=cfg.lmax,
-            fwhm_arcmin=cfg.fwhm_arcmin,
+            nside=the_sky.nside,
+            lmax=the_sky.lmax,
+            fwhm_arcmin=the_sky.fwhm_arcmin,
         )
     results = {}
     for exp in experiments:
-        results[exp.name] = _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress)
+        results[exp.name] = _run_experiment(
+            exp, study, the_sky, unpolarised, theory, timer, progress
+        )
     return results, timer.stages
 
 
@@ -120,156 +149,125 @@ def _temperature_only(stack):
     return out
 
 
-class _Transforms:
-    """The study's spherical-harmonic transforms, run in order on one background thread.
-
-    ducc0 uses every core with the GIL released, so the transforms of one angle overlap the
-    simulation and prediction of the next. At most ``depth`` jobs are queued or running, since
-    each holds full-sky maps. Results are those of running the jobs in turn. Jobs must not call
-    numba's parallel kernels, which run on the main thread (its threading layer is not re-entrant).
-    """
-
-    def __init__(self, depth=2):
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="boresight-transforms")
-        self._queued = deque()
-        self._all = []
-        self.depth = depth
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self._pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
-
-    def submit(self, fn, *args):
-        """Queue fn(*args) once fewer than ``depth`` jobs wait; returns its Future."""
-        while len(self._queued) >= self.depth:
-            self._queued.popleft().result()
-        future = self._pool.submit(fn, *args)
-        self._queued.append(future)
-        self._all.append(future)
-        return future
-
-    def wait(self):
-        """Wait for every job; re-raises the first job's exception."""
-        for future in self._all:
-            future.result()
-
-
-def _run_experiment(exp, cfg, the_sky, unpolarised, theory, timer, progress):
-    lmax_s, nthreads = cfg.lmax_bands, cfg.nthreads
-    sim_kw = dict(
-        evaluation=cfg.evaluation, nthreads=nthreads, backend=cfg.backend, progress=progress
-    )
-    with _Transforms() as transforms:
+def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
+    lmax, run, seed = study.output.lmax, study.run, study.scan.seed
+    fwhm, nside = study.sky.fwhm_arcmin, study.sky.nside
+    with residual.Transforms(background=True) as transforms:
         with timer(f"{exp.name}: mask and coupling"):
-            mask = masks.survey_mask(exp.survey, cfg.nside)
-            obs = mask > 0
-            local = transforms.submit(predict.local_cl, the_sky, mask, lmax_s, nthreads)
-            couplings = coupling.coupling_matrices(mask, lmax_s, nthreads)
+            mask = masks.survey_mask(exp.survey, nside)
+            local = transforms.submit(predict.local_cl, the_sky, mask, lmax, run.nthreads)
+            couplings = coupling.coupling_matrices(mask, lmax, run.nthreads)
         res = ExperimentResult(exp, masks.fsky(mask))
         key = "r" if exp.reference == "r" else "a_lens"
         for value in exp.reference_values:
             res.references[value] = predict.reference_bb(
-                couplings, theory, cfg.fwhm_arcmin, cfg.nside, **{key: value}
+                couplings, theory, fwhm, nside, **{key: value}
             )
-
-        def b_of(qu):
-            return spectra.masked_pol_alm(qu, mask, lmax_s, nthreads)[1]
-
-        def parts_of(d_qu, b_ref):
-            return spectra.difference_bb_parts(d_qu, b_ref, mask, lmax_s, nthreads)
-
-        def residual(angle, d_qu, ref_qu, b_ref):
-            d_qu -= ref_qu
-            res.cross[angle], res.auto[angle] = parts_of(d_qu, b_ref.result())
-
-        def predicted_map(angle, dp, b_ref):
-            res.predicted_map[angle] = sum(parts_of(np.array([dp.real, dp.imag]), b_ref.result()))
-
-        def zero_qu(angle, qu):  # the reference is zero: the residual is the auto part alone
-            res.zero_qu[angle] = harmonics.alm2cl(b_of(qu))
-
+        prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
+        job = dict(run=run, transforms=transforms, progress=progress)
         with timer(f"{exp.name}: reference (no systematic)"):
-            ref = engine.simulate(
-                the_sky, paper_scan(exp.survey, seed=cfg.seed), pixels=obs, **sim_kw
+            ref, _ = residual.reference(
+                the_sky, paper_scan(exp.survey, seed=seed), mask, lmax, **job
             )
-            ref_qu = ref.qu
-            del ref
-            b_ref = transforms.submit(b_of, ref_qu)
         for angle in (None,) + exp.angles_deg:
             label = "no rotation" if angle is None else f"rotation {angle:g} deg"
-            scan = paper_scan(exp.survey, angle, seed=cfg.seed)
+            scan = paper_scan(exp.survey, angle, seed=seed)
+            ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
             with timer(f"{exp.name}: {label}"):
-                sim = engine.simulate(
-                    the_sky, scan, systematics=exp.systematics, pixels=obs, **sim_kw
-                )
-                transforms.submit(residual, angle, sim.qu, ref_qu, b_ref)
-                del sim  # full-sky arrays: free them before the next ones are allocated
-                h, _ = engine.scan_moments(
-                    scan, cfg.nside, pixels=obs, nthreads=nthreads, backend=cfg.backend
-                )
-                res.predicted_cl[angle] = predict.residual_pseudo_bb(
-                    h,
-                    mask,
-                    couplings,
+                res.residuals[angle] = residual.residual(
+                    the_sky,
+                    scan,
                     exp.systematics,
-                    theory,
-                    cfg.fwhm_arcmin,
-                    field_cl=local.result(),
+                    mask,
+                    lmax,
+                    reference_=ref,
+                    prediction=prediction,
+                    predict_map=ideal,
+                    **job,
                 )
-                if angle in (None, exp.ideal_deg):  # the map-level check needs no other angle
-                    dp = predict.delta_p(the_sky, h, exp.systematics, nthreads=nthreads)
-                    dp *= obs
-                    transforms.submit(predicted_map, angle, dp, b_ref)
-                del h
-            if angle in (None, exp.ideal_deg):
+            if ideal:
                 with timer(f"{exp.name}: Q = U = 0, {label}"):
-                    sim0 = engine.simulate(
-                        unpolarised, scan, systematics=exp.systematics, pixels=obs, **sim_kw
+                    res.zero_qu_residuals[angle] = residual.residual(
+                        unpolarised,
+                        scan,
+                        exp.systematics,
+                        mask,
+                        lmax,
+                        reference_=residual.Reference.zero(),
+                        **job,
                     )
-                    transforms.submit(zero_qu, angle, sim0.qu)
-                    del sim0
         with timer(f"{exp.name}: transforms still running"):
             transforms.wait()
     return res
 
 
-def tidy_rows(results, cfg):
-    """One row per (experiment, rotation angle, ell band): the columns of results.csv."""
-    edges = cfg.edges()
+@dataclass(frozen=True)
+class BandTable:
+    """An experiment's spectra binned once: band centres, the results.csv columns per rotation
+    angle and the reference curves. The CSV, the report's claims and the figures read it."""
+
+    centres: np.ndarray
+    columns: dict  #: (angle, column) -> band values
+    references: dict  #: reference value -> band values
+
+    def values(self, angle, column, lo=0, hi=np.inf):
+        """Band values of a column at an angle, for bands whose centre lies in [lo, hi]."""
+        keep = (self.centres >= lo) & (self.centres <= hi)
+        return self.columns[angle, column][keep]
+
+    def reference(self, value, lo=0, hi=np.inf):
+        keep = (self.centres >= lo) & (self.centres <= hi)
+        return self.references[value][keep]
+
+
+def band_rows(res, study):
+    """results.csv rows of one experiment: one per (rotation angle, ell band)."""
+    edges = study.output.edges()
     rows = []
-    for name, res in results.items():
-        _, base = spectra.bin_spectrum(res.residual(None), edges)
-        for angle in res.cross:
-            _, total = spectra.bin_spectrum(res.residual(angle), edges)
-            _, auto = spectra.bin_spectrum(res.auto[angle], edges)
-            _, pred = spectra.bin_spectrum(res.predicted_cl[angle], edges)
-            pmap = (
-                spectra.bin_spectrum(res.predicted_map[angle], edges)[1]
-                if angle in res.predicted_map
-                else np.full(len(edges) - 1, np.nan)
-            )
-            for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
-                rows.append(
-                    dict(
-                        experiment=name,
-                        pbr_angle_deg="" if angle is None else angle,
-                        ell_lo=int(lo),
-                        ell_hi=int(hi) - 1,
-                        residual_bb=total[i],
-                        residual_auto_bb=auto[i],
-                        residual_cross_bb=total[i] - auto[i],
-                        predicted_bb=pred[i],
-                        predicted_map_bb=pmap[i],
-                        reduction=base[i] / total[i] if total[i] != 0 else np.inf,
-                        nside=cfg.nside,
-                        lmax=cfg.lmax,
-                        seed=cfg.seed,
-                        evaluation=cfg.evaluation,
-                    )
-                )
+    for angle, job in res.residuals.items():
+        rows += residual.band_rows(
+            edges,
+            {**job.columns(), "predicted_map_bb": job.predicted_map},
+            experiment=res.experiment.name,
+            pbr_angle_deg="" if angle is None else angle,
+        )
+    base = {r["ell_lo"]: r["residual_bb"] for r in rows if r["pbr_angle_deg"] == ""}
+    for r in rows:
+        total = r["residual_bb"]
+        r["reduction"] = base[r["ell_lo"]] / total if total != 0 else np.inf
+        r.update(
+            nside=study.sky.nside,
+            lmax=study.sky.lmax,
+            seed=study.sky.seed,
+            evaluation=study.run.evaluation,
+        )
     return rows
+
+
+def band_table(res, rows, study):
+    """The :class:`BandTable` of one experiment from its results.csv rows."""
+    mine = [r for r in rows if r["experiment"] == res.experiment.name]
+    angles = [None if r["pbr_angle_deg"] == "" else r["pbr_angle_deg"] for r in mine]
+    first = [r for r, a in zip(mine, angles) if a is None]
+    centres = np.array([0.5 * (r["ell_lo"] + r["ell_hi"]) for r in first])
+    columns = {}
+    for r, a in zip(mine, angles):
+        for name in CSV_COLUMNS[4:10]:
+            columns.setdefault((a, name), []).append(r[name])
+    references = {
+        value: residual.band_rows(study.output.edges(), {"c": cl})
+        for value, cl in res.references.items()
+    }
+    return BandTable(
+        centres,
+        {k: np.array(v) for k, v in columns.items()},
+        {value: np.array([r["c"] for r in rows_]) for value, rows_ in references.items()},
+    )
+
+
+def tidy_rows(results, study):
+    """One row per (experiment, rotation angle, ell band): the columns of results.csv."""
+    return [row for res in results.values() for row in band_rows(res, study)]
 
 
 CSV_COLUMNS = (
@@ -288,7 +286,3 @@ CSV_COLUMNS = (
     "seed",
     "evaluation",
 )
-
-
-def config_dict(cfg):
-    return asdict(cfg)

@@ -46,10 +46,12 @@ def _save(fig, path_stem):
     plt.close(fig)
 
 
-def residual_figure(res, cfg, angles, path_stem):
-    """Residual pseudo-C_ell BB against ell for the given rotation angles (None: no rotation)."""
+def residual_figure(res, table, study, angles, path_stem):
+    """Residual pseudo-C_ell BB against ell for the given rotation angles (None: no rotation):
+    the bands of ``table`` (:class:`boresight.paper.BandTable`), the unbinned prediction and
+    reference curves of ``res``."""
     exp = res.experiment
-    edges = cfg.edges()
+    edges = study.output.edges()
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     for value, colour in zip(exp.reference_values, REF_COLOURS):
         ell = np.arange(res.references[value].size)
@@ -66,7 +68,7 @@ def residual_figure(res, cfg, angles, path_stem):
         label="analytic (no rotation)",
     )
     for i, angle in enumerate(angles):
-        centres, values = spectra.bin_spectrum(res.residual(angle), edges)
+        centres, values = table.centres, table.values(angle, "residual_bb")
         label = "no rotation" if angle is None else f"rotation {angle:g}$^\\circ$"
         colour = ANGLE_COLOURS[None] if angle is None else ANGLE_COLOURS.get(i - 1, "tab:gray")
         _signed_points(ax, centres, values, colour, label)
@@ -75,7 +77,7 @@ def residual_figure(res, cfg, angles, path_stem):
     ticks = [t for t in (20, 50, 100, 200, 500, 1000, 2000, 4000) if edges[0] <= t <= edges[-1]]
     ax.set_xticks(ticks, [str(t) for t in ticks])
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax.set_title(f"{exp.name.replace('_', ', ')}: Nside {cfg.nside}")
+    ax.set_title(f"{exp.name.replace('_', ', ')}: Nside {study.sky.nside}")
     ax.legend(fontsize=8, loc="lower left")
     _save(fig, path_stem)
 
@@ -120,27 +122,35 @@ def map_figure(maps, names, path):
     plt.close(fig)
 
 
-def spectrum_figure(rows, study, path_stem):
-    """|residual C_BB| per multipole of a simulate run, sign marked, on log axes."""
-    ell = np.array([r["ell"] for r in rows])
-    res = np.array([r["residual_bb"] for r in rows])
-    lmin = study.output["lmin"]
-    edges = spectra.log_bins(lmin, ell[-1], study.output["n_bands"])
-    centres, values = spectra.bin_spectrum(res, edges)
+def spectrum_figure(bands, path_stem):
+    """|residual C_BB| per band of a simulate run (bands.csv rows), sign marked, with the h_n
+    prediction where there is one, on log axes."""
+    centres = _band_centres(bands)
+    values = np.array([r["residual_bb"] for r in bands])
+    predicted = np.array([r["predicted_bb"] for r in bands])
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     _signed_points(ax, centres, values, "tab:orange", "residual (band mean)")
+    if np.isfinite(predicted).all():
+        ax.plot(centres, np.abs(predicted), "k--", lw=1.2, label="h_n prediction")
     _residual_axes(ax)
     ax.legend(fontsize=8)
     _save(fig, path_stem)
 
 
-def compare_figure(edges, curves, systematic, path_stem):
-    """|residual C_BB| of a real scan and its synthetic twin, sign marked."""
-    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+def _band_centres(rows):
+    return np.array([0.5 * (r["ell_lo"] + r["ell_hi"]) for r in rows])
+
+
+def compare_figure(rows, systematic, path_stem):
+    """|residual C_BB| of a real scan and its synthetic twin per band, sign marked (compare.csv
+    rows)."""
+    centres = _band_centres(rows)
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     colours = ("tab:orange", "tab:blue", "tab:red", "tab:green")
-    for (name, values), colour in zip(curves.items(), colours):
-        _signed_points(ax, centres, values, colour, name.replace("_", " "))
+    names = [k for k in rows[0] if k.startswith("residual_")]
+    for name, colour in zip(names, colours):
+        values = np.array([r[name] for r in rows])
+        _signed_points(ax, centres, values, colour, name[9:-3].replace("_", " "))
     _residual_axes(ax)
     ax.set_title(f"{systematic}: real schedule and its synthetic twin")
     ax.legend(fontsize=8)

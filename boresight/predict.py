@@ -30,8 +30,13 @@ N_MAX = 4  #: highest spin moment the predictions use
 COHERENT_BLOCK = 8  #: h_n is smoothed over (COHERENT_BLOCK)^2 pixels for the coherent part
 
 
+def supports(instrument):
+    """Whether the analytic prediction covers this instrument: the paper's pairs at (0, 45) deg."""
+    return instrument is None or tuple(instrument.pair_angles_deg) == (0.0, 45.0)
+
+
 def _qu_pairs(instrument):
-    if instrument is not None and tuple(instrument.pair_angles_deg) != (0.0, 45.0):
+    if not supports(instrument):
         raise ValueError(
             "the analytic prediction needs the paper's pairs at (0, 45) deg, got "
             f"{instrument.pair_angles_deg}"

@@ -9,8 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import spectra
-
 
 @dataclass(frozen=True)
 class Claim:
@@ -21,34 +19,27 @@ class Claim:
     reproduced: bool
 
 
-def _bands(res, cfg, angle, part="total", lo=0, hi=np.inf):
-    edges = cfg.edges()
-    centres, values = spectra.bin_spectrum(
-        res.residual(angle) if part == "total" else getattr(res, part)[angle], edges
-    )
-    keep = (centres >= lo) & (centres <= hi)
-    return values[keep]
+def _column(part):
+    return {"total": "residual_bb", "auto": "residual_auto_bb"}[part]
 
 
-def _reduction(res, cfg, angle, lo=0, hi=np.inf, part="total"):
-    base = _bands(res, cfg, None, part, lo, hi)
-    return np.abs(base / _bands(res, cfg, angle, part, lo, hi))
+def _reduction(table, angle, lo=0, hi=np.inf, part="total"):
+    base = table.values(None, _column(part), lo, hi)
+    return np.abs(base / table.values(angle, _column(part), lo, hi))
 
 
-def _ratio_to_reference(res, cfg, angle, value, lo=0, hi=np.inf):
-    centres, ref = spectra.bin_spectrum(res.references[value], cfg.edges())
-    keep = (centres >= lo) & (centres <= hi)
-    return _bands(res, cfg, angle, "total", lo, hi) / ref[keep]
+def _ratio_to_reference(table, angle, value, lo=0, hi=np.inf):
+    return table.values(angle, "residual_bb", lo, hi) / table.reference(value, lo, hi)
 
 
 def _claim(res, statement, test, value, ok, fmt="{:.3g}"):
     return Claim(res.experiment.name, statement, test, fmt.format(value), bool(ok))
 
 
-def pointing_claims(res, cfg):
+def pointing_claims(res, table):
     med = np.median
     out = []
-    a1 = med(_ratio_to_reference(res, cfg, None, 1.0, lo=40))
+    a1 = med(_ratio_to_reference(table, None, 1.0, lo=40))
     out.append(
         _claim(
             res,
@@ -58,7 +49,7 @@ def pointing_claims(res, cfg):
             1 / 3 <= a1 <= 3,
         )
     )
-    r180 = med(_reduction(res, cfg, 180.0))
+    r180 = med(_reduction(table, 180.0))
     out.append(
         _claim(
             res,
@@ -68,7 +59,7 @@ def pointing_claims(res, cfg):
             2 <= np.log10(r180) <= 4,
         )
     )
-    lvl = med(np.abs(_ratio_to_reference(res, cfg, 180.0, 1.0)))
+    lvl = med(np.abs(_ratio_to_reference(table, 180.0, 1.0)))
     out.append(
         _claim(
             res,
@@ -78,10 +69,10 @@ def pointing_claims(res, cfg):
             1e-4 <= lvl <= 1e-2,
         )
     )
-    before = _bands(res, cfg, None, "auto")
+    before = table.values(None, "residual_auto_bb")
     leaking = before >= 1e-2 * before.max()  # bands with a leak to speak of, not beyond the beam
-    leak = np.max(_bands(res, cfg, 180.0, "auto")[leaking] / before[leaking])
-    neg = np.mean(_bands(res, cfg, 180.0) < 0)
+    leak = np.max(table.values(180.0, "residual_auto_bb")[leaking] / before[leaking])
+    neg = np.mean(table.values(180.0, "residual_bb") < 0)
     out.append(
         _claim(
             res,
@@ -93,7 +84,7 @@ def pointing_claims(res, cfg):
             leak < 1e-2,
         )
     )
-    r179 = med(_reduction(res, cfg, 179.0))
+    r179 = med(_reduction(table, 179.0))
     out.append(
         _claim(
             res,
@@ -103,7 +94,7 @@ def pointing_claims(res, cfg):
             r179 >= 30,
         )
     )
-    r160 = med(_reduction(res, cfg, 160.0))
+    r160 = med(_reduction(table, 160.0))
     out.append(
         _claim(
             res,
@@ -116,10 +107,10 @@ def pointing_claims(res, cfg):
     return out
 
 
-def gain_claims(res, cfg):
+def gain_claims(res, table):
     med = np.median
     out = []
-    r_eq = med(_ratio_to_reference(res, cfg, None, 0.1, lo=30, hi=150)) * 0.1
+    r_eq = med(_ratio_to_reference(table, None, 0.1, lo=30, hi=150)) * 0.1
     out.append(
         _claim(
             res,
@@ -130,8 +121,8 @@ def gain_claims(res, cfg):
             0.1 / 3 <= r_eq <= 3,
         )
     )
-    large = med(_reduction(res, cfg, 90.0, hi=60))
-    small = med(_reduction(res, cfg, 90.0, lo=100))
+    large = med(_reduction(table, 90.0, hi=60))
+    small = med(_reduction(table, 90.0, lo=100))
     out.append(
         _claim(
             res,
@@ -150,8 +141,8 @@ def gain_claims(res, cfg):
             small >= 10,
         )
     )
-    auto = _bands(res, cfg, 90.0, "auto")
-    _, pred = spectra.bin_spectrum(res.predicted_cl[90.0], cfg.edges())
+    auto = table.values(90.0, "residual_auto_bb")
+    pred = table.values(90.0, "predicted_bb")
     floor = med(auto / pred)
     out.append(
         _claim(
@@ -165,7 +156,7 @@ def gain_claims(res, cfg):
             np.all(auto > 0) and 0.5 <= floor <= 2,
         )
     )
-    r89, r90 = med(_reduction(res, cfg, 89.0)), med(_reduction(res, cfg, 90.0))
+    r89, r90 = med(_reduction(table, 89.0)), med(_reduction(table, 90.0))
     out.append(
         _claim(
             res,
@@ -175,7 +166,7 @@ def gain_claims(res, cfg):
             r89 >= 100 and r89 >= 0.1 * r90,
         )
     )
-    r70 = med(_reduction(res, cfg, 70.0))
+    r70 = med(_reduction(table, 70.0))
     out.append(
         _claim(
             res,
@@ -188,7 +179,7 @@ def gain_claims(res, cfg):
     return out
 
 
-def common_claims(res, cfg):
+def common_claims(res, table, study):
     exp = res.experiment
     med = np.median
     out = []
@@ -204,15 +195,11 @@ def common_claims(res, cfg):
             z < floor,
         )
     )
-    lo, hi = 40, cfg.nside / 2
-    edges = cfg.edges()
-    centres, total = spectra.bin_spectrum(res.residual(None), edges)
-    _, auto = spectra.bin_spectrum(res.auto[None], edges)
-    _, pmap = spectra.bin_spectrum(res.predicted_map[None], edges)
-    _, pcl = spectra.bin_spectrum(res.predicted_cl[None], edges)
-    keep = (centres >= lo) & (centres <= hi)
-    dev_map = med(np.abs(pmap[keep] / total[keep] - 1))
-    dev_cl = med(np.abs(pcl[keep] / auto[keep] - 1))
+    lo, hi = 40, study.sky.nside / 2
+    total, auto = (table.values(None, c, lo, hi) for c in ("residual_bb", "residual_auto_bb"))
+    pmap, pcl = (table.values(None, c, lo, hi) for c in ("predicted_map_bb", "predicted_bb"))
+    dev_map = med(np.abs(pmap / total - 1))
+    dev_cl = med(np.abs(pcl / auto - 1))
     out.append(
         _claim(
             res,
@@ -225,7 +212,7 @@ def common_claims(res, cfg):
         )
     )
     angles = sorted(exp.angles_deg, key=lambda a: abs(a - exp.ideal_deg), reverse=True)
-    reds = [med(_reduction(res, cfg, a, part="auto")) for a in angles]
+    reds = [med(_reduction(table, a, part="auto")) for a in angles]
     out.append(
         _claim(
             res,
@@ -239,22 +226,29 @@ def common_claims(res, cfg):
     return out
 
 
-def evaluate_claims(results, cfg):
-    """All claims for the experiments present in ``results``."""
+def evaluate_claims(results, rows, study):
+    """All claims for the experiments present in ``results``, read from their results.csv
+    ``rows`` (binned once, :func:`boresight.paper.band_table`)."""
+    from .paper import band_table
+
     claims = []
     for name, res in results.items():
-        claims += pointing_claims(res, cfg) if name == "pointing_wide" else gain_claims(res, cfg)
-        claims += common_claims(res, cfg)
+        table = band_table(res, rows, study)
+        claims += (
+            pointing_claims(res, table) if name == "pointing_wide" else gain_claims(res, table)
+        )
+        claims += common_claims(res, table, study)
     return claims
 
 
-def report_markdown(claims, cfg, stages):
+def report_markdown(claims, study, stages):
     """report.md: each claim, the number measured here and the computed verdict."""
     lines = [
         "# boresight: reproduction of Thomas, McCallum & Brown (2020)",
         "",
-        f"Nside {cfg.nside}, lmax {cfg.lmax}, beam {cfg.fwhm_arcmin:g} arcmin, seed "
-        f"{cfg.seed}, evaluation `{cfg.evaluation}`, band edges {[int(e) for e in cfg.edges()]}.",
+        f"Nside {study.sky.nside}, lmax {study.sky.lmax}, beam {study.sky.fwhm_arcmin:g} arcmin, "
+        f"seed {study.sky.seed}, evaluation `{study.run.evaluation}`, band edges "
+        f"{[int(e) for e in study.output.edges()]}.",
         "",
         f"**{sum(c.reproduced for c in claims)} of {len(claims)} claims reproduced.**",
         "",

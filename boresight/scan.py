@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import validation
+from .validation import option
 from .constants import DEG
 from .instrument import MAX_ANGLE_DEG
 from .sky import MAX_SEED
@@ -40,12 +41,16 @@ class SyntheticScan:
     once per entry; in_pixel: "random" (uniform in solid angle) or "centre"; seed >= 0.
     """
 
-    n_phi: object = 4
-    range_rad: object = 0.719
-    centre_rad: object = 0.0
-    rotations_deg: tuple = (0.0,)
-    in_pixel: str = "random"
-    seed: int = 0
+    n_phi: object = option(
+        4, "crossing angles per pixel, an integer >= 1 or a FITS map", (int, str)
+    )
+    range_rad: object = option(
+        0.719, "range R of the crossing angles [rad] in [0, 2 pi], or a FITS map", (int, float, str)
+    )
+    centre_rad: object = option(0.0, "centre of the range [rad], or a FITS map", (int, float, str))
+    rotations_deg: tuple = option((0.0,), "boresight angles [deg]: every hit is repeated at each")
+    in_pixel: str = option("random", "hit positions in the pixel", choices=("random", "centre"))
+    seed: int = option(0, "seed of the hits, >= 0")
 
     def __post_init__(self):
         nphi = np.asarray(self.n_phi)

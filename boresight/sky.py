@@ -12,6 +12,7 @@ import healpy as hp
 import numpy as np
 
 from . import harmonics, validation
+from .validation import option
 from .constants import ARCMIN
 from .cosmology import load_spectra
 
@@ -25,13 +26,13 @@ MAX_AMPLITUDE = 100.0  #: upper bound on r and A_lens (either far beyond any phy
 class SkyConfig:
     """What sky to simulate. Paper values by default (Nside 2048, lmax 4000, 7 arcmin, r=0)."""
 
-    nside: int = 2048
-    lmax: int = 4000
-    fwhm_arcmin: float = 7.0
-    seed: int = 0
-    r: float = 0.0
-    a_lens: float = 1.0
-    polarised: bool = True  #: False sets Q = U = 0 (the paper's zero-polarisation check)
+    nside: int = option(2048, f"HEALPix Nside, a power of two in [1, {MAX_NSIDE}]")
+    lmax: int = option(4000, "band limit of the sky, 2..3 nside - 1")
+    fwhm_arcmin: float = option(7.0, "Gaussian beam FWHM [arcmin], >= 0")
+    seed: int = option(0, "seed of the sky realisation, >= 0")
+    r: float = option(0.0, "tensor-to-scalar ratio, >= 0")
+    a_lens: float = option(1.0, "lensing B-mode amplitude, >= 0")
+    polarised: bool = option(True, "false sets Q = U = 0 (the paper's zero-polarisation check)")
 
     def __post_init__(self):
         nside = validation.integer("nside", self.nside, 1, MAX_NSIDE)

@@ -1,4 +1,5 @@
-"""The jobs behind the CLI, callable from Python: reproduce, simulate, predict, scan_stats.
+"""The jobs behind the CLI, callable from Python: reproduce, simulate, predict_study, scan_stats,
+compare_scans. Each runs the one residual job (:mod:`boresight.residual`) where it simulates.
 
 Each writes into a staging directory that replaces ``out_dir`` only when the job has finished, so
 an interrupted job leaves nothing behind, and an existing directory is kept unless ``force``.
@@ -6,7 +7,6 @@ an interrupted job leaves nothing behind, and an existing directory is kept unle
 
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import healpy as hp
 import numpy as np
@@ -21,31 +21,28 @@ from . import (
     predict,
     provenance,
     report,
+    residual,
     resources,
     sky,
     spectra,
 )
+from .config import as_dict
 from .cosmology import load_spectra
 
 
 def check_memory(job, study, check=True):
     """Refuse (MemoryLimitError) a study whose estimated memory exceeds the machine's."""
-    chunk = study.run["chunk_pixels"] or engine.DEFAULT_CHUNK_PIXELS[study.run["backend"]]
+    chunk = study.run.chunk_pixels or engine.DEFAULT_CHUNK_PIXELS[study.run.backend]
     estimate = resources.estimate_bytes(
         job,
         study.sky.nside,
-        max(study.sky.lmax, study.output["lmax"]),
+        max(study.sky.lmax, study.output.lmax),
         resources.n_phi_max(study.scan.n_phi),
         len(study.scan.rotations_deg),
         study.instrument.n_pairs,
         chunk,
     )
     resources.require(job, estimate, check)
-
-
-def _inputs(study):
-    """The files a study reads: the output directory may not hold them."""
-    return [study.source, study.sky_maps, study.leak_template, study.mask.get("file")]
 
 
 def require_finite(what, values):
@@ -56,7 +53,7 @@ def require_finite(what, values):
 
 def reproduce(
     out_dir,
-    cfg=paper.StudyConfig.quick(),
+    study=paper.preset(quick=True),
     force=False,
     log=print,
     progress=False,
@@ -64,111 +61,77 @@ def reproduce(
 ):
     """Run the paper's study and write figures, results.csv, report.md and manifest.json.
 
-    Returns the list of :class:`boresight.report.Claim` with computed verdicts.
+    ``study``: :func:`boresight.paper.preset` or :func:`boresight.paper.from_raw`. Returns the list
+    of :class:`boresight.report.Claim` with computed verdicts.
     """
-    io.check_output_dir(out_dir, force)
+    io.check_output_dir(out_dir, force, study.inputs)
+    nside, lmax = study.sky.nside, study.sky.lmax
     resources.require(
         "reproduce",
-        resources.estimate_bytes("reproduce", cfg.nside, cfg.lmax, 4, 2, 2, 1 << 16),
+        resources.estimate_bytes("reproduce", nside, lmax, 4, 2, 2, 1 << 16),
         memory_check,
     )
-    results, stages = paper.run_study(cfg, log=log, progress=progress)
-    claims = report.evaluate_claims(results, cfg)
-    with io.staged_dir(out_dir, force) as stage:
+    results, stages = paper.run_study(study, log=log, progress=progress)
+    rows = paper.tidy_rows(results, study)
+    claims = report.evaluate_claims(results, rows, study)
+    with io.staged_dir(out_dir, force, study.inputs) as stage:
         t0 = time.perf_counter()
-        wide, deep = results["pointing_wide"], results["gain_deep"]
-        plots.residual_figure(wide, cfg, [None, 180.0], stage / "fig1_pointing_wide")
-        plots.residual_figure(deep, cfg, [None, 90.0], stage / "fig2_gain_deep")
-        plots.residual_figure(
-            wide, cfg, [None, 180.0, 179.0, 160.0], stage / "fig3_pointing_angles"
-        )
-        plots.residual_figure(deep, cfg, [None, 90.0, 89.0, 70.0], stage / "fig4_gain_angles")
-        fig_nside = min(cfg.nside, 256)
-        plots.footprint_figure(
-            masks.survey_mask("wide", fig_nside),
-            "SO-like wide (LAT) footprint",
-            stage / "fig5_wide_mask",
-        )
-        plots.footprint_figure(
-            masks.survey_mask("deep", fig_nside),
-            "SO-like deep (SAT) footprint",
-            stage / "fig6_deep_mask",
-        )
-        io.write_csv(stage / "results.csv", paper.tidy_rows(results, cfg), paper.CSV_COLUMNS)
+        for name, angles, stem in (
+            ("pointing_wide", [None, 180.0], "fig1_pointing_wide"),
+            ("gain_deep", [None, 90.0], "fig2_gain_deep"),
+            ("pointing_wide", [None, 180.0, 179.0, 160.0], "fig3_pointing_angles"),
+            ("gain_deep", [None, 90.0, 89.0, 70.0], "fig4_gain_angles"),
+        ):
+            res = results[name]
+            table = paper.band_table(res, rows, study)
+            plots.residual_figure(res, table, study, angles, stage / stem)
+        fig_nside = min(nside, 256)
+        for survey, title, stem in (
+            ("wide", "SO-like wide (LAT) footprint", "fig5_wide_mask"),
+            ("deep", "SO-like deep (SAT) footprint", "fig6_deep_mask"),
+        ):
+            plots.footprint_figure(masks.survey_mask(survey, fig_nside), title, stage / stem)
+        io.write_csv(stage / "results.csv", rows, paper.CSV_COLUMNS)
         stages["outputs"] = round(time.perf_counter() - t0, 3)
-        io.write_text(stage / "report.md", report.report_markdown(claims, cfg, stages))
+        io.write_text(stage / "report.md", report.report_markdown(claims, study, stages))
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(
-                paper.config_dict(cfg), {"sky": cfg.seed, "scan": cfg.seed}, stages
+                as_dict(study), {"sky": study.sky.seed, "scan": study.scan.seed}, stages
             ),
         )
     return claims
 
 
-def _load_sky(study, nthreads):
-    if study.sky_maps is None:
-        return sky.make_sky(study.sky, nthreads=nthreads)
-    maps = hp.read_map(study.sky_maps, field=(0, 1, 2))
-    return sky.Sky.from_maps(
-        maps, lmax=study.sky.lmax, fwhm_arcmin=study.sky.fwhm_arcmin, nthreads=nthreads
-    )
-
-
-def _template(study):
-    return None if study.leak_template is None else hp.read_map(study.leak_template)
-
-
 def simulate(study, out_dir, force=False, log=print, progress=False, memory_check=True):
-    """Simulate a study with and without its systematics; write maps, spectra, figures."""
-    io.check_output_dir(out_dir, force, _inputs(study))
+    """Simulate a study with and without its systematics and predict its residual.
+
+    Writes FITS maps (I, Q, U, HITS, RCOND), spectra.csv (per multipole: the residual, its parts,
+    the prediction and the pseudo-spectra of the maps with the systematic), bands.csv (the same
+    band columns as a reproduction's results.csv), figures and manifest.json. Returns the
+    per-multipole rows.
+    """
+    io.check_output_dir(out_dir, force, study.inputs)
     check_memory("simulate", study, memory_check)
     timer = provenance.Timer(log)
-    run, nthreads = study.run, study.run["nthreads"]
-    with timer("sky"):
-        mask = masks.from_config(study.mask, study.sky.nside)
-        the_sky = _load_sky(study, nthreads)
-    sim_kw = dict(
-        pixels=mask > 0,
-        evaluation=run["evaluation"],
-        backend=run["backend"],
-        chunk_pixels=run["chunk_pixels"],
-        nthreads=nthreads,
-        progress=progress,
-    )
-    with timer("simulate without systematics"):
-        ref = engine.simulate(the_sky, study.scan, study.instrument, **sim_kw)
-    with timer("simulate with systematics"):
-        sim = engine.simulate(
-            the_sky,
-            study.scan,
-            study.instrument,
-            study.systematics,
-            leak_template=_template(study),
-            **sim_kw,
-        )
-    lmax = study.output["lmax"]
+    lmax, nthreads = study.output.lmax, study.run.nthreads
+    with timer("simulate and predict"):
+        job, the_sky, mask = residual.from_study(study, keep_maps=True, progress=progress)
+        ref, sim = job.maps
     with timer("spectra"):
-        cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
+        columns = job.columns()
         i_map = np.where(sim.valid, the_sky.maps[0], 0.0)
         pseudo = spectra.pseudo_spectra(np.array([i_map, *sim.qu]), mask, lmax, nthreads)
-    require_finite("the residual spectrum", cross + auto)
+    require_finite("the residual spectrum", job.total)
     require_finite("the pseudo-spectra", pseudo)
+    columns.update({f"pseudo_{n}": pseudo[i] for i, n in enumerate(spectra.ORDER)})
     rows = [
-        dict(
-            ell=ell,
-            residual_bb=cross[ell] + auto[ell],
-            residual_cross_bb=cross[ell],
-            residual_auto_bb=auto[ell],
-            **{f"pseudo_{n}": pseudo[i, ell] for i, n in enumerate(spectra.ORDER)},
-        )
+        {"ell": ell, **{k: np.nan if v is None else v[ell] for k, v in columns.items()}}
         for ell in range(lmax + 1)
     ]
-    columns = ["ell", "residual_bb", "residual_cross_bb", "residual_auto_bb"] + [
-        f"pseudo_{n}" for n in spectra.ORDER
-    ]
-    with io.staged_dir(out_dir, force, _inputs(study)) as stage:
-        if study.output["maps"]:
+    bands = residual.band_rows(study.output.edges(), job.columns())
+    with io.staged_dir(out_dir, force, study.inputs) as stage:
+        if study.output.maps:
             for name, m in (("maps_systematics.fits", sim), ("maps_reference.fits", ref)):
                 io.write_maps(
                     stage / name,
@@ -185,8 +148,9 @@ def simulate(study, out_dir, force=False, log=print, progress=False, memory_chec
                 np.where(both, a - b, hp.UNSEEN) for a, b in ((sim.q, ref.q), (sim.u, ref.u))
             ]
             plots.map_figure(spurious, ["Q spurious", "U spurious"], stage / "maps_spurious.png")
-        io.write_csv(stage / "spectra.csv", rows, columns)
-        plots.spectrum_figure(rows, study, stage / "residual")
+        io.write_csv(stage / "spectra.csv", rows, ["ell", *columns])
+        io.write_csv(stage / "bands.csv", bands, list(bands[0]))
+        plots.spectrum_figure(bands, stage / "residual")
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(
@@ -201,10 +165,10 @@ def predict_study(study, log=print, memory_check=True):
     if study.sky_maps is not None:
         raise ValueError("predict uses the theory spectra; remove sky.maps from the config")
     check_memory("predict", study, memory_check)
-    nside, lmax = study.sky.nside, study.output["lmax"]
+    nside, lmax = study.sky.nside, study.output.lmax
     mask = masks.from_config(study.mask, nside)
-    h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run["nthreads"])
-    couplings = coupling.coupling_matrices(mask, lmax, study.run["nthreads"])
+    h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run.nthreads)
+    couplings = coupling.coupling_matrices(mask, lmax, study.run.nthreads)
     pred = predict.residual_pseudo_bb(
         h,
         mask,
@@ -220,12 +184,12 @@ def predict_study(study, log=print, memory_check=True):
 
 def scan_stats(study, out_dir, force=False, n_max=4, log=print, memory_check=True):
     """Write h_n (n = 1..n_max), hit, N_phi and R maps of the study's scan, and a summary."""
-    io.check_output_dir(out_dir, force, _inputs(study))
+    io.check_output_dir(out_dir, force, study.inputs)
     check_memory("scan-stats", study, memory_check)
     nside = study.sky.nside
     mask = masks.from_config(study.mask, nside)
     obs = mask > 0
-    h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run["nthreads"])
+    h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run.nthreads)
     n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
     rows = [
         dict(
@@ -237,7 +201,7 @@ def scan_stats(study, out_dir, force=False, n_max=4, log=print, memory_check=Tru
         for n in range(1, n_max + 1)
     ]
     require_finite("the h_n summary", [list(r.values()) for r in rows])
-    with io.staged_dir(out_dir, force, _inputs(study)) as stage:
+    with io.staged_dir(out_dir, force, study.inputs) as stage:
         cols = [np.where(obs, h[n].real, hp.UNSEEN) for n in range(1, n_max + 1)] + [
             np.where(obs, h[n].imag, hp.UNSEEN) for n in range(1, n_max + 1)
         ]
@@ -278,7 +242,7 @@ def compare_scans(
     real scan and the twin), compare.csv and compare.png/pdf. Returns the binned rows.
     """
     from . import ground, scanstats
-    from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
+    from .instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
 
     systematics = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}.get(systematic)
     if systematics is None:
@@ -314,37 +278,25 @@ def compare_scans(
         "real": schedule,
         "twin": twin,
     }
-    maps = {}
+    # Validity depends on the crossing angles alone, so the references fix the common mask.
+    refs = {}
     for name, scan in cases.items():
-        with timer(f"simulate {name.replace('_', ' ')}"):
-            if name.startswith("real"):
-                maps[name] = [
-                    engine.simulate_samples(the_sky, ground.pointing(scan), systematics=s)
-                    for s in (Systematics(), systematics)
-                ]
-            else:
-                maps[name] = [
-                    engine.simulate(the_sky, scan, systematics=s, pixels=obs)
-                    for s in (Systematics(), systematics)
-                ]
+        with timer(f"reference {name.replace('_', ' ')}"):
+            refs[name] = residual.simulate(the_sky, scan, Instrument(), Systematics(), obs)
     mask = obs.copy()
-    for ref, sim in maps.values():
-        mask &= ref.valid & sim.valid
+    for ref in refs.values():
+        mask &= ref.valid
     mask = mask.astype(float)
     lmax = 2 * nside
     edges = spectra.log_bins(10, lmax, 12)
-    curves = {
-        name: spectra.bin_spectrum(spectra.residual_bb(sim.qu, ref.qu, mask, lmax), edges)[1]
-        for name, (ref, sim) in maps.items()
-    }
-    rows = [
-        dict(
-            ell_lo=int(lo),
-            ell_hi=int(hi) - 1,
-            **{f"residual_{name}_bb": curves[name][i] for name in curves},
-        )
-        for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:]))
-    ]
+    curves = {}
+    for name, scan in cases.items():
+        with timer(f"residual {name.replace('_', ' ')}"):
+            reference = residual.reference_from_maps(refs[name], mask, lmax)
+            curves[f"residual_{name}_bb"] = residual.residual(
+                the_sky, scan, systematics, mask, lmax, reference_=reference
+            ).total
+    rows = residual.band_rows(edges, curves)
     require_finite("the residual spectra", list(curves.values()))
     twin_h, _ = engine.scan_moments(twin, nside, pixels=obs)
     table = [
@@ -370,7 +322,7 @@ def compare_scans(
         )
         io.write_csv(stage / "scan_stats.csv", table, list(table[0]))
         io.write_csv(stage / "compare.csv", rows, list(rows[0]))
-        plots.compare_figure(edges, curves, systematic, stage / "compare")
+        plots.compare_figure(rows, systematic, stage / "compare")
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(

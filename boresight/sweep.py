@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import coupling, engine, io, masks, predict, sky, spectra
+from . import coupling, io, masks, predict, residual
 from . import __version__
 from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
@@ -67,10 +67,10 @@ def load_sweep(path):
             study = parse_study(apply_overrides(base, overrides), os.path.dirname(base_path))
         except ConfigError as err:
             raise ConfigError(f"{path}, point {overrides}: {err}") from None
-        if study.output["lmax"] <= predict.R_RANGE[0]:
+        if study.output.lmax <= predict.R_RANGE[0]:
             raise ConfigError(
                 f"{path}: sweeps report delta_r over {predict.R_RANGE[0]} <= ell <= "
-                f"{predict.R_RANGE[1]}; output.lmax = {study.output['lmax']} must be > "
+                f"{predict.R_RANGE[1]}; output.lmax = {study.output.lmax} must be > "
                 f"{predict.R_RANGE[0]}"
             )
     return base, os.path.dirname(base_path), points
@@ -145,55 +145,21 @@ def _coupling_matrices(mask, lmax, nthreads):
 
 
 def run_point(base, base_dir, overrides):
-    """Simulate one point; returns its rows (one per ell band). Pure: a task for any worker."""
+    """Run one point's residual job; returns its rows (one per ell band) with delta_r and the
+    predicted delta_r (NaN where the instrument has no prediction). Pure: a task for any worker."""
     study = parse_study(apply_overrides(base, overrides), base_dir)
-    nthreads, lmax = study.run["nthreads"], study.output["lmax"]
-    the_sky = sky.make_sky(study.sky, nthreads=nthreads)
-    mask = masks.from_config(study.mask, the_sky.nside)
-    kw = dict(
-        pixels=mask > 0,
-        evaluation=study.run["evaluation"],
-        backend=study.run["backend"],
-        chunk_pixels=study.run["chunk_pixels"],
-        nthreads=nthreads,
-    )
-    ref = engine.simulate(the_sky, study.scan, study.instrument, **kw)
-    sim = engine.simulate(the_sky, study.scan, study.instrument, study.systematics, **kw)
-    cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax, nthreads)
-    theory = load_spectra()
+    nside, lmax, nthreads = study.sky.nside, study.output.lmax, study.run.nthreads
+    mask = masks.from_config(study.mask, nside)
     couplings = _coupling_matrices(mask, lmax, nthreads)
-    h, _ = engine.scan_moments(study.scan, the_sky.nside, pixels=mask > 0, nthreads=nthreads)
-    try:
-        pred = predict.residual_pseudo_bb(
-            h,
-            mask,
-            couplings,
-            study.systematics,
-            theory,
-            study.sky.fwhm_arcmin,
-            study.instrument,
-            field_cl=predict.local_cl(the_sky, mask, lmax, nthreads),
-        )
-    except ValueError:  # prediction needs the Q/U pair layout
-        pred = np.full(lmax + 1, np.nan)
-    template = predict.tensor_template(couplings, theory, study.sky.fwhm_arcmin, the_sky.nside)
-    total = cross + auto
-    dr, dr_pred = predict.delta_r(total, template), predict.delta_r(pred, template)
-    edges = spectra.log_bins(study.output["lmin"], lmax, study.output["n_bands"])
-    binned = spectra.bin_spectrum(np.array([total, auto, cross, pred]), edges)[1]
-    return [
-        dict(
-            ell_lo=int(lo),
-            ell_hi=int(hi) - 1,
-            residual_bb=b[0],
-            residual_auto_bb=b[1],
-            residual_cross_bb=b[2],
-            predicted_bb=b[3],
-            delta_r=dr,
-            predicted_delta_r=dr_pred,
-        )
-        for lo, hi, b in zip(edges[:-1], edges[1:], binned.T)
-    ]
+    job, _, _ = residual.from_study(study, mask=mask, couplings=couplings)
+    template = predict.tensor_template(couplings, load_spectra(), study.sky.fwhm_arcmin, nside)
+    pred = job.predicted_cl
+    return residual.band_rows(
+        study.output.edges(),
+        job.columns(),
+        delta_r=predict.delta_r(job.total, template),
+        predicted_delta_r=np.nan if pred is None else predict.delta_r(pred, template),
+    )
 
 
 def _columns(points):
@@ -201,8 +167,7 @@ def _columns(points):
 
 
 def _n_bands(base, base_dir, overrides):
-    out = parse_study(apply_overrides(base, overrides), base_dir).output
-    return len(spectra.log_bins(out["lmin"], out["lmax"], out["n_bands"])) - 1
+    return len(parse_study(apply_overrides(base, overrides), base_dir).output.edges()) - 1
 
 
 class CorruptPointError(ConfigError):

@@ -6,6 +6,7 @@ the same. NaN and infinity never pass: every comparison below is written so that
 """
 
 import numbers
+from dataclasses import field
 
 import numpy as np
 
@@ -53,3 +54,14 @@ def numbers_array(name, value, lo=None, hi=None):
     if not ok or (hi is not None and not (arr <= hi).all()):
         raise ValueError(f"{name} must be {_describe(lo, hi)}, got {value!r}")
     return arr
+
+
+def option(default, help, types=None, choices=None):
+    """A dataclass field that documents itself: its default, help text, the TOML types it accepts
+    (from the default's type unless given) and its allowed values. :mod:`boresight.config` builds
+    the study file's schema, its error messages and the command-line flags from these."""
+    if types is None:
+        kind = type(default)
+        types = {bool: (bool,), int: (int,), float: (int, float), str: (str,), tuple: (list,)}[kind]
+    meta = {"help": help, "types": types, "choices": choices}
+    return field(default=default, metadata=meta)

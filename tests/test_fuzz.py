@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from boresight import engine, ground, scanstats, sweep
 from boresight.cli import main
-from boresight.config import SCHEMA, ConfigError, parse_study
+from boresight.config import ConfigError, parse_study, schema
 from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan
 
@@ -52,9 +52,9 @@ values = st.one_of(
 def raw_configs(draw):
     """Dicts shaped like a study TOML: mostly known sections and keys, sometimes not."""
     raw = {}
-    sections = draw(st.lists(st.sampled_from([*SCHEMA, "telescope"]), max_size=6, unique=True))
+    sections = draw(st.lists(st.sampled_from([*schema(), "telescope"]), max_size=6, unique=True))
     for section in sections:
-        keys = [*SCHEMA.get(section, {}), "colour"]
+        keys = [*schema().get(section, {}), "colour"]
         body = draw(st.dictionaries(st.sampled_from(keys), values, max_size=4))
         raw[section] = body if draw(st.integers(0, 9)) else draw(scalars)
     return raw

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from boresight import masks
+from boresight.config import MaskSpec
 
 
 @pytest.mark.parametrize("name, fsky, tol", [("deep", 0.10, 0.01), ("wide", 0.40, 0.02)])
@@ -36,11 +37,11 @@ def test_apodize_and_read(tmp_path):
 
 def test_mask_from_a_study_config(tmp_path):
     nside = 32
-    assert np.array_equal(masks.from_config({"survey": "none"}, nside), np.ones(12 * nside**2))
+    assert np.array_equal(masks.from_config(MaskSpec(), nside), np.ones(12 * nside**2))
     deep = masks.survey_mask("deep", nside)
-    assert np.array_equal(masks.from_config({"survey": "deep"}, nside), deep)
-    apod = masks.from_config({"survey": "deep", "apodize_fwhm_deg": 5.0}, nside)
+    assert np.array_equal(masks.from_config(MaskSpec("deep"), nside), deep)
+    apod = masks.from_config(MaskSpec("deep", apodize_fwhm_deg=5.0), nside)
     assert np.array_equal(apod, masks.apodize(deep, 5.0)) and 0 < apod.sum() < deep.sum()
     path = tmp_path / "mask.fits"
     hp.write_map(path, deep)
-    assert np.array_equal(masks.from_config({"file": str(path)}, nside), deep)
+    assert np.array_equal(masks.from_config(MaskSpec(file=str(path)), nside), deep)

@@ -8,36 +8,34 @@ import pytest
 from boresight import engine, masks, paper, predict, sky, spectra
 from boresight.scan import paper_scan
 
-CFG = paper.StudyConfig(nside=64, lmax=191, seed=3)
+STUDY = paper.preset(nside=64, lmax=191, seed=3)
 
 
 @pytest.fixture(scope="module")
 def study():
-    results, stages = paper.run_study(CFG)
+    results, stages = paper.run_study(STUDY)
     return results, stages
 
 
 @pytest.mark.parametrize("exp", paper.EXPERIMENTS, ids=lambda e: e.name)
 def test_background_transforms_match_direct_calls(study, exp):
     res = study[0][exp.name]
-    sky_cfg = sky.SkyConfig(
-        nside=CFG.nside, lmax=CFG.lmax, fwhm_arcmin=CFG.fwhm_arcmin, seed=CFG.seed
-    )
+    sky_cfg = sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=7.0, seed=3)
     the_sky = sky.make_sky(sky_cfg)
     unpolarised = sky.make_sky(dataclasses.replace(sky_cfg, polarised=False))
-    mask = masks.survey_mask(exp.survey, CFG.nside)
-    obs, lmax = mask > 0, CFG.lmax_bands
-    ref = engine.simulate(the_sky, paper_scan(exp.survey, seed=CFG.seed), pixels=obs)
+    mask = masks.survey_mask(exp.survey, 64)
+    obs, lmax = mask > 0, 128  # bands end at 2 Nside
+    ref = engine.simulate(the_sky, paper_scan(exp.survey, seed=3), pixels=obs)
     assert set(res.cross) == set(res.auto) == {None, *exp.angles_deg}
     assert set(res.predicted_map) == set(res.zero_qu) == {None, exp.ideal_deg}
     for angle in (None, exp.ideal_deg, exp.angles_deg[-1]):
-        scan = paper_scan(exp.survey, angle, seed=CFG.seed)
+        scan = paper_scan(exp.survey, angle, seed=3)
         sim = engine.simulate(the_sky, scan, systematics=exp.systematics, pixels=obs)
         cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)
         np.testing.assert_array_equal(res.cross[angle], cross)
         np.testing.assert_array_equal(res.auto[angle], auto)
         if angle in res.predicted_map:
-            h, _ = engine.scan_moments(scan, CFG.nside, pixels=obs)
+            h, _ = engine.scan_moments(scan, 64, pixels=obs)
             dp = predict.delta_p(the_sky, h, exp.systematics) * obs
             expected = spectra.residual_bb(ref.qu + [dp.real, dp.imag], ref.qu, mask, lmax)
             # the direct route adds dP to the reference and subtracts it again: rounding of ref
@@ -64,4 +62,56 @@ def test_a_failing_transform_is_raised_not_lost(monkeypatch):
 
     monkeypatch.setattr(spectra, "difference_bb_parts", broken)
     with pytest.raises(RuntimeError, match="transform failed"):
-        paper.run_study(CFG, experiments=paper.EXPERIMENTS[:1])
+        paper.run_study(STUDY, experiments=paper.EXPERIMENTS[:1])
+
+
+GAIN_CASE = """
+[sky]
+nside = 64
+lmax = 191
+fwhm_arcmin = 7.0
+seed = 3
+[scan]
+n_phi = 4
+range_rad = 0.719
+seed = 3
+[systematics]
+dg = [0.01, -0.01]
+[mask]
+survey = "deep"
+"""
+
+
+def test_a_study_file_of_the_gain_case_gives_the_reproduction_rows(study, tmp_path):
+    """One pipeline: `simulate` on the paper's gain case (no rotation) writes the bands that
+    `reproduce` writes for it, to the bit (same sky, scan, mask, prediction and binning)."""
+    import csv
+
+    from boresight import studies
+    from boresight.config import load_study
+
+    (tmp_path / "gain.toml").write_text(GAIN_CASE)
+    studies.simulate(load_study(tmp_path / "gain.toml"), tmp_path / "out", log=lambda m: None)
+    with open(tmp_path / "out" / "bands.csv") as f:
+        mine = list(csv.DictReader(f))
+    theirs = [
+        r
+        for r in paper.tidy_rows(study[0], STUDY)
+        if r["experiment"] == "gain_deep" and r["pbr_angle_deg"] == ""
+    ]
+    assert len(mine) == len(theirs) > 5
+    for a, b in zip(mine, theirs):
+        assert (int(a["ell_lo"]), int(a["ell_hi"])) == (b["ell_lo"], b["ell_hi"])
+        for column in ("residual_bb", "residual_auto_bb", "residual_cross_bb", "predicted_bb"):
+            assert float(a[column]) == b[column], column  # CSV repr round-trips a float exactly
+
+
+def test_reproduce_config_sets_sky_run_and_output_only(tmp_path):
+    from boresight.config import ConfigError
+
+    raw = {"sky": {"nside": 64, "lmax": 191, "seed": 3}, "output": {"n_bands": 5}}
+    study_ = paper.from_raw(raw)
+    assert study_.sky == STUDY.sky and study_.scan.seed == 3 and study_.output.n_bands == 5
+    assert study_.output.lmax == 128
+    with pytest.raises(ConfigError, match="systematics"):
+        paper.from_raw({"systematics": {"dg": 0.1}})
