@@ -11,29 +11,17 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import harmonics
-from .evaluation import METHODS, SkyFields
+from .backend import get_backend
+from .evaluation import METHODS, SkyFields, pair_fields
 from .instrument import Instrument, Systematics
 from .mapmaking import RCOND_MIN, Maps, solve
 from .pixels import ang2pix_array
+from .scan import hit_offsets
 from .sky import MAX_NSIDE
 from .threads import numba_threads
 
-BACKENDS = ("cpu", "gpu")
 #: pixels per chunk: small on the CPU (cache-resident), large on a GPU (enough threads)
 DEFAULT_CHUNK_PIXELS = {"cpu": 1 << 16, "gpu": 1 << 22}
-
-
-def get_backend(name):
-    """The kernel module of a backend: 'cpu' (numba) or 'gpu' (CuPy)."""
-    if name == "cpu":
-        from . import tod_cpu
-
-        return tod_cpu
-    if name == "gpu":
-        from . import tod_gpu
-
-        return tod_gpu
-    raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")
 
 
 def _pixel_list(pixels, npix):
@@ -92,8 +80,7 @@ def _chunks(pixels, chunk_pixels, progress, label):
 
 def _hits(kernels, scan, nside, chunk):
     n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
-    offsets = np.zeros(chunk.size + 1, dtype=np.int64)
-    np.cumsum(n_phi, out=offsets[1:])
+    offsets = hit_offsets(n_phi)
     theta, phi, psi = kernels.generate_hits(
         scan.seed, nside, chunk, offsets, rng_rad, centre, scan.in_pixel == "centre"
     )
@@ -184,20 +171,25 @@ class _Binner:
         return self.fields.exact(k.to_host(theta), k.to_host(phi), self.nthreads)
 
     def _values(self, theta, phi, psi):
-        k, fields = self.kernels, self.fields
-        values_a = self._at(theta, phi)
-        if self.pointing:
-            tb, pb = k.offset_points(theta, phi, psi, self.rot, self.ang, self.rho, self.chi)
-            values_b = self._at(tb.ravel(), pb.ravel()).reshape((fields.n_fields,) + tb.shape)
-        else:
-            values_b = np.empty((fields.n_fields, 0, self.rot.size, self.ang.size))
-        return values_a, values_b
+        return pair_fields(
+            self._at,
+            self.kernels.offset_points,
+            self.fields.n_fields,
+            theta,
+            phi,
+            psi,
+            self.rot,
+            self.ang,
+            self.rho,
+            self.chi,
+            self.pointing,
+        )
 
     def scan_normal(self, scan, nside, chunk):
         """(npix_chunk, 5) normal-equation sums of a synthetic scan over a chunk of pixels, on the
-        backend's device: one fused kernel where the backend has it (GPU, interpolated sky),
-        else hits -> sky at both detectors -> accumulate."""
-        if self.kernels.FUSED_SCAN and self.evaluation == "interp":
+        backend's device: the backend's bin_scan for an interpolated sky, else hits -> exact sky
+        at both detectors -> accumulate."""
+        if self.evaluation == "interp":
             n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
             return self.kernels.bin_scan(
                 scan.seed,

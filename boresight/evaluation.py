@@ -16,6 +16,20 @@ METHODS = ("interp", "exact")
 EXACT_EPSILON = 1e-11  #: ducc0 relative accuracy of exact evaluation
 
 
+def pair_fields(
+    at, offset_points, n_fields, theta, phi, psi, rotations, pair_angles, rho, chi, pointing
+):
+    """The fields where detector A looks, (F, H), and where detector B looks, (F, H, K, M) or an
+    empty (F, 0, K, M) without a pointing offset. ``at(theta, phi)`` evaluates the F fields at
+    points (interpolation on the backend's device, or exact); ``offset_points`` is the backend's
+    kernel for detector B's pointing."""
+    values_a = at(theta, phi)
+    if not pointing:
+        return values_a, np.empty((n_fields, 0, rotations.size, pair_angles.size))
+    tb, pb = offset_points(theta, phi, psi, rotations, pair_angles, rho, chi)
+    return values_a, at(tb.ravel(), pb.ravel()).reshape((n_fields,) + tb.shape)
+
+
 class SkyFields:
     """The fields a TOD samples: I, Q, U and optionally a leak template.
 

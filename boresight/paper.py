@@ -165,6 +165,7 @@ def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
             )
         prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
         job = dict(run=run, transforms=transforms, progress=progress)
+        zero = residual.Reference.zero()
         with timer(f"{exp.name}: reference (no systematic)"):
             ref, _ = residual.reference(
                 the_sky, paper_scan(exp.survey, seed=seed), mask, lmax, **job
@@ -173,28 +174,15 @@ def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
             label = "no rotation" if angle is None else f"rotation {angle:g} deg"
             scan = paper_scan(exp.survey, angle, seed=seed)
             ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
+            predicted = dict(prediction=prediction, predict_map=ideal)
             with timer(f"{exp.name}: {label}"):
                 res.residuals[angle] = residual.residual(
-                    the_sky,
-                    scan,
-                    exp.systematics,
-                    mask,
-                    lmax,
-                    reference_=ref,
-                    prediction=prediction,
-                    predict_map=ideal,
-                    **job,
+                    the_sky, scan, exp.systematics, mask, lmax, reference_=ref, **predicted, **job
                 )
             if ideal:
                 with timer(f"{exp.name}: Q = U = 0, {label}"):
                     res.zero_qu_residuals[angle] = residual.residual(
-                        unpolarised,
-                        scan,
-                        exp.systematics,
-                        mask,
-                        lmax,
-                        reference_=residual.Reference.zero(),
-                        **job,
+                        unpolarised, scan, exp.systematics, mask, lmax, reference_=zero, **job
                     )
         with timer(f"{exp.name}: transforms still running"):
             transforms.wait()
@@ -252,7 +240,7 @@ def band_table(res, rows, study):
     centres = np.array([0.5 * (r["ell_lo"] + r["ell_hi"]) for r in first])
     columns = {}
     for r, a in zip(mine, angles):
-        for name in CSV_COLUMNS[4:10]:
+        for name in CSV_COLUMNS[4:-4]:
             columns.setdefault((a, name), []).append(r[name])
     references = {
         value: residual.band_rows(study.output.edges(), {"c": cl})
@@ -270,15 +258,13 @@ def tidy_rows(results, study):
     return [row for res in results.values() for row in band_rows(res, study)]
 
 
+#: the columns of results.csv
 CSV_COLUMNS = (
     "experiment",
     "pbr_angle_deg",
     "ell_lo",
     "ell_hi",
-    "residual_bb",
-    "residual_auto_bb",
-    "residual_cross_bb",
-    "predicted_bb",
+    *residual.Residual.COLUMNS,
     "predicted_map_bb",
     "reduction",
     "nside",

@@ -15,6 +15,7 @@ the same bits.
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -135,15 +136,18 @@ class Residual:
     def predicted_map(self):
         return None if self.predicted_map_parts is None else sum(self.predicted_map_parts.result())
 
+    #: the band-table columns (results.csv, bands.csv, sweep tables) and the spectrum each bins:
+    #: a new column is one entry here
+    COLUMNS: ClassVar[dict] = {
+        "residual_bb": "total",
+        "residual_auto_bb": "auto",
+        "residual_cross_bb": "cross",
+        "predicted_bb": "predicted_cl",
+    }
+
     def columns(self):
-        """The unbinned spectra of the band tables by column name (None: not computed). A new
-        column of bands.csv and of the sweep tables is one entry here."""
-        return {
-            "residual_bb": self.total,
-            "residual_auto_bb": self.auto,
-            "residual_cross_bb": self.cross,
-            "predicted_bb": self.predicted_cl,
-        }
+        """The unbinned spectra of the band tables by column name (None: not computed)."""
+        return {name: getattr(self, spectrum) for name, spectrum in self.COLUMNS.items()}
 
 
 def simulate(

@@ -100,6 +100,14 @@ class SyntheticScan:
         return out
 
 
+def hit_offsets(n_phi):
+    """Offsets (P + 1,) int64 of each pixel's hits in a chunk's hit arrays: pixel k owns hits
+    offsets[k]..offsets[k + 1] - 1 (n_phi: hits per pixel, (P,))."""
+    offsets = np.zeros(np.size(n_phi) + 1, dtype=np.int64)
+    np.cumsum(n_phi, out=offsets[1:])
+    return offsets
+
+
 def paper_scan(survey, rotation_deg=None, seed=0):
     """The paper's synthetic scans: 'deep' (N_phi=4, R=0.719) or 'wide' (N_phi=2, R=0.169).
 

@@ -31,16 +31,8 @@ from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
 
 CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
-POINT_COLUMNS = (
-    "ell_lo",
-    "ell_hi",
-    "residual_bb",
-    "residual_auto_bb",
-    "residual_cross_bb",
-    "predicted_bb",
-    "delta_r",
-    "predicted_delta_r",
-)
+#: the columns of a point's rows
+POINT_COLUMNS = ("ell_lo", "ell_hi", *residual.Residual.COLUMNS, "delta_r", "predicted_delta_r")
 
 
 def load_sweep(path):
