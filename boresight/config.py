@@ -34,14 +34,25 @@ except ModuleNotFoundError:  # Python < 3.11
 
 
 class ConfigError(ValueError):
-    """A configuration problem, with the offending key in the message."""
+    """A configuration problem, with the offending key (and file) in the message."""
 
 
 BACKENDS = ("cpu", "gpu")
 
 
 def check_backend(name, backend):
-    """ConfigError unless the backend is known and, for 'gpu', CuPy is installed."""
+    """Check a backend name, and that CuPy is installed for 'gpu'.
+
+    Parameters
+    ----------
+    name : str
+        The option's name in messages (``run.backend``, ``--backend``).
+    backend : str
+
+    Raises
+    ------
+    ConfigError
+    """
     if backend not in BACKENDS:
         raise ConfigError(f"{name} = {backend!r}; allowed: {BACKENDS}")
     if backend == "gpu" and importlib.util.find_spec("cupy") is None:
@@ -50,7 +61,17 @@ def check_backend(name, backend):
 
 @dataclass(frozen=True)
 class MaskSpec:
-    """Where the study looks: an SO-like survey footprint or a FITS mask, optionally apodized."""
+    """Where a study looks: the ``[mask]`` table.
+
+    Parameters
+    ----------
+    survey : {"deep", "wide", "none"}
+        SO-like survey footprint (:mod:`boresight.masks`); "none" is the full sky.
+    file : str, optional
+        A HEALPix FITS mask with weights in [0, 1], instead of the survey.
+    apodize_fwhm_deg : float, optional
+        Apodisation FWHM [deg], in [0.001, 180].
+    """
 
     survey: str = option("none", "survey footprint ('none': full sky)", choices=SURVEYS)
     file: str = option(
@@ -67,7 +88,19 @@ class MaskSpec:
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How the engine runs; results do not depend on chunk_pixels, nthreads or the backend."""
+    """How the engine runs: the ``[run]`` table. Results do not depend on chunk_pixels, nthreads or
+    the backend.
+
+    Parameters
+    ----------
+    evaluation : {"interp", "exact"}
+        The sky at each hit: bilinear interpolation, or exact band-limited evaluation.
+    backend : {"cpu", "gpu"}
+    chunk_pixels : int, optional
+        Pixels per chunk (default: the backend's).
+    nthreads : int
+        CPU threads, 0 for all cores.
+    """
 
     evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
     backend: str = option("cpu", "kernels: numba (cpu) or CuPy (gpu)", choices=BACKENDS)
@@ -83,7 +116,12 @@ class RunOptions:
         check_threads("nthreads", self.nthreads)
 
     def engine_kwargs(self):
-        """The keyword arguments :func:`boresight.engine.simulate` takes from these options."""
+        """The keyword arguments :func:`boresight.engine.simulate` takes from these options.
+
+        Returns
+        -------
+        dict
+        """
         return dict(
             evaluation=self.evaluation,
             backend=self.backend,
@@ -94,7 +132,19 @@ class RunOptions:
 
 @dataclass(frozen=True)
 class OutputOptions:
-    """What a study writes: spectra up to lmax, bands, FITS maps."""
+    """What a study writes: the ``[output]`` table.
+
+    Parameters
+    ----------
+    lmax : int, optional
+        Highest multipole of the spectra; default min(sky.lmax, 2 nside), set by :meth:`resolved`.
+    n_bands : int
+        About this many logarithmic ell bands.
+    lmin : int
+        Lowest multipole of the bands.
+    maps : bool
+        Write the FITS maps.
+    """
 
     lmax: int = option(
         None, "highest multipole of the spectra (default min(sky.lmax, 2 nside))", (int,)
@@ -104,7 +154,16 @@ class OutputOptions:
     maps: bool = option(True, "write the FITS maps")
 
     def resolved(self, sky):
-        """These options with lmax set for ``sky`` and checked against it."""
+        """These options with lmax set for a sky and checked against it.
+
+        Parameters
+        ----------
+        sky : boresight.sky.SkyConfig
+
+        Returns
+        -------
+        OutputOptions
+        """
         lmax = min(sky.lmax, 2 * sky.nside) if self.lmax is None else self.lmax
         validation.integer("lmax", lmax, 2, 3 * sky.nside - 1)
         validation.integer("n_bands", self.n_bands, 1)
@@ -112,7 +171,13 @@ class OutputOptions:
         return replace(self, lmax=lmax)
 
     def edges(self):
-        """Band edges: about n_bands logarithmic bands from lmin to lmax."""
+        """Band edges.
+
+        Returns
+        -------
+        numpy.ndarray of int
+            About n_bands logarithmic edges from lmin to lmax + 1 (:func:`boresight.spectra.log_bins`).
+        """
         from .spectra import log_bins
 
         return log_bins(self.lmin, self.lmax, self.n_bands)
@@ -136,7 +201,13 @@ FILE_KEYS = {
 
 
 def schema():
-    """section -> key -> (allowed TOML types, help), read from the section dataclasses."""
+    """The schema of a study file, read from the section dataclasses.
+
+    Returns
+    -------
+    dict
+        section -> key -> (allowed TOML types, help text).
+    """
     return {
         section: {
             **{
@@ -157,7 +228,27 @@ def _help(f):
 
 @dataclass(frozen=True)
 class Study:
-    """A validated study: the dataclass of each stage, the input files, the raw table."""
+    """A validated study: one dataclass per table of a study file.
+
+    Parameters
+    ----------
+    sky : boresight.sky.SkyConfig
+    scan : boresight.scan.SyntheticScan
+    instrument : boresight.instrument.Instrument
+    systematics : boresight.instrument.Systematics
+    mask : MaskSpec
+    run : RunOptions
+    output : OutputOptions
+        Resolved against ``sky`` on construction.
+    sky_maps : str, optional
+        FITS file of I, Q, U replacing the random sky.
+    leak_template : str, optional
+        FITS map of the additive leak.
+    raw : dict, optional
+        The parsed TOML the study came from.
+    source : str, optional
+        The TOML file it was read from.
+    """
 
     sky: SkyConfig
     scan: SyntheticScan = SyntheticScan()
@@ -181,9 +272,22 @@ class Study:
 
 
 def add_flags(parser, cls, names=None, paper_defaults=False):
-    """Add --name flags for fields of a section dataclass (all, or ``names``) with its help,
-    types and choices. Flags default to None, "not given"; the help states the dataclass default,
-    or with ``paper_defaults`` that the paper's preset decides."""
+    """Add ``--name`` flags for fields of a section dataclass.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+    cls : type
+        A section dataclass whose fields carry :func:`boresight.validation.option` metadata.
+    names : iterable of str, optional
+        The fields to expose (default: all).
+    paper_defaults : bool
+        Say in the help that the paper's preset sets the default (instead of the field's default).
+
+    Notes
+    -----
+    Flags default to None, "not given", so the caller applies only what the user set.
+    """
     for f in dataclasses.fields(cls):
         if names is not None and f.name not in names or not f.metadata:
             continue
@@ -266,7 +370,23 @@ def _build(section, cls, kwargs):
 
 
 def read_toml(path, what="config"):
-    """The parsed TOML of ``path``; a ConfigError names the file when it cannot be read."""
+    """The parsed TOML of a file.
+
+    Parameters
+    ----------
+    path : str
+    what : str
+        What the file is, for messages ("config", "sweep", "sweep base").
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ConfigError
+        The file is missing, not a file, or not valid UTF-8 TOML.
+    """
     if not os.path.isfile(path):
         raise ConfigError(f"{what} file not found (or not a file): {path}")
     try:
@@ -277,7 +397,22 @@ def read_toml(path, what="config"):
 
 
 def load_study(path):
-    """Read and validate a TOML study file; returns a :class:`Study`."""
+    """Read and validate a TOML study file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    Study
+        With ``source`` set to ``path``.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key.
+    """
     raw = read_toml(path)
     try:
         study = parse_study(raw, os.path.dirname(os.path.abspath(path)))
@@ -291,7 +426,24 @@ def _tuples(body, keys):
 
 
 def parse_study(raw, base="."):
-    """Validate a study given as a dict (the parsed TOML); paths are relative to ``base``."""
+    """Validate a study given as a dict (the parsed TOML).
+
+    Parameters
+    ----------
+    raw : dict
+        Tables as in a study file; ``sky.nside`` is required.
+    base : str
+        Directory that relative file paths start from.
+
+    Returns
+    -------
+    Study
+
+    Raises
+    ------
+    ConfigError
+        An unknown section or key, a wrong type, a value out of range, a missing or bad file.
+    """
     _check_types(raw)
     sky_raw = dict(raw.get("sky", {}))
     if "nside" not in sky_raw:
@@ -335,7 +487,16 @@ def parse_study(raw, base="."):
 
 
 def as_dict(study):
-    """The study's sections as plain dicts (for manifests): what a study file would hold."""
+    """A study's sections as plain dicts, for manifests.
+
+    Parameters
+    ----------
+    study : Study
+
+    Returns
+    -------
+    dict
+    """
     return {
         section: dataclasses.asdict(getattr(study, section))
         for section in SECTIONS

@@ -17,7 +17,17 @@ from . import harmonics
 
 @dataclass(frozen=True)
 class Coupling:
-    """Coupling matrices, each (lmax+1, lmax+1) indexed [l, l'] from l = 0."""
+    """Pseudo-C_ell coupling matrices of a mask, each (lmax + 1, lmax + 1) indexed [l, l'] from l = 0.
+
+    Parameters
+    ----------
+    tt : numpy.ndarray
+        M^{TT,TT}.
+    even : numpy.ndarray
+        M^{EE,EE} = M^{BB,BB}.
+    odd : numpy.ndarray
+        M^{EE,BB} = M^{BB,EE}.
+    """
 
     tt: np.ndarray
     even: np.ndarray  #: M^{EE,EE} = M^{BB,BB}
@@ -28,18 +38,50 @@ class Coupling:
         return self.tt.shape[0] - 1
 
     def pseudo_bb(self, cl_bb, cl_ee):
-        """Expected pseudo-C_BB of full-sky (BB, EE) spectra: M^{BB,BB} C^BB + M^{BB,EE} C^EE."""
+        """Expected pseudo-C_BB of full-sky spectra: M^{BB,BB} C^BB + M^{BB,EE} C^EE.
+
+        Parameters
+        ----------
+        cl_bb, cl_ee : numpy.ndarray, shape (>= lmax + 1,)
+            [muK^2] from ell = 0.
+
+        Returns
+        -------
+        numpy.ndarray, shape (lmax + 1,)
+        """
         n = self.lmax + 1
         return self.even @ cl_bb[:n] + self.odd @ cl_ee[:n]
 
 
 def mask_spectrum(mask, lmax, nthreads=0):
-    """Pseudo power spectrum W_L of the mask up to L = lmax (iteration-free, as NaMaster)."""
+    """Pseudo power spectrum W_L of the mask (iteration-free, as NaMaster).
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+    """
     return harmonics.alm2cl(harmonics.map2alm(mask, lmax, iterations=0, nthreads=nthreads))
 
 
 def coupling_matrices(mask, lmax, nthreads=0):
-    """The TT, spin-2 even and odd coupling matrices of ``mask`` for ell <= lmax."""
+    """The TT and spin-2 coupling matrices of a mask (ducc0's Wigner-3j routine, as NaMaster 2).
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    Coupling
+    """
     w = mask_spectrum(mask, 2 * lmax, nthreads)
     res = np.zeros((3, lmax + 1, lmax + 1))
     threads = nthreads if nthreads > 0 else os.cpu_count()  # ducc0 reads 0 here as 1 thread

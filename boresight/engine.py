@@ -56,7 +56,22 @@ def _check_nside(nside):
 
 
 def check_samples(theta, phi, psi):
-    """Sample arrays of one chunk as float64: equal lengths, finite, theta in [0, pi]."""
+    """One chunk of pointing samples as float64 arrays, checked at the boundary.
+
+    Parameters
+    ----------
+    theta, phi, psi : array_like, shape (n,)
+        Colatitude in [0, pi], longitude and crossing angle [rad], all finite.
+
+    Returns
+    -------
+    theta, phi, psi : numpy.ndarray, float64, shape (n,)
+
+    Raises
+    ------
+    ValueError
+        Unequal lengths, NaN or infinite values, theta outside [0, pi].
+    """
     theta, phi, psi = (np.ascontiguousarray(x, dtype=np.float64) for x in (theta, phi, psi))
     if not theta.ndim == phi.ndim == psi.ndim == 1 or not theta.size == phi.size == psi.size:
         raise ValueError(
@@ -102,12 +117,40 @@ def simulate(
     rcond_min=RCOND_MIN,
     progress=False,
 ):
-    """Simulate the pair-differenced TOD of ``scan`` over ``sky`` and make Q, U maps.
+    """Simulate the pair-differenced TOD of a synthetic scan over a sky and make Q, U maps.
 
-    sky: :class:`boresight.sky.Sky`; scan: :class:`boresight.scan.SyntheticScan`; pixels: RING
-    indices or boolean map of the pixels to observe (default: all); evaluation: "interp" or
-    "exact"; leak_template: map used by the additive leak (default: the sky's I). Returns
-    :class:`boresight.mapmaking.Maps` on the full sky (unobserved pixels flagged).
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+        Beam-smoothed I, Q, U [muK] (maps and alm).
+    scan : boresight.scan.SyntheticScan
+        Crossing angles per pixel and the boresight-rotation schedule.
+    instrument : boresight.instrument.Instrument
+        Polarisation angles of the detector pairs.
+    systematics : boresight.instrument.Systematics
+        Differential gain, pointing and additive leak per pair.
+    pixels : numpy.ndarray, optional
+        RING indices (int, (n,)) or a boolean map (npix,) of the pixels to observe (default: all).
+        A float 0/1 mask is refused: pass ``mask > 0``.
+    evaluation : {"interp", "exact"}
+        Bilinear interpolation of the maps, or exact band-limited evaluation of the alm.
+    leak_template : numpy.ndarray, optional
+        (npix,) map the additive leak scales [muK] (default: the sky's I).
+    chunk_pixels : int, optional
+        Pixels per chunk (default: the backend's); the result does not depend on it.
+    nthreads : int
+        CPU threads, 0 for all cores; the result does not depend on it.
+    backend : {"cpu", "gpu"}
+        Kernel backend (:mod:`boresight.backend`).
+    rcond_min : float
+        Pixels whose 2x2 system has a smaller reciprocal condition number are flagged invalid.
+    progress : bool
+        Show a progress bar over chunks.
+
+    Returns
+    -------
+    boresight.mapmaking.Maps
+        Full-sky q, u [muK] (UNSEEN where invalid), hits (int) and rcond, each (npix,).
     """
     binner = _Binner(
         sky,
@@ -236,10 +279,21 @@ def simulate_samples(
 ):
     """Maps from streams of real samples, e.g. ``boresight.ground.pointing(schedule)``.
 
-    sample_chunks: iterable of (theta, phi, psi) arrays [rad] in any order. The normal equations
-    of all chunks add up before the per-pixel solve, so memory is the chunk plus (npix, 5) sums.
-    Each sample's terms are added into its pixel's sums in sample order (a GPU sorts each chunk
-    by pixel first), so CPU and GPU agree to rounding.
+    The normal equations of all chunks add up before the per-pixel solve, so memory is one chunk
+    plus the (npix, 5) sums. Each sample's terms are added into its pixel's sums in sample order
+    (a GPU sorts each chunk by pixel first), so CPU and GPU agree to rounding.
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    sample_chunks : iterable of (theta, phi, psi)
+        Arrays (n,) [rad] of each chunk, in any order; checked by :func:`check_samples`.
+    instrument, systematics, evaluation, leak_template, nthreads, backend, rcond_min
+        As in :func:`simulate`.
+
+    Returns
+    -------
+    boresight.mapmaking.Maps
     """
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
@@ -283,9 +337,26 @@ def scan_moments(
     backend="cpu",
     progress=False,
 ):
-    """h_n = <exp(i n psi)> over each pixel's hits (rotations included), n = 0..n_max.
+    """The spin moments h_n = <exp(i n psi)> over each pixel's hits, rotations included.
 
-    Returns (h, crossings): complex (n_max + 1, npix) (0 where unobserved) and int (npix,).
+    Parameters
+    ----------
+    scan : boresight.scan.SyntheticScan
+    nside : int
+        HEALPix Nside, a power of two.
+    n_max : int
+        Highest moment.
+    pixels : numpy.ndarray, optional
+        RING indices or a boolean map of the pixels (default: all).
+    chunk_pixels, nthreads, backend, progress
+        As in :func:`simulate`.
+
+    Returns
+    -------
+    h : numpy.ndarray, complex128, shape (n_max + 1, npix)
+        h_n per pixel, 0 where unobserved.
+    crossings : numpy.ndarray, int64, shape (npix,)
+        Hits per pixel times the number of rotations.
     """
     kernels = get_backend(backend)
     _check_nside(nside)

@@ -13,24 +13,66 @@ import numpy as np
 
 @lru_cache(maxsize=8)
 def healpix_geometry(nside):
-    """ducc0 ring geometry (theta, phi0, nphi, ringstart) of a RING HEALPix map."""
+    """ducc0's ring geometry of a RING HEALPix map (cached).
+
+    Parameters
+    ----------
+    nside : int
+
+    Returns
+    -------
+    dict
+        theta, phi0, nphi, ringstart: the keyword arguments of ducc0.sht's transforms.
+    """
     if nside < 1 or nside & (nside - 1):
         raise ValueError(f"nside must be a positive power of two, got {nside}")
     return ducc0.healpix.Healpix_Base(nside, "RING").sht_info()
 
 
 def n_alm(lmax):
-    """Number of alm with m <= l <= lmax (healpy ordering)."""
+    """Number of alm with m <= l <= lmax (healpy ordering).
+
+    Parameters
+    ----------
+    lmax : int
+
+    Returns
+    -------
+    int
+    """
     return (lmax + 1) * (lmax + 2) // 2
 
 
 def alm_lmax(nalm):
-    """lmax of a healpy-ordered alm array of length ``nalm``."""
+    """lmax of a healpy-ordered alm array.
+
+    Parameters
+    ----------
+    nalm : int
+
+    Returns
+    -------
+    int
+    """
     return int((np.sqrt(8 * nalm + 1) - 3) / 2)
 
 
 def alm2map(alm, nside, spin=0, nthreads=0):
-    """alm -> map. spin 0: alm (nalm,) -> (npix,); spin >= 1: alm (2, nalm) -> (2, npix)."""
+    """Synthesis: alm -> RING map.
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128
+        (nalm,) for spin 0; (2, nalm) (E, B) for spin >= 1.
+    nside : int
+    spin : int
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray
+        (npix,) for spin 0; (2, npix) (Q, U, COSMO) otherwise.
+    """
     alm = np.atleast_2d(alm)
     out = ducc0.sht.synthesis(
         alm=alm,
@@ -43,7 +85,19 @@ def alm2map(alm, nside, spin=0, nthreads=0):
 
 
 def alm2map_gradient(alm, nside, nthreads=0):
-    """Gradient of a spin-0 field: (dT/dtheta, dT/dphi / sin theta) maps, shape (2, npix)."""
+    """Gradient of a spin-0 field.
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128, shape (nalm,)
+    nside : int
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (2, npix)
+        dT/dtheta and dT/dphi / sin(theta).
+    """
     return ducc0.sht.synthesis(
         alm=np.atleast_2d(alm),
         lmax=alm_lmax(alm.shape[-1]),
@@ -55,7 +109,23 @@ def alm2map_gradient(alm, nside, nthreads=0):
 
 
 def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
-    """Map -> alm as healpy.map2alm(iter=iterations, use_weights=False)."""
+    """Analysis as healpy.map2alm(iter=iterations, use_weights=False).
+
+    Parameters
+    ----------
+    maps : array_like
+        (npix,) for spin 0; (2, npix) Q, U for spin 2.
+    lmax : int
+    spin : int
+    iterations : int
+        Jacobi iterations (3 is anafast's default).
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, complex128
+        (nalm,) for spin 0; (2, nalm) (E, B) otherwise.
+    """
     maps = np.atleast_2d(np.asarray(maps, dtype=np.float64))
     nside = int(round(np.sqrt(maps.shape[-1] / 12)))
     geom = healpix_geometry(nside)
@@ -77,8 +147,21 @@ def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
 def evaluate(alm, theta, phi, spin=0, epsilon=1e-12, nthreads=0):
     """Exact band-limited evaluation of alm at arbitrary points (ducc0 synthesis_general).
 
-    spin 0: alm (nalm,) -> (npoints,); spin 2: (E, B) alm (2, nalm) -> (Q, U), shape (2, npoints).
-    ``epsilon`` is ducc0's requested relative accuracy.
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128
+        (nalm,) for spin 0; (2, nalm) (E, B) for spin 2.
+    theta, phi : numpy.ndarray, shape (n,)
+        Points [rad].
+    spin : int
+    epsilon : float
+        ducc0's requested relative accuracy.
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray
+        (n,) for spin 0; (2, n) Q, U for spin 2.
     """
     alm = np.atleast_2d(alm)
     loc = np.empty((theta.size, 2))
@@ -97,19 +180,49 @@ def evaluate(alm, theta, phi, spin=0, epsilon=1e-12, nthreads=0):
 
 @lru_cache(maxsize=4)
 def ell_of_alm(lmax):
-    """ell of every healpy-ordered alm index up to lmax (read-only; cached per lmax)."""
+    """ell of every healpy-ordered alm index (read-only; cached per lmax).
+
+    Parameters
+    ----------
+    lmax : int
+
+    Returns
+    -------
+    numpy.ndarray, int, shape (nalm,)
+    """
     ell = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
     ell.flags.writeable = False
     return ell
 
 
 def almxfl(alm, fl):
-    """Multiply alm (..., nalm) by a function of ell, fl (lmax+1,)."""
+    """Multiply alm by a function of ell.
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128, shape (..., nalm)
+    fl : numpy.ndarray, shape (lmax + 1,)
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (..., nalm)
+    """
     return alm * fl[ell_of_alm(alm_lmax(alm.shape[-1]))]
 
 
 def alm2cl(alm1, alm2=None):
-    """Cross power spectrum of healpy-ordered alm: (lmax+1,) real, as healpy.alm2cl."""
+    """Cross power spectrum of healpy-ordered alm, as healpy.alm2cl.
+
+    Parameters
+    ----------
+    alm1 : numpy.ndarray, complex128, shape (nalm,)
+    alm2 : numpy.ndarray, complex128, shape (nalm,), optional
+        Default: alm1 (the auto spectrum).
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (lmax + 1,)
+    """
     alm2 = alm1 if alm2 is None else alm2
     lmax = alm_lmax(alm1.shape[-1])
     prod = (alm1 * np.conj(alm2)).real

@@ -34,7 +34,14 @@ LIMITS = {
 
 @dataclass(frozen=True)
 class Instrument:
-    """Polarisation angles of the detector pairs [deg]; the paper's Q and U pairs by default."""
+    """The detector pairs: the ``[instrument]`` table.
+
+    Parameters
+    ----------
+    pair_angles_deg : tuple of float
+        Polarisation angle of each pair's detector A [deg]; detector B is at +90 deg. The paper's
+        Q and U pairs by default.
+    """
 
     pair_angles_deg: tuple = option((0.0, 45.0), "polarisation angles of the pairs [deg]")
 
@@ -59,7 +66,20 @@ class Instrument:
 
 @dataclass(frozen=True)
 class Systematics:
-    """Per-pair differential systematics; scalars apply to every pair, tuples give one per pair."""
+    """Per-pair differential systematics: the ``[systematics]`` table. A scalar applies to every pair,
+    a tuple gives one value per pair.
+
+    Parameters
+    ----------
+    dg : float or tuple
+        Differential gain: detector B's signal is scaled by (1 - dg), in [-1, 1].
+    rho_arcmin : float or tuple
+        Differential pointing [arcmin], in [0, 600].
+    chi_deg : float or tuple
+        Direction of the pointing offset from the pair's polarisation axis [deg].
+    leak : float or tuple
+        Additive leak: the pair difference gains leak / 2 times a template, in [-1, 1].
+    """
 
     dg: object = option(0.0, "differential gain, a number or one per pair", (int, float, list))
     rho_arcmin: object = option(
@@ -75,7 +95,17 @@ class Systematics:
             validation.numbers_array(name, getattr(self, name), lo, hi)
 
     def per_pair(self, n_pairs):
-        """Arrays (dg, rho [rad], chi [rad], leak), each of length n_pairs."""
+        """The parameters of each pair, in radians.
+
+        Parameters
+        ----------
+        n_pairs : int
+
+        Returns
+        -------
+        dg, rho, chi, leak : numpy.ndarray, float64, shape (n_pairs,)
+            rho and chi in rad.
+        """
         out = []
         for name, unit in (("dg", 1.0), ("rho_arcmin", ARCMIN), ("chi_deg", DEG), ("leak", 1.0)):
             v = np.asarray(getattr(self, name), dtype=np.float64)

@@ -15,8 +15,17 @@ RCOND_MIN = 1e-6  #: below this the 2x2 system is treated as singular (one polar
 
 @dataclass(frozen=True)
 class Maps:
-    """Reconstructed maps [muK, RING]: q, u (UNSEEN where invalid), hits (hits x rotations per
-    pixel), rcond (reciprocal condition number, 0 where unobserved)."""
+    """Reconstructed maps, RING, full sky.
+
+    Parameters
+    ----------
+    q, u : numpy.ndarray, float64, shape (npix,)
+        [muK], healpy.UNSEEN where invalid.
+    hits : numpy.ndarray, int64, shape (npix,)
+        Hits x rotations per pixel.
+    rcond : numpy.ndarray, float64, shape (npix,)
+        Reciprocal condition number of each pixel's 2x2 system, 0 where unobserved.
+    """
 
     q: np.ndarray
     u: np.ndarray
@@ -43,7 +52,21 @@ class Maps:
 
 
 def solve(normal, rcond_min=RCOND_MIN):
-    """Solve the (n, 5) binned systems of tod kernels -> (q, u, rcond), invalid pixels UNSEEN."""
+    """Solve each pixel's 2x2 least-squares system for (Q, U).
+
+    Parameters
+    ----------
+    normal : numpy.ndarray or cupy.ndarray, shape (n, 5)
+        sum c^2, sum c s, sum s^2, sum c d, sum s d per pixel (c, s = cos, sin 2a).
+    rcond_min : float
+        Pixels below this reciprocal condition number are invalid.
+
+    Returns
+    -------
+    q, u : array, shape (n,)
+        [muK], UNSEEN where invalid.
+    rcond : array, shape (n,)
+    """
     a11, a12, a22, b1, b2 = normal.T
     half_trace = 0.5 * (a11 + a22)
     spread = np.sqrt((0.5 * (a11 - a22)) ** 2 + a12**2)

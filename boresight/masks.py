@@ -25,7 +25,21 @@ FOOTPRINTS = {
 
 
 def footprint(ra_deg, dec_deg, galactic_cut_deg, nside):
-    """Binary RING mask of an RA/Dec box [deg] minus |b| < galactic_cut_deg (pixel centres)."""
+    """Binary mask of an RA/Dec box minus a Galactic band, at pixel centres.
+
+    Parameters
+    ----------
+    ra_deg, dec_deg : tuple of float
+        (low, high) [deg], equatorial.
+    galactic_cut_deg : float
+        Pixels with |b| below this are removed [deg].
+    nside : int
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (npix,)
+        0 or 1, RING.
+    """
     theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
     dec = 90.0 - theta / DEG
     ra = (phi / DEG + 180.0) % 360.0 - 180.0
@@ -41,21 +55,56 @@ SURVEYS = (*FOOTPRINTS, "none")
 
 
 def survey_mask(name, nside):
-    """The SO-like 'deep' or 'wide' binary mask at ``nside`` (RING, float 0/1)."""
+    """The SO-like survey mask.
+
+    Parameters
+    ----------
+    name : {"deep", "wide"}
+    nside : int
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (npix,)
+        0 or 1, RING.
+    """
     if name not in FOOTPRINTS:
         raise ValueError(f"survey must be one of {sorted(FOOTPRINTS)}, got {name!r}")
     return footprint(nside=nside, **FOOTPRINTS[name])
 
 
 def apodize(mask, fwhm_deg):
-    """Smooth a binary mask's edges inwards: mask * clip(Gaussian-smoothed mask, 0, 1)."""
+    """Smooth a binary mask's edges inwards: mask * clip(2 * smoothed - 1, 0, 1).
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,)
+    fwhm_deg : float
+        Gaussian smoothing FWHM [deg], in [0.001, 180].
+
+    Returns
+    -------
+    numpy.ndarray, shape (npix,)
+        Weights in [0, 1], zero outside the input mask.
+    """
     validation.number("apodize fwhm_deg", fwhm_deg, 1e-3, 180.0)
     smooth = hp.smoothing(mask, fwhm=fwhm_deg * DEG, iter=0)
     return mask * np.clip(2.0 * smooth - 1.0, 0.0, 1.0)
 
 
 def read_mask(path, nside=None):
-    """A user mask from a HEALPix FITS file (values in [0, 1]), optionally regraded to ``nside``."""
+    """A user mask from a HEALPix FITS file.
+
+    Parameters
+    ----------
+    path : str
+    nside : int, optional
+        Regrade to this Nside.
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (npix,)
+        Weights in [0, 1] (UNSEEN read as 0).
+    """
     if not os.path.isfile(path):
         raise FileNotFoundError(f"mask file not found: {path}")
     io.fits_map_shape(path)  # a ValueError naming the file if it is no HEALPix map
@@ -69,8 +118,23 @@ def read_mask(path, nside=None):
 
 
 def from_config(spec, nside):
-    """The mask a study's :class:`boresight.config.MaskSpec` describes at ``nside``: its file, or
-    its survey ('none': full sky), apodized when apodize_fwhm_deg is set. RING, (npix,)."""
+    """The mask a study's [mask] table describes.
+
+    Parameters
+    ----------
+    spec : boresight.config.MaskSpec
+    nside : int
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (npix,)
+        RING weights in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        The mask leaves no observed pixel.
+    """
     if spec.file is not None:
         mask = read_mask(spec.file, nside)
     elif spec.survey == "none":
@@ -85,5 +149,15 @@ def from_config(spec, nside):
 
 
 def fsky(mask):
-    """Observed sky fraction: mean of the mask."""
+    """Observed sky fraction.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,)
+
+    Returns
+    -------
+    float
+        The mean of the mask.
+    """
     return float(np.mean(mask))

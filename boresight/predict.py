@@ -31,7 +31,17 @@ COHERENT_BLOCK = 8  #: h_n is smoothed over (COHERENT_BLOCK)^2 pixels for the co
 
 
 def supports(instrument):
-    """Whether the analytic prediction covers this instrument: the paper's pairs at (0, 45) deg."""
+    """Whether the analytic prediction covers an instrument: the paper's pairs at (0, 45) deg.
+
+    Parameters
+    ----------
+    instrument : boresight.instrument.Instrument or None
+        None stands for the paper's pairs.
+
+    Returns
+    -------
+    bool
+    """
     return instrument is None or tuple(instrument.pair_angles_deg) == (0.0, 45.0)
 
 
@@ -44,16 +54,44 @@ def _qu_pairs(instrument):
 
 
 def pointing_coefficients(rho, chi):
-    """(c_1, c_3) of the pointing leak from per-pair rho, chi [rad] of the Q and U pairs."""
+    """The complex coefficients of the pointing leak (module docstring).
+
+    Parameters
+    ----------
+    rho, chi : numpy.ndarray, shape (2,)
+        Per-pair offset and direction [rad] of the Q and U pairs.
+
+    Returns
+    -------
+    c_1, c_3 : complex
+        [rad]: dP = -1/4 h_1 G c_1 - 1/4 h_3 G* c_3.
+    """
     c1 = rho[0] * np.exp(-1j * chi[0]) + rho[1] * np.exp(-1j * (chi[1] - np.pi / 4))
     c3 = rho[0] * np.exp(1j * chi[0]) + rho[1] * np.exp(1j * (chi[1] + 3 * np.pi / 4))
     return c1, c3
 
 
 def delta_p(sky, h, systematics, instrument=None, template=None, nthreads=0):
-    """Predicted spurious P = Q + i U map (complex, npix) from h (>= 5, npix) and the sky.
+    """Predicted spurious polarisation P = Q + i U from h_n and the sky.
 
     Gain and leak terms are exact for pixel-centre hits; pointing is first order in rho.
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    h : numpy.ndarray, complex128, shape (>= 5, npix)
+        h_n maps (:func:`boresight.engine.scan_moments`).
+    systematics : boresight.instrument.Systematics
+    instrument : boresight.instrument.Instrument, optional
+        Must be the paper's Q/U pairs (None: assumed).
+    template : numpy.ndarray, shape (npix,), optional
+        The leak's template [muK] (default: the sky's I).
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (npix,)
+        [muK].
     """
     _qu_pairs(instrument)
     if h.shape[0] < 5 or h.shape[1] != sky.maps.shape[1]:
@@ -103,8 +141,15 @@ def _delta_p(h, t, q, u, s, grad_theta, grad_phi, a2, common, a4, leak2, c1, c3,
 
 
 class PixelBlocks:
-    """A mask's observed pixels and their blocks of block^2 pixels (the NEST parents at
-    nside / block), built once per mask and used for every h_n."""
+    """A mask's observed pixels grouped in blocks of block^2 pixels (NEST parents at nside / block),
+    built once per mask and used for every h_n.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,)
+    block : int
+        Side of a block in pixels.
+    """
 
     def __init__(self, mask, block=COHERENT_BLOCK):
         nside = hp.npix2nside(np.size(mask))
@@ -117,7 +162,19 @@ class PixelBlocks:
             self.used = self.block_weight > 0
 
     def coherent_power(self, hn):
-        """(<|h_n|^2>, coherent part) over the mask: the coherent part averages h_n in blocks."""
+        """<|h_n|^2> over the mask and its coherent part.
+
+        Parameters
+        ----------
+        hn : numpy.ndarray, complex128, shape (npix,)
+
+        Returns
+        -------
+        total : float
+            Mask-weighted mean of |h_n|^2.
+        coherent : float
+            The same of h_n averaged in blocks (equal to total when Nside < block).
+        """
         wo, ho = self.weight, hn[self.obs]
         total = np.sum(wo * np.abs(ho) ** 2) / wo.sum()
         if self.parent is None:
@@ -129,14 +186,40 @@ class PixelBlocks:
 
 
 def field_spectra(spectra, lmax, fwhm_arcmin):
-    """Beam-smoothed TT, EE, BB [muK^2] of a Spectra object for ell <= lmax."""
+    """Beam-smoothed spectra of the sky.
+
+    Parameters
+    ----------
+    spectra : boresight.cosmology.Spectra
+    lmax : int
+    fwhm_arcmin : float
+
+    Returns
+    -------
+    tt, ee, bb : numpy.ndarray, shape (lmax + 1,)
+        [muK^2].
+    """
     tt, ee, bb, _ = spectra.total(lmax=lmax)
     beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)
     return tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2
 
 
 def leak_terms(systematics, cl_tt, cl_pol, template_cl=None):
-    """The (n, coefficient, C^FF) terms of the spurious P for the Q/U pair layout."""
+    """The terms c h_n F of the spurious P for the Q/U pair layout.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+    cl_tt, cl_pol : numpy.ndarray, shape (lmax + 1,)
+        Spectra of T and of P (EE + BB) [muK^2].
+    template_cl : numpy.ndarray, optional
+        Spectrum of the leak's template (default: TT).
+
+    Returns
+    -------
+    list of (int, complex, numpy.ndarray)
+        (n, coefficient c, C^FF of the field F).
+    """
     dg, rho, chi, leak = systematics.per_pair(2)
     ell = np.arange(cl_tt.size)
     terms = [(2, 0.5 * (dg[0] + 1j * dg[1]), cl_tt), (4, (dg[0] - dg[1]) / 4, cl_pol)]
@@ -156,10 +239,22 @@ def leak_terms(systematics, cl_tt, cl_pol, template_cl=None):
 
 
 def local_cl(sky, mask, lmax, nthreads=0):
-    """Beam-smoothed (TT, EE + BB) of one sky realisation inside the mask: pseudo-C_ell / <w^2>.
+    """Beam-smoothed (TT, EE + BB) of one sky inside a mask: pseudo-C_ell / <w^2>.
 
-    Feeding these to :func:`systematic_cl` instead of the theory spectra removes the sample
-    variance of the patch when a prediction is compared with a simulation of that sky.
+    Feeding these to :func:`systematic_cl` instead of the theory removes the patch's sample variance
+    when a prediction is compared with a simulation of that sky.
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    tt, pol : numpy.ndarray, shape (lmax + 1,)
+        [muK^2].
     """
     from .spectra import pseudo_spectra
 
@@ -178,9 +273,26 @@ def systematic_cl(
     template_cl=None,
     field_cl=None,
 ):
-    """Full-sky spurious C^EE = C^BB [muK^2] (lmax+1,) predicted from h_n over the mask.
+    """Full-sky spurious C^EE = C^BB predicted from h_n over a mask.
 
-    field_cl: optional beam-smoothed (TT, EE + BB) to use instead of the theory (see local_cl).
+    Parameters
+    ----------
+    h : numpy.ndarray, complex128, shape (>= 5, npix)
+    mask : numpy.ndarray, shape (npix,)
+    systematics : boresight.instrument.Systematics
+    spectra : boresight.cosmology.Spectra
+    lmax : int
+    fwhm_arcmin : float
+    instrument : boresight.instrument.Instrument, optional
+    template_cl : numpy.ndarray, optional
+        Spectrum of the leak's template.
+    field_cl : tuple of numpy.ndarray, optional
+        Beam-smoothed (TT, EE + BB) to use instead of the theory (:func:`local_cl`).
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+        [muK^2], 0 at ell < 2.
     """
     _qu_pairs(instrument)
     cl_tt, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
@@ -213,10 +325,22 @@ def residual_pseudo_bb(
     template_cl=None,
     field_cl=None,
 ):
-    """Predicted masked residual C_BB(sys) - C_BB(no sys) [muK^2] (paper eq. 10).
+    """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
-    Adds the common rescaling of the cosmological signal, (1 - (dg_1 + dg_2)/4)^2 - 1, to the
-    leaked power M^{BB,BB} C^BB_sys + M^{BB,EE} C^EE_sys.
+    Adds the common rescaling of the cosmological signal, (1 - (dg_1 + dg_2)/4)^2 - 1, to the leaked
+    power M^{BB,BB} C^BB_sys + M^{BB,EE} C^EE_sys.
+
+    Parameters
+    ----------
+    h, mask, systematics, spectra, fwhm_arcmin, instrument, template_cl, field_cl
+        As in :func:`systematic_cl`.
+    coupling : boresight.coupling.Coupling
+        The mask's coupling matrices; their lmax is the prediction's.
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+        [muK^2].
     """
     lmax = coupling.lmax
     cl_sys = systematic_cl(
@@ -232,14 +356,32 @@ def rotation_suppression(n, rotations_deg):
     """|h_n|^2 after / before repeating every hit at each angle alpha_k: |<exp(i n alpha_k)>|^2.
 
     For the schedule (0, alpha) this is cos^2(n alpha / 2).
+
+    Parameters
+    ----------
+    n : int
+    rotations_deg : sequence of float
+
+    Returns
+    -------
+    float
     """
     alpha = np.radians(np.asarray(rotations_deg, dtype=np.float64))
     return float(np.abs(np.mean(np.exp(1j * n * alpha))) ** 2)
 
 
 def pixel_window(nside, lmax):
-    """Pixel window of a map that averages hits over its pixels, as the window of a disc of the
-    pixel's area, 2 J_1(x) / x with x = ell sqrt(4 / npix) (healpy.pixwin needs a download)."""
+    """Window of a map that averages hits over its pixels: the window of a disc of the pixel's area,
+    2 J_1(x) / x with x = ell sqrt(4 / npix) (healpy.pixwin needs a download).
+
+    Parameters
+    ----------
+    nside, lmax : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+    """
     from scipy.special import j1
 
     x = np.arange(lmax + 1) * np.sqrt(4.0 / (12 * nside**2))
@@ -247,7 +389,21 @@ def pixel_window(nside, lmax):
 
 
 def reference_bb(coupling, spectra, fwhm_arcmin, nside, r=0.0, a_lens=0.0):
-    """Pseudo-C_ell BB of the cosmological B-mode alone (E = 0), with beam and pixel window."""
+    """Pseudo-C_BB of the cosmological B-mode alone (E = 0), with beam and pixel window.
+
+    Parameters
+    ----------
+    coupling : boresight.coupling.Coupling
+    spectra : boresight.cosmology.Spectra
+    fwhm_arcmin : float
+    nside : int
+    r, a_lens : float
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+        [muK^2].
+    """
     lmax = coupling.lmax
     beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)[:, 2]
     pixwin = pixel_window(nside, lmax)
@@ -267,12 +423,35 @@ R_RANGE = (30, 300)  #: the deep survey's primordial range
 
 
 def tensor_template(coupling, spectra, fwhm_arcmin, nside):
-    """Pseudo-C_BB [muK^2] of tensors at r = 1 through the mask's coupling matrix."""
+    """Pseudo-C_BB of tensors at r = 1 through the mask: the template of :func:`delta_r`.
+
+    Parameters
+    ----------
+    coupling, spectra, fwhm_arcmin, nside
+        As in :func:`reference_bb`.
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+        [muK^2].
+    """
     return reference_bb(coupling, spectra, fwhm_arcmin, nside, r=1.0)
 
 
 def delta_r(residual, template, lmin=R_RANGE[0], lmax=R_RANGE[1]):
-    """Tensor-to-scalar ratio a residual pseudo-C_BB would fake (least-squares amplitude)."""
+    """The tensor-to-scalar ratio a residual pseudo-C_BB would fake: the least-squares amplitude of
+    the template over lmin <= ell <= lmax.
+
+    Parameters
+    ----------
+    residual, template : numpy.ndarray
+        Pseudo-C_BB [muK^2] from ell = 0.
+    lmin, lmax : int
+
+    Returns
+    -------
+    float
+    """
     lmax = min(lmax, residual.size - 1, template.size - 1)
     if lmin >= lmax:
         raise ValueError(f"empty multipole range [{lmin}, {lmax}] for delta_r")

@@ -29,9 +29,18 @@ N_MAX = predict.N_MAX
 
 
 class Transforms:
-    """A queue of spherical-harmonic jobs: run inline (``background=False``) or in order on one
-    background thread, with at most ``depth`` jobs waiting (each holds full-sky maps).
+    """A queue of spherical-harmonic jobs: inline, or in order on one background thread.
 
+    Parameters
+    ----------
+    background : bool
+        Run jobs on a background thread (ducc0 releases the GIL and uses every core), so they
+        overlap the main thread's simulations; else run each at once.
+    depth : int
+        At most this many background jobs wait at a time (each holds full-sky maps).
+
+    Notes
+    -----
     Jobs must not call numba's parallel kernels, which run on the main thread (numba's threading
     layer is not re-entrant). Use as a context manager; :meth:`wait` re-raises a job's error.
     """
@@ -54,7 +63,13 @@ class Transforms:
             self._pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
 
     def submit(self, fn, *args):
-        """Run or queue ``fn(*args)``; returns a Future of its result."""
+        """Run or queue ``fn(*args)``.
+
+        Returns
+        -------
+        concurrent.futures.Future
+            Of ``fn``'s result (already done when inline).
+        """
         if self._pool is None:
             future = Future()
             future.set_result(fn(*args))
@@ -74,9 +89,20 @@ class Transforms:
 
 @dataclass(frozen=True)
 class Reference:
-    """The no-systematic side of a residual: Q, U maps (2, npix) [muK], 0 where invalid, and a
-    Future of the B alm of the masked maps. ``Reference.zero()`` is the empty reference: the
-    residual is then the systematic's own spectrum (the paper's Q = U = 0 check)."""
+    """The no-systematic side of a residual.
+
+    Parameters
+    ----------
+    qu : numpy.ndarray, shape (2, npix), optional
+        Q, U [muK] of the reference maps, 0 where invalid; None for the zero reference.
+    b_alm : concurrent.futures.Future, optional
+        Of the B alm (nalm,) of the masked reference maps.
+
+    Notes
+    -----
+    ``Reference.zero()`` is the empty reference: the residual is then the systematic's own spectrum
+    (the paper's Q = U = 0 check), and the cross part is 0.
+    """
 
     qu: np.ndarray = None
     b_alm: Future = None
@@ -90,10 +116,17 @@ class Reference:
 class Prediction:
     """What the h_n prediction of a residual needs.
 
-    theory : :class:`boresight.cosmology.Spectra`; couplings : :class:`boresight.coupling.Coupling`
-    of the mask at the job's lmax; fwhm_arcmin : the sky's beam; field_cl : optional (TT, EE + BB)
-    of the sky inside the mask [muK^2], an array pair or a Future of one
-    (:func:`boresight.predict.local_cl`).
+    Parameters
+    ----------
+    theory : boresight.cosmology.Spectra
+        Lensed LCDM and tensor spectra [muK^2].
+    couplings : boresight.coupling.Coupling
+        Coupling matrices of the mask at the job's lmax.
+    fwhm_arcmin : float
+        The sky's Gaussian beam [arcmin].
+    field_cl : tuple of numpy.ndarray or Future, optional
+        (TT, EE + BB) [muK^2] of the sky inside the mask (:func:`boresight.predict.local_cl`),
+        which removes the patch's sample variance from the comparison; default: the theory.
     """
 
     theory: object
@@ -106,11 +139,21 @@ class Prediction:
 class Residual:
     """A residual job's result: unbinned spectra (lmax + 1,) [muK^2] from ell = 0.
 
-    ``cross`` (2 Re<B, dB>) and ``auto`` (<dB, dB>) are resolved from the transform queue on first
-    use; ``total`` is their sum, C_BB(sys) - C_BB(no sys). ``predicted_cl``: the h_n prediction of
-    the residual pseudo-C_BB (None when not predicted); ``predicted_map``: the residual of the
-    predicted spurious map (None unless asked for). ``h_power``: <|h_n|^2> over the observed pixels,
-    n = 1..4. ``maps``: (reference, with systematic) Maps when kept. ``stages``: seconds per stage.
+    Parameters
+    ----------
+    parts : concurrent.futures.Future
+        Of (cross, auto): 2 Re<B, dB> and <dB, dB>, resolved on first use of :attr:`cross`,
+        :attr:`auto` or :attr:`total` (C_BB(sys) - C_BB(no sys)).
+    predicted_cl : numpy.ndarray, optional
+        The h_n prediction of the residual pseudo-C_BB (None when not predicted).
+    predicted_map_parts : concurrent.futures.Future, optional
+        Of the (cross, auto) of the predicted spurious map; :attr:`predicted_map` is their sum.
+    h_power : dict
+        <|h_n|^2> over the observed pixels, n = 1..4 (with a prediction).
+    maps : tuple of boresight.mapmaking.Maps, optional
+        (reference, with systematic), when kept; the reference is None when it was shared.
+    stages : dict
+        Seconds spent simulating and predicting.
     """
 
     parts: Future
@@ -146,15 +189,39 @@ class Residual:
     }
 
     def columns(self):
-        """The unbinned spectra of the band tables by column name (None: not computed)."""
+        """The unbinned spectra of the band tables.
+
+        Returns
+        -------
+        dict
+            Column name (:attr:`COLUMNS`) -> (lmax + 1,) array [muK^2], or None where not computed.
+        """
         return {name: getattr(self, spectrum) for name, spectrum in self.COLUMNS.items()}
 
 
 def simulate(
     sky, scan, instrument, systematics, pixels, run=RunOptions(), leak_template=None, progress=False
 ):
-    """Maps of a synthetic scan (:class:`SyntheticScan`) or a real one (:class:`ground.Schedule`,
-    whose sample stream covers its own pixels)."""
+    """Maps of a synthetic or a real scan.
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
+        A real schedule's sample stream covers its own pixels (``pixels`` is then unused).
+    instrument : boresight.instrument.Instrument
+    systematics : boresight.instrument.Systematics
+    pixels : numpy.ndarray, bool, shape (npix,)
+        Pixels a synthetic scan observes.
+    run : boresight.config.RunOptions
+    leak_template : numpy.ndarray, optional
+        (npix,) template of the additive leak [muK].
+    progress : bool
+
+    Returns
+    -------
+    boresight.mapmaking.Maps
+    """
     if isinstance(scan, ground.Schedule):
         return engine.simulate_samples(
             sky,
@@ -179,7 +246,21 @@ def simulate(
 
 
 def moments(scan, nside, pixels, run=RunOptions()):
-    """h_n (N_MAX + 1, npix) of a synthetic or real scan (0 where unobserved)."""
+    """h_n of a synthetic or real scan.
+
+    Parameters
+    ----------
+    scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
+    nside : int
+    pixels : numpy.ndarray, bool, shape (npix,)
+        Pixels of a synthetic scan.
+    run : boresight.config.RunOptions
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (N_MAX + 1, npix)
+        0 where unobserved.
+    """
     if isinstance(scan, ground.Schedule):
         return scanstats.characterise_schedule(scan, nside).h
     h, _ = engine.scan_moments(
@@ -202,14 +283,43 @@ def reference(
     transforms=None,
     progress=False,
 ):
-    """Simulate ``scan`` without a systematic; returns (its :class:`Reference`, its Maps)."""
+    """Simulate a scan without a systematic.
+
+    Parameters
+    ----------
+    sky, scan, instrument, run, progress
+        As in :func:`residual`.
+    mask : numpy.ndarray, shape (npix,)
+        Weights in [0, 1]; pixels with weight > 0 are simulated.
+    lmax : int
+    transforms : Transforms, optional
+        Where the B alm is computed (default: inline).
+
+    Returns
+    -------
+    reference : Reference
+    maps : boresight.mapmaking.Maps
+    """
     maps = simulate(sky, scan, instrument, Systematics(), mask > 0, run, progress=progress)
     return reference_from_maps(maps, mask, lmax, run, transforms), maps
 
 
 def reference_from_maps(maps, mask, lmax, run=RunOptions(), transforms=None):
-    """The :class:`Reference` of simulated no-systematic Maps: their Q, U and, queued on
-    ``transforms``, the B alm of the masked maps."""
+    """The :class:`Reference` of simulated no-systematic maps.
+
+    Parameters
+    ----------
+    maps : boresight.mapmaking.Maps
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    run : boresight.config.RunOptions
+    transforms : Transforms, optional
+
+    Returns
+    -------
+    Reference
+        Their Q, U and a Future of the B alm of the masked maps.
+    """
     transforms = Transforms() if transforms is None else transforms
     qu = maps.qu
     return Reference(qu, transforms.submit(_masked_b, qu, mask, lmax, run.nthreads))
@@ -323,7 +433,17 @@ def residual(
 
 
 def load_sky(study):
-    """A study's sky: the seeded realisation of [sky], or the I, Q, U maps of sky.maps."""
+    """A study's sky.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+
+    Returns
+    -------
+    boresight.sky.Sky
+        The seeded realisation of [sky], or the I, Q, U maps of its sky.maps file (alm computed).
+    """
     from . import sky
 
     if study.sky_maps is None:
@@ -337,7 +457,17 @@ def load_sky(study):
 
 
 def load_template(study):
-    """A study's leak template map, or None (the leak then scales the sky's I)."""
+    """A study's leak template.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+
+    Returns
+    -------
+    numpy.ndarray or None
+        The (npix,) map of systematics.leak_template [muK], or None (the leak scales the sky's I).
+    """
     if study.leak_template is None:
         return None
     import healpy as hp
@@ -346,8 +476,21 @@ def load_template(study):
 
 
 def study_prediction(study, the_sky, mask, couplings=None):
-    """The :class:`Prediction` of a study's residual, with the sky's own spectra inside the mask
-    (None where the instrument has no prediction). ``couplings``: reuse these matrices."""
+    """The :class:`Prediction` of a study's residual.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+    the_sky : boresight.sky.Sky
+    mask : numpy.ndarray, shape (npix,)
+    couplings : boresight.coupling.Coupling, optional
+        Reuse these coupling matrices (default: computed here).
+
+    Returns
+    -------
+    Prediction or None
+        With the sky's own spectra inside the mask; None where the instrument has no prediction.
+    """
     if not predict.supports(study.instrument):
         return None
     from . import coupling
@@ -361,11 +504,25 @@ def study_prediction(study, the_sky, mask, couplings=None):
 
 
 def from_study(study, mask=None, couplings=None, keep_maps=False, progress=False):
-    """Run the residual job a :class:`boresight.config.Study` describes.
+    """Run the residual job a study describes.
 
-    ``mask`` and ``couplings``: the study's mask and its coupling matrices, when already made.
-    Returns (Residual, sky, mask): the job, with its prediction where the instrument allows, and
-    the sky and mask (npix,) it used.
+    Parameters
+    ----------
+    study : boresight.config.Study
+    mask : numpy.ndarray, shape (npix,), optional
+        The study's mask, when already made.
+    couplings : boresight.coupling.Coupling, optional
+        Its coupling matrices at output.lmax, when already made.
+    keep_maps : bool
+        Keep (reference, with systematic) maps in the result.
+    progress : bool
+
+    Returns
+    -------
+    job : Residual
+        With its prediction where the instrument allows.
+    sky : boresight.sky.Sky
+    mask : numpy.ndarray, shape (npix,)
     """
     from . import masks
 
@@ -389,10 +546,21 @@ def from_study(study, mask=None, couplings=None, keep_maps=False, progress=False
 
 
 def band_rows(edges, columns, **fixed):
-    """One row per band [edges[i], edges[i+1]): ell_lo, ell_hi, the band mean of every unbinned
-    spectrum in ``columns`` (name -> (lmax + 1,) array, or None for NaN) and the ``fixed`` values.
+    """The one table builder: one row per band of every unbinned spectrum.
 
-    The one table builder of the package: results.csv, sweep points and compare.csv use it.
+    Parameters
+    ----------
+    edges : array_like of int
+        Band edges; band i is edges[i] <= ell < edges[i + 1].
+    columns : dict
+        Column name -> unbinned spectrum (lmax + 1,) [muK^2], or None for a NaN column.
+    **fixed
+        Values repeated in every row (experiment, angle, delta_r, ...).
+
+    Returns
+    -------
+    list of dict
+        ``fixed``, ell_lo, ell_hi (inclusive) and the band mean of each column.
     """
     edges = np.asarray(edges)
     nan = np.full(edges.size - 1, np.nan)

@@ -34,11 +34,23 @@ def _scalar_or_map(name, value, lo, hi):
 
 @dataclass(frozen=True)
 class SyntheticScan:
-    """A synthetic scan: crossing angles per pixel and the boresight-rotation schedule.
+    """A synthetic scan (paper section 3.1): the ``[scan]`` table.
 
-    n_phi: hits per pixel (int or int map, >= 1); range_rad: range R [rad] in [0, 2 pi];
-    centre_rad: centre of the range [rad]; rotations_deg: PBR angles alpha [deg], each hit repeated
-    once per entry; in_pixel: "random" (uniform in solid angle) or "centre"; seed >= 0.
+    Parameters
+    ----------
+    n_phi : int or numpy.ndarray of int
+        Hits per pixel (crossing angles), >= 1, a scalar or a RING map (npix,).
+    range_rad : float or numpy.ndarray
+        Range R [rad] of the crossing angles, in [0, 2 pi].
+    centre_rad : float or numpy.ndarray
+        Centre of the range [rad].
+    rotations_deg : tuple of float
+        Boresight rotation angles alpha [deg]: every hit is repeated once per entry; (0,) is no
+        rotation, the paper's gain case is (0, 90).
+    in_pixel : {"random", "centre"}
+        Hit positions: uniform in the pixel's solid angle, or its centre.
+    seed : int
+        Seed of the counter-based random numbers.
     """
 
     n_phi: object = option(
@@ -83,7 +95,19 @@ class SyntheticScan:
         return np.asarray(self.rotations_deg) * DEG
 
     def per_pixel(self, pixels, npix):
-        """(n_phi, R, centre) for the given pixels, as int64/float64 arrays of pixels.size."""
+        """(n_phi, R, centre) of some pixels.
+
+        Parameters
+        ----------
+        pixels : numpy.ndarray of int, shape (P,)
+        npix : int
+            Pixels of the sky (checks map-valued parameters).
+
+        Returns
+        -------
+        n_phi : numpy.ndarray, int64, shape (P,)
+        range_rad, centre_rad : numpy.ndarray, float64, shape (P,)
+        """
         out = []
         for name, dtype in (
             ("n_phi", np.int64),
@@ -101,17 +125,36 @@ class SyntheticScan:
 
 
 def hit_offsets(n_phi):
-    """Offsets (P + 1,) int64 of each pixel's hits in a chunk's hit arrays: pixel k owns hits
-    offsets[k]..offsets[k + 1] - 1 (n_phi: hits per pixel, (P,))."""
+    """Where each pixel's hits start in a chunk's hit arrays.
+
+    Parameters
+    ----------
+    n_phi : array_like of int, shape (P,)
+
+    Returns
+    -------
+    numpy.ndarray, int64, shape (P + 1,)
+        Pixel k owns hits offsets[k]..offsets[k + 1] - 1.
+    """
     offsets = np.zeros(np.size(n_phi) + 1, dtype=np.int64)
     np.cumsum(n_phi, out=offsets[1:])
     return offsets
 
 
 def paper_scan(survey, rotation_deg=None, seed=0):
-    """The paper's synthetic scans: 'deep' (N_phi=4, R=0.719) or 'wide' (N_phi=2, R=0.169).
+    """The paper's synthetic scans.
 
-    ``rotation_deg`` adds one PBR repeat at that angle (None: no rotation).
+    Parameters
+    ----------
+    survey : {"deep", "wide"}
+        deep: N_phi = 4, R = 0.719 rad; wide: N_phi = 2, R = 0.169 rad.
+    rotation_deg : float, optional
+        Add one boresight repeat at this angle [deg] (None: no rotation).
+    seed : int
+
+    Returns
+    -------
+    SyntheticScan
     """
     params = {"deep": (4, 0.719), "wide": (2, 0.169)}
     if survey not in params:

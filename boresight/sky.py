@@ -24,7 +24,25 @@ MAX_AMPLITUDE = 100.0  #: upper bound on r and A_lens (either far beyond any phy
 
 @dataclass(frozen=True)
 class SkyConfig:
-    """What sky to simulate. Paper values by default (Nside 2048, lmax 4000, 7 arcmin, r=0)."""
+    """What sky to simulate: the ``[sky]`` table. Paper values by default.
+
+    Parameters
+    ----------
+    nside : int
+        HEALPix Nside, a power of two in [1, 8192].
+    lmax : int
+        Band limit, 2..3 nside - 1.
+    fwhm_arcmin : float
+        Gaussian beam FWHM [arcmin].
+    seed : int
+        Seed of the realisation, >= 0.
+    r : float
+        Tensor-to-scalar ratio.
+    a_lens : float
+        Lensing B-mode amplitude.
+    polarised : bool
+        False sets Q = U = 0 (the paper's zero-polarisation check).
+    """
 
     nside: int = option(2048, f"HEALPix Nside, a power of two in [1, {MAX_NSIDE}]")
     lmax: int = option(4000, "band limit of the sky, 2..3 nside - 1")
@@ -49,7 +67,18 @@ class SkyConfig:
 
 @dataclass(frozen=True)
 class Sky:
-    """Beam-smoothed sky: ``alm`` (3, nalm) T, E, B and ``maps`` (3, npix) I, Q, U [muK, RING]."""
+    """A beam-smoothed sky.
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128, shape (3, nalm)
+        T, E, B [muK], healpy ordering.
+    maps : numpy.ndarray, float64, shape (3, npix)
+        I, Q, U [muK], RING, COSMO.
+    nside : int
+    lmax : int
+    fwhm_arcmin : float
+    """
 
     alm: np.ndarray
     maps: np.ndarray
@@ -65,7 +94,22 @@ class Sky:
 
     @classmethod
     def from_maps(cls, maps, lmax=None, fwhm_arcmin=0.0, nthreads=0):
-        """Wrap user I, Q, U maps (3, npix), RING; alm are computed for exact evaluation."""
+        """Wrap user I, Q, U maps; their alm are computed for exact evaluation.
+
+        Parameters
+        ----------
+        maps : array_like, shape (3, npix)
+            I, Q, U [muK], RING, finite.
+        lmax : int, optional
+            Band limit of the alm (default 3 nside - 1).
+        fwhm_arcmin : float
+            The maps' beam [arcmin] (for predictions).
+        nthreads : int
+
+        Returns
+        -------
+        Sky
+        """
         maps = np.ascontiguousarray(maps, dtype=np.float64)
         if maps.ndim != 2 or maps.shape[0] != 3:
             raise ValueError(f"maps must have shape (3, npix), got {maps.shape}")
@@ -80,7 +124,20 @@ class Sky:
 
 
 def gaussian_alm(cls, lmax, seed):
-    """Seeded Gaussian (T, E, B) alm (3, nalm) from spectra ``cls`` = (TT, EE, BB, TE) [muK^2]."""
+    """Seeded Gaussian T, E, B alm of given spectra (correlated T and E, independent B).
+
+    Parameters
+    ----------
+    cls : sequence of numpy.ndarray
+        TT, EE, BB, TE [muK^2] from ell = 0.
+    lmax : int
+    seed : int
+        Key of numpy's Philox generator.
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (3, nalm)
+    """
     tt, ee, bb, te = (np.asarray(c[: lmax + 1], dtype=np.float64) for c in cls)
     rng = np.random.Generator(np.random.Philox(key=seed))
     nalm = harmonics.n_alm(lmax)
@@ -101,7 +158,19 @@ def gaussian_alm(cls, lmax, seed):
 
 
 def make_sky(config=SkyConfig(), spectra=None, nthreads=0):
-    """Draw, smooth and synthesise the sky described by ``config`` (spectra: cached by default)."""
+    """Draw, smooth and synthesise a sky.
+
+    Parameters
+    ----------
+    config : SkyConfig
+    spectra : boresight.cosmology.Spectra, optional
+        Default: the cached CAMB spectra.
+    nthreads : int
+
+    Returns
+    -------
+    Sky
+    """
     spectra = load_spectra() if spectra is None else spectra
     alm = gaussian_alm(
         spectra.total(r=config.r, a_lens=config.a_lens, lmax=config.lmax), config.lmax, config.seed

@@ -12,7 +12,20 @@ ORDER = ("tt", "ee", "bb", "te", "eb", "tb")
 
 
 def masked_alm(maps, mask, lmax, nthreads=0):
-    """(T, E, B) alm (3, nalm) of I, Q, U maps (3, npix) multiplied by ``mask``."""
+    """T, E, B alm of masked I, Q, U maps (anafast-equivalent: 3 Jacobi iterations).
+
+    Parameters
+    ----------
+    maps : array_like, shape (3, npix)
+        I, Q, U [muK], RING, finite inside the mask.
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (3, nalm)
+    """
     maps = np.asarray(maps, dtype=np.float64)
     _check(maps, mask)
     alm = np.empty((3, harmonics.n_alm(lmax)), dtype=np.complex128)
@@ -22,7 +35,20 @@ def masked_alm(maps, mask, lmax, nthreads=0):
 
 
 def masked_pol_alm(qu, mask, lmax, nthreads=0):
-    """(E, B) alm (2, nalm) of Q, U maps (2, npix) multiplied by ``mask``."""
+    """E, B alm of masked Q, U maps.
+
+    Parameters
+    ----------
+    qu : array_like, shape (2, npix)
+        Q, U [muK], finite inside the mask.
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (2, nalm)
+    """
     qu = np.asarray(qu, dtype=np.float64)
     _check(qu, mask)
     return harmonics.map2alm(qu * mask, lmax, spin=2, nthreads=nthreads)
@@ -40,7 +66,21 @@ def _check(maps, mask):
 
 
 def pseudo_spectra(maps, mask, lmax, nthreads=0):
-    """TT, EE, BB, TE, EB, TB pseudo-C_ell (6, lmax+1) of masked I, Q, U maps [muK^2]."""
+    """Pseudo-C_ell of masked maps, beam not deconvolved.
+
+    Parameters
+    ----------
+    maps : array_like, shape (3, npix)
+        I, Q, U [muK].
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (6, lmax + 1)
+        TT, EE, BB, TE, EB, TB [muK^2] from ell = 0 (healpy's order, :data:`ORDER`).
+    """
     t, e, b = masked_alm(maps, mask, lmax, nthreads)
     return np.array(
         [harmonics.alm2cl(x, y) for x, y in ((t, t), (e, e), (b, b), (t, e), (e, b), (t, b))]
@@ -48,12 +88,28 @@ def pseudo_spectra(maps, mask, lmax, nthreads=0):
 
 
 def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
-    """(cross, auto) parts of C_BB(sys) - C_BB(ref): 2 Re<B, dB> and <dB, dB>, each (lmax+1,).
+    """The two parts of C_BB(sys) - C_BB(ref) of masked maps.
 
-    B = B(ref) and dB = B(sys - ref): the transform of the small difference map keeps its full
-    relative precision, unlike subtracting two spectra. The cross part has zero mean when the
-    systematic is uncorrelated with the polarisation; the auto part is what leakage adds on average.
-    ``b_ref``: the B alm of the masked reference, when already computed.
+    B = B(ref) and dB = B(sys - ref): transforming the small difference map keeps its full relative
+    precision, unlike subtracting two spectra. The cross part has zero mean when the systematic is
+    uncorrelated with the polarisation; the auto part is what leakage adds on average.
+
+    Parameters
+    ----------
+    qu_sys, qu_ref : array_like, shape (2, npix)
+        Q, U [muK] with and without the systematic.
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+    b_ref : numpy.ndarray, shape (nalm,), optional
+        The B alm of the masked reference, when already computed.
+
+    Returns
+    -------
+    cross : numpy.ndarray, shape (lmax + 1,)
+        2 Re<B, dB> [muK^2].
+    auto : numpy.ndarray, shape (lmax + 1,)
+        <dB, dB> [muK^2].
     """
     if b_ref is None:
         b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads)[1]
@@ -61,19 +117,50 @@ def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
 
 
 def difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads=0):
-    """(cross, auto) of residual_bb_parts from the difference map d_qu = sys - ref (2, npix) and
-    the B alm of the masked reference."""
+    """:func:`residual_bb_parts` from the difference map and the reference's B alm.
+
+    Parameters
+    ----------
+    d_qu : array_like, shape (2, npix)
+        sys - ref [muK].
+    b_ref : numpy.ndarray, complex128, shape (nalm,)
+    mask : numpy.ndarray, shape (npix,)
+    lmax : int
+    nthreads : int
+
+    Returns
+    -------
+    cross, auto : numpy.ndarray, shape (lmax + 1,)
+    """
     d_b = masked_pol_alm(d_qu, mask, lmax, nthreads)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 
 def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0):
-    """C_BB(sys) - C_BB(ref) [muK^2] of masked Q, U maps (see residual_bb_parts)."""
+    """C_BB(sys) - C_BB(ref) of masked Q, U maps: the sum of :func:`residual_bb_parts`.
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+        [muK^2] from ell = 0.
+    """
     return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads))
 
 
 def linear_bins(lmin, lmax, width):
-    """Band edges [lo, hi) of width ``width`` from lmin up to lmax (inclusive)."""
+    """Band edges of a fixed width.
+
+    Parameters
+    ----------
+    lmin, lmax : int
+        First and last multipole (inclusive).
+    width : int
+
+    Returns
+    -------
+    numpy.ndarray of int
+        Edges [lo, hi) ending at lmax + 1.
+    """
     edges = np.arange(lmin, lmax + 2, width)
     if edges[-1] != lmax + 1:
         edges = np.append(edges, lmax + 1)
@@ -81,13 +168,39 @@ def linear_bins(lmin, lmax, width):
 
 
 def log_bins(lmin, lmax, n_bins):
-    """About ``n_bins`` logarithmically spaced integer band edges from lmin to lmax + 1."""
+    """Logarithmically spaced integer band edges.
+
+    Parameters
+    ----------
+    lmin, lmax : int
+        First and last multipole (inclusive).
+    n_bins : int
+        About this many bands (duplicate edges at low ell merge).
+
+    Returns
+    -------
+    numpy.ndarray of int
+        Edges [lo, hi) from lmin to lmax + 1.
+    """
     edges = np.unique(np.round(np.geomspace(lmin, lmax + 1, n_bins + 1)).astype(int))
     return edges
 
 
 def bin_spectrum(cl, edges):
-    """Band means of cl over [edges[i], edges[i+1]); returns (centres, means)."""
+    """Band means of a spectrum.
+
+    Parameters
+    ----------
+    cl : array_like, shape (..., lmax + 1)
+    edges : array_like of int
+        Band i is edges[i] <= ell < edges[i + 1].
+
+    Returns
+    -------
+    centres : numpy.ndarray, shape (nbands,)
+        (lo + hi - 1) / 2.
+    means : numpy.ndarray, shape (nbands,) or (..., nbands) transposed as (nbands, ...)
+    """
     cl = np.asarray(cl)
     lo, hi = edges[:-1], edges[1:]
     if hi[-1] > cl.shape[-1]:
@@ -97,6 +210,16 @@ def bin_spectrum(cl, edges):
 
 
 def cl2dl(cl):
-    """D_ell = ell (ell + 1) C_ell / 2 pi."""
+    """D_ell = ell (ell + 1) C_ell / 2 pi.
+
+    Parameters
+    ----------
+    cl : array_like, shape (..., lmax + 1)
+        From ell = 0.
+
+    Returns
+    -------
+    numpy.ndarray, same shape
+    """
     ell = np.arange(np.shape(cl)[-1])
     return cl * ell * (ell + 1) / (2 * np.pi)
