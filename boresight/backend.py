@@ -20,23 +20,94 @@ class KernelBackend(Protocol):
     pairs and ``F`` sky fields (I, Q, U and optionally a leak template)."""
 
     def generate_hits(self, seed, nside, pixels, offsets, range_rad, centre_rad, centred):
-        """theta, phi, psi (H,) of every hit of a chunk of pixels; pixel k owns hits
-        offsets[k]..offsets[k + 1] - 1 (offsets (P + 1,) int64)."""
+        """Position and crossing angle of every hit of a chunk of pixels.
+
+        Parameters
+        ----------
+        seed : int
+        nside : int
+        pixels : int64 array, shape (P,)
+            RING indices.
+        offsets : int64 array, shape (P + 1,)
+            Pixel k owns hits offsets[k]..offsets[k + 1] - 1 (the hit number in its random key).
+        range_rad, centre_rad : float64 array, shape (P,)
+        centred : bool
+            Hits at pixel centres instead of uniform positions.
+
+        Returns
+        -------
+        theta, phi, psi : float64 array, shape (H,)
+            [rad].
+        """
 
     def offset_points(self, theta, phi, psi, rotations, pair_angles, rho, chi):
-        """Where detector B of each (hit, rotation, pair) looks: theta_b, phi_b (H, K, M)."""
+        """Where detector B of each pair looks, for every (hit, rotation, pair).
+
+        Parameters
+        ----------
+        theta, phi, psi : float64 array, shape (H,)
+            Hits [rad].
+        rotations, pair_angles : float64 array, shapes (K,), (M,)
+            [rad].
+        rho, chi : float64 array, shape (M,)
+            Pointing offset and its direction per pair [rad].
+
+        Returns
+        -------
+        theta_b, phi_b : float64 array, shape (H, K, M)
+            [rad]; points past a pole folded back.
+        """
 
     def interpolate(self, stack, nside, theta, phi):
-        """Bilinear interpolation of the interleaved (npix, F) stack at points -> (F, n)."""
+        """Bilinear HEALPix interpolation of an interleaved stack.
+
+        Parameters
+        ----------
+        stack : float64 array, shape (npix, F)
+        nside : int
+        theta, phi : float64 array, shape (n,)
+            [rad].
+
+        Returns
+        -------
+        float64 array, shape (F, n)
+        """
 
     def accumulate(self, offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
-        """Normal-equation sums (P, 5) of hits grouped by pixel, from the fields at detector A
-        (F, H) and B (F, H, K, M), or an empty (F, 0, K, M) when B looks where A does."""
+        """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
+
+        Parameters
+        ----------
+        offsets : int64 array, shape (P + 1,)
+        psi : float64 array, shape (H,)
+        values_a : float64 array, shape (F, H)
+            Fields I, Q, U[, leak template] where detector A looks [muK].
+        values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
+            The same where detector B looks; empty when B looks where A does.
+        rotations, pair_angles : float64 array, shapes (K,), (M,)
+            [rad].
+        dg, leak : float64 array, shape (M,)
+
+        Returns
+        -------
+        float64 array, shape (P, 5)
+            sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
+        """
 
     def accumulate_scatter(
         self, pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out
     ):
-        """Add the sums of hits in any order into ``out[pixels[h]]`` (npix, 5), in hit order."""
+        """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
+
+        Parameters
+        ----------
+        pixels : int64 array, shape (H,)
+            RING pixel of each hit.
+        psi, values_a, values_b, rotations, pair_angles, dg, leak
+            As in :meth:`accumulate`.
+        out : float64 array, shape (npix, 5)
+            Running sums, updated in place.
+        """
 
     def bin_scan(
         self,
@@ -56,24 +127,96 @@ class KernelBackend(Protocol):
         leak,
         pointing,
     ):
-        """Normal-equation sums (P, 5) of a synthetic scan with an interpolated sky: the same
-        numbers as generate_hits -> interpolate (-> offset_points) -> accumulate."""
+        """Normal-equation sums of a synthetic scan with an interpolated sky.
+
+        The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
+
+        Parameters
+        ----------
+        seed, nside, pixels, range_rad, centre_rad, centred
+            As in :meth:`generate_hits`.
+        n_phi : int64 array, shape (P,)
+            Hits per pixel.
+        stack : array, shape (npix, F)
+            The interleaved sky fields on the device (:meth:`to_device`).
+        rotations, pair_angles, dg, leak
+            As in :meth:`accumulate`.
+        rho, chi : float64 array, shape (M,)
+            As in :meth:`offset_points`.
+        pointing : bool
+            Whether detector B looks elsewhere.
+
+        Returns
+        -------
+        float64 array, shape (P, 5)
+        """
 
     def moments(self, offsets, psi, rotations, n_max):
-        """(P, n_max + 1) complex <exp(i n psi)> over each pixel's hits and rotations."""
+        """Spin moments of each pixel's hits, every rotation included.
+
+        Parameters
+        ----------
+        offsets : int64 array, shape (P + 1,)
+        psi : float64 array, shape (H,)
+        rotations : float64 array, shape (K,)
+            [rad].
+        n_max : int
+
+        Returns
+        -------
+        complex128 array, shape (P, n_max + 1)
+            <exp(i n (psi + alpha_k))>.
+        """
 
     def to_device(self, array):
-        """The array on the backend's device."""
+        """An array on the backend's device (the sky fields, uploaded once).
+
+        Parameters
+        ----------
+        array : numpy.ndarray
+
+        Returns
+        -------
+        array
+        """
 
     def to_host(self, array):
-        """The array as numpy."""
+        """An array as numpy.
+
+        Parameters
+        ----------
+        array : array
+
+        Returns
+        -------
+        numpy.ndarray
+        """
 
     def zeros(self, shape):
-        """A float64 array of zeros on the device."""
+        """A zeroed float64 accumulator on the device.
+
+        Parameters
+        ----------
+        shape : tuple of int
+
+        Returns
+        -------
+        array
+        """
 
 
 def get_backend(name):
-    """The kernel module of a backend: 'cpu' (numba) or 'gpu' (CuPy)."""
+    """The kernel module of a backend.
+
+    Parameters
+    ----------
+    name : {"cpu", "gpu"}
+
+    Returns
+    -------
+    module
+        ``tod_cpu`` (numba) or ``tod_gpu`` (CuPy), each a :class:`KernelBackend`.
+    """
     if name == "cpu":
         from . import tod_cpu
 

@@ -109,6 +109,18 @@ def _terminate(signum, frame):
 
 
 def main(argv=None):
+    """The ``boresight`` command.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Default: sys.argv[1:].
+
+    Returns
+    -------
+    int
+        The exit code: 0 success, 1 a claim not reproduced, 2 bad input, 130 Ctrl-C, 143 SIGTERM.
+    """
     args = _parser().parse_args(argv)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")

@@ -176,7 +176,8 @@ class OutputOptions:
         Returns
         -------
         numpy.ndarray of int
-            About n_bands logarithmic edges from lmin to lmax + 1 (:func:`boresight.spectra.log_bins`).
+            About n_bands logarithmic edges from lmin to lmax + 1
+            (:func:`boresight.spectra.log_bins`).
         """
         from .spectra import log_bins
 

@@ -17,7 +17,7 @@ from . import harmonics
 
 @dataclass(frozen=True)
 class Coupling:
-    """Pseudo-C_ell coupling matrices of a mask, each (lmax + 1, lmax + 1) indexed [l, l'] from l = 0.
+    """Pseudo-C_ell coupling matrices of a mask, each (lmax + 1, lmax + 1), [l, l'] from l = 0.
 
     Parameters
     ----------

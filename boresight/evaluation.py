@@ -19,10 +19,27 @@ EXACT_EPSILON = 1e-11  #: ducc0 relative accuracy of exact evaluation
 def pair_fields(
     at, offset_points, n_fields, theta, phi, psi, rotations, pair_angles, rho, chi, pointing
 ):
-    """The fields where detector A looks, (F, H), and where detector B looks, (F, H, K, M) or an
-    empty (F, 0, K, M) without a pointing offset. ``at(theta, phi)`` evaluates the F fields at
-    points (interpolation on the backend's device, or exact); ``offset_points`` is the backend's
-    kernel for detector B's pointing."""
+    """The sky fields where detectors A and B of every pair look.
+
+    Parameters
+    ----------
+    at : callable
+        at(theta, phi) -> (F, n): interpolation on the backend's device, or exact evaluation.
+    offset_points : callable
+        The backend's kernel for detector B's pointing.
+    n_fields : int
+    theta, phi, psi : array, shape (H,)
+        Hits [rad].
+    rotations, pair_angles, rho, chi : array
+        [rad], shapes (K,), (M,), (M,), (M,).
+    pointing : bool
+        Whether detector B looks elsewhere.
+
+    Returns
+    -------
+    values_a : array, shape (F, H)
+    values_b : array, shape (F, H, K, M), or (F, 0, K, M) without a pointing offset
+    """
     values_a = at(theta, phi)
     if not pointing:
         return values_a, np.empty((n_fields, 0, rotations.size, pair_angles.size))
@@ -33,8 +50,18 @@ def pair_fields(
 class SkyFields:
     """The fields a TOD samples: I, Q, U and optionally a leak template.
 
-    ``stack`` holds them interleaved, shape (npix, n_fields), the layout the interpolation kernels
-    read (a pixel's fields share a cache line); ``alm`` serve exact evaluation.
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    template : numpy.ndarray, shape (npix,), optional
+        The leak's template map [muK].
+    template_alm : numpy.ndarray, optional
+        Its alm, for exact evaluation.
+
+    Notes
+    -----
+    ``stack`` holds the fields interleaved, shape (npix, F), the layout the interpolation kernels
+    read; ``exact`` evaluates the alm at points with ducc0.
     """
 
     def __init__(self, sky, template=None, template_alm=None):

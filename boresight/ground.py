@@ -33,7 +33,17 @@ ATACAMA = (-22.958, -67.787, 5200.0)
 
 @dataclass(frozen=True)
 class Site:
-    """Observatory position: latitude and east longitude [deg], altitude [m]."""
+    """An observatory position.
+
+    Parameters
+    ----------
+    lat_deg : float
+        Geodetic latitude [deg], in [-90, 90].
+    lon_deg : float
+        East longitude [deg].
+    alt_m : float
+        Altitude [m].
+    """
 
     lat_deg: float = ATACAMA[0]
     lon_deg: float = ATACAMA[1]
@@ -47,7 +57,25 @@ class Site:
 
 @dataclass(frozen=True)
 class CES:
-    """One constant-elevation scan. start_unix: UTC seconds since 1970; angles in deg."""
+    """One constant-elevation scan; every field finite and within :data:`CES_LIMITS`.
+
+    Parameters
+    ----------
+    start_unix : float
+        Start [UTC seconds since 1970].
+    duration_s : float
+        Length [s], > 0.
+    elevation_deg : float
+        Elevation [deg], in (0, 90).
+    az_centre_deg, az_throw_deg : float
+        Centre and full width of the azimuth sweep [deg].
+    speed_deg_s : float
+        Azimuth speed of the mount [deg/s], > 0.
+    boresight_deg : float
+        Boresight rotation of this CES [deg].
+    turnaround_s : float
+        Time to reverse at each end, at constant deceleration [s].
+    """
 
     start_unix: float
     duration_s: float
@@ -84,7 +112,18 @@ CES_REQUIRED = ("start_unix", "duration_s", "elevation_deg", "az_centre_deg", "a
 
 @dataclass(frozen=True)
 class Schedule:
-    """A site, a list of CESs and the sample rate [Hz]."""
+    """A site, a set of CESs and the sample rate.
+
+    Parameters
+    ----------
+    ces : tuple of CES
+    site : Site
+    sample_rate_hz : float
+    dut1_s : float
+        UT1 - UTC [s], in [-1, 1].
+    repeat_boresight_deg : tuple of float
+        The CES set is observed once per angle [deg] (identical sky tracks).
+    """
 
     ces: tuple
     site: Site = Site()
@@ -123,8 +162,24 @@ class ScheduleError(ConfigError):
 
 
 def load_schedule(path):
-    """A schedule from TOML ([site], sample_rate_hz, dut1_s, repeat_boresight_deg, [[ces]]) or
-    CSV (one CES per row, a header naming CES fields). Raises :class:`ScheduleError`."""
+    """Read a schedule file.
+
+    TOML: optional [site], sample_rate_hz, dut1_s, repeat_boresight_deg and [[ces]] tables of CES
+    fields. CSV: a header naming CES fields and one CES per row. Unknown keys or columns are errors.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    Schedule
+
+    Raises
+    ------
+    ScheduleError
+        Naming the file, the row (CSV line or [[ces]] number) and the key.
+    """
     path = str(path)
     if not os.path.isfile(path):
         raise ScheduleError(f"schedule not found (or not a file): {path}")
@@ -211,7 +266,18 @@ def _toml_schedule(path):
 
 @numba.njit(inline="always")
 def earth_rotation_angle(jd_ut1):
-    """Earth Rotation Angle [rad] (IERS 2003, not reduced to [0, 2 pi)) at a UT1 Julian date."""
+    """Earth Rotation Angle (IERS 2003), not reduced to [0, 2 pi).
+
+    Parameters
+    ----------
+    jd_ut1 : float
+        UT1 Julian date.
+
+    Returns
+    -------
+    float
+        [rad].
+    """
     return (
         2 * np.pi * ((jd_ut1 % 1.0) + 0.7790572732640 + 0.00273781191135448 * (jd_ut1 - 2451545.0))
     )
@@ -219,7 +285,22 @@ def earth_rotation_angle(jd_ut1):
 
 @numba.njit(inline="always")
 def horizon_terms(az, se, ce, sl, cl):
-    """sin(dec), cos(dec) sin(H), cos(dec) cos(H) of a horizon direction (the rotation)."""
+    """The rotation from horizon to equatorial coordinates of one direction.
+
+    Parameters
+    ----------
+    az : float
+        Azimuth east of north [rad].
+    se, ce : float
+        sin and cos of the elevation.
+    sl, cl : float
+        sin and cos of the latitude.
+
+    Returns
+    -------
+    sd, y, x : float
+        sin(dec), cos(dec) sin(H) and cos(dec) cos(H), H the hour angle.
+    """
     sa, ca = np.sin(az), np.cos(az)
     sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
     return sd, -sa * ce, cl * se - sl * ce * ca
@@ -227,7 +308,20 @@ def horizon_terms(az, se, ce, sl, cl):
 
 @numba.njit(inline="always")
 def parallactic_terms(sd, x, y, tl):
-    """(y, X) with q = atan2(y, X) the parallactic angle; X = cos(dec)^2 tan(lat) - sin(dec) x."""
+    """The atan2 arguments of the parallactic angle.
+
+    Parameters
+    ----------
+    sd, x, y : float
+        From :func:`horizon_terms`.
+    tl : float
+        tan(latitude).
+
+    Returns
+    -------
+    y, X : float
+        q = atan2(y, X), X = cos(dec)^2 tan(lat) - sin(dec) x.
+    """
     return y, tl * (x * x + y * y) - sd * x
 
 
@@ -246,9 +340,21 @@ def _to_equatorial(az, se, ce, local_era, sl, cl, tl):
 
 @numba.njit(parallel=True, cache=True)
 def horizon_to_equatorial(az, el, local_era, lat):
-    """(az east of north, el) [rad] at local Earth rotation angles -> (theta, phi, q) [rad].
+    """Horizon to equatorial coordinates of date, with the parallactic angle.
 
-    theta, phi: colatitude and right ascension of date; q: parallactic angle (east of north).
+    Parameters
+    ----------
+    az, el : numpy.ndarray, shape (n,)
+        Azimuth east of north and elevation [rad].
+    local_era : numpy.ndarray, shape (n,)
+        Local Earth rotation angle [rad].
+    lat : float
+        Latitude [rad].
+
+    Returns
+    -------
+    theta, phi, q : numpy.ndarray, shape (n,)
+        Colatitude, right ascension of date and parallactic angle (east of north) [rad].
     """
     n = az.size
     theta = np.empty(n)
@@ -288,7 +394,23 @@ def _scan_offsets(t, throw, speed, turnaround):
 
 
 def ces_samples(ces, schedule, start=0, stop=None):
-    """Times [unix s], azimuth and elevation [rad] of samples start..stop of a CES."""
+    """Times and horizon pointing of samples of a CES.
+
+    Parameters
+    ----------
+    ces : CES
+    schedule : Schedule
+        Its sample rate.
+    start, stop : int
+        Sample range (default: the whole CES).
+
+    Returns
+    -------
+    t : numpy.ndarray
+        [unix s].
+    az, el : numpy.ndarray
+        [rad].
+    """
     n = int(ces.duration_s * schedule.sample_rate_hz)
     stop = n if stop is None else min(stop, n)
     t = np.arange(start, stop) / schedule.sample_rate_hz
@@ -300,7 +422,26 @@ def ces_samples(ces, schedule, start=0, stop=None):
 
 @numba.njit(inline="always")
 def azimuth_and_local_era(t, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon):
-    """Azimuth [rad] and local Earth rotation angle [rad] t seconds into a CES."""
+    """Azimuth and local Earth rotation angle t seconds into a CES.
+
+    Parameters
+    ----------
+    t, start_unix : float
+        [s].
+    az_centre, throw, speed : float
+        [rad], [rad], [rad/s].
+    turnaround : float
+        [s].
+    jd_offset : float
+        UT1 Julian date of the Unix epoch.
+    lon : float
+        East longitude [rad].
+
+    Returns
+    -------
+    az, local_era : float
+        [rad].
+    """
     az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
     return az, earth_rotation_angle((start_unix + t) / 86400.0 + jd_offset) + lon
 
@@ -340,10 +481,21 @@ def _ces_pointing(
 
 
 def chunk_arguments(schedule, chunk_samples=1 << 20):
-    """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time
-    order, once per boresight repeat. Each tuple is (first sample, samples, start [unix s], rate
-    [Hz], azimuth centre, throw [rad], speed [rad/s], turnaround [s], elevation [rad], UT1 Julian
-    date offset, longitude, latitude [rad], boresight angle [rad])."""
+    """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time order,
+    once per boresight repeat.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    chunk_samples : int
+
+    Yields
+    ------
+    tuple
+        (first sample, samples, start [unix s], rate [Hz], azimuth centre, throw [rad], speed
+        [rad/s], turnaround [s], elevation [rad], UT1 Julian date offset, longitude, latitude [rad],
+        boresight angle [rad]).
+    """
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
     jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
     for repeat in schedule.repeat_boresight_deg:
@@ -368,7 +520,18 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
 
 
 def pointing(schedule, chunk_samples=1 << 20):
-    """Yield (theta, phi, psi) [rad] chunks of the whole schedule: the CES set in time order,
-    once per boresight repeat (the repeats follow identical sky tracks)."""
+    """The pointing of a whole schedule, chunk by chunk.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    chunk_samples : int
+
+    Yields
+    ------
+    theta, phi, psi : numpy.ndarray, shape (<= chunk_samples,)
+        Colatitude, right ascension of date and crossing angle [rad]; the CES set in time order,
+        once per boresight repeat.
+    """
     for args in chunk_arguments(schedule, chunk_samples):
         yield _ces_pointing(*args)

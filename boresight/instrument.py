@@ -66,8 +66,9 @@ class Instrument:
 
 @dataclass(frozen=True)
 class Systematics:
-    """Per-pair differential systematics: the ``[systematics]`` table. A scalar applies to every pair,
-    a tuple gives one value per pair.
+    """Per-pair differential systematics: the ``[systematics]`` table.
+
+    A scalar applies to every pair, a tuple gives one value per pair.
 
     Parameters
     ----------

@@ -33,7 +33,16 @@ class OutputError(ValueError):
 
 @contextlib.contextmanager
 def atomic_path(path):
-    """Yield a temporary path beside ``path``; rename it onto ``path`` on success, else delete."""
+    """A temporary path beside ``path``, renamed onto it when the block succeeds, else deleted.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Yields
+    ------
+    str
+    """
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     os.close(fd)
@@ -46,10 +55,19 @@ def atomic_path(path):
 
 
 def write_maps(path, maps, names, units, comments=()):
-    """Write RING maps (nmap, npix) as a FITS table healpy.read_map reads.
+    """Write RING maps as a FITS table healpy.read_map reads.
 
-    names, units: one per map (units "" for counts and ratios); comments: extra COMMENT cards.
-    Conventions go in the header; healpy.UNSEEN marks invalid pixels.
+    Parameters
+    ----------
+    path : pathlib.Path
+    maps : array_like, shape (nmap, npix)
+        healpy.UNSEEN marks invalid pixels.
+    names : list of str
+        One column name per map.
+    units : list of str
+        One unit per map ("" for counts and ratios: no TUNIT card).
+    comments : list of str
+        COMMENT cards.
     """
     if len(units) != len(names):
         raise ValueError(f"{len(names)} column names but {len(units)} units")
@@ -66,9 +84,21 @@ def write_maps(path, maps, names, units, comments=()):
 
 
 def fits_map_shape(path):
-    """(number of columns, pixels per column) of a HEALPix FITS map file, from its header only.
+    """The shape of a HEALPix FITS map file, from its header only.
 
-    Raises ValueError naming the file when it is not a FITS binary table of HEALPix maps.
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    nfields : int
+    npix : int
+
+    Raises
+    ------
+    ValueError
+        Naming the file, when it is not a FITS binary table of HEALPix maps.
     """
     from astropy.io import fits  # a dependency of healpy
 
@@ -86,7 +116,15 @@ def fits_map_shape(path):
 
 
 def write_csv(path, rows, columns):
-    """Write a list of dicts as CSV with the given column order."""
+    """Write rows as CSV, atomically.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+    rows : list of dict
+    columns : sequence of str
+        The column order; missing keys are empty.
+    """
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=columns)
         w.writeheader()
@@ -95,12 +133,26 @@ def write_csv(path, rows, columns):
 
 
 def write_json(path, data):
+    """Write data as indented JSON, atomically (numpy values converted).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+    data : object
+    """
     with atomic_path(path) as tmp, open(tmp, "w") as f:
         json.dump(data, f, indent=2, default=_jsonable)
         f.write("\n")
 
 
 def write_text(path, text):
+    """Write text, atomically.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+    text : str
+    """
     with atomic_path(path) as tmp, open(tmp, "w") as f:
         f.write(text)
 
@@ -114,12 +166,26 @@ def _jsonable(obj):
 
 
 def check_output_path(path, inputs=()):
-    """Check, before any work, that ``path`` is a safe place for an output directory.
+    """Check, before any work, that a path is a safe place for an output directory.
 
-    Refused (:class:`OutputError`): a symlink; the current directory, one of its ancestors or the
-    home directory; a directory that holds one of ``inputs``; an existing file; a place where no
-    directory can be created. Stale staging directories of killed runs beside it are removed.
-    Returns the resolved path.
+    Refused: a symlink; the current directory, one of its ancestors or the home directory; a
+    directory that is or holds one of ``inputs``; an existing file; a place where no directory can
+    be created. Stale staging directories of killed runs beside it are removed.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    inputs : iterable of str
+        Input files (or directories) of the run.
+
+    Returns
+    -------
+    pathlib.Path
+        The resolved path.
+
+    Raises
+    ------
+    OutputError
     """
     path = Path(path)
     if path.is_symlink():
@@ -144,14 +210,34 @@ def check_output_path(path, inputs=()):
 
 
 def is_own(path):
-    """Whether ``path`` is a directory that boresight created (it holds :data:`MARKER`)."""
+    """Whether a path is a directory that boresight created (it holds :data:`MARKER`).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    bool
+    """
     path = Path(path)
     return not path.is_symlink() and (path / MARKER).is_file()
 
 
 def check_output_dir(path, force, inputs=()):
-    """:func:`check_output_path`, and an existing non-empty directory is refused unless ``force``
-    and boresight created it (:data:`MARKER`). Raises OutputError or FileExistsError."""
+    """:func:`check_output_path`; and a non-empty directory is refused unless ``force`` and
+    boresight created it.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    force : bool
+    inputs : iterable of str
+
+    Raises
+    ------
+    OutputError, FileExistsError
+    """
     target = check_output_path(path, inputs)
     if target.is_dir() and any(target.iterdir()):
         if not force:
@@ -205,7 +291,16 @@ def _alive(pid):
 
 
 def make_output_dir(path):
-    """Create ``path`` (and its parents) as boresight's own directory, marked with MARKER."""
+    """Create a directory (and its parents) as boresight's own, marked with :data:`MARKER`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    pathlib.Path
+    """
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     (path / MARKER).touch()
@@ -213,7 +308,17 @@ def make_output_dir(path):
 
 
 def remove_output_dir(path):
-    """Remove a directory that boresight created (it holds MARKER); refuse any other."""
+    """Remove a directory that boresight created; refuse any other.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Raises
+    ------
+    OutputError
+        The directory has no :data:`MARKER` or is a symlink.
+    """
     path = Path(path)
     if not is_own(path):
         raise OutputError(f"{path} was not written by boresight (no {MARKER}); not removing it")
@@ -222,12 +327,22 @@ def remove_output_dir(path):
 
 @contextlib.contextmanager
 def staged_dir(path, force=False, inputs=()):
-    """Yield a staging directory that replaces ``path`` when the block finishes without error.
+    """A staging directory that replaces ``path`` when the block finishes without error.
 
     The checks of :func:`check_output_dir` run again first. The staging directory carries
-    :data:`MARKER`; a replaced output is renamed aside before the staging directory takes its
-    place and is removed after, so a kill at any moment leaves either the old or the new output
-    (and at most a hidden staging or old directory, which the next run removes).
+    :data:`MARKER`; a replaced output is renamed aside before the staging directory takes its place
+    and removed after, so a kill at any moment leaves either the old or the new output (and at most
+    a hidden staging or old directory, which the next run removes).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    force : bool
+    inputs : iterable of str
+
+    Yields
+    ------
+    pathlib.Path
     """
     path = Path(path)
     check_output_dir(path, force, inputs)

@@ -24,7 +24,21 @@ from .sky import SkyConfig
 
 @dataclass(frozen=True)
 class Experiment:
-    """One of the paper's two experiments: a survey, a systematic and its rotation angles."""
+    """One of the paper's two experiments.
+
+    Parameters
+    ----------
+    name : str
+    survey : {"deep", "wide"}
+    systematics : boresight.instrument.Systematics
+    ideal_deg : float
+        The rotation that cancels the systematic's h_n [deg].
+    angles_deg : tuple of float
+        The rotations simulated [deg].
+    reference : {"a_lens", "r"}
+        The reference curves: lensing B (r = 0), or tensor B (lensing removed).
+    reference_values : tuple of float
+    """
 
     name: str
     survey: str
@@ -50,9 +64,22 @@ EXPERIMENTS = (
 
 
 def preset(quick=False, run=None, **sky_fields):
-    """The paper's study: Nside 2048, lmax 4000, a 7 arcmin beam and seed 1, or with ``quick``
-    Nside 512 and lmax 1535 (minutes on a laptop); ``sky_fields`` override those and ``run`` the
-    run options. Bands: 14 from ell = 20 to min(lmax, 2 Nside). The scan seed is the sky's."""
+    """The paper's study.
+
+    Nside 2048, lmax 4000, a 7 arcmin beam and seed 1, or with ``quick`` Nside 512 and lmax 1535
+    (minutes on a laptop). Bands: 14 from ell = 20 to min(lmax, 2 Nside). The scan seed is the sky's.
+
+    Parameters
+    ----------
+    quick : bool
+    run : boresight.config.RunOptions, optional
+    **sky_fields
+        Overrides of the :class:`boresight.sky.SkyConfig` fields.
+
+    Returns
+    -------
+    boresight.config.Study
+    """
     nside, lmax = (512, 1535) if quick else (2048, 4000)
     sky_cfg = SkyConfig(
         **{"nside": nside, "lmax": lmax, "fwhm_arcmin": 7.0, "seed": 1, **sky_fields}
@@ -65,8 +92,26 @@ REPRODUCE_SECTIONS = ("sky", "scan", "run", "output")
 
 
 def from_raw(raw, quick=False):
-    """The paper's study with the [sky], [run] and [output] tables (and scan.seed) of a study
-    file applied over :func:`preset`: what ``boresight reproduce --config FILE`` runs."""
+    """The paper's study with a study file's [sky], [run], [output] tables (and scan.seed) applied.
+
+    What ``boresight reproduce --config FILE`` runs.
+
+    Parameters
+    ----------
+    raw : dict
+        Parsed TOML.
+    quick : bool
+        Start from the quick preset.
+
+    Returns
+    -------
+    boresight.config.Study
+
+    Raises
+    ------
+    boresight.config.ConfigError
+        A table the experiments set ([systematics], [mask], ...), or a bad value.
+    """
     _check_types(raw)
     fixed = sorted(set(raw) - set(REPRODUCE_SECTIONS))
     scan_keys = sorted(set(raw.get("scan", {})) - {"seed"})
@@ -88,7 +133,19 @@ def from_raw(raw, quick=False):
 
 @dataclass
 class ExperimentResult:
-    """One experiment's residual jobs, keyed by rotation angle (None: no rotation)."""
+    """One experiment's residual jobs.
+
+    Parameters
+    ----------
+    experiment : Experiment
+    fsky : float
+    residuals : dict
+        Rotation angle (None: no rotation) -> :class:`boresight.residual.Residual`.
+    zero_qu_residuals : dict
+        The same with Q = U = 0 input, at no and the ideal rotation.
+    references : dict
+        Reference value -> pseudo-C_BB [muK^2].
+    """
 
     experiment: Experiment
     fsky: float
@@ -122,7 +179,22 @@ class ExperimentResult:
 
 
 def run_study(study=preset(), experiments=EXPERIMENTS, log=lambda msg: None, progress=False):
-    """Run the paper's study; returns ({name: ExperimentResult}, {stage: seconds})."""
+    """Run the paper's study.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+    experiments : sequence of Experiment
+    log : callable
+    progress : bool
+
+    Returns
+    -------
+    results : dict
+        Experiment name -> :class:`ExperimentResult`.
+    stages : dict
+        Main-thread seconds per stage.
+    """
     timer = provenance.Timer(log)
     theory = load_spectra()
     with timer("sky"):
@@ -191,25 +263,66 @@ def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
 
 @dataclass(frozen=True)
 class BandTable:
-    """An experiment's spectra binned once: band centres, the results.csv columns per rotation
-    angle and the reference curves. The CSV, the report's claims and the figures read it."""
+    """An experiment's spectra binned once; the CSV, the report's claims and the figures read it.
+
+    Parameters
+    ----------
+    centres : numpy.ndarray, shape (nbands,)
+    columns : dict
+        (angle, column) -> band values, the results.csv columns.
+    references : dict
+        Reference value -> band values.
+    """
 
     centres: np.ndarray
     columns: dict  #: (angle, column) -> band values
     references: dict  #: reference value -> band values
 
     def values(self, angle, column, lo=0, hi=np.inf):
-        """Band values of a column at an angle, for bands whose centre lies in [lo, hi]."""
+        """Band values of a column at an angle, for bands whose centre lies in [lo, hi].
+
+        Parameters
+        ----------
+        angle : float or None
+        column : str
+        lo, hi : float
+
+        Returns
+        -------
+        numpy.ndarray
+        """
         keep = (self.centres >= lo) & (self.centres <= hi)
         return self.columns[angle, column][keep]
 
     def reference(self, value, lo=0, hi=np.inf):
+        """Band values of a reference curve, for bands whose centre lies in [lo, hi].
+
+        Parameters
+        ----------
+        value : float
+        lo, hi : float
+
+        Returns
+        -------
+        numpy.ndarray
+        """
         keep = (self.centres >= lo) & (self.centres <= hi)
         return self.references[value][keep]
 
 
 def band_rows(res, study):
-    """results.csv rows of one experiment: one per (rotation angle, ell band)."""
+    """The results.csv rows of one experiment.
+
+    Parameters
+    ----------
+    res : ExperimentResult
+    study : boresight.config.Study
+
+    Returns
+    -------
+    list of dict
+        One per (rotation angle, ell band), with the columns of :data:`CSV_COLUMNS`.
+    """
     edges = study.output.edges()
     rows = []
     for angle, job in res.residuals.items():
@@ -233,7 +346,19 @@ def band_rows(res, study):
 
 
 def band_table(res, rows, study):
-    """The :class:`BandTable` of one experiment from its results.csv rows."""
+    """The :class:`BandTable` of one experiment from its results.csv rows.
+
+    Parameters
+    ----------
+    res : ExperimentResult
+    rows : list of dict
+        :func:`tidy_rows`.
+    study : boresight.config.Study
+
+    Returns
+    -------
+    BandTable
+    """
     mine = [r for r in rows if r["experiment"] == res.experiment.name]
     angles = [None if r["pbr_angle_deg"] == "" else r["pbr_angle_deg"] for r in mine]
     first = [r for r, a in zip(mine, angles) if a is None]
@@ -254,7 +379,19 @@ def band_table(res, rows, study):
 
 
 def tidy_rows(results, study):
-    """One row per (experiment, rotation angle, ell band): the columns of results.csv."""
+    """The rows of results.csv.
+
+    Parameters
+    ----------
+    results : dict
+        From :func:`run_study`.
+    study : boresight.config.Study
+
+    Returns
+    -------
+    list of dict
+        One per (experiment, rotation angle, ell band).
+    """
     return [row for res in results.values() for row in band_rows(res, study)]
 
 

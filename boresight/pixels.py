@@ -31,7 +31,17 @@ def _isqrt(v):
 
 @numba.njit(inline="always")
 def ring2xyf(nside, pix):
-    """RING pixel index -> (ix, iy, face) with 0 <= ix, iy < nside."""
+    """Face coordinates of a RING pixel (Healpix C++ ring2xyf).
+
+    Parameters
+    ----------
+    nside, pix : int
+
+    Returns
+    -------
+    ix, iy, face : int
+        0 <= ix, iy < nside; face in 0..11.
+    """
     ncap = 2 * nside * (nside - 1)
     npix = 12 * nside * nside
     nl2 = 2 * nside
@@ -75,7 +85,19 @@ def ring2xyf(nside, pix):
 
 @numba.njit(inline="always")
 def xyf2ang(x, y, face):
-    """Continuous face coordinates x, y in [0, 1] of base face ``face`` -> (theta, phi) [rad]."""
+    """Angles of continuous face coordinates.
+
+    Parameters
+    ----------
+    x, y : float
+        In [0, 1] across the base face.
+    face : int
+
+    Returns
+    -------
+    theta, phi : float
+        [rad].
+    """
     jr = _JRLL[face] - x - y
     if jr < 1.0:
         nr = jr
@@ -99,9 +121,20 @@ def xyf2ang(x, y, face):
 
 @numba.njit(inline="always")
 def pixel_point(nside, pix, u, v):
-    """Point at fractional position (u, v) in [0, 1)^2 of RING pixel ``pix`` -> (theta, phi).
+    """A point at a fractional position inside a RING pixel.
 
     (0.5, 0.5) is the pixel centre; uniform (u, v) gives points uniform in solid angle.
+
+    Parameters
+    ----------
+    nside, pix : int
+    u, v : float
+        In [0, 1).
+
+    Returns
+    -------
+    theta, phi : float
+        [rad].
     """
     ix, iy, face = ring2xyf(nside, pix)
     return face_point(nside, ix, iy, face, u, v)
@@ -109,7 +142,18 @@ def pixel_point(nside, pix, u, v):
 
 @numba.njit(inline="always")
 def face_point(nside, ix, iy, face, u, v):
-    """:func:`pixel_point` for a pixel already given as (ix, iy, face)."""
+    """:func:`pixel_point` of a pixel given as face coordinates.
+
+    Parameters
+    ----------
+    nside, ix, iy, face : int
+    u, v : float
+
+    Returns
+    -------
+    theta, phi : float
+        [rad].
+    """
     return xyf2ang((ix + u) / nside, (iy + v) / nside, face)
 
 
@@ -152,9 +196,20 @@ def _ring_neighbours(nside, ring, phi):
 
 @numba.njit(inline="always")
 def interp_weights(nside, theta, phi):
-    """Bilinear interpolation pixels and weights at (theta, phi), as healpy.get_interp_weights.
+    """Bilinear interpolation pixels and weights, as healpy.get_interp_weights.
 
-    Returns (p0, p1, p2, p3, w0, w1, w2, w3); theta in [0, pi], phi in [0, 2 pi).
+    Parameters
+    ----------
+    nside : int
+    theta, phi : float
+        theta in [0, pi], phi in [0, 2 pi) [rad].
+
+    Returns
+    -------
+    p0, p1, p2, p3 : int
+        RING pixels.
+    w0, w1, w2, w3 : float
+        Weights summing to 1.
     """
     npix = 12 * nside * nside
     z = np.cos(theta)
@@ -205,13 +260,34 @@ def interp_weights(nside, theta, phi):
 
 @numba.njit(inline="always")
 def ang2pix(nside, theta, phi):
-    """RING pixel of (theta, phi) [rad], as healpy.ang2pix (Healpix C++ loc2pix)."""
+    """RING pixel of a direction, as healpy.ang2pix (Healpix C++ loc2pix).
+
+    Parameters
+    ----------
+    nside : int
+    theta, phi : float
+        [rad].
+
+    Returns
+    -------
+    int
+    """
     return zphi2pix(nside, np.cos(theta), np.sin(theta), phi)
 
 
 @numba.njit(inline="always")
 def zphi2pix(nside, z, sin_theta, phi):
-    """RING pixel from z = cos(theta), sin(theta) (used near the poles) and phi [rad]."""
+    """RING pixel from z = cos(theta), sin(theta) (used near the poles) and phi.
+
+    Parameters
+    ----------
+    nside : int
+    z, sin_theta, phi : float
+
+    Returns
+    -------
+    int
+    """
     za = abs(z)
     tt = (phi / _HALFPI) % 4.0
     if za <= 2.0 / 3.0:
@@ -240,7 +316,18 @@ def zphi2pix(nside, z, sin_theta, phi):
 
 @numba.njit(parallel=True, cache=True)
 def ang2pix_array(nside, theta, phi):
-    """Vectorised :func:`ang2pix`."""
+    """Vectorised :func:`ang2pix`.
+
+    Parameters
+    ----------
+    nside : int
+    theta, phi : numpy.ndarray, shape (n,)
+        [rad], checked by the callers at the boundary.
+
+    Returns
+    -------
+    numpy.ndarray, int64, shape (n,)
+    """
     out = np.empty(theta.size, dtype=np.int64)
     for k in numba.prange(theta.size):
         out[k] = ang2pix(nside, theta[k], phi[k])
@@ -249,7 +336,19 @@ def ang2pix_array(nside, theta, phi):
 
 @numba.njit(parallel=True, cache=True)
 def pixel_points(nside, pixels, u, v):
-    """Vectorised :func:`pixel_point`: arrays of pixels and fractions -> (theta, phi) arrays."""
+    """Vectorised :func:`pixel_point`.
+
+    Parameters
+    ----------
+    nside : int
+    pixels : numpy.ndarray of int, shape (n,)
+    u, v : numpy.ndarray, shape (n,)
+
+    Returns
+    -------
+    theta, phi : numpy.ndarray, shape (n,)
+        [rad].
+    """
     theta = np.empty(pixels.size)
     phi = np.empty(pixels.size)
     for k in numba.prange(pixels.size):
@@ -259,9 +358,20 @@ def pixel_points(nside, pixels, u, v):
 
 @numba.njit(parallel=True, cache=True)
 def interpolate_interleaved(maps, nside, theta, phi):
-    """Bilinear interpolation of an interleaved (npix, nfield) stack -> (nfield, npoints).
+    """Bilinear interpolation of an interleaved stack at many points.
 
     Interleaving puts a pixel's fields in one cache line: one memory access per neighbour.
+
+    Parameters
+    ----------
+    maps : numpy.ndarray, shape (npix, F)
+    nside : int
+    theta, phi : numpy.ndarray, shape (n,)
+        [rad].
+
+    Returns
+    -------
+    numpy.ndarray, shape (F, n)
     """
     out = np.empty((maps.shape[1], theta.size))
     for k in numba.prange(theta.size):
@@ -271,8 +381,20 @@ def interpolate_interleaved(maps, nside, theta, phi):
 
 @numba.njit(inline="always")
 def interpolate_point(maps, nside, theta, phi, out, column):
-    """Bilinear interpolation of the interleaved (npix, nfield) stack at one point into
-    out[f, column] (no array views in the hot loop)."""
+    """Bilinear interpolation of an interleaved stack at one point, into a column of ``out``.
+
+    No array views in the hot loop.
+
+    Parameters
+    ----------
+    maps : numpy.ndarray, shape (npix, F)
+    nside : int
+    theta, phi : float
+        [rad].
+    out : numpy.ndarray, shape (F, n)
+        Written in place at out[:, column].
+    column : int
+    """
     p0, p1, p2, p3, w0, w1, w2, w3 = interp_weights(nside, theta, phi)
     for f in range(maps.shape[1]):
         out[f, column] = w0 * maps[p0, f] + w1 * maps[p1, f] + w2 * maps[p2, f] + w3 * maps[p3, f]

@@ -47,9 +47,19 @@ def _save(fig, path_stem):
 
 
 def residual_figure(res, table, study, angles, path_stem):
-    """Residual pseudo-C_ell BB against ell for the given rotation angles (None: no rotation):
-    the bands of ``table`` (:class:`boresight.paper.BandTable`), the unbinned prediction and
-    reference curves of ``res``."""
+    """Residual pseudo-C_BB against ell at some rotation angles, as in the paper's figures.
+
+    Parameters
+    ----------
+    res : boresight.paper.ExperimentResult
+        Its unbinned prediction and reference curves.
+    table : boresight.paper.BandTable
+        Its bands.
+    study : boresight.config.Study
+    angles : list of float or None
+    path_stem : pathlib.Path
+        Writes .png and .pdf.
+    """
     exp = res.experiment
     edges = study.output.edges()
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
@@ -83,14 +93,31 @@ def residual_figure(res, table, study, angles, path_stem):
 
 
 def galactic_proxy(nside):
-    """A smooth Galactic-emission proxy [arbitrary units]: exp(-|b| / 10 deg) + 0.01."""
+    """A smooth Galactic-emission proxy: exp(-|b| / 10 deg) + 0.01.
+
+    Parameters
+    ----------
+    nside : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (npix,)
+        Arbitrary units, equatorial RING.
+    """
     theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
     theta_g, _ = hp.Rotator(coord=["C", "G"])(theta, phi)
     return np.exp(-np.abs(90.0 - np.degrees(theta_g)) / 10.0) + 0.01
 
 
 def footprint_figure(mask, title, path_stem):
-    """Mollweide view (equatorial) of the Galactic proxy with the mask's footprint shaded."""
+    """Mollweide view (equatorial) of the Galactic proxy with a mask's footprint shaded.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,)
+    title : str
+    path_stem : pathlib.Path
+    """
     nside = hp.npix2nside(mask.size)
     proxy = np.log10(galactic_proxy(nside))
     shown = np.where(mask > 0, proxy.max() + 0.3, proxy)
@@ -112,7 +139,14 @@ def footprint_figure(mask, title, path_stem):
 
 
 def map_figure(maps, names, path):
-    """Quick-look Mollweide panels of maps (UNSEEN shown grey)."""
+    """Quick-look Mollweide panels of maps (UNSEEN shown grey).
+
+    Parameters
+    ----------
+    maps : list of numpy.ndarray, shape (npix,)
+    names : list of str
+    path : pathlib.Path
+    """
     fig = plt.figure(figsize=(5 * len(maps), 3.2))
     with warnings.catch_warnings():  # healpy warns when it draws panels into an existing figure
         warnings.simplefilter("ignore", UserWarning)
@@ -123,8 +157,14 @@ def map_figure(maps, names, path):
 
 
 def spectrum_figure(bands, path_stem):
-    """|residual C_BB| per band of a simulate run (bands.csv rows), sign marked, with the h_n
-    prediction where there is one, on log axes."""
+    """|residual C_BB| per band of a simulate run, sign marked, with the h_n prediction.
+
+    Parameters
+    ----------
+    bands : list of dict
+        bands.csv rows.
+    path_stem : pathlib.Path
+    """
     centres = _band_centres(bands)
     values = np.array([r["residual_bb"] for r in bands])
     predicted = np.array([r["predicted_bb"] for r in bands])
@@ -142,8 +182,15 @@ def _band_centres(rows):
 
 
 def compare_figure(rows, systematic, path_stem):
-    """|residual C_BB| of a real scan and its synthetic twin per band, sign marked (compare.csv
-    rows)."""
+    """|residual C_BB| of a real scan and its synthetic twin per band, sign marked.
+
+    Parameters
+    ----------
+    rows : list of dict
+        compare.csv rows.
+    systematic : str
+    path_stem : pathlib.Path
+    """
     centres = _band_centres(rows)
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     colours = ("tab:orange", "tab:blue", "tab:red", "tab:green")
@@ -158,8 +205,17 @@ def compare_figure(rows, systematic, path_stem):
 
 
 def continuum_figure(rows, path_stem):
-    """Leaked-power suppression and |delta r| against rotation angle, with the h_n prediction,
-    when the sweep varies pbr_angle_deg (skipped otherwise; seeds are pooled)."""
+    """Suppression and |delta r| against the rotation angle, with the h_n prediction.
+
+    Skipped unless the sweep varies pbr_angle_deg with 0 among its values and the base has a
+    systematic; seeds are pooled.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The sweep's table.
+    path_stem : str
+    """
     if not rows or "pbr_angle_deg" not in rows[0]:
         return
 

@@ -14,7 +14,17 @@ import numpy as np
 
 
 class Timer:
-    """Wall time of each named stage, for the manifest."""
+    """Wall time of each named stage, for the manifest.
+
+    Parameters
+    ----------
+    log : callable
+        Called with "NAME ..." as each stage starts.
+
+    Notes
+    -----
+    ``with timer("name"):`` records the stage's seconds in ``timer.stages``.
+    """
 
     def __init__(self, log):
         self.stages = {}
@@ -65,7 +75,21 @@ def _git_revision():
 
 
 def manifest(config, seeds, stages):
-    """The manifest of a run: its config, seeds, stage times [s], versions, revision, machine."""
+    """The manifest of a run.
+
+    Parameters
+    ----------
+    config : dict
+        The run's configuration.
+    seeds : dict
+    stages : dict
+        Seconds per stage.
+
+    Returns
+    -------
+    dict
+        config, versions, seeds, git_revision, machine, wall_time_s, created.
+    """
     return {
         "config": config,
         "versions": _versions(),

@@ -12,6 +12,20 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Claim:
+    """One claim of the paper and its computed verdict.
+
+    Parameters
+    ----------
+    experiment : str
+    statement : str
+        What the paper says.
+    test : str
+        The statistic and the range it must fall in.
+    measured : str
+        The statistic measured here.
+    reproduced : bool
+    """
+
     experiment: str
     statement: str  #: what the paper says
     test: str  #: the statistic and the range it must fall in
@@ -37,6 +51,17 @@ def _claim(res, statement, test, value, ok, fmt="{:.3g}"):
 
 
 def pointing_claims(res, table):
+    """The wide survey's pointing claims.
+
+    Parameters
+    ----------
+    res : boresight.paper.ExperimentResult
+    table : boresight.paper.BandTable
+
+    Returns
+    -------
+    list of Claim
+    """
     med = np.median
     out = []
     a1 = med(_ratio_to_reference(table, None, 1.0, lo=40))
@@ -108,6 +133,17 @@ def pointing_claims(res, table):
 
 
 def gain_claims(res, table):
+    """The deep survey's gain claims.
+
+    Parameters
+    ----------
+    res : boresight.paper.ExperimentResult
+    table : boresight.paper.BandTable
+
+    Returns
+    -------
+    list of Claim
+    """
     med = np.median
     out = []
     r_eq = med(_ratio_to_reference(table, None, 0.1, lo=30, hi=150)) * 0.1
@@ -180,6 +216,18 @@ def gain_claims(res, table):
 
 
 def common_claims(res, table, study):
+    """The claims both experiments make: Q = U = 0, the prediction, the continuum in angle.
+
+    Parameters
+    ----------
+    res : boresight.paper.ExperimentResult
+    table : boresight.paper.BandTable
+    study : boresight.config.Study
+
+    Returns
+    -------
+    list of Claim
+    """
     exp = res.experiment
     med = np.median
     out = []
@@ -227,8 +275,18 @@ def common_claims(res, table, study):
 
 
 def evaluate_claims(results, rows, study):
-    """All claims for the experiments present in ``results``, read from their results.csv
-    ``rows`` (binned once, :func:`boresight.paper.band_table`)."""
+    """All claims of the experiments present, read from their results.csv rows (binned once).
+
+    Parameters
+    ----------
+    results : dict
+    rows : list of dict
+    study : boresight.config.Study
+
+    Returns
+    -------
+    list of Claim
+    """
     from .paper import band_table
 
     claims = []
@@ -242,7 +300,18 @@ def evaluate_claims(results, rows, study):
 
 
 def report_markdown(claims, study, stages):
-    """report.md: each claim, the number measured here and the computed verdict."""
+    """report.md: each claim, the number measured here and the computed verdict.
+
+    Parameters
+    ----------
+    claims : list of Claim
+    study : boresight.config.Study
+    stages : dict
+
+    Returns
+    -------
+    str
+    """
     lines = [
         "# boresight: reproduction of Thomas, McCallum & Brown (2020)",
         "",

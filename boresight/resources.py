@@ -28,7 +28,13 @@ class MemoryLimitError(ValueError):
 
 
 def available_bytes():
-    """Physical memory, or the cgroup (container) limit where that is smaller [bytes]."""
+    """The memory a job may use.
+
+    Returns
+    -------
+    float
+        Physical memory, or the cgroup (container) limit where that is smaller [bytes].
+    """
     total = float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     for limit_file in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
         try:
@@ -41,11 +47,27 @@ def available_bytes():
 
 
 def estimate_bytes(job, nside, lmax, n_phi_max=0, n_rotations=1, n_pairs=2, chunk_pixels=0):
-    """Estimated peak memory [bytes] of ``job`` (a key of :data:`BYTES_PER_PIXEL`).
+    """Estimated peak memory of a job.
 
     Full-sky arrays (per pixel), the sky's alm (3 x nalm complex), the coupling matrices
     (3 x (lmax + 1)^2 float64) and one chunk of a synthetic scan's hits: per hit its position and
     angle, and the sky fields at detector A and at detector B of every pair and rotation.
+
+    Parameters
+    ----------
+    job : str
+        A key of :data:`BYTES_PER_PIXEL`.
+    nside, lmax : int
+    n_phi_max : int
+        Most hits per pixel.
+    n_rotations, n_pairs : int
+    chunk_pixels : int
+        Pixels per chunk of the engine.
+
+    Returns
+    -------
+    float
+        [bytes].
     """
     npix = 12.0 * nside**2
     nalm = (lmax + 1.0) * (lmax + 2.0) / 2.0
@@ -55,7 +77,21 @@ def estimate_bytes(job, nside, lmax, n_phi_max=0, n_rotations=1, n_pairs=2, chun
 
 
 def require(job, estimate, check=True):
-    """Refuse a job whose estimate exceeds the machine's memory (unless ``check`` is False)."""
+    """Refuse a job whose estimate exceeds the machine's memory.
+
+    Parameters
+    ----------
+    job : str
+    estimate : float
+        [bytes].
+    check : bool
+        False skips the check.
+
+    Raises
+    ------
+    MemoryLimitError
+        With the estimate and the machine's memory in GiB.
+    """
     have = available_bytes()
     if check and estimate > have:
         raise MemoryLimitError(
@@ -65,5 +101,14 @@ def require(job, estimate, check=True):
 
 
 def n_phi_max(n_phi):
-    """The largest hit count per pixel of a scalar or map n_phi."""
+    """The largest hit count per pixel.
+
+    Parameters
+    ----------
+    n_phi : int or numpy.ndarray
+
+    Returns
+    -------
+    int
+    """
     return int(np.max(n_phi))

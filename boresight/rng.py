@@ -23,7 +23,16 @@ _TWO_M53 = 2.0**-53
 
 @numba.njit(inline="always")
 def mix64(z):
-    """SplitMix64 finaliser: a bijective 64-bit mixing function (uint64 -> uint64)."""
+    """SplitMix64 finaliser: a bijective 64-bit mixing function.
+
+    Parameters
+    ----------
+    z : numpy.uint64
+
+    Returns
+    -------
+    numpy.uint64
+    """
     z = (z ^ (z >> _S30)) * _M1
     z = (z ^ (z >> _S27)) * _M2
     return z ^ (z >> _S31)
@@ -31,26 +40,71 @@ def mix64(z):
 
 @numba.njit(inline="always")
 def pixel_key(seed, pixel):
-    """The per-pixel part of the key chain: mix(mix(seed ^ SEED_SALT) ^ pixel)."""
+    """The per-pixel part of the key chain: mix(mix(seed ^ SEED_SALT) ^ pixel).
+
+    Parameters
+    ----------
+    seed, pixel : int
+        >= 0.
+
+    Returns
+    -------
+    numpy.uint64
+    """
     return mix64(mix64(np.uint64(seed) ^ SEED_SALT) ^ np.uint64(pixel))
 
 
 @numba.njit(inline="always")
 def uniform_from_key(key, hit, stream):
-    """Uniform double in [0, 1) from a :func:`pixel_key` and (hit, stream)."""
+    """A uniform double from a pixel's key and (hit, stream).
+
+    Parameters
+    ----------
+    key : numpy.uint64
+        :func:`pixel_key`.
+    hit, stream : int
+        >= 0.
+
+    Returns
+    -------
+    float
+        In [0, 1).
+    """
     h = mix64(key ^ (np.uint64(hit) * np.uint64(N_STREAMS) + np.uint64(stream)))
     return np.float64(h >> _S11) * _TWO_M53
 
 
 @numba.njit(inline="always")
 def uniform(seed, pixel, hit, stream):
-    """Uniform double in [0, 1) for the key (seed, pixel, hit, stream); all ints >= 0."""
+    """A uniform double for the key (seed, pixel, hit, stream).
+
+    Parameters
+    ----------
+    seed, pixel, hit, stream : int
+        >= 0.
+
+    Returns
+    -------
+    float
+        In [0, 1).
+    """
     return uniform_from_key(pixel_key(seed, pixel), hit, stream)
 
 
 @numba.njit(parallel=True, cache=True)
 def uniform_array(seed, pixels, hits, stream):
-    """Vectorised :func:`uniform` over matching arrays of pixels and hits."""
+    """Vectorised :func:`uniform`.
+
+    Parameters
+    ----------
+    seed : int
+    pixels, hits : numpy.ndarray of int, shape (n,)
+    stream : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
     out = np.empty(pixels.size)
     for k in numba.prange(pixels.size):
         out[k] = uniform(seed, pixels[k], hits[k], stream)

@@ -156,8 +156,20 @@ def _runs(occupancy, nbins, observed):
 
 @dataclass(frozen=True)
 class ScanStats:
-    """Per-pixel statistics of a scan (RING maps): samples, h_n (n = 0..4), distinct angles,
-    range R [rad] and centre [rad] of the crossing angles."""
+    """Per-pixel statistics of a scan, RING maps (npix,).
+
+    Parameters
+    ----------
+    hits : numpy.ndarray, int64
+        Samples per pixel.
+    h : numpy.ndarray, complex128, shape (5, npix)
+        h_n, n = 0..4.
+    n_distinct : numpy.ndarray, int64
+        Distinct crossing angles (within the tolerance).
+    range_rad, centre_rad : numpy.ndarray
+        Range R and centre of the crossing angles [rad].
+    tolerance_deg : float
+    """
 
     hits: np.ndarray
     h: np.ndarray
@@ -171,7 +183,18 @@ class ScanStats:
         return self.hits > 0
 
     def survey_means(self, mask=None):
-        """The paper's survey means over observed pixels (inside ``mask`` if given)."""
+        """The paper's survey means over observed pixels.
+
+        Parameters
+        ----------
+        mask : numpy.ndarray, shape (npix,), optional
+            Restrict to mask > 0.
+
+        Returns
+        -------
+        dict
+            pixels, mean_hits, mean_n_phi, mean_range_rad and mean_abs_h{n}_sq (n = 1..4).
+        """
         sel = self.observed if mask is None else self.observed & (np.asarray(mask) > 0)
         out = {
             "pixels": int(sel.sum()),
@@ -184,7 +207,19 @@ class ScanStats:
         return out
 
     def synthetic_twin(self, per_pixel=True, seed=0, in_pixel="random"):
-        """The synthetic scan with this scan's N_phi and R: per pixel (maps) or survey means."""
+        """The synthetic scan with this scan's N_phi and R.
+
+        Parameters
+        ----------
+        per_pixel : bool
+            Per-pixel maps of N_phi, R and centre, or the survey means.
+        seed : int
+        in_pixel : {"random", "centre"}
+
+        Returns
+        -------
+        boresight.scan.SyntheticScan
+        """
         obs = self.observed
         if per_pixel:
             return SyntheticScan(
@@ -230,7 +265,20 @@ def _stats(nside, tolerance_deg, binned_chunks):
 
 
 def characterise(sample_chunks, nside, tolerance_deg=1.0):
-    """ScanStats of streams of (theta, phi, psi) samples [rad] at ``nside``."""
+    """Statistics of streams of samples.
+
+    Parameters
+    ----------
+    sample_chunks : iterable of (theta, phi, psi)
+        Arrays (n,) [rad], checked by :func:`boresight.engine.check_samples`.
+    nside : int
+    tolerance_deg : float
+        Angles closer than this count as one, in (0, 180].
+
+    Returns
+    -------
+    ScanStats
+    """
 
     def binned(nbins):
         for chunk in sample_chunks:
@@ -241,8 +289,20 @@ def characterise(sample_chunks, nside, tolerance_deg=1.0):
 
 
 def characterise_schedule(schedule, nside, tolerance_deg=1.0, chunk_samples=1 << 20):
-    """ScanStats of a CES schedule, with pointing fused into the binning (no theta, phi, psi
-    arrays); equal to characterise(ground.pointing(schedule), ...) up to rounding."""
+    """Statistics of a CES schedule, pointing fused into the binning (no theta, phi, psi arrays);
+    equal to characterise(ground.pointing(schedule), ...) up to rounding.
+
+    Parameters
+    ----------
+    schedule : boresight.ground.Schedule
+    nside : int
+    tolerance_deg : float
+    chunk_samples : int
+
+    Returns
+    -------
+    ScanStats
+    """
 
     def binned(nbins):
         for args in chunk_arguments(schedule, chunk_samples):

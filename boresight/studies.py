@@ -31,7 +31,20 @@ from .cosmology import load_spectra
 
 
 def check_memory(job, study, check=True):
-    """Refuse (MemoryLimitError) a study whose estimated memory exceeds the machine's."""
+    """Refuse a study whose estimated memory exceeds the machine's.
+
+    Parameters
+    ----------
+    job : str
+        A key of :data:`boresight.resources.BYTES_PER_PIXEL`.
+    study : boresight.config.Study
+    check : bool
+        False skips the check (``--no-memory-check``).
+
+    Raises
+    ------
+    boresight.resources.MemoryLimitError
+    """
     chunk = study.run.chunk_pixels or engine.DEFAULT_CHUNK_PIXELS[study.run.backend]
     estimate = resources.estimate_bytes(
         job,
@@ -46,7 +59,18 @@ def check_memory(job, study, check=True):
 
 
 def require_finite(what, values):
-    """ValueError unless every value is finite: no job reports NaN or infinity as a result."""
+    """Refuse to report NaN or infinity as a result.
+
+    Parameters
+    ----------
+    what : str
+        The result's name, for the message.
+    values : array_like
+
+    Raises
+    ------
+    ValueError
+    """
     if not np.isfinite(values).all():
         raise ValueError(f"{what} holds NaN or infinite values; nothing was written")
 
@@ -161,7 +185,20 @@ def simulate(study, out_dir, force=False, log=print, progress=False, memory_chec
 
 
 def predict_study(study, log=print, memory_check=True):
-    """Analytic prediction of a study's residual pseudo-C_BB (no TOD simulation)."""
+    """The analytic prediction of a study's residual pseudo-C_BB, without a simulation.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+        Its sky must be the theory's (no sky.maps).
+    log : callable
+    memory_check : bool
+
+    Returns
+    -------
+    list of dict
+        ell, predicted_bb [muK^2] for ell = 0..output.lmax.
+    """
     if study.sky_maps is not None:
         raise ValueError("predict uses the theory spectra; remove sky.maps from the config")
     check_memory("predict", study, memory_check)
@@ -183,7 +220,23 @@ def predict_study(study, log=print, memory_check=True):
 
 
 def scan_stats(study, out_dir, force=False, n_max=4, log=print, memory_check=True):
-    """Write h_n (n = 1..n_max), hit, N_phi and R maps of the study's scan, and a summary."""
+    """Write the h_n, hit, N_phi and R maps of a study's scan, and their survey means.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+    out_dir : str
+    force : bool
+    n_max : int
+        Highest moment written.
+    log : callable
+    memory_check : bool
+
+    Returns
+    -------
+    list of dict
+        n, mean_abs_h2, mean_re, mean_im for n = 1..n_max.
+    """
     io.check_output_dir(out_dir, force, study.inputs)
     check_memory("scan-stats", study, memory_check)
     nside = study.sky.nside

@@ -36,9 +36,25 @@ POINT_COLUMNS = ("ell_lo", "ell_hi", *residual.Residual.COLUMNS, "delta_r", "pre
 
 
 def load_sweep(path):
-    """Read a sweep file -> (base raw config, base directory, list of override dicts).
+    """Read and validate a sweep file; every point is checked as a study before any work.
 
-    Every point is validated as a study before any work; errors name the sweep file or the key.
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    base : dict
+        The base study's raw tables.
+    base_dir : str
+        Directory of the base study (relative paths start there).
+    points : list of dict
+        The overrides of each point.
+
+    Raises
+    ------
+    ConfigError
+        Naming the sweep file, the point or the key.
     """
     spec = read_toml(path, "sweep")
     unknown = set(spec) - {"base", "mode", "parameters"}
@@ -69,7 +85,19 @@ def load_sweep(path):
 
 
 def expand(parameters, mode):
-    """Override dicts for a grid (cartesian product) or a list (zip) of parameter values."""
+    """The points of a sweep.
+
+    Parameters
+    ----------
+    parameters : dict
+        Dotted key (or pbr_angle_deg) -> non-empty list of values.
+    mode : {"grid", "list"}
+        All combinations, or the lists zipped (equal lengths).
+
+    Returns
+    -------
+    list of dict
+    """
     if not parameters:
         raise ConfigError("sweep [parameters] is empty")
     for key, values in parameters.items():
@@ -89,7 +117,18 @@ def expand(parameters, mode):
 
 
 def apply_overrides(base, overrides):
-    """A copy of the raw config with dotted keys set (pbr_angle_deg: rotations [0, angle])."""
+    """A copy of a raw study with a point's overrides set.
+
+    Parameters
+    ----------
+    base : dict
+    overrides : dict
+        "section.key" -> value; pbr_angle_deg -> scan.rotations_deg = [0, angle] ([0] for 0).
+
+    Returns
+    -------
+    dict
+    """
     raw = copy.deepcopy(base)
     for key, value in overrides.items():
         if key == "pbr_angle_deg":
@@ -108,9 +147,22 @@ def apply_overrides(base, overrides):
 
 
 def point_key(base, base_dir, overrides):
-    """A point's file name: a hash of its whole resolved config (the base with the overrides
-    applied, the files it names with their size and modification time, and the package version),
-    so an edited base config or input file is a new point, never an old result."""
+    """A point's file name: a hash of its whole resolved config.
+
+    The base with the overrides applied, the size and modification time of the files it names and
+    the package version: an edited base or input file is a new point, never an old result.
+
+    Parameters
+    ----------
+    base : dict
+    base_dir : str
+    overrides : dict
+
+    Returns
+    -------
+    str
+        16 hexadecimal digits.
+    """
     raw = apply_overrides(base, overrides)
     files = {}
     for section in raw.values():
@@ -137,8 +189,20 @@ def _coupling_matrices(mask, lmax, nthreads):
 
 
 def run_point(base, base_dir, overrides):
-    """Run one point's residual job; returns its rows (one per ell band) with delta_r and the
-    predicted delta_r (NaN where the instrument has no prediction). Pure: a task for any worker."""
+    """Run one point's residual job (a pure task for any worker).
+
+    Parameters
+    ----------
+    base : dict
+    base_dir : str
+    overrides : dict
+
+    Returns
+    -------
+    list of dict
+        One row per band: :data:`POINT_COLUMNS`, delta_r and the predicted delta_r (NaN where the
+        instrument has no prediction).
+    """
     study = parse_study(apply_overrides(base, overrides), base_dir)
     nside, lmax, nthreads = study.sky.nside, study.output.lmax, study.run.nthreads
     mask = masks.from_config(study.mask, nside)
@@ -167,8 +231,25 @@ class CorruptPointError(ConfigError):
 
 
 def read_point(path, key, n_bands):
-    """The rows of a finished point's file, validated: its key, one row per band, every column,
-    finite residuals. Raises :class:`CorruptPointError` naming the file."""
+    """The rows of a finished point's file, validated.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+    key : str
+        The point's :func:`point_key`.
+    n_bands : int
+
+    Returns
+    -------
+    list of dict
+
+    Raises
+    ------
+    CorruptPointError
+        Unreadable JSON, another key, a wrong number of rows, a missing column or a non-finite
+        residual.
+    """
     try:
         data = json.loads(Path(path).read_text())
         rows = data["rows"]
@@ -223,12 +304,30 @@ def run_sweep(
     progress=False,
     repair=False,
 ):
-    """Run (or resume) a sweep; writes points/, results.csv, results.parquet, ensemble.csv.
+    """Run or resume a sweep.
 
-    scheduler: None for a local Dask cluster of ``workers`` processes, "serial" for no Dask, or
-    the address of an existing Dask scheduler. A point's file is keyed by a hash of its resolved
-    config (:func:`point_key`) and validated when read; ``repair`` recomputes corrupt ones (as
-    ``force`` does, which also starts a different sweep afresh). Returns the table's rows.
+    Parameters
+    ----------
+    path : str
+        The sweep file.
+    out_dir : str
+        Writes points/, results.csv, results.parquet and ensemble.csv; re-running resumes.
+    scheduler : str, optional
+        None for a local Dask cluster of ``workers`` processes, "serial" for no Dask, or the
+        address of an existing scheduler.
+    workers : int
+        >= 1.
+    force : bool
+        Start a different (or unreadable) sweep in ``out_dir`` afresh; recompute corrupt points.
+    log : callable
+    progress : bool
+    repair : bool
+        Recompute corrupt point files and rewrite an unreadable sweep.json, keeping valid points.
+
+    Returns
+    -------
+    list of dict
+        The table's rows, in sweep order.
     """
     base, base_dir, points = load_sweep(path)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -311,7 +410,20 @@ def _run_dask(todo, base, base_dir, scheduler, workers, finish):
 
 
 def write_tables(out, points, keys, bands):
-    """Assemble finished points (in sweep order) into results.csv, .parquet and ensemble.csv."""
+    """Assemble the finished points, in sweep order, into results.csv, .parquet and ensemble.csv.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+    points : list of dict
+    keys : list of str
+    bands : dict
+        Point key -> number of bands.
+
+    Returns
+    -------
+    list of dict
+    """
     out = Path(out)
     rows = []
     for i, (p, key) in enumerate(zip(points, keys)):
@@ -347,7 +459,19 @@ SEED_KEYS = ("sky.seed", "scan.seed")
 
 
 def ensemble(rows, keys):
-    """Mean and scatter of the residual over sky/scan seeds, per other parameters and band."""
+    """Mean and scatter of the residual and delta_r over sky and scan seeds.
+
+    Parameters
+    ----------
+    rows : list of dict
+    keys : list of str
+        The swept keys; the seed keys are pooled, the others group.
+
+    Returns
+    -------
+    list of dict
+        One per (other parameters, band); empty when no seed is swept.
+    """
     group_keys = [k for k in keys if k not in SEED_KEYS]
     if len(group_keys) == len(keys):
         return []

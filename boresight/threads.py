@@ -6,7 +6,13 @@ import numba
 
 
 def max_threads():
-    """The most threads numba may use on this machine (its NUMBA_NUM_THREADS)."""
+    """The most threads numba may use here.
+
+    Returns
+    -------
+    int
+        numba's NUMBA_NUM_THREADS.
+    """
     return numba.config.NUMBA_NUM_THREADS
 
 
@@ -28,7 +34,13 @@ def check_threads(name, nthreads):
 
 @contextlib.contextmanager
 def numba_threads(nthreads):
-    """Run numba kernels on ``nthreads`` threads inside the block (0: all cores)."""
+    """Run numba kernels on a number of threads inside the block.
+
+    Parameters
+    ----------
+    nthreads : int
+        0 for all cores.
+    """
     old = numba.get_num_threads()
     numba.set_num_threads(nthreads if nthreads > 0 else max_threads())
     try:

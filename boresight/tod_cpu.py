@@ -28,7 +28,21 @@ __all__ = [
 
 
 def interpolate(stack, nside, theta, phi):
-    """Bilinear interpolation of the interleaved (npix, nfield) stack -> (nfield, npoints)."""
+    """Bilinear HEALPix interpolation of an interleaved stack.
+
+    The contract: :meth:`boresight.backend.KernelBackend.interpolate`.
+
+    Parameters
+    ----------
+    stack : float64 array, shape (npix, F)
+    nside : int
+    theta, phi : float64 array, shape (n,)
+        [rad].
+
+    Returns
+    -------
+    float64 array, shape (F, n)
+    """
     return interpolate_interleaved(stack, nside, theta, phi)
 
 
@@ -50,10 +64,26 @@ def _draw_hit(key, j, nside, ix, iy, face, range_rad, centre_rad, centred):
 
 @numba.njit(parallel=True, cache=True)
 def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
-    """Crossing angle and position of every hit of a chunk of pixels.
+    """Position and crossing angle of every hit of a chunk of pixels.
 
-    Pixel k owns hits offsets[k]..offsets[k+1]-1 (hit number j = h - offsets[k] in the RNG key).
-    Returns theta, phi, psi [rad], each of length offsets[-1].
+    The contract: :meth:`boresight.backend.KernelBackend.generate_hits`.
+
+    Parameters
+    ----------
+    seed : int
+    nside : int
+    pixels : int64 array, shape (P,)
+        RING indices.
+    offsets : int64 array, shape (P + 1,)
+        Pixel k owns hits offsets[k]..offsets[k + 1] - 1 (the hit number in its random key).
+    range_rad, centre_rad : float64 array, shape (P,)
+    centred : bool
+        Hits at pixel centres instead of uniform positions.
+
+    Returns
+    -------
+    theta, phi, psi : float64 array, shape (H,)
+        [rad].
     """
     nhit = offsets[-1]
     theta = np.empty(nhit)
@@ -84,7 +114,24 @@ def _offset_point(theta, phi, sin_theta, beta, rho):
 
 @numba.njit(parallel=True, cache=True)
 def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
-    """Where detector B of each pair looks, for every (hit, rotation, pair): (H, K, M) arrays."""
+    """Where detector B of each pair looks, for every (hit, rotation, pair).
+
+    The contract: :meth:`boresight.backend.KernelBackend.offset_points`.
+
+    Parameters
+    ----------
+    theta, phi, psi : float64 array, shape (H,)
+        Hits [rad].
+    rotations, pair_angles : float64 array, shapes (K,), (M,)
+        [rad].
+    rho, chi : float64 array, shape (M,)
+        Pointing offset and its direction per pair [rad].
+
+    Returns
+    -------
+    theta_b, phi_b : float64 array, shape (H, K, M)
+        [rad]; points past a pole folded back.
+    """
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = np.empty((nh, nk, nm))
     pb = np.empty((nh, nk, nm))
@@ -164,9 +211,26 @@ def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
 def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
-    values_a (F, H): fields I, Q, U[, leak template] at each hit; values_b (F, H, K, M): the same
-    where detector B looks, or an empty (F, 0, K, M) array when B looks where A does.
-    Returns (npix_chunk, 5): sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
+    The contract: :meth:`boresight.backend.KernelBackend.accumulate`.
+
+    Parallel over pixels.
+
+    Parameters
+    ----------
+    offsets : int64 array, shape (P + 1,)
+    psi : float64 array, shape (H,)
+    values_a : float64 array, shape (F, H)
+        Fields I, Q, U[, leak template] where detector A looks [muK].
+    values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
+        The same where detector B looks; empty when B looks where A does.
+    rotations, pair_angles : float64 array, shapes (K,), (M,)
+        [rad].
+    dg, leak : float64 array, shape (M,)
+
+    Returns
+    -------
+    float64 array, shape (P, 5)
+        sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
     """
     turn_c, turn_s = _turns(rotations, pair_angles)
     values_b = _flat(values_b)
@@ -190,9 +254,20 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
 
 @numba.njit(cache=True)
 def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
-    """:func:`accumulate` for hits in any order: adds each hit's terms into out[pixels[h]].
+    """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
-    out (npix, 5) is the running full-sky sum; serial, so no two hits race for a pixel.
+    The contract: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
+
+    Serial, so no two hits race for a pixel.
+
+    Parameters
+    ----------
+    pixels : int64 array, shape (H,)
+        RING pixel of each hit.
+    psi, values_a, values_b, rotations, pair_angles, dg, leak
+        As in :meth:`accumulate`.
+    out : float64 array, shape (npix, 5)
+        Running sums, updated in place.
     """
     turn_c, turn_s = _turns(rotations, pair_angles)
     values_b = _flat(values_b)
@@ -220,9 +295,35 @@ def bin_scan(
     leak,
     pointing,
 ):
-    """Normal-equation sums (P, 5) of a synthetic scan with an interpolated sky: the staged
-    kernels generate_hits -> interpolate (-> offset_points) -> accumulate. The CPU is compute
-    bound: a fused numba loop measured 5 % slower than these cache-sized stages."""
+    """Normal-equation sums of a synthetic scan with an interpolated sky.
+
+    The contract: :meth:`boresight.backend.KernelBackend.bin_scan`.
+
+    The CPU is compute bound: a fused numba loop measured 5 % slower than these
+    cache-sized stages, so bin_scan runs generate_hits -> interpolate (-> offset_points) ->
+    accumulate.
+
+    The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
+
+    Parameters
+    ----------
+    seed, nside, pixels, range_rad, centre_rad, centred
+        As in :meth:`generate_hits`.
+    n_phi : int64 array, shape (P,)
+        Hits per pixel.
+    stack : array, shape (npix, F)
+        The interleaved sky fields on the device (:meth:`to_device`).
+    rotations, pair_angles, dg, leak
+        As in :meth:`accumulate`.
+    rho, chi : float64 array, shape (M,)
+        As in :meth:`offset_points`.
+    pointing : bool
+        Whether detector B looks elsewhere.
+
+    Returns
+    -------
+    float64 array, shape (P, 5)
+    """
     offsets = hit_offsets(n_phi)
     theta, phi, psi = generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred)
 
@@ -247,9 +348,22 @@ def bin_scan(
 
 @numba.njit(parallel=True, cache=True)
 def moments(offsets, psi, rotations, n_max):
-    """Spin moments h_n = mean over hits (all rotations) of exp(i n psi), n = 0..n_max.
+    """Spin moments of each pixel's hits, every rotation included.
 
-    Returns complex (npix_chunk, n_max + 1).
+    The contract: :meth:`boresight.backend.KernelBackend.moments`.
+
+    Parameters
+    ----------
+    offsets : int64 array, shape (P + 1,)
+    psi : float64 array, shape (H,)
+    rotations : float64 array, shape (K,)
+        [rad].
+    n_max : int
+
+    Returns
+    -------
+    complex128 array, shape (P, n_max + 1)
+        <exp(i n (psi + alpha_k))>.
     """
     out = np.zeros((offsets.size - 1, n_max + 1), dtype=np.complex128)
     for p in numba.prange(offsets.size - 1):
@@ -266,15 +380,54 @@ def moments(offsets, psi, rotations, n_max):
 
 
 def to_host(array):
-    """Kernel output as a numpy array (the CPU kernels already return numpy arrays)."""
+    """An array as numpy.
+
+    The contract: :meth:`boresight.backend.KernelBackend.to_host`.
+
+    The CPU kernels already return numpy arrays.
+
+    Parameters
+    ----------
+    array : array
+
+    Returns
+    -------
+    numpy.ndarray
+    """
     return array
 
 
 def to_device(array):
-    """Arrays the kernels read many times (the sky fields) stay where they are on the CPU."""
+    """An array on the backend's device (the sky fields, uploaded once).
+
+    The contract: :meth:`boresight.backend.KernelBackend.to_device`.
+
+    On the CPU the array stays where it is.
+
+    Parameters
+    ----------
+    array : numpy.ndarray
+
+    Returns
+    -------
+    array
+    """
     return array
 
 
 def zeros(shape):
-    """A zeroed float64 accumulator where the kernels write (host memory)."""
+    """A zeroed float64 accumulator on the device.
+
+    The contract: :meth:`boresight.backend.KernelBackend.zeros`.
+
+    Host memory.
+
+    Parameters
+    ----------
+    shape : tuple of int
+
+    Returns
+    -------
+    array
+    """
     return np.zeros(shape)

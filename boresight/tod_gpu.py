@@ -54,11 +54,36 @@ def _d(array, dtype=np.float64):
 
 
 def to_device(array):
-    """Copy an array to the GPU once (e.g. the interleaved sky fields)."""
+    """An array on the backend's device (the sky fields, uploaded once).
+
+    The contract: :meth:`boresight.backend.KernelBackend.to_device`.
+
+    Copied to the GPU.
+
+    Parameters
+    ----------
+    array : numpy.ndarray
+
+    Returns
+    -------
+    array
+    """
     return _d(array)
 
 
 def to_host(array):
+    """An array as numpy.
+
+    The contract: :meth:`boresight.backend.KernelBackend.to_host`.
+
+    Parameters
+    ----------
+    array : array
+
+    Returns
+    -------
+    numpy.ndarray
+    """
     return cp.asnumpy(array) if isinstance(array, cp.ndarray) else array
 
 
@@ -77,6 +102,27 @@ def _scan_args(seed, nside, pixels, counts, range_rad, centre_rad, centred):
 
 
 def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
+    """Position and crossing angle of every hit of a chunk of pixels.
+
+    The contract: :meth:`boresight.backend.KernelBackend.generate_hits`.
+
+    Parameters
+    ----------
+    seed : int
+    nside : int
+    pixels : int64 array, shape (P,)
+        RING indices.
+    offsets : int64 array, shape (P + 1,)
+        Pixel k owns hits offsets[k]..offsets[k + 1] - 1 (the hit number in its random key).
+    range_rad, centre_rad : float64 array, shape (P,)
+    centred : bool
+        Hits at pixel centres instead of uniform positions.
+
+    Returns
+    -------
+    theta, phi, psi : float64 array, shape (H,)
+        [rad].
+    """
     offsets_d = _d(offsets, np.int64)
     nhit = int(offsets[-1])
     theta, phi, psi = (cp.empty(nhit) for _ in range(3))
@@ -90,6 +136,24 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
 
 
 def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
+    """Where detector B of each pair looks, for every (hit, rotation, pair).
+
+    The contract: :meth:`boresight.backend.KernelBackend.offset_points`.
+
+    Parameters
+    ----------
+    theta, phi, psi : float64 array, shape (H,)
+        Hits [rad].
+    rotations, pair_angles : float64 array, shapes (K,), (M,)
+        [rad].
+    rho, chi : float64 array, shape (M,)
+        Pointing offset and its direction per pair [rad].
+
+    Returns
+    -------
+    theta_b, phi_b : float64 array, shape (H, K, M)
+        [rad]; points past a pole folded back.
+    """
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = cp.empty((nh, nk, nm))
     pb = cp.empty((nh, nk, nm))
@@ -115,7 +179,21 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
 
 
 def interpolate(stack, nside, theta, phi):
-    """Bilinear interpolation of the interleaved (npix, nfield) stack -> (nfield, npoints)."""
+    """Bilinear HEALPix interpolation of an interleaved stack.
+
+    The contract: :meth:`boresight.backend.KernelBackend.interpolate`.
+
+    Parameters
+    ----------
+    stack : float64 array, shape (npix, F)
+    nside : int
+    theta, phi : float64 array, shape (n,)
+        [rad].
+
+    Returns
+    -------
+    float64 array, shape (F, n)
+    """
     stack = stack if isinstance(stack, cp.ndarray) else _d(stack)
     theta, phi = _d(theta), _d(phi)
     out = cp.empty((stack.shape[1], theta.size))
@@ -159,7 +237,27 @@ def _accumulate(offsets, psi, target, values_a, values_b, rotations, pair_angles
 
 
 def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
-    """Normal-equation sums (npix_chunk, 5) of hits grouped by pixel (tod_cpu.accumulate)."""
+    """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
+
+    The contract: :meth:`boresight.backend.KernelBackend.accumulate`.
+
+    Parameters
+    ----------
+    offsets : int64 array, shape (P + 1,)
+    psi : float64 array, shape (H,)
+    values_a : float64 array, shape (F, H)
+        Fields I, Q, U[, leak template] where detector A looks [muK].
+    values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
+        The same where detector B looks; empty when B looks where A does.
+    rotations, pair_angles : float64 array, shapes (K,), (M,)
+        [rad].
+    dg, leak : float64 array, shape (M,)
+
+    Returns
+    -------
+    float64 array, shape (P, 5)
+        sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
+    """
     out = cp.zeros((offsets.size - 1, 5))
     args = (values_a, values_b, rotations, pair_angles, dg, leak, out)
     _accumulate(offsets, psi, np.uint64(0), *args)
@@ -167,10 +265,21 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
 
 
 def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
-    """Add each hit's sums into the device array out[pixels[h]] (tod_cpu.accumulate_scatter).
+    """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
-    The hits are sorted by (pixel, position) on the GPU, so every pixel's sums are added in hit
-    order, as on the CPU: the result is deterministic and matches the CPU to rounding.
+    The contract: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
+
+    The hits are sorted by (pixel, position) on the GPU, so every pixel's sums are added
+    in hit order, as on the CPU: deterministic, and equal to the CPU to rounding.
+
+    Parameters
+    ----------
+    pixels : int64 array, shape (H,)
+        RING pixel of each hit.
+    psi, values_a, values_b, rotations, pair_angles, dg, leak
+        As in :meth:`accumulate`.
+    out : float64 array, shape (npix, 5)
+        Running sums, updated in place.
     """
     pixels = _d(pixels, np.int64)
     order = cp.argsort(pixels * pixels.size + cp.arange(pixels.size))
@@ -199,10 +308,34 @@ def bin_scan(
     leak,
     pointing,
 ):
-    """Normal-equation sums (npix_chunk, 5) of a synthetic scan over a chunk of pixels with an
-    interpolated sky, in one kernel: each thread draws its pixel's hits, interpolates the stack
-    where both detectors of every pair look and sums in registers. The same numbers as
-    generate_hits -> interpolate (-> offset_points) -> accumulate, without per-hit arrays."""
+    """Normal-equation sums of a synthetic scan with an interpolated sky.
+
+    The contract: :meth:`boresight.backend.KernelBackend.bin_scan`.
+
+    One fused kernel: each thread draws its pixel's hits, interpolates the stack where both
+    detectors of every pair look and sums in registers, without per-hit arrays.
+
+    The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
+
+    Parameters
+    ----------
+    seed, nside, pixels, range_rad, centre_rad, centred
+        As in :meth:`generate_hits`.
+    n_phi : int64 array, shape (P,)
+        Hits per pixel.
+    stack : array, shape (npix, F)
+        The interleaved sky fields on the device (:meth:`to_device`).
+    rotations, pair_angles, dg, leak
+        As in :meth:`accumulate`.
+    rho, chi : float64 array, shape (M,)
+        As in :meth:`offset_points`.
+    pointing : bool
+        Whether detector B looks elsewhere.
+
+    Returns
+    -------
+    float64 array, shape (P, 5)
+    """
     out = cp.empty((pixels.size, 5))
     _launch(
         "bin_scan",
@@ -221,6 +354,23 @@ def bin_scan(
 
 
 def moments(offsets, psi, rotations, n_max):
+    """Spin moments of each pixel's hits, every rotation included.
+
+    The contract: :meth:`boresight.backend.KernelBackend.moments`.
+
+    Parameters
+    ----------
+    offsets : int64 array, shape (P + 1,)
+    psi : float64 array, shape (H,)
+    rotations : float64 array, shape (K,)
+        [rad].
+    n_max : int
+
+    Returns
+    -------
+    complex128 array, shape (P, n_max + 1)
+        <exp(i n (psi + alpha_k))>.
+    """
     npix = offsets.size - 1
     out = cp.empty((npix, n_max + 1), dtype=cp.complex128)
     _launch(
@@ -240,5 +390,18 @@ def moments(offsets, psi, rotations, n_max):
 
 
 def zeros(shape):
-    """A zeroed float64 accumulator where the kernels write (GPU memory)."""
+    """A zeroed float64 accumulator on the device.
+
+    The contract: :meth:`boresight.backend.KernelBackend.zeros`.
+
+    GPU memory.
+
+    Parameters
+    ----------
+    shape : tuple of int
+
+    Returns
+    -------
+    array
+    """
     return cp.zeros(shape)

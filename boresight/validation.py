@@ -22,7 +22,27 @@ def _describe(lo, hi):
 
 
 def number(name, value, lo=None, hi=None):
-    """``value`` as a float if it is a real, finite number within [lo, hi] (bounds optional)."""
+    """A real, finite number within bounds.
+
+    Parameters
+    ----------
+    name : str
+        The field's name in messages.
+    value : object
+    lo, hi : float, optional
+        Inclusive bounds.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    TypeError
+        Not a real number (a bool is not).
+    ValueError
+        NaN, infinite or out of range.
+    """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a number {_describe(lo, hi)}, got {value!r}")
     x = float(value)
@@ -32,7 +52,22 @@ def number(name, value, lo=None, hi=None):
 
 
 def integer(name, value, lo=None, hi=None):
-    """``value`` as an int if it is an integer (not a bool) within [lo, hi]."""
+    """An integer (not a bool) within bounds.
+
+    Parameters
+    ----------
+    name : str
+    value : object
+    lo, hi : int, optional
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    TypeError, ValueError
+    """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} = {value!r} is not an integer")
     if not ((lo is None or value >= lo) and (hi is None or value <= hi)):
@@ -42,7 +77,22 @@ def integer(name, value, lo=None, hi=None):
 
 
 def numbers_array(name, value, lo=None, hi=None):
-    """A float64 array of a scalar or a 1-d sequence of real numbers, each finite in [lo, hi]."""
+    """A scalar or 1-d sequence of real numbers, each finite within bounds.
+
+    Parameters
+    ----------
+    name : str
+    value : object
+    lo, hi : float, optional
+
+    Returns
+    -------
+    numpy.ndarray, float64
+
+    Raises
+    ------
+    TypeError, ValueError
+    """
     items = np.asarray(value, dtype=object)
     if items.ndim > 1:
         raise ValueError(f"{name} must be a number or a 1-d list of numbers, got {value!r}")
@@ -57,9 +107,24 @@ def numbers_array(name, value, lo=None, hi=None):
 
 
 def option(default, help, types=None, choices=None):
-    """A dataclass field that documents itself: its default, help text, the TOML types it accepts
-    (from the default's type unless given) and its allowed values. :mod:`boresight.config` builds
-    the study file's schema, its error messages and the command-line flags from these."""
+    """A dataclass field that documents itself.
+
+    :mod:`boresight.config` builds the study file's schema, its error messages and the command-line
+    flags from these.
+
+    Parameters
+    ----------
+    default : object
+    help : str
+    types : tuple of type, optional
+        TOML types accepted (default: from the default's type).
+    choices : tuple, optional
+        Allowed values.
+
+    Returns
+    -------
+    dataclasses.Field
+    """
     if types is None:
         kind = type(default)
         types = {bool: (bool,), int: (int,), float: (int, float), str: (str,), tuple: (list,)}[kind]

@@ -78,7 +78,8 @@ def _mostly(valid, invalid):
 
 @st.composite
 def small_studies(draw):
-    """Runnable studies at Nside <= 16 (lmax above the default lmin of 20), each field now and then out of range or non-finite."""
+    """Runnable studies at Nside <= 16 (lmax above the default lmin of 20), each field now and
+    then out of range or non-finite."""
     nside = draw(_mostly(st.sampled_from([8, 16]), st.sampled_from([1, 2, 4, 12, 0, True])))
     top = 3 * max(int(nside), 1) - 1
     return {
@@ -246,7 +247,7 @@ def test_any_toml_schedule_loads_or_names_its_error(ces, top, tmp_path_factory):
     _check_schedule(path)
 
 
-# Sweep files ---------------------------------------------------------------------------------------
+# Sweep files ------------------------------------------------------------------------------------
 
 STUDY = '[sky]\nnside = 16\nlmax = 47\n[mask]\nsurvey = "wide"\n[output]\nlmax = 40\nn_bands = 3\n'
 
