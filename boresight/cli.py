@@ -10,10 +10,9 @@ import argparse
 import logging
 import signal
 import sys
-
-from . import paper, studies
 from dataclasses import replace
 
+from . import paper, studies
 from .config import ConfigError, RunOptions, add_flags, load_study, read_toml
 from .sky import SkyConfig
 

@@ -11,6 +11,8 @@ fields. A config is validated whole before any work starts: unknown sections or 
 values out of range and missing files raise :class:`ConfigError` naming the key and the file.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import importlib.util
 import os
@@ -201,7 +203,7 @@ FILE_KEYS = {
 }
 
 
-def schema():
+def schema() -> dict:
     """The schema of a study file, read from the section dataclasses.
 
     Returns
@@ -370,7 +372,7 @@ def _build(section, cls, kwargs):
         raise ConfigError(where + text) from None
 
 
-def read_toml(path, what="config"):
+def read_toml(path: str, what: str = "config") -> dict:
     """The parsed TOML of a file.
 
     Parameters
@@ -397,7 +399,7 @@ def read_toml(path, what="config"):
         raise ConfigError(f"{path} is not valid TOML: {err}") from None
 
 
-def load_study(path):
+def load_study(path: str) -> Study:
     """Read and validate a TOML study file.
 
     Parameters
@@ -426,7 +428,7 @@ def _tuples(body, keys):
     return {k: tuple(v) if k in keys and isinstance(v, list) else v for k, v in body.items()}
 
 
-def parse_study(raw, base="."):
+def parse_study(raw: dict, base: str = ".") -> Study:
     """Validate a study given as a dict (the parsed TOML).
 
     Parameters
@@ -487,7 +489,7 @@ def parse_study(raw, base="."):
         raise ConfigError(f"[output] {err}") from None
 
 
-def as_dict(study):
+def as_dict(study: Study) -> dict:
     """A study's sections as plain dicts, for manifests.
 
     Parameters

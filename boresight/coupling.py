@@ -6,6 +6,8 @@ ducc0's ``coupling_matrix_rect`` (the routine NaMaster 2 uses); for spin 2 the e
 is M^{EE,EE} = M^{BB,BB} and the odd part M^{EE,BB} = M^{BB,EE} (Brown, Castro & Taylor 2005).
 """
 
+from __future__ import annotations
+
 import os
 from dataclasses import dataclass
 
@@ -37,7 +39,7 @@ class Coupling:
     def lmax(self):
         return self.tt.shape[0] - 1
 
-    def pseudo_bb(self, cl_bb, cl_ee):
+    def pseudo_bb(self, cl_bb: np.ndarray, cl_ee: np.ndarray) -> np.ndarray:
         """Expected pseudo-C_BB of full-sky spectra: M^{BB,BB} C^BB + M^{BB,EE} C^EE.
 
         Parameters
@@ -53,7 +55,7 @@ class Coupling:
         return self.even @ cl_bb[:n] + self.odd @ cl_ee[:n]
 
 
-def mask_spectrum(mask, lmax, nthreads=0):
+def mask_spectrum(mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
     """Pseudo power spectrum W_L of the mask (iteration-free, as NaMaster).
 
     Parameters
@@ -69,7 +71,7 @@ def mask_spectrum(mask, lmax, nthreads=0):
     return harmonics.alm2cl(harmonics.map2alm(mask, lmax, iterations=0, nthreads=nthreads))
 
 
-def coupling_matrices(mask, lmax, nthreads=0):
+def coupling_matrices(mask: np.ndarray, lmax: int, nthreads: int = 0) -> Coupling:
     """The TT and spin-2 coupling matrices of a mask (ducc0's Wigner-3j routine, as NaMaster 2).
 
     Parameters

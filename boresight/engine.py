@@ -6,6 +6,10 @@ fused kernel on the GPU), then solves each pixel where the sums lie; memory is b
 chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import healpy as hp
 import numpy as np
 from tqdm.auto import tqdm
@@ -19,6 +23,13 @@ from .pixels import ang2pix_array
 from .scan import hit_offsets
 from .sky import MAX_NSIDE
 from .threads import numba_threads
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from .scan import SyntheticScan
+    from .sky import Sky
+
 
 #: pixels per chunk: small on the CPU (cache-resident), large on a GPU (enough threads)
 DEFAULT_CHUNK_PIXELS = {"cpu": 1 << 16, "gpu": 1 << 22}
@@ -55,7 +66,9 @@ def _check_nside(nside):
         raise ValueError(f"nside must be a power of two in [1, {MAX_NSIDE}], got {nside}")
 
 
-def check_samples(theta, phi, psi):
+def check_samples(
+    theta: np.ndarray, phi: np.ndarray, psi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One chunk of pointing samples as float64 arrays, checked at the boundary.
 
     Parameters
@@ -103,20 +116,20 @@ def _hits(kernels, scan, nside, chunk):
 
 
 def simulate(
-    sky,
-    scan,
-    instrument=Instrument(),
-    systematics=Systematics(),
+    sky: Sky,
+    scan: SyntheticScan,
+    instrument: Instrument = Instrument(),
+    systematics: Systematics = Systematics(),
     *,
-    pixels=None,
-    evaluation="interp",
-    leak_template=None,
-    chunk_pixels=None,
-    nthreads=0,
-    backend="cpu",
-    rcond_min=RCOND_MIN,
-    progress=False,
-):
+    pixels: np.ndarray | None = None,
+    evaluation: str = "interp",
+    leak_template: np.ndarray | None = None,
+    chunk_pixels: int | None = None,
+    nthreads: int = 0,
+    backend: str = "cpu",
+    rcond_min: float = RCOND_MIN,
+    progress: bool = False,
+) -> Maps:
     """Simulate the pair-differenced TOD of a synthetic scan over a sky and make Q, U maps.
 
     Parameters
@@ -266,17 +279,17 @@ class _Binner:
 
 
 def simulate_samples(
-    sky,
-    sample_chunks,
-    instrument=Instrument(),
-    systematics=Systematics(),
+    sky: Sky,
+    sample_chunks: Iterable,
+    instrument: Instrument = Instrument(),
+    systematics: Systematics = Systematics(),
     *,
-    evaluation="interp",
-    leak_template=None,
-    nthreads=0,
-    backend="cpu",
-    rcond_min=RCOND_MIN,
-):
+    evaluation: str = "interp",
+    leak_template: np.ndarray | None = None,
+    nthreads: int = 0,
+    backend: str = "cpu",
+    rcond_min: float = RCOND_MIN,
+) -> Maps:
     """Maps from streams of real samples, e.g. ``boresight.ground.pointing(schedule)``.
 
     The normal equations of all chunks add up before the per-pixel solve, so memory is one chunk
@@ -327,16 +340,16 @@ def _sky_fields(sky, systematics, template, evaluation, nthreads):
 
 
 def scan_moments(
-    scan,
-    nside,
-    n_max=4,
+    scan: SyntheticScan,
+    nside: int,
+    n_max: int = 4,
     *,
-    pixels=None,
-    chunk_pixels=None,
-    nthreads=0,
-    backend="cpu",
-    progress=False,
-):
+    pixels: np.ndarray | None = None,
+    chunk_pixels: int | None = None,
+    nthreads: int = 0,
+    backend: str = "cpu",
+    progress: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """The spin moments h_n = <exp(i n psi)> over each pixel's hits, rotations included.
 
     Parameters

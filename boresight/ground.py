@@ -15,9 +15,12 @@ synthetic scans' psi, plus the boresight angle: psi = pi - q + boresight, with q
 angle (position angle of the zenith, east of north).
 """
 
+from __future__ import annotations
+
 import csv
 import os
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -25,6 +28,10 @@ import numpy as np
 from . import validation
 from .config import ConfigError, tomllib
 from .constants import DEG
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
 
 UNIX_EPOCH_JD = 2440587.5
 #: Simons Observatory site, Cerro Toco, Atacama (deg, deg, m)
@@ -161,7 +168,7 @@ class ScheduleError(ConfigError):
     """A schedule file that cannot be read, with the file, row and key in the message."""
 
 
-def load_schedule(path):
+def load_schedule(path: str) -> Schedule:
     """Read a schedule file.
 
     TOML: optional [site], sample_rate_hz, dut1_s, repeat_boresight_deg and [[ces]] tables of CES
@@ -519,7 +526,7 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
                 )
 
 
-def pointing(schedule, chunk_samples=1 << 20):
+def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple]:
     """The pointing of a whole schedule, chunk by chunk.
 
     Parameters

@@ -5,6 +5,8 @@ Polarisation follows healpy: spin-2 transforms take (E, B) alm and give (Q, U) i
 ring weights, so that spectra agree with healpy.anafast.
 """
 
+from __future__ import annotations
+
 from functools import lru_cache
 
 import ducc0
@@ -12,7 +14,7 @@ import numpy as np
 
 
 @lru_cache(maxsize=8)
-def healpix_geometry(nside):
+def healpix_geometry(nside: int) -> dict:
     """ducc0's ring geometry of a RING HEALPix map (cached).
 
     Parameters
@@ -29,7 +31,7 @@ def healpix_geometry(nside):
     return ducc0.healpix.Healpix_Base(nside, "RING").sht_info()
 
 
-def n_alm(lmax):
+def n_alm(lmax: int) -> int:
     """Number of alm with m <= l <= lmax (healpy ordering).
 
     Parameters
@@ -43,7 +45,7 @@ def n_alm(lmax):
     return (lmax + 1) * (lmax + 2) // 2
 
 
-def alm_lmax(nalm):
+def alm_lmax(nalm: int) -> int:
     """lmax of a healpy-ordered alm array.
 
     Parameters
@@ -57,7 +59,7 @@ def alm_lmax(nalm):
     return int((np.sqrt(8 * nalm + 1) - 3) / 2)
 
 
-def alm2map(alm, nside, spin=0, nthreads=0):
+def alm2map(alm: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0) -> np.ndarray:
     """Synthesis: alm -> RING map.
 
     Parameters
@@ -84,7 +86,7 @@ def alm2map(alm, nside, spin=0, nthreads=0):
     return out[0] if spin == 0 else out
 
 
-def alm2map_gradient(alm, nside, nthreads=0):
+def alm2map_gradient(alm: np.ndarray, nside: int, nthreads: int = 0) -> np.ndarray:
     """Gradient of a spin-0 field.
 
     Parameters
@@ -108,7 +110,9 @@ def alm2map_gradient(alm, nside, nthreads=0):
     )
 
 
-def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
+def map2alm(
+    maps: np.ndarray, lmax: int, spin: int = 0, iterations: int = 3, nthreads: int = 0
+) -> np.ndarray:
     """Analysis as healpy.map2alm(iter=iterations, use_weights=False).
 
     Parameters
@@ -144,7 +148,14 @@ def map2alm(maps, lmax, spin=0, iterations=3, nthreads=0):
     return alm[0] if spin == 0 else alm
 
 
-def evaluate(alm, theta, phi, spin=0, epsilon=1e-12, nthreads=0):
+def evaluate(
+    alm: np.ndarray,
+    theta: np.ndarray,
+    phi: np.ndarray,
+    spin: int = 0,
+    epsilon: float = 1e-12,
+    nthreads: int = 0,
+) -> np.ndarray:
     """Exact band-limited evaluation of alm at arbitrary points (ducc0 synthesis_general).
 
     Parameters
@@ -179,7 +190,7 @@ def evaluate(alm, theta, phi, spin=0, epsilon=1e-12, nthreads=0):
 
 
 @lru_cache(maxsize=4)
-def ell_of_alm(lmax):
+def ell_of_alm(lmax: int) -> np.ndarray:
     """ell of every healpy-ordered alm index (read-only; cached per lmax).
 
     Parameters
@@ -195,7 +206,7 @@ def ell_of_alm(lmax):
     return ell
 
 
-def almxfl(alm, fl):
+def almxfl(alm: np.ndarray, fl: np.ndarray) -> np.ndarray:
     """Multiply alm by a function of ell.
 
     Parameters
@@ -210,7 +221,7 @@ def almxfl(alm, fl):
     return alm * fl[ell_of_alm(alm_lmax(alm.shape[-1]))]
 
 
-def alm2cl(alm1, alm2=None):
+def alm2cl(alm1: np.ndarray, alm2: np.ndarray | None = None) -> np.ndarray:
     """Cross power spectrum of healpy-ordered alm, as healpy.alm2cl.
 
     Parameters

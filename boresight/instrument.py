@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import validation
-from .validation import option
 from .constants import ARCMIN, DEG
+from .validation import option
 
 MAX_ANGLE_DEG = 3600.0  #: angles beyond ten turns are input mistakes
 #: allowed range of each systematic parameter: detector B's gain 1 - dg stays in [0, 2]; pointing

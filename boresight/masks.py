@@ -10,7 +10,10 @@ coordinates (the sky maps' frame):
 They are not official SO masks; they reproduce the paper's sky fractions and geometry.
 """
 
+from __future__ import annotations
+
 import os
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import numpy as np
@@ -18,13 +21,17 @@ import numpy as np
 from . import io, validation
 from .constants import DEG
 
+if TYPE_CHECKING:
+    from .config import MaskSpec
+
+
 FOOTPRINTS = {
     "deep": dict(ra_deg=(-60.0, 60.0), dec_deg=(-70.0, -20.0), galactic_cut_deg=0.0),
     "wide": dict(ra_deg=(-180.0, 180.0), dec_deg=(-61.0, 18.0), galactic_cut_deg=20.0),
 }
 
 
-def footprint(ra_deg, dec_deg, galactic_cut_deg, nside):
+def footprint(ra_deg: tuple, dec_deg: tuple, galactic_cut_deg: float, nside: int) -> np.ndarray:
     """Binary mask of an RA/Dec box minus a Galactic band, at pixel centres.
 
     Parameters
@@ -54,7 +61,7 @@ def footprint(ra_deg, dec_deg, galactic_cut_deg, nside):
 SURVEYS = (*FOOTPRINTS, "none")
 
 
-def survey_mask(name, nside):
+def survey_mask(name: str, nside: int) -> np.ndarray:
     """The SO-like survey mask.
 
     Parameters
@@ -72,7 +79,7 @@ def survey_mask(name, nside):
     return footprint(nside=nside, **FOOTPRINTS[name])
 
 
-def apodize(mask, fwhm_deg):
+def apodize(mask: np.ndarray, fwhm_deg: float) -> np.ndarray:
     """Smooth a binary mask's edges inwards: mask * clip(2 * smoothed - 1, 0, 1).
 
     Parameters
@@ -91,7 +98,7 @@ def apodize(mask, fwhm_deg):
     return mask * np.clip(2.0 * smooth - 1.0, 0.0, 1.0)
 
 
-def read_mask(path, nside=None):
+def read_mask(path: str, nside: int | None = None) -> np.ndarray:
     """A user mask from a HEALPix FITS file.
 
     Parameters
@@ -117,7 +124,7 @@ def read_mask(path, nside=None):
     return mask
 
 
-def from_config(spec, nside):
+def from_config(spec: MaskSpec, nside: int) -> np.ndarray:
     """The mask a study's [mask] table describes.
 
     Parameters
@@ -148,7 +155,7 @@ def from_config(spec, nside):
     return mask
 
 
-def fsky(mask):
+def fsky(mask: np.ndarray) -> float:
     """Observed sky fraction.
 
     Parameters

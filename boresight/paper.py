@@ -67,7 +67,8 @@ def preset(quick=False, run=None, **sky_fields):
     """The paper's study.
 
     Nside 2048, lmax 4000, a 7 arcmin beam and seed 1, or with ``quick`` Nside 512 and lmax 1535
-    (minutes on a laptop). Bands: 14 from ell = 20 to min(lmax, 2 Nside). The scan seed is the sky's.
+    (minutes on a laptop). Bands: 14 from ell = 20 to min(lmax, 2 Nside); the scan seed is the
+    sky's.
 
     Parameters
     ----------

@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from . import predict, spectra  # noqa: E402
+from . import predict  # noqa: E402
 
 ANGLE_COLOURS = {None: "tab:orange", 0: "tab:blue", 1: "tab:green", 2: "tab:red"}
 REF_COLOURS = ("tab:purple", "tab:red", "tab:green")

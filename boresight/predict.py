@@ -18,6 +18,10 @@ Power spectra: each term c h_n F contributes C^EE = C^BB = |c|^2 / 2 * [coh_n C^
 of h_n. Masked pseudo-C_ell follow through M^{BB,BB} and M^{BB,EE} (paper eq. 10).
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import healpy as hp
 import numba
 import numpy as np
@@ -25,6 +29,15 @@ import numpy as np
 from . import harmonics
 from .constants import ARCMIN
 from .threads import numba_threads
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from .cosmology import Spectra
+    from .coupling import Coupling
+    from .instrument import Instrument, Systematics
+    from .sky import Sky
+
 
 N_MAX = 4  #: highest spin moment the predictions use
 COHERENT_BLOCK = 8  #: h_n is smoothed over (COHERENT_BLOCK)^2 pixels for the coherent part
@@ -71,7 +84,14 @@ def pointing_coefficients(rho, chi):
     return c1, c3
 
 
-def delta_p(sky, h, systematics, instrument=None, template=None, nthreads=0):
+def delta_p(
+    sky: Sky,
+    h: np.ndarray,
+    systematics: Systematics,
+    instrument: Instrument | None = None,
+    template: np.ndarray | None = None,
+    nthreads: int = 0,
+) -> np.ndarray:
     """Predicted spurious polarisation P = Q + i U from h_n and the sky.
 
     Gain and leak terms are exact for pixel-centre hits; pointing is first order in rho.
@@ -238,7 +258,9 @@ def leak_terms(systematics, cl_tt, cl_pol, template_cl=None):
     return terms
 
 
-def local_cl(sky, mask, lmax, nthreads=0):
+def local_cl(
+    sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """Beam-smoothed (TT, EE + BB) of one sky inside a mask: pseudo-C_ell / <w^2>.
 
     Feeding these to :func:`systematic_cl` instead of the theory removes the patch's sample variance
@@ -263,16 +285,16 @@ def local_cl(sky, mask, lmax, nthreads=0):
 
 
 def systematic_cl(
-    h,
-    mask,
-    systematics,
-    spectra,
-    lmax,
-    fwhm_arcmin,
-    instrument=None,
-    template_cl=None,
-    field_cl=None,
-):
+    h: np.ndarray,
+    mask: np.ndarray,
+    systematics: Systematics,
+    spectra: Spectra,
+    lmax: int,
+    fwhm_arcmin: float,
+    instrument: Instrument | None = None,
+    template_cl: np.ndarray | None = None,
+    field_cl: tuple | None = None,
+) -> np.ndarray:
     """Full-sky spurious C^EE = C^BB predicted from h_n over a mask.
 
     Parameters
@@ -315,16 +337,16 @@ def systematic_cl(
 
 
 def residual_pseudo_bb(
-    h,
-    mask,
-    coupling,
-    systematics,
-    spectra,
-    fwhm_arcmin,
-    instrument=None,
-    template_cl=None,
-    field_cl=None,
-):
+    h: np.ndarray,
+    mask: np.ndarray,
+    coupling: Coupling,
+    systematics: Systematics,
+    spectra: Spectra,
+    fwhm_arcmin: float,
+    instrument: Instrument | None = None,
+    template_cl: np.ndarray | None = None,
+    field_cl: tuple | None = None,
+) -> np.ndarray:
     """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
     Adds the common rescaling of the cosmological signal, (1 - (dg_1 + dg_2)/4)^2 - 1, to the leaked
@@ -352,7 +374,7 @@ def residual_pseudo_bb(
     return coupling.pseudo_bb(cl_sys, cl_sys) + scale * coupling.pseudo_bb(cl_bb, cl_ee)
 
 
-def rotation_suppression(n, rotations_deg):
+def rotation_suppression(n: int, rotations_deg: Sequence[float]) -> float:
     """|h_n|^2 after / before repeating every hit at each angle alpha_k: |<exp(i n alpha_k)>|^2.
 
     For the schedule (0, alpha) this is cos^2(n alpha / 2).
@@ -370,7 +392,7 @@ def rotation_suppression(n, rotations_deg):
     return float(np.abs(np.mean(np.exp(1j * n * alpha))) ** 2)
 
 
-def pixel_window(nside, lmax):
+def pixel_window(nside: int, lmax: int) -> np.ndarray:
     """Window of a map that averages hits over its pixels: the window of a disc of the pixel's area,
     2 J_1(x) / x with x = ell sqrt(4 / npix) (healpy.pixwin needs a download).
 
@@ -388,7 +410,14 @@ def pixel_window(nside, lmax):
     return np.where(x > 0, 2 * j1(x) / np.where(x > 0, x, 1), 1.0)
 
 
-def reference_bb(coupling, spectra, fwhm_arcmin, nside, r=0.0, a_lens=0.0):
+def reference_bb(
+    coupling: Coupling,
+    spectra: Spectra,
+    fwhm_arcmin: float,
+    nside: int,
+    r: float = 0.0,
+    a_lens: float = 0.0,
+) -> np.ndarray:
     """Pseudo-C_BB of the cosmological B-mode alone (E = 0), with beam and pixel window.
 
     Parameters
@@ -422,7 +451,9 @@ def reference_bb(coupling, spectra, fwhm_arcmin, nside, r=0.0, a_lens=0.0):
 R_RANGE = (30, 300)  #: the deep survey's primordial range
 
 
-def tensor_template(coupling, spectra, fwhm_arcmin, nside):
+def tensor_template(
+    coupling: Coupling, spectra: Spectra, fwhm_arcmin: float, nside: int
+) -> np.ndarray:
     """Pseudo-C_BB of tensors at r = 1 through the mask: the template of :func:`delta_r`.
 
     Parameters
@@ -438,7 +469,9 @@ def tensor_template(coupling, spectra, fwhm_arcmin, nside):
     return reference_bb(coupling, spectra, fwhm_arcmin, nside, r=1.0)
 
 
-def delta_r(residual, template, lmin=R_RANGE[0], lmax=R_RANGE[1]):
+def delta_r(
+    residual: np.ndarray, template: np.ndarray, lmin: int = R_RANGE[0], lmax: int = R_RANGE[1]
+) -> float:
     """The tensor-to-scalar ratio a residual pseudo-C_BB would fake: the least-squares amplitude of
     the template over lmin <= ell <= lmax.
 

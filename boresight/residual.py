@@ -12,18 +12,27 @@ simulation of the next job (ducc0 releases the GIL and uses every core). Either 
 the same bits.
 """
 
+from __future__ import annotations
+
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from . import engine, ground, predict, scanstats, spectra
+from .config import RunOptions
 from .instrument import Instrument, Systematics
 from .mapmaking import Maps
-from .config import RunOptions
 from .scan import SyntheticScan
+
+if TYPE_CHECKING:
+    from .config import Study
+    from .coupling import Coupling
+    from .ground import Schedule
+    from .sky import Sky
+
 
 N_MAX = predict.N_MAX
 
@@ -200,8 +209,15 @@ class Residual:
 
 
 def simulate(
-    sky, scan, instrument, systematics, pixels, run=RunOptions(), leak_template=None, progress=False
-):
+    sky: Sky,
+    scan: SyntheticScan | Schedule,
+    instrument: Instrument,
+    systematics: Systematics,
+    pixels: np.ndarray,
+    run: RunOptions = RunOptions(),
+    leak_template: np.ndarray | None = None,
+    progress: bool = False,
+) -> Maps:
     """Maps of a synthetic or a real scan.
 
     Parameters
@@ -245,7 +261,9 @@ def simulate(
     )
 
 
-def moments(scan, nside, pixels, run=RunOptions()):
+def moments(
+    scan: SyntheticScan | Schedule, nside: int, pixels: np.ndarray, run: RunOptions = RunOptions()
+) -> np.ndarray:
     """h_n of a synthetic or real scan.
 
     Parameters
@@ -274,15 +292,15 @@ def _masked_b(qu, mask, lmax, nthreads):
 
 
 def reference(
-    sky,
-    scan,
-    mask,
-    lmax,
-    instrument=Instrument(),
-    run=RunOptions(),
-    transforms=None,
-    progress=False,
-):
+    sky: Sky,
+    scan: SyntheticScan | Schedule,
+    mask: np.ndarray,
+    lmax: int,
+    instrument: Instrument = Instrument(),
+    run: RunOptions = RunOptions(),
+    transforms: Transforms | None = None,
+    progress: bool = False,
+) -> tuple[Reference, Maps]:
     """Simulate a scan without a systematic.
 
     Parameters
@@ -304,7 +322,13 @@ def reference(
     return reference_from_maps(maps, mask, lmax, run, transforms), maps
 
 
-def reference_from_maps(maps, mask, lmax, run=RunOptions(), transforms=None):
+def reference_from_maps(
+    maps: Maps,
+    mask: np.ndarray,
+    lmax: int,
+    run: RunOptions = RunOptions(),
+    transforms: Transforms | None = None,
+) -> Reference:
     """The :class:`Reference` of simulated no-systematic maps.
 
     Parameters
@@ -340,22 +364,22 @@ def _difference_parts(sim_qu, ref, mask, lmax, nthreads):
 
 
 def residual(
-    sky,
-    scan,
-    systematics,
-    mask,
-    lmax,
+    sky: Sky,
+    scan: SyntheticScan | Schedule,
+    systematics: Systematics,
+    mask: np.ndarray,
+    lmax: int,
     *,
-    instrument=Instrument(),
-    run=RunOptions(),
-    reference_=None,
-    prediction=None,
-    predict_map=False,
-    leak_template=None,
-    transforms=None,
-    keep_maps=False,
-    progress=False,
-):
+    instrument: Instrument = Instrument(),
+    run: RunOptions = RunOptions(),
+    reference_: Reference | None = None,
+    prediction: Prediction | None = None,
+    predict_map: bool = False,
+    leak_template: np.ndarray | None = None,
+    transforms: Transforms | None = None,
+    keep_maps: bool = False,
+    progress: bool = False,
+) -> Residual:
     """Simulate ``scan`` over ``sky`` with ``systematics`` and return its :class:`Residual`.
 
     Parameters
@@ -432,7 +456,7 @@ def residual(
     return result
 
 
-def load_sky(study):
+def load_sky(study: Study) -> Sky:
     """A study's sky.
 
     Parameters
@@ -456,7 +480,7 @@ def load_sky(study):
     )
 
 
-def load_template(study):
+def load_template(study: Study) -> np.ndarray | None:
     """A study's leak template.
 
     Parameters
@@ -475,7 +499,9 @@ def load_template(study):
     return hp.read_map(study.leak_template)
 
 
-def study_prediction(study, the_sky, mask, couplings=None):
+def study_prediction(
+    study: Study, the_sky: Sky, mask: np.ndarray, couplings: Coupling | None = None
+) -> Prediction | None:
     """The :class:`Prediction` of a study's residual.
 
     Parameters
@@ -503,7 +529,13 @@ def study_prediction(study, the_sky, mask, couplings=None):
     return Prediction(load_spectra(), couplings, study.sky.fwhm_arcmin, field_cl)
 
 
-def from_study(study, mask=None, couplings=None, keep_maps=False, progress=False):
+def from_study(
+    study: Study,
+    mask: np.ndarray | None = None,
+    couplings: Coupling | None = None,
+    keep_maps: bool = False,
+    progress: bool = False,
+) -> tuple[Residual, Sky, np.ndarray]:
     """Run the residual job a study describes.
 
     Parameters
@@ -545,7 +577,7 @@ def from_study(study, mask=None, couplings=None, keep_maps=False, progress=False
     return job, the_sky, mask
 
 
-def band_rows(edges, columns, **fixed):
+def band_rows(edges: np.ndarray, columns: dict, **fixed) -> list[dict]:
     """The one table builder: one row per band of every unbinned spectrum.
 
     Parameters

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import validation
-from .validation import option
 from .constants import DEG
 from .instrument import MAX_ANGLE_DEG
 from .sky import MAX_SEED
+from .validation import option
 
 #: most crossing angles per pixel of a synthetic scan (real scans have thousands of samples per
 #: pixel but the paper's characterisation needs a handful of distinct angles)

@@ -8,7 +8,10 @@ that holds them all, and the centre is that arc's midpoint. Angles closer than t
 therefore count as one.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -16,12 +19,18 @@ import numpy as np
 from .engine import check_samples
 from .ground import (
     azimuth_and_local_era,
+    chunk_arguments,
     horizon_terms,
     parallactic_terms,
-    chunk_arguments,
 )
 from .pixels import ang2pix_array, zphi2pix
 from .scan import SyntheticScan
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from .ground import Schedule
+
 
 N_MAX = 4
 _WORD = 64
@@ -264,7 +273,7 @@ def _stats(nside, tolerance_deg, binned_chunks):
     )
 
 
-def characterise(sample_chunks, nside, tolerance_deg=1.0):
+def characterise(sample_chunks: Iterable, nside: int, tolerance_deg: float = 1.0) -> ScanStats:
     """Statistics of streams of samples.
 
     Parameters
@@ -288,7 +297,9 @@ def characterise(sample_chunks, nside, tolerance_deg=1.0):
     return _stats(nside, tolerance_deg, binned)
 
 
-def characterise_schedule(schedule, nside, tolerance_deg=1.0, chunk_samples=1 << 20):
+def characterise_schedule(
+    schedule: Schedule, nside: int, tolerance_deg: float = 1.0, chunk_samples: int = 1 << 20
+) -> ScanStats:
     """Statistics of a CES schedule, pointing fused into the binning (no theta, phi, psi arrays);
     equal to characterise(ground.pointing(schedule), ...) up to rounding.
 

@@ -5,16 +5,25 @@ independent B), smoothed by a Gaussian beam (healpy.gauss_beam, polarised factor
 on a HEALPix RING grid with ducc0. The alm are kept for exact evaluation at arbitrary points.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import numpy as np
 
 from . import harmonics, validation
-from .validation import option
 from .constants import ARCMIN
 from .cosmology import load_spectra
+from .validation import option
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from .cosmology import Spectra
+
 
 MAX_NSIDE = 8192
 MAX_SEED = 2**63 - 1  #: seeds key 64-bit counter-based generators
@@ -123,7 +132,7 @@ class Sky:
         return cls(alm=alm, maps=maps, nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin)
 
 
-def gaussian_alm(cls, lmax, seed):
+def gaussian_alm(cls: Sequence[np.ndarray], lmax: int, seed: int) -> np.ndarray:
     """Seeded Gaussian T, E, B alm of given spectra (correlated T and E, independent B).
 
     Parameters
@@ -157,7 +166,9 @@ def gaussian_alm(cls, lmax, seed):
     return alm
 
 
-def make_sky(config=SkyConfig(), spectra=None, nthreads=0):
+def make_sky(
+    config: SkyConfig = SkyConfig(), spectra: Spectra | None = None, nthreads: int = 0
+) -> Sky:
     """Draw, smooth and synthesise a sky.
 
     Parameters

@@ -4,6 +4,8 @@ Spectra are anafast-equivalent (ducc0 transforms with 3 Jacobi iterations, beam 
 C_ell in muK^2 from ell = 0, in healpy's order TT, EE, BB, TE, EB, TB.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 from . import harmonics
@@ -11,7 +13,7 @@ from . import harmonics
 ORDER = ("tt", "ee", "bb", "te", "eb", "tb")
 
 
-def masked_alm(maps, mask, lmax, nthreads=0):
+def masked_alm(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
     """T, E, B alm of masked I, Q, U maps (anafast-equivalent: 3 Jacobi iterations).
 
     Parameters
@@ -34,7 +36,7 @@ def masked_alm(maps, mask, lmax, nthreads=0):
     return alm
 
 
-def masked_pol_alm(qu, mask, lmax, nthreads=0):
+def masked_pol_alm(qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
     """E, B alm of masked Q, U maps.
 
     Parameters
@@ -65,7 +67,7 @@ def _check(maps, mask):
         raise ValueError("maps contain NaN or UNSEEN values inside the mask")
 
 
-def pseudo_spectra(maps, mask, lmax, nthreads=0):
+def pseudo_spectra(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
     """Pseudo-C_ell of masked maps, beam not deconvolved.
 
     Parameters
@@ -87,7 +89,14 @@ def pseudo_spectra(maps, mask, lmax, nthreads=0):
     )
 
 
-def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
+def residual_bb_parts(
+    qu_sys: np.ndarray,
+    qu_ref: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    nthreads: int = 0,
+    b_ref: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """The two parts of C_BB(sys) - C_BB(ref) of masked maps.
 
     B = B(ref) and dB = B(sys - ref): transforming the small difference map keeps its full relative
@@ -116,7 +125,9 @@ def residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=0, b_ref=None):
     return difference_bb_parts(np.subtract(qu_sys, qu_ref), b_ref, mask, lmax, nthreads)
 
 
-def difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads=0):
+def difference_bb_parts(
+    d_qu: np.ndarray, b_ref: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`residual_bb_parts` from the difference map and the reference's B alm.
 
     Parameters
@@ -136,7 +147,9 @@ def difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads=0):
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 
-def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0):
+def residual_bb(
+    qu_sys: np.ndarray, qu_ref: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0
+) -> np.ndarray:
     """C_BB(sys) - C_BB(ref) of masked Q, U maps: the sum of :func:`residual_bb_parts`.
 
     Returns
@@ -147,7 +160,7 @@ def residual_bb(qu_sys, qu_ref, mask, lmax, nthreads=0):
     return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads))
 
 
-def linear_bins(lmin, lmax, width):
+def linear_bins(lmin: int, lmax: int, width: int) -> np.ndarray:
     """Band edges of a fixed width.
 
     Parameters
@@ -167,7 +180,7 @@ def linear_bins(lmin, lmax, width):
     return edges
 
 
-def log_bins(lmin, lmax, n_bins):
+def log_bins(lmin: int, lmax: int, n_bins: int) -> np.ndarray:
     """Logarithmically spaced integer band edges.
 
     Parameters
@@ -186,7 +199,7 @@ def log_bins(lmin, lmax, n_bins):
     return edges
 
 
-def bin_spectrum(cl, edges):
+def bin_spectrum(cl: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Band means of a spectrum.
 
     Parameters
@@ -209,7 +222,7 @@ def bin_spectrum(cl, edges):
     return 0.5 * (lo + hi - 1), means
 
 
-def cl2dl(cl):
+def cl2dl(cl: np.ndarray) -> np.ndarray:
     """D_ell = ell (ell + 1) C_ell / 2 pi.
 
     Parameters

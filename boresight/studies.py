@@ -5,8 +5,11 @@ Each writes into a staging directory that replaces ``out_dir`` only when the job
 an interrupted job leaves nothing behind, and an existing directory is kept unless ``force``.
 """
 
+from __future__ import annotations
+
 import time
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import numpy as np
@@ -28,6 +31,11 @@ from . import (
 )
 from .config import as_dict
 from .cosmology import load_spectra
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from .config import Study
 
 
 def check_memory(job, study, check=True):
@@ -76,13 +84,13 @@ def require_finite(what, values):
 
 
 def reproduce(
-    out_dir,
-    study=paper.preset(quick=True),
-    force=False,
-    log=print,
-    progress=False,
-    memory_check=True,
-):
+    out_dir: str,
+    study: Study = paper.preset(quick=True),
+    force: bool = False,
+    log: Callable = print,
+    progress: bool = False,
+    memory_check: bool = True,
+) -> list:
     """Run the paper's study and write figures, results.csv, report.md and manifest.json.
 
     ``study``: :func:`boresight.paper.preset` or :func:`boresight.paper.from_raw`. Returns the list
@@ -127,7 +135,14 @@ def reproduce(
     return claims
 
 
-def simulate(study, out_dir, force=False, log=print, progress=False, memory_check=True):
+def simulate(
+    study: Study,
+    out_dir: str,
+    force: bool = False,
+    log: Callable = print,
+    progress: bool = False,
+    memory_check: bool = True,
+) -> list[dict]:
     """Simulate a study with and without its systematics and predict its residual.
 
     Writes FITS maps (I, Q, U, HITS, RCOND), spectra.csv (per multipole: the residual, its parts,
@@ -184,7 +199,7 @@ def simulate(study, out_dir, force=False, log=print, progress=False, memory_chec
     return rows
 
 
-def predict_study(study, log=print, memory_check=True):
+def predict_study(study: Study, log: Callable = print, memory_check: bool = True) -> list[dict]:
     """The analytic prediction of a study's residual pseudo-C_BB, without a simulation.
 
     Parameters
@@ -219,7 +234,14 @@ def predict_study(study, log=print, memory_check=True):
     return [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]
 
 
-def scan_stats(study, out_dir, force=False, n_max=4, log=print, memory_check=True):
+def scan_stats(
+    study: Study,
+    out_dir: str,
+    force: bool = False,
+    n_max: int = 4,
+    log: Callable = print,
+    memory_check: bool = True,
+) -> list[dict]:
     """Write the h_n, hit, N_phi and R maps of a study's scan, and their survey means.
 
     Parameters
@@ -278,17 +300,17 @@ def scan_stats(study, out_dir, force=False, n_max=4, log=print, memory_check=Tru
 
 
 def compare_scans(
-    schedule_path,
-    out_dir,
-    nside=128,
-    systematic="gain",
-    fwhm_arcmin=30.0,
-    seed=1,
-    tolerance_deg=1.0,
-    force=False,
-    log=print,
-    memory_check=True,
-):
+    schedule_path: str,
+    out_dir: str,
+    nside: int = 128,
+    systematic: str = "gain",
+    fwhm_arcmin: float = 30.0,
+    seed: int = 1,
+    tolerance_deg: float = 1.0,
+    force: bool = False,
+    log: Callable = print,
+    memory_check: bool = True,
+) -> list[dict]:
     """The residual B-mode of a real schedule beside its synthetic twin (paper section 3.1).
 
     Writes scan_maps.fits (crossings, N_phi, R, |h_1..4|^2), scan_stats.csv (survey means of the

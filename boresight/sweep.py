@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import coupling, io, masks, predict, residual
-from . import __version__
+from . import __version__, coupling, io, masks, predict, residual
 from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
 

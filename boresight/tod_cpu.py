@@ -10,8 +10,8 @@ import numpy as np
 
 from .evaluation import pair_fields
 from .pixels import face_point, interpolate_interleaved, ring2xyf
-from .scan import hit_offsets
 from .rng import STREAM_PSI, STREAM_U, STREAM_V, pixel_key, uniform_from_key
+from .scan import hit_offsets
 
 __all__ = [
     "generate_hits",
