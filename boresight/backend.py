@@ -8,6 +8,8 @@ rounding (``tests/test_gpu.py``); ``tests/test_backend.py`` checks that both mod
 contract with the same parameters, without needing a GPU.
 """
 
+from __future__ import annotations
+
 from typing import Protocol, runtime_checkable
 
 BACKENDS = ("cpu", "gpu")
@@ -205,7 +207,7 @@ class KernelBackend(Protocol):
         """
 
 
-def get_backend(name):
+def get_backend(name: str) -> KernelBackend:
     """The kernel module of a backend.
 
     Parameters

@@ -6,6 +6,8 @@ when the input is bad, and an interrupted job leaves no output behind (a sweep k
 points).
 """
 
+from __future__ import annotations
+
 import argparse
 import logging
 import signal
@@ -107,7 +109,7 @@ def _terminate(signum, frame):
     raise Terminated
 
 
-def main(argv=None):
+def main(argv: list[str] | None = None) -> int:
     """The ``boresight`` command.
 
     Parameters

@@ -5,6 +5,8 @@ A_lens and the tensor spectra (computed at r = 1, n_t = 0) by r, so any (r, A_le
 combination of the cached arrays. ``scripts/make_spectra.py`` regenerates the cached file.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -44,7 +46,7 @@ class Spectra:
     def lmax(self):
         return self.tt.size - 1
 
-    def total(self, r=0.0, a_lens=1.0, lmax=None):
+    def total(self, r: float = 0.0, a_lens: float = 1.0, lmax: int | None = None) -> np.ndarray:
         """The spectra of a model.
 
         Parameters
@@ -79,7 +81,7 @@ class Spectra:
             ]
         )
 
-    def bb(self, r=0.0, a_lens=0.0):
+    def bb(self, r: float = 0.0, a_lens: float = 0.0) -> np.ndarray:
         """The B-mode spectrum alone (the reference curves).
 
         Parameters
@@ -95,7 +97,7 @@ class Spectra:
         return a_lens * self.bb_lens + r * self.bb_tensor
 
 
-def compute_spectra(lmax=6000, **cosmology):
+def compute_spectra(lmax: int = 6000, **cosmology) -> Spectra:
     """Run CAMB for the paper's cosmology.
 
     Parameters
@@ -133,7 +135,7 @@ def compute_spectra(lmax=6000, **cosmology):
     )
 
 
-def save_spectra(spectra, path):
+def save_spectra(spectra: Spectra, path: str) -> None:
     """Write spectra as a .npz file.
 
     Parameters
@@ -144,7 +146,7 @@ def save_spectra(spectra, path):
     np.savez_compressed(path, **{f: getattr(spectra, f) for f in FIELDS})
 
 
-def load_spectra(path=None):
+def load_spectra(path: str | None = None) -> Spectra:
     """The cached CAMB spectra shipped with the package (or a .npz file).
 
     Parameters

@@ -5,6 +5,8 @@ directory is built under a staging name and renamed at the end, so an interrupti
 half-written file or a half-filled output directory.
 """
 
+from __future__ import annotations
+
 import contextlib
 import csv
 import glob
@@ -13,9 +15,14 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Iterator, Sequence
+
 
 #: header cards of every map file; units are per column (TUNITn), set by :func:`write_maps`
 FITS_HEADER = [
@@ -32,7 +39,7 @@ class OutputError(ValueError):
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     """A temporary path beside ``path``, renamed onto it when the block succeeds, else deleted.
 
     Parameters
@@ -54,7 +61,13 @@ def atomic_path(path):
             os.remove(tmp)
 
 
-def write_maps(path, maps, names, units, comments=()):
+def write_maps(
+    path: str | os.PathLike,
+    maps: np.ndarray,
+    names: Sequence[str],
+    units: Sequence[str],
+    comments: Sequence[str] = (),
+) -> None:
     """Write RING maps as a FITS table healpy.read_map reads.
 
     Parameters
@@ -83,7 +96,7 @@ def write_maps(path, maps, names, units, comments=()):
         )
 
 
-def fits_map_shape(path):
+def fits_map_shape(path: str) -> tuple[int, int]:
     """The shape of a HEALPix FITS map file, from its header only.
 
     Parameters
@@ -115,7 +128,7 @@ def fits_map_shape(path):
     return nfields, npix
 
 
-def write_csv(path, rows, columns):
+def write_csv(path: str | os.PathLike, rows: list[dict], columns: Sequence[str]) -> None:
     """Write rows as CSV, atomically.
 
     Parameters
@@ -132,7 +145,7 @@ def write_csv(path, rows, columns):
             w.writerow({k: row.get(k, "") for k in columns})
 
 
-def write_json(path, data):
+def write_json(path: str | os.PathLike, data: object) -> None:
     """Write data as indented JSON, atomically (numpy values converted).
 
     Parameters
@@ -145,7 +158,7 @@ def write_json(path, data):
         f.write("\n")
 
 
-def write_text(path, text):
+def write_text(path: str | os.PathLike, text: str) -> None:
     """Write text, atomically.
 
     Parameters
@@ -165,7 +178,7 @@ def _jsonable(obj):
     return str(obj)
 
 
-def check_output_path(path, inputs=()):
+def check_output_path(path: str | os.PathLike, inputs: Iterable[str] = ()) -> Path:
     """Check, before any work, that a path is a safe place for an output directory.
 
     Refused: a symlink; the current directory, one of its ancestors or the home directory; a
@@ -209,7 +222,7 @@ def check_output_path(path, inputs=()):
     return target
 
 
-def is_own(path):
+def is_own(path: str | os.PathLike) -> bool:
     """Whether a path is a directory that boresight created (it holds :data:`MARKER`).
 
     Parameters
@@ -224,7 +237,7 @@ def is_own(path):
     return not path.is_symlink() and (path / MARKER).is_file()
 
 
-def check_output_dir(path, force, inputs=()):
+def check_output_dir(path: str | os.PathLike, force: bool, inputs: Iterable[str] = ()) -> None:
     """:func:`check_output_path`; and a non-empty directory is refused unless ``force`` and
     boresight created it.
 
@@ -290,7 +303,7 @@ def _alive(pid):
     return True
 
 
-def make_output_dir(path):
+def make_output_dir(path: str | os.PathLike) -> Path:
     """Create a directory (and its parents) as boresight's own, marked with :data:`MARKER`.
 
     Parameters
@@ -307,7 +320,7 @@ def make_output_dir(path):
     return path
 
 
-def remove_output_dir(path):
+def remove_output_dir(path: str | os.PathLike) -> None:
     """Remove a directory that boresight created; refuse any other.
 
     Parameters
@@ -326,7 +339,9 @@ def remove_output_dir(path):
 
 
 @contextlib.contextmanager
-def staged_dir(path, force=False, inputs=()):
+def staged_dir(
+    path: str | os.PathLike, force: bool = False, inputs: Iterable[str] = ()
+) -> Iterator[Path]:
     """A staging directory that replaces ``path`` when the block finishes without error.
 
     The checks of :func:`check_output_dir` run again first. The staging directory carries

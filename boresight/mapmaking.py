@@ -5,6 +5,8 @@ for (Q, U). Its reciprocal condition number rcond = lambda_min / lambda_max is k
 hits or rcond < ``rcond_min`` are flagged invalid and set to healpy.UNSEEN, never filled.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import healpy as hp
@@ -51,7 +53,7 @@ class Maps:
         return qu
 
 
-def solve(normal, rcond_min=RCOND_MIN):
+def solve(normal: np.ndarray, rcond_min: float = RCOND_MIN) -> tuple:
     """Solve each pixel's 2x2 least-squares system for (Q, U).
 
     Parameters

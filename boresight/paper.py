@@ -10,7 +10,10 @@ time at lmax 4000) are transformed on a background thread while the next rotatio
 simulated and predicted; the stage times in the manifest are the main thread's.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +23,9 @@ from .cosmology import load_spectra
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 from .scan import SyntheticScan, paper_scan
 from .sky import SkyConfig
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
 
 
 @dataclass(frozen=True)
@@ -63,7 +69,7 @@ EXPERIMENTS = (
 )
 
 
-def preset(quick=False, run=None, **sky_fields):
+def preset(quick: bool = False, run: RunOptions | None = None, **sky_fields) -> Study:
     """The paper's study.
 
     Nside 2048, lmax 4000, a 7 arcmin beam and seed 1, or with ``quick`` Nside 512 and lmax 1535
@@ -92,7 +98,7 @@ def preset(quick=False, run=None, **sky_fields):
 REPRODUCE_SECTIONS = ("sky", "scan", "run", "output")
 
 
-def from_raw(raw, quick=False):
+def from_raw(raw: dict, quick: bool = False) -> Study:
     """The paper's study with a study file's [sky], [run], [output] tables (and scan.seed) applied.
 
     What ``boresight reproduce --config FILE`` runs.
@@ -179,7 +185,12 @@ class ExperimentResult:
         return {a: r.auto for a, r in self.zero_qu_residuals.items()}
 
 
-def run_study(study=preset(), experiments=EXPERIMENTS, log=lambda msg: None, progress=False):
+def run_study(
+    study: Study = preset(),
+    experiments: Sequence[Experiment] = EXPERIMENTS,
+    log: Callable = lambda msg: None,
+    progress: bool = False,
+) -> tuple[dict, dict]:
     """Run the paper's study.
 
     Parameters
@@ -279,7 +290,9 @@ class BandTable:
     columns: dict  #: (angle, column) -> band values
     references: dict  #: reference value -> band values
 
-    def values(self, angle, column, lo=0, hi=np.inf):
+    def values(
+        self, angle: float | None, column: str, lo: float = 0, hi: float = np.inf
+    ) -> np.ndarray:
         """Band values of a column at an angle, for bands whose centre lies in [lo, hi].
 
         Parameters
@@ -295,7 +308,7 @@ class BandTable:
         keep = (self.centres >= lo) & (self.centres <= hi)
         return self.columns[angle, column][keep]
 
-    def reference(self, value, lo=0, hi=np.inf):
+    def reference(self, value: float, lo: float = 0, hi: float = np.inf) -> np.ndarray:
         """Band values of a reference curve, for bands whose centre lies in [lo, hi].
 
         Parameters
@@ -311,7 +324,7 @@ class BandTable:
         return self.references[value][keep]
 
 
-def band_rows(res, study):
+def band_rows(res: ExperimentResult, study: Study) -> list[dict]:
     """The results.csv rows of one experiment.
 
     Parameters
@@ -346,7 +359,7 @@ def band_rows(res, study):
     return rows
 
 
-def band_table(res, rows, study):
+def band_table(res: ExperimentResult, rows: list[dict], study: Study) -> BandTable:
     """The :class:`BandTable` of one experiment from its results.csv rows.
 
     Parameters
@@ -379,7 +392,7 @@ def band_table(res, rows, study):
     )
 
 
-def tidy_rows(results, study):
+def tidy_rows(results: dict, study: Study) -> list[dict]:
     """The rows of results.csv.
 
     Parameters

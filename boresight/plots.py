@@ -1,9 +1,12 @@
 """Figures in the style of the paper: |residual| with the sign marked, analytic curve, reference
 curves, log axes; and survey footprints over a Galactic-emission proxy."""
 
+from __future__ import annotations
+
 import contextlib
 import io
 import warnings
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import matplotlib
@@ -14,6 +17,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from . import predict  # noqa: E402
+
+if TYPE_CHECKING:
+    import os
+
+    from .config import Study
+    from .paper import BandTable, ExperimentResult
+
 
 ANGLE_COLOURS = {None: "tab:orange", 0: "tab:blue", 1: "tab:green", 2: "tab:red"}
 REF_COLOURS = ("tab:purple", "tab:red", "tab:green")
@@ -46,7 +56,13 @@ def _save(fig, path_stem):
     plt.close(fig)
 
 
-def residual_figure(res, table, study, angles, path_stem):
+def residual_figure(
+    res: ExperimentResult,
+    table: BandTable,
+    study: Study,
+    angles: list,
+    path_stem: str | os.PathLike,
+) -> None:
     """Residual pseudo-C_BB against ell at some rotation angles, as in the paper's figures.
 
     Parameters
@@ -92,7 +108,7 @@ def residual_figure(res, table, study, angles, path_stem):
     _save(fig, path_stem)
 
 
-def galactic_proxy(nside):
+def galactic_proxy(nside: int) -> np.ndarray:
     """A smooth Galactic-emission proxy: exp(-|b| / 10 deg) + 0.01.
 
     Parameters
@@ -109,7 +125,7 @@ def galactic_proxy(nside):
     return np.exp(-np.abs(90.0 - np.degrees(theta_g)) / 10.0) + 0.01
 
 
-def footprint_figure(mask, title, path_stem):
+def footprint_figure(mask: np.ndarray, title: str, path_stem: str | os.PathLike) -> None:
     """Mollweide view (equatorial) of the Galactic proxy with a mask's footprint shaded.
 
     Parameters
@@ -138,7 +154,7 @@ def footprint_figure(mask, title, path_stem):
     plt.close(fig)
 
 
-def map_figure(maps, names, path):
+def map_figure(maps: list[np.ndarray], names: list[str], path: str | os.PathLike) -> None:
     """Quick-look Mollweide panels of maps (UNSEEN shown grey).
 
     Parameters
@@ -156,7 +172,7 @@ def map_figure(maps, names, path):
     plt.close(fig)
 
 
-def spectrum_figure(bands, path_stem):
+def spectrum_figure(bands: list[dict], path_stem: str | os.PathLike) -> None:
     """|residual C_BB| per band of a simulate run, sign marked, with the h_n prediction.
 
     Parameters
@@ -181,7 +197,7 @@ def _band_centres(rows):
     return np.array([0.5 * (r["ell_lo"] + r["ell_hi"]) for r in rows])
 
 
-def compare_figure(rows, systematic, path_stem):
+def compare_figure(rows: list[dict], systematic: str, path_stem: str | os.PathLike) -> None:
     """|residual C_BB| of a real scan and its synthetic twin per band, sign marked.
 
     Parameters
@@ -204,7 +220,7 @@ def compare_figure(rows, systematic, path_stem):
     _save(fig, path_stem)
 
 
-def continuum_figure(rows, path_stem):
+def continuum_figure(rows: list[dict], path_stem: str | os.PathLike) -> None:
     """Suppression and |delta r| against the rotation angle, with the h_n prediction.
 
     Skipped unless the sweep varies pbr_angle_deg with 0 among its values and the base has a

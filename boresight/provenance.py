@@ -4,6 +4,8 @@ Every job writes a ``manifest.json`` from :func:`manifest`, so a result can be t
 and the inputs that made it.
 """
 
+from __future__ import annotations
+
 import platform
 import subprocess
 import time
@@ -74,7 +76,7 @@ def _git_revision():
         return "unknown"
 
 
-def manifest(config, seeds, stages):
+def manifest(config: dict, seeds: dict, stages: dict) -> dict:
     """The manifest of a run.
 
     Parameters

@@ -5,9 +5,16 @@ paper reads its numbers off log plots spanning eight decades, so "about" means w
 stated next to each claim. Every verdict is computed here, none is written by hand.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .config import Study
+    from .paper import BandTable, ExperimentResult
 
 
 @dataclass(frozen=True)
@@ -50,7 +57,7 @@ def _claim(res, statement, test, value, ok, fmt="{:.3g}"):
     return Claim(res.experiment.name, statement, test, fmt.format(value), bool(ok))
 
 
-def pointing_claims(res, table):
+def pointing_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
     """The wide survey's pointing claims.
 
     Parameters
@@ -132,7 +139,7 @@ def pointing_claims(res, table):
     return out
 
 
-def gain_claims(res, table):
+def gain_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
     """The deep survey's gain claims.
 
     Parameters
@@ -215,7 +222,7 @@ def gain_claims(res, table):
     return out
 
 
-def common_claims(res, table, study):
+def common_claims(res: ExperimentResult, table: BandTable, study: Study) -> list[Claim]:
     """The claims both experiments make: Q = U = 0, the prediction, the continuum in angle.
 
     Parameters
@@ -274,7 +281,7 @@ def common_claims(res, table, study):
     return out
 
 
-def evaluate_claims(results, rows, study):
+def evaluate_claims(results: dict, rows: list[dict], study: Study) -> list[Claim]:
     """All claims of the experiments present, read from their results.csv rows (binned once).
 
     Parameters
@@ -299,7 +306,7 @@ def evaluate_claims(results, rows, study):
     return claims
 
 
-def report_markdown(claims, study, stages):
+def report_markdown(claims: list[Claim], study: Study, stages: dict) -> str:
     """report.md: each claim, the number measured here and the computed verdict.
 
     Parameters

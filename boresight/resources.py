@@ -6,6 +6,8 @@ per-pixel costs are measured peaks (``bench/bench_reproduce.py``, ``bench/bench_
 margin, so the estimate errs high: it is a guard against a run that cannot fit, not a forecast.
 """
 
+from __future__ import annotations
+
 import os
 from pathlib import Path
 
@@ -27,7 +29,7 @@ class MemoryLimitError(ValueError):
     """A job whose estimated memory exceeds what the machine has."""
 
 
-def available_bytes():
+def available_bytes() -> float:
     """The memory a job may use.
 
     Returns
@@ -46,7 +48,15 @@ def available_bytes():
     return total
 
 
-def estimate_bytes(job, nside, lmax, n_phi_max=0, n_rotations=1, n_pairs=2, chunk_pixels=0):
+def estimate_bytes(
+    job: str,
+    nside: int,
+    lmax: int,
+    n_phi_max: int = 0,
+    n_rotations: int = 1,
+    n_pairs: int = 2,
+    chunk_pixels: int = 0,
+) -> float:
     """Estimated peak memory of a job.
 
     Full-sky arrays (per pixel), the sky's alm (3 x nalm complex), the coupling matrices
@@ -76,7 +86,7 @@ def estimate_bytes(job, nside, lmax, n_phi_max=0, n_rotations=1, n_pairs=2, chun
     return BYTES_PER_PIXEL[job] * npix + 48.0 * nalm + 24.0 * (lmax + 1.0) ** 2 + hits * per_hit
 
 
-def require(job, estimate, check=True):
+def require(job: str, estimate: float, check: bool = True) -> None:
     """Refuse a job whose estimate exceeds the machine's memory.
 
     Parameters
@@ -100,7 +110,7 @@ def require(job, estimate, check=True):
         )
 
 
-def n_phi_max(n_phi):
+def n_phi_max(n_phi: int | np.ndarray) -> int:
     """The largest hit count per pixel.
 
     Parameters

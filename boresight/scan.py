@@ -7,6 +7,8 @@ rotation (PBR) repeats every hit at crossing angle + alpha for each alpha in ``r
 or per-pixel RING maps. Angles are measured on the sky from e_theta towards e_phi (COSMO).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +96,7 @@ class SyntheticScan:
     def rotations_rad(self):
         return np.asarray(self.rotations_deg) * DEG
 
-    def per_pixel(self, pixels, npix):
+    def per_pixel(self, pixels: np.ndarray, npix: int) -> list[np.ndarray]:
         """(n_phi, R, centre) of some pixels.
 
         Parameters
@@ -124,7 +126,7 @@ class SyntheticScan:
         return out
 
 
-def hit_offsets(n_phi):
+def hit_offsets(n_phi: np.ndarray) -> np.ndarray:
     """Where each pixel's hits start in a chunk's hit arrays.
 
     Parameters
@@ -141,7 +143,7 @@ def hit_offsets(n_phi):
     return offsets
 
 
-def paper_scan(survey, rotation_deg=None, seed=0):
+def paper_scan(survey: str, rotation_deg: float | None = None, seed: int = 0) -> SyntheticScan:
     """The paper's synthetic scans.
 
     Parameters

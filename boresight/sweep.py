@@ -15,12 +15,15 @@ exactly the rows an uninterrupted run gives. Rows are sorted by point, so the ta
 on the order in which workers finish.
 """
 
+from __future__ import annotations
+
 import copy
 import hashlib
 import itertools
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -29,12 +32,16 @@ from . import __version__, coupling, io, masks, predict, residual
 from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+
 CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
 #: the columns of a point's rows
 POINT_COLUMNS = ("ell_lo", "ell_hi", *residual.Residual.COLUMNS, "delta_r", "predicted_delta_r")
 
 
-def load_sweep(path):
+def load_sweep(path: str) -> tuple[dict, str, list[dict]]:
     """Read and validate a sweep file; every point is checked as a study before any work.
 
     Parameters
@@ -83,7 +90,7 @@ def load_sweep(path):
     return base, os.path.dirname(base_path), points
 
 
-def expand(parameters, mode):
+def expand(parameters: dict, mode: str) -> list[dict]:
     """The points of a sweep.
 
     Parameters
@@ -115,7 +122,7 @@ def expand(parameters, mode):
     return [dict(zip(keys, c)) for c in combos]
 
 
-def apply_overrides(base, overrides):
+def apply_overrides(base: dict, overrides: dict) -> dict:
     """A copy of a raw study with a point's overrides set.
 
     Parameters
@@ -145,7 +152,7 @@ def apply_overrides(base, overrides):
     return raw
 
 
-def point_key(base, base_dir, overrides):
+def point_key(base: dict, base_dir: str, overrides: dict) -> str:
     """A point's file name: a hash of its whole resolved config.
 
     The base with the overrides applied, the size and modification time of the files it names and
@@ -187,7 +194,7 @@ def _coupling_matrices(mask, lmax, nthreads):
     return _COUPLING[key]
 
 
-def run_point(base, base_dir, overrides):
+def run_point(base: dict, base_dir: str, overrides: dict) -> list[dict]:
     """Run one point's residual job (a pure task for any worker).
 
     Parameters
@@ -229,7 +236,7 @@ class CorruptPointError(ConfigError):
     """A point file that cannot be read back (truncated, edited, or of another point)."""
 
 
-def read_point(path, key, n_bands):
+def read_point(path: Path, key: str, n_bands: int) -> list[dict]:
     """The rows of a finished point's file, validated.
 
     Parameters
@@ -294,15 +301,15 @@ def _open_sweep_dir(out, spec_id, force, repair):
 
 
 def run_sweep(
-    path,
-    out_dir,
-    scheduler=None,
-    workers=2,
-    force=False,
-    log=print,
-    progress=False,
-    repair=False,
-):
+    path: str,
+    out_dir: str,
+    scheduler: str | None = None,
+    workers: int = 2,
+    force: bool = False,
+    log: Callable = print,
+    progress: bool = False,
+    repair: bool = False,
+) -> list[dict]:
     """Run or resume a sweep.
 
     Parameters
@@ -408,7 +415,7 @@ def _run_dask(todo, base, base_dir, scheduler, workers, finish):
             cluster.close()
 
 
-def write_tables(out, points, keys, bands):
+def write_tables(out: Path, points: list[dict], keys: list[str], bands: dict) -> list[dict]:
     """Assemble the finished points, in sweep order, into results.csv, .parquet and ensemble.csv.
 
     Parameters
@@ -457,7 +464,7 @@ def write_tables(out, points, keys, bands):
 SEED_KEYS = ("sky.seed", "scan.seed")
 
 
-def ensemble(rows, keys):
+def ensemble(rows: list[dict], keys: list[str]) -> list[dict]:
     """Mean and scatter of the residual and delta_r over sky and scan seeds.
 
     Parameters

@@ -1,11 +1,17 @@
 """How many CPU threads the numba kernels use, set per call and checked at the boundary."""
 
+from __future__ import annotations
+
 import contextlib
+from typing import TYPE_CHECKING
 
 import numba
 
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
-def max_threads():
+
+def max_threads() -> int:
     """The most threads numba may use here.
 
     Returns
@@ -16,7 +22,7 @@ def max_threads():
     return numba.config.NUMBA_NUM_THREADS
 
 
-def check_threads(name, nthreads):
+def check_threads(name: str, nthreads: int) -> None:
     """ValueError unless ``nthreads`` is an integer from 0 (all cores) to :func:`max_threads`.
 
     Parameters
@@ -33,7 +39,7 @@ def check_threads(name, nthreads):
 
 
 @contextlib.contextmanager
-def numba_threads(nthreads):
+def numba_threads(nthreads: int) -> Iterator[None]:
     """Run numba kernels on a number of threads inside the block.
 
     Parameters

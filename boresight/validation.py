@@ -5,10 +5,16 @@ that names the field and what is allowed, so that a config error, an API error a
 the same. NaN and infinity never pass: every comparison below is written so that NaN fails it.
 """
 
+from __future__ import annotations
+
 import numbers
 from dataclasses import field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 def _describe(lo, hi):
@@ -21,7 +27,7 @@ def _describe(lo, hi):
     return f">= {lo:g} and <= {hi:g} (finite)"
 
 
-def number(name, value, lo=None, hi=None):
+def number(name: str, value: object, lo: float | None = None, hi: float | None = None) -> float:
     """A real, finite number within bounds.
 
     Parameters
@@ -51,7 +57,7 @@ def number(name, value, lo=None, hi=None):
     return x
 
 
-def integer(name, value, lo=None, hi=None):
+def integer(name: str, value: object, lo: int | None = None, hi: int | None = None) -> int:
     """An integer (not a bool) within bounds.
 
     Parameters
@@ -76,7 +82,9 @@ def integer(name, value, lo=None, hi=None):
     return int(value)
 
 
-def numbers_array(name, value, lo=None, hi=None):
+def numbers_array(
+    name: str, value: object, lo: float | None = None, hi: float | None = None
+) -> np.ndarray:
     """A scalar or 1-d sequence of real numbers, each finite within bounds.
 
     Parameters
@@ -106,7 +114,9 @@ def numbers_array(name, value, lo=None, hi=None):
     return arr
 
 
-def option(default, help, types=None, choices=None):
+def option(
+    default: object, help: str, types: tuple | None = None, choices: tuple | None = None
+) -> Any:
     """A dataclass field that documents itself.
 
     :mod:`boresight.config` builds the study file's schema, its error messages and the command-line
