@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from conftest import rel_max
 
-from boresight import coupling, masks, spectra
+from boresight import coupling, harmonics, masks, spectra
 
 
 def test_pseudo_spectra_match_anafast(small_sky):
@@ -127,3 +127,48 @@ def test_coupling_matches_namaster_when_installed():
     assert rel_max(couplings.tt[2:, 2:], m00[2:, 2:]) < 1e-4
     assert rel_max(couplings.even[2:, 2:], m22[2:, 0, 2:, 0]) < 1e-4
     assert rel_max(couplings.odd[2:, 2:], m22[2:, 0, 2:, 3]) < 1e-4
+
+
+def test_masked_spectra_match_exact_gauss_legendre_quadrature():
+    """An independent route for the pseudo-C_ell: a band-limited field times a band-limited mask
+    is integrated exactly on a Gauss-Legendre grid (ducc0 analysis_2d). Sampled on HEALPix pixel
+    centres, the anafast-equivalent route (3 Jacobi iterations) gives the same EE and BB bands to
+    5.9e-7 at Nside 64, lmax 2 Nside (measured); 1e-5 leaves a margin while a route without
+    iterations (off by ~1e-3) fails it."""
+    import ducc0
+
+    nside, lmax, order = 64, 128, 4
+    band_limit = lmax - 2 * order
+    ell = harmonics.ell_of_alm(band_limit)
+    rng = np.random.default_rng(3)
+    amp = np.sqrt(np.where(ell >= 2, 1.0 / (ell + 10.0) ** 2, 0.0) / 2)
+    alm = (rng.standard_normal((2, ell.size)) + 1j * rng.standard_normal((2, ell.size))) * amp
+    alm[:, : band_limit + 1] = alm[:, : band_limit + 1].real * np.sqrt(2)
+
+    def mask_of(theta):  # band limit `order`: a polynomial in cos(theta)
+        return ((1 + np.cos(theta)) / 2) ** order
+
+    ntheta = lmax + 2
+    grid = ducc0.sht.synthesis_2d(
+        alm=alm, lmax=band_limit, spin=2, ntheta=ntheta, nphi=2 * lmax + 4, geometry="GL"
+    )
+    grid *= mask_of(np.arccos(-np.polynomial.legendre.leggauss(ntheta)[0]))[None, :, None]
+    exact = ducc0.sht.analysis_2d(map=grid, lmax=lmax, spin=2, geometry="GL")
+    theta, _ = hp.pix2ang(nside, np.arange(12 * nside**2))
+    qu = harmonics.alm2map(alm, nside, spin=2) * mask_of(theta)
+    edges = spectra.log_bins(20, lmax, 14)
+
+    def worst(route):
+        return max(
+            np.max(
+                np.abs(
+                    spectra.bin_spectrum(harmonics.alm2cl(route[i]), edges)[1]
+                    / spectra.bin_spectrum(harmonics.alm2cl(exact[i]), edges)[1]
+                    - 1
+                )
+            )
+            for i in (0, 1)
+        )
+
+    assert worst(harmonics.map2alm(qu, lmax, spin=2)) < 1e-5
+    assert worst(harmonics.map2alm(qu, lmax, spin=2, iterations=0)) > 1e-4
