@@ -368,9 +368,11 @@ def staged_dir(
         (stage / MARKER).touch()
         yield stage
         old = None
-        if target.exists():
+        if target.exists() and not is_own(target):
+            os.rmdir(target)  # an empty directory of the user's; fails if it has gained files
+        elif target.exists():
             old = Path(tempfile.mkdtemp(prefix=_stage_name(target, "old"), dir=target.parent))
-            (old / MARKER).touch()  # an empty old output has no marker of its own
+            (old / MARKER).touch()
             os.replace(target, old / "replaced")
         os.replace(stage, target)
         if old is not None:

@@ -96,6 +96,17 @@ def test_out_may_not_hold_an_input(tmp_path, study_file, capsys):
     assert study_file.exists()
 
 
+def test_a_directory_of_the_user_gaining_files_during_the_run_is_kept(tmp_path, study_file):
+    out = tmp_path / "out"
+    out.mkdir()  # empty: accepted as the output path
+    with pytest.raises(OSError):
+        with io.staged_dir(out) as stage:
+            (stage / "result.txt").write_text("new")
+            (out / "notes.txt").write_text("written by the user meanwhile")
+    assert (out / "notes.txt").read_text() == "written by the user meanwhile"
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
 def test_force_replaces_boresight_own_output(tmp_path, study_file):
     out = tmp_path / "out"
     assert main(["-q", "simulate", str(study_file), "--out", str(out)]) == 0
