@@ -5,6 +5,8 @@ number comes from :mod:`boresight.rng` keyed by (seed, pixel, hit), so results d
 chunking or the thread count. ``boresight.tod_gpu`` implements the same kernels for CuPy.
 """
 
+from __future__ import annotations
+
 import numba
 import numpy as np
 
@@ -27,7 +29,7 @@ __all__ = [
 ]
 
 
-def interpolate(stack, nside, theta, phi):
+def interpolate(stack: np.ndarray, nside: int, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """Bilinear HEALPix interpolation of an interleaved stack.
 
     The contract: :meth:`boresight.backend.KernelBackend.interpolate`.
@@ -279,22 +281,22 @@ def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, 
 
 
 def bin_scan(
-    seed,
-    nside,
-    pixels,
-    n_phi,
-    range_rad,
-    centre_rad,
-    centred,
-    stack,
-    rotations,
-    pair_angles,
-    dg,
-    rho,
-    chi,
-    leak,
-    pointing,
-):
+    seed: int,
+    nside: int,
+    pixels: np.ndarray,
+    n_phi: np.ndarray,
+    range_rad: np.ndarray,
+    centre_rad: np.ndarray,
+    centred: bool,
+    stack: np.ndarray,
+    rotations: np.ndarray,
+    pair_angles: np.ndarray,
+    dg: np.ndarray,
+    rho: np.ndarray,
+    chi: np.ndarray,
+    leak: np.ndarray,
+    pointing: bool,
+) -> np.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
 
     The contract: :meth:`boresight.backend.KernelBackend.bin_scan`.
@@ -379,7 +381,7 @@ def moments(offsets, psi, rotations, n_max):
     return out
 
 
-def to_host(array):
+def to_host(array: np.ndarray) -> np.ndarray:
     """An array as numpy.
 
     The contract: :meth:`boresight.backend.KernelBackend.to_host`.
@@ -397,7 +399,7 @@ def to_host(array):
     return array
 
 
-def to_device(array):
+def to_device(array: np.ndarray) -> np.ndarray:
     """An array on the backend's device (the sky fields, uploaded once).
 
     The contract: :meth:`boresight.backend.KernelBackend.to_device`.
@@ -415,7 +417,7 @@ def to_device(array):
     return array
 
 
-def zeros(shape):
+def zeros(shape: tuple) -> np.ndarray:
     """A zeroed float64 accumulator on the device.
 
     The contract: :meth:`boresight.backend.KernelBackend.zeros`.

@@ -13,6 +13,8 @@ on the GPU 56 times slower. Install with `pip install boresight[gpu]` (CuPy for 
 cupy-cuda13x for CUDA 13).
 """
 
+from __future__ import annotations
+
 from importlib import resources
 
 import numpy as np
@@ -53,7 +55,7 @@ def _d(array, dtype=np.float64):
     return cp.ascontiguousarray(cp.asarray(array, dtype=dtype))
 
 
-def to_device(array):
+def to_device(array: np.ndarray) -> cp.ndarray:
     """An array on the backend's device (the sky fields, uploaded once).
 
     The contract: :meth:`boresight.backend.KernelBackend.to_device`.
@@ -71,7 +73,7 @@ def to_device(array):
     return _d(array)
 
 
-def to_host(array):
+def to_host(array: object) -> np.ndarray:
     """An array as numpy.
 
     The contract: :meth:`boresight.backend.KernelBackend.to_host`.
@@ -101,7 +103,15 @@ def _scan_args(seed, nside, pixels, counts, range_rad, centre_rad, centred):
     )
 
 
-def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
+def generate_hits(
+    seed: int,
+    nside: int,
+    pixels: np.ndarray,
+    offsets: np.ndarray,
+    range_rad: np.ndarray,
+    centre_rad: np.ndarray,
+    centred: bool,
+) -> tuple:
     """Position and crossing angle of every hit of a chunk of pixels.
 
     The contract: :meth:`boresight.backend.KernelBackend.generate_hits`.
@@ -135,7 +145,15 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     return theta, phi, psi
 
 
-def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
+def offset_points(
+    theta: np.ndarray,
+    phi: np.ndarray,
+    psi: np.ndarray,
+    rotations: np.ndarray,
+    pair_angles: np.ndarray,
+    rho: np.ndarray,
+    chi: np.ndarray,
+) -> tuple:
     """Where detector B of each pair looks, for every (hit, rotation, pair).
 
     The contract: :meth:`boresight.backend.KernelBackend.offset_points`.
@@ -178,7 +196,7 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     return tb, pb
 
 
-def interpolate(stack, nside, theta, phi):
+def interpolate(stack: object, nside: int, theta: np.ndarray, phi: np.ndarray) -> cp.ndarray:
     """Bilinear HEALPix interpolation of an interleaved stack.
 
     The contract: :meth:`boresight.backend.KernelBackend.interpolate`.
@@ -236,7 +254,16 @@ def _accumulate(offsets, psi, target, values_a, values_b, rotations, pair_angles
     )
 
 
-def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
+def accumulate(
+    offsets: object,
+    psi: object,
+    values_a: object,
+    values_b: object,
+    rotations: np.ndarray,
+    pair_angles: np.ndarray,
+    dg: np.ndarray,
+    leak: np.ndarray,
+) -> cp.ndarray:
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
     The contract: :meth:`boresight.backend.KernelBackend.accumulate`.
@@ -264,7 +291,17 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
     return out
 
 
-def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
+def accumulate_scatter(
+    pixels: object,
+    psi: object,
+    values_a: object,
+    values_b: object,
+    rotations: np.ndarray,
+    pair_angles: np.ndarray,
+    dg: np.ndarray,
+    leak: np.ndarray,
+    out: cp.ndarray,
+) -> None:
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
     The contract: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
@@ -292,22 +329,22 @@ def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, 
 
 
 def bin_scan(
-    seed,
-    nside,
-    pixels,
-    n_phi,
-    range_rad,
-    centre_rad,
-    centred,
-    stack,
-    rotations,
-    pair_angles,
-    dg,
-    rho,
-    chi,
-    leak,
-    pointing,
-):
+    seed: int,
+    nside: int,
+    pixels: np.ndarray,
+    n_phi: np.ndarray,
+    range_rad: np.ndarray,
+    centre_rad: np.ndarray,
+    centred: bool,
+    stack: cp.ndarray,
+    rotations: np.ndarray,
+    pair_angles: np.ndarray,
+    dg: np.ndarray,
+    rho: np.ndarray,
+    chi: np.ndarray,
+    leak: np.ndarray,
+    pointing: bool,
+) -> cp.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
 
     The contract: :meth:`boresight.backend.KernelBackend.bin_scan`.
@@ -353,7 +390,7 @@ def bin_scan(
     return out
 
 
-def moments(offsets, psi, rotations, n_max):
+def moments(offsets: object, psi: object, rotations: np.ndarray, n_max: int) -> cp.ndarray:
     """Spin moments of each pixel's hits, every rotation included.
 
     The contract: :meth:`boresight.backend.KernelBackend.moments`.
@@ -389,7 +426,7 @@ def moments(offsets, psi, rotations, n_max):
     return out
 
 
-def zeros(shape):
+def zeros(shape: tuple) -> cp.ndarray:
     """A zeroed float64 accumulator on the device.
 
     The contract: :meth:`boresight.backend.KernelBackend.zeros`.
