@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import io, validation
+from .backend import BACKENDS
 from .evaluation import METHODS
 from .instrument import Instrument, Systematics
 from .masks import SURVEYS
@@ -37,9 +38,6 @@ except ModuleNotFoundError:  # Python < 3.11
 
 class ConfigError(ValueError):
     """A configuration problem, with the offending key (and file) in the message."""
-
-
-BACKENDS = ("cpu", "gpu")
 
 
 def check_backend(name, backend):
@@ -309,7 +307,18 @@ def add_flags(parser, cls, names=None, paper_defaults=False):
         )
 
 
-def _check_types(raw):
+def check_types(raw):
+    """Check a raw study's sections, keys and value types against :func:`schema`.
+
+    Parameters
+    ----------
+    raw : dict
+
+    Raises
+    ------
+    ConfigError
+        An unknown section or key, or a value of the wrong type, naming section.key.
+    """
     known = schema()
     for section, body in raw.items():
         if section not in known:
@@ -360,9 +369,25 @@ def _map_or_value(section, key, value, base, dtype, npix):
     return value
 
 
-def _build(section, cls, kwargs):
-    """cls(**kwargs), its errors as ConfigError naming section.key where the message starts with
-    a field's name."""
+def build_section(section, cls, kwargs):
+    """A section dataclass from a table, its errors as ConfigError.
+
+    Parameters
+    ----------
+    section : str
+    cls : type
+    kwargs : dict
+
+    Returns
+    -------
+    object
+        ``cls(**kwargs)``.
+
+    Raises
+    ------
+    ConfigError
+        Naming section.key where the message starts with a field's name.
+    """
     try:
         return cls(**kwargs)
     except (ValueError, TypeError) as err:
@@ -447,12 +472,12 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     ConfigError
         An unknown section or key, a wrong type, a value out of range, a missing or bad file.
     """
-    _check_types(raw)
+    check_types(raw)
     sky_raw = dict(raw.get("sky", {}))
     if "nside" not in sky_raw:
         raise ConfigError("sky.nside is required (a power of two; the paper's 2048 needs ~20 GiB)")
     sky_maps = sky_raw.pop("maps", None)
-    sky_cfg = _build("sky", SkyConfig, sky_raw)
+    sky_cfg = build_section("sky", SkyConfig, sky_raw)
     npix = 12 * sky_cfg.nside**2
     if sky_maps is not None:
         sky_maps = _fits("sky", "maps", sky_maps, base, min_fields=3, npix=npix)
@@ -460,15 +485,15 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     for key, dtype in (("n_phi", np.int64), ("range_rad", np.float64), ("centre_rad", np.float64)):
         if key in scan_raw:
             scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, dtype, npix)
-    scan = _build("scan", SyntheticScan, scan_raw)
-    instrument = _build(
+    scan = build_section("scan", SyntheticScan, scan_raw)
+    instrument = build_section(
         "instrument", Instrument, _tuples(raw.get("instrument", {}), ("pair_angles_deg",))
     )
     sys_raw = dict(raw.get("systematics", {}))
     template = sys_raw.pop("leak_template", None)
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
-    systematics = _build("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
+    systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
     try:
         systematics.per_pair(instrument.n_pairs)
     except ValueError as err:
@@ -478,9 +503,9 @@ def parse_study(raw: dict, base: str = ".") -> Study:
         if "survey" in mask_raw:
             raise ConfigError("[mask] give either survey or file, not both")
         mask_raw["file"] = _fits("mask", "file", mask_raw["file"], base)
-    mask = _build("mask", MaskSpec, mask_raw)
-    run = _build("run", RunOptions, raw.get("run", {}))
-    output = _build("output", OutputOptions, raw.get("output", {}))
+    mask = build_section("mask", MaskSpec, mask_raw)
+    run = build_section("run", RunOptions, raw.get("run", {}))
+    output = build_section("output", OutputOptions, raw.get("output", {}))
     try:
         return Study(
             sky_cfg, scan, instrument, systematics, mask, run, output, sky_maps, template, raw

@@ -489,12 +489,7 @@ def _ces_pointing(
 
 def chunk_arguments(schedule, chunk_samples=1 << 20):
     """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time order,
-    once per boresight repeat.
-
-    Parameters
-    ----------
-    schedule : Schedule
-    chunk_samples : int
+    once per boresight repeat. Parameters as :func:`pointing`.
 
     Yields
     ------

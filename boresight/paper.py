@@ -18,7 +18,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import coupling, masks, predict, provenance, residual, sky
-from .config import ConfigError, OutputOptions, RunOptions, Study, _build, _check_types
+from .config import (
+    ConfigError,
+    OutputOptions,
+    RunOptions,
+    Study,
+    build_section,
+    check_types,
+)
 from .cosmology import load_spectra
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 from .scan import SyntheticScan, paper_scan
@@ -119,7 +126,7 @@ def from_raw(raw: dict, quick: bool = False) -> Study:
     boresight.config.ConfigError
         A table the experiments set ([systematics], [mask], ...), or a bad value.
     """
-    _check_types(raw)
+    check_types(raw)
     fixed = sorted(set(raw) - set(REPRODUCE_SECTIONS))
     scan_keys = sorted(set(raw.get("scan", {})) - {"seed"})
     if fixed or scan_keys:
@@ -128,10 +135,10 @@ def from_raw(raw: dict, quick: bool = False) -> Study:
             f"a reproduction takes only {REPRODUCE_SECTIONS} (scan: seed only)"
         )
     base = preset(quick)
-    sky_cfg = _build("sky", SkyConfig, {**vars(base.sky), **raw.get("sky", {})})
+    sky_cfg = build_section("sky", SkyConfig, {**vars(base.sky), **raw.get("sky", {})})
     seed = raw.get("scan", {}).get("seed", sky_cfg.seed)
-    run = _build("run", RunOptions, raw.get("run", {}))
-    output = _build("output", OutputOptions, raw.get("output", {}))
+    run = build_section("run", RunOptions, raw.get("run", {}))
+    output = build_section("output", OutputOptions, raw.get("output", {}))
     try:
         return Study(sky_cfg, SyntheticScan(seed=seed), run=run, output=output, raw=raw)
     except (ValueError, TypeError) as err:

@@ -140,17 +140,7 @@ def pointing_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
 
 
 def gain_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
-    """The deep survey's gain claims.
-
-    Parameters
-    ----------
-    res : boresight.paper.ExperimentResult
-    table : boresight.paper.BandTable
-
-    Returns
-    -------
-    list of Claim
-    """
+    """The deep survey's gain claims; parameters and return value as :func:`pointing_claims`."""
     med = np.median
     out = []
     r_eq = med(_ratio_to_reference(table, None, 0.1, lo=30, hi=150)) * 0.1

@@ -14,6 +14,7 @@ the same bits.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -414,8 +415,6 @@ def residual(
     -------
     Residual
     """
-    import time
-
     transforms = Transforms() if transforms is None else transforms
     stages, t0 = {}, time.perf_counter()
     obs = mask > 0

@@ -37,19 +37,8 @@ def masked_alm(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0)
 
 
 def masked_pol_alm(qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
-    """E, B alm of masked Q, U maps.
-
-    Parameters
-    ----------
-    qu : array_like, shape (2, npix)
-        Q, U [muK], finite inside the mask.
-    mask : numpy.ndarray, shape (npix,)
-    lmax : int
-    nthreads : int
-
-    Returns
-    -------
-    numpy.ndarray, complex128, shape (2, nalm)
+    """E, B alm (2, nalm) of masked Q, U maps ``qu`` (2, npix) [muK], finite inside the mask; the
+    other parameters as :func:`masked_alm`.
     """
     qu = np.asarray(qu, dtype=np.float64)
     _check(qu, mask)

@@ -157,17 +157,7 @@ def point_key(base: dict, base_dir: str, overrides: dict) -> str:
 
     The base with the overrides applied, the size and modification time of the files it names and
     the package version: an edited base or input file is a new point, never an old result.
-
-    Parameters
-    ----------
-    base : dict
-    base_dir : str
-    overrides : dict
-
-    Returns
-    -------
-    str
-        16 hexadecimal digits.
+    Parameters as :func:`run_point`; returns 16 hexadecimal digits.
     """
     raw = apply_overrides(base, overrides)
     files = {}

@@ -32,18 +32,7 @@ __all__ = [
 def interpolate(stack: np.ndarray, nside: int, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """Bilinear HEALPix interpolation of an interleaved stack.
 
-    The contract: :meth:`boresight.backend.KernelBackend.interpolate`.
-
-    Parameters
-    ----------
-    stack : float64 array, shape (npix, F)
-    nside : int
-    theta, phi : float64 array, shape (n,)
-        [rad].
-
-    Returns
-    -------
-    float64 array, shape (F, n)
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.interpolate`.
     """
     return interpolate_interleaved(stack, nside, theta, phi)
 
@@ -68,24 +57,7 @@ def _draw_hit(key, j, nside, ix, iy, face, range_rad, centre_rad, centred):
 def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     """Position and crossing angle of every hit of a chunk of pixels.
 
-    The contract: :meth:`boresight.backend.KernelBackend.generate_hits`.
-
-    Parameters
-    ----------
-    seed : int
-    nside : int
-    pixels : int64 array, shape (P,)
-        RING indices.
-    offsets : int64 array, shape (P + 1,)
-        Pixel k owns hits offsets[k]..offsets[k + 1] - 1 (the hit number in its random key).
-    range_rad, centre_rad : float64 array, shape (P,)
-    centred : bool
-        Hits at pixel centres instead of uniform positions.
-
-    Returns
-    -------
-    theta, phi, psi : float64 array, shape (H,)
-        [rad].
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.generate_hits`.
     """
     nhit = offsets[-1]
     theta = np.empty(nhit)
@@ -118,21 +90,7 @@ def _offset_point(theta, phi, sin_theta, beta, rho):
 def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     """Where detector B of each pair looks, for every (hit, rotation, pair).
 
-    The contract: :meth:`boresight.backend.KernelBackend.offset_points`.
-
-    Parameters
-    ----------
-    theta, phi, psi : float64 array, shape (H,)
-        Hits [rad].
-    rotations, pair_angles : float64 array, shapes (K,), (M,)
-        [rad].
-    rho, chi : float64 array, shape (M,)
-        Pointing offset and its direction per pair [rad].
-
-    Returns
-    -------
-    theta_b, phi_b : float64 array, shape (H, K, M)
-        [rad]; points past a pole folded back.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.offset_points`.
     """
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = np.empty((nh, nk, nm))
@@ -213,26 +171,9 @@ def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
 def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
-    The contract: :meth:`boresight.backend.KernelBackend.accumulate`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate`.
 
     Parallel over pixels.
-
-    Parameters
-    ----------
-    offsets : int64 array, shape (P + 1,)
-    psi : float64 array, shape (H,)
-    values_a : float64 array, shape (F, H)
-        Fields I, Q, U[, leak template] where detector A looks [muK].
-    values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
-        The same where detector B looks; empty when B looks where A does.
-    rotations, pair_angles : float64 array, shapes (K,), (M,)
-        [rad].
-    dg, leak : float64 array, shape (M,)
-
-    Returns
-    -------
-    float64 array, shape (P, 5)
-        sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
     """
     turn_c, turn_s = _turns(rotations, pair_angles)
     values_b = _flat(values_b)
@@ -258,18 +199,9 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
 def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
-    The contract: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
 
     Serial, so no two hits race for a pixel.
-
-    Parameters
-    ----------
-    pixels : int64 array, shape (H,)
-        RING pixel of each hit.
-    psi, values_a, values_b, rotations, pair_angles, dg, leak
-        As in :meth:`accumulate`.
-    out : float64 array, shape (npix, 5)
-        Running sums, updated in place.
     """
     turn_c, turn_s = _turns(rotations, pair_angles)
     values_b = _flat(values_b)
@@ -299,32 +231,11 @@ def bin_scan(
 ) -> np.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
 
-    The contract: :meth:`boresight.backend.KernelBackend.bin_scan`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.bin_scan`.
 
     The CPU is compute bound: a fused numba loop measured 5 % slower than these
     cache-sized stages, so bin_scan runs generate_hits -> interpolate (-> offset_points) ->
     accumulate.
-
-    The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
-
-    Parameters
-    ----------
-    seed, nside, pixels, range_rad, centre_rad, centred
-        As in :meth:`generate_hits`.
-    n_phi : int64 array, shape (P,)
-        Hits per pixel.
-    stack : array, shape (npix, F)
-        The interleaved sky fields on the device (:meth:`to_device`).
-    rotations, pair_angles, dg, leak
-        As in :meth:`accumulate`.
-    rho, chi : float64 array, shape (M,)
-        As in :meth:`offset_points`.
-    pointing : bool
-        Whether detector B looks elsewhere.
-
-    Returns
-    -------
-    float64 array, shape (P, 5)
     """
     offsets = hit_offsets(n_phi)
     theta, phi, psi = generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred)
@@ -352,20 +263,7 @@ def bin_scan(
 def moments(offsets, psi, rotations, n_max):
     """Spin moments of each pixel's hits, every rotation included.
 
-    The contract: :meth:`boresight.backend.KernelBackend.moments`.
-
-    Parameters
-    ----------
-    offsets : int64 array, shape (P + 1,)
-    psi : float64 array, shape (H,)
-    rotations : float64 array, shape (K,)
-        [rad].
-    n_max : int
-
-    Returns
-    -------
-    complex128 array, shape (P, n_max + 1)
-        <exp(i n (psi + alpha_k))>.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.moments`.
     """
     out = np.zeros((offsets.size - 1, n_max + 1), dtype=np.complex128)
     for p in numba.prange(offsets.size - 1):
@@ -384,17 +282,9 @@ def moments(offsets, psi, rotations, n_max):
 def to_host(array: np.ndarray) -> np.ndarray:
     """An array as numpy.
 
-    The contract: :meth:`boresight.backend.KernelBackend.to_host`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.to_host`.
 
     The CPU kernels already return numpy arrays.
-
-    Parameters
-    ----------
-    array : array
-
-    Returns
-    -------
-    numpy.ndarray
     """
     return array
 
@@ -402,17 +292,9 @@ def to_host(array: np.ndarray) -> np.ndarray:
 def to_device(array: np.ndarray) -> np.ndarray:
     """An array on the backend's device (the sky fields, uploaded once).
 
-    The contract: :meth:`boresight.backend.KernelBackend.to_device`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.to_device`.
 
     On the CPU the array stays where it is.
-
-    Parameters
-    ----------
-    array : numpy.ndarray
-
-    Returns
-    -------
-    array
     """
     return array
 
@@ -420,16 +302,8 @@ def to_device(array: np.ndarray) -> np.ndarray:
 def zeros(shape: tuple) -> np.ndarray:
     """A zeroed float64 accumulator on the device.
 
-    The contract: :meth:`boresight.backend.KernelBackend.zeros`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.zeros`.
 
     Host memory.
-
-    Parameters
-    ----------
-    shape : tuple of int
-
-    Returns
-    -------
-    array
     """
     return np.zeros(shape)

@@ -58,17 +58,9 @@ def _d(array, dtype=np.float64):
 def to_device(array: np.ndarray) -> cp.ndarray:
     """An array on the backend's device (the sky fields, uploaded once).
 
-    The contract: :meth:`boresight.backend.KernelBackend.to_device`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.to_device`.
 
     Copied to the GPU.
-
-    Parameters
-    ----------
-    array : numpy.ndarray
-
-    Returns
-    -------
-    array
     """
     return _d(array)
 
@@ -76,15 +68,7 @@ def to_device(array: np.ndarray) -> cp.ndarray:
 def to_host(array: object) -> np.ndarray:
     """An array as numpy.
 
-    The contract: :meth:`boresight.backend.KernelBackend.to_host`.
-
-    Parameters
-    ----------
-    array : array
-
-    Returns
-    -------
-    numpy.ndarray
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.to_host`.
     """
     return cp.asnumpy(array) if isinstance(array, cp.ndarray) else array
 
@@ -114,24 +98,7 @@ def generate_hits(
 ) -> tuple:
     """Position and crossing angle of every hit of a chunk of pixels.
 
-    The contract: :meth:`boresight.backend.KernelBackend.generate_hits`.
-
-    Parameters
-    ----------
-    seed : int
-    nside : int
-    pixels : int64 array, shape (P,)
-        RING indices.
-    offsets : int64 array, shape (P + 1,)
-        Pixel k owns hits offsets[k]..offsets[k + 1] - 1 (the hit number in its random key).
-    range_rad, centre_rad : float64 array, shape (P,)
-    centred : bool
-        Hits at pixel centres instead of uniform positions.
-
-    Returns
-    -------
-    theta, phi, psi : float64 array, shape (H,)
-        [rad].
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.generate_hits`.
     """
     offsets_d = _d(offsets, np.int64)
     nhit = int(offsets[-1])
@@ -156,21 +123,7 @@ def offset_points(
 ) -> tuple:
     """Where detector B of each pair looks, for every (hit, rotation, pair).
 
-    The contract: :meth:`boresight.backend.KernelBackend.offset_points`.
-
-    Parameters
-    ----------
-    theta, phi, psi : float64 array, shape (H,)
-        Hits [rad].
-    rotations, pair_angles : float64 array, shapes (K,), (M,)
-        [rad].
-    rho, chi : float64 array, shape (M,)
-        Pointing offset and its direction per pair [rad].
-
-    Returns
-    -------
-    theta_b, phi_b : float64 array, shape (H, K, M)
-        [rad]; points past a pole folded back.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.offset_points`.
     """
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = cp.empty((nh, nk, nm))
@@ -199,18 +152,7 @@ def offset_points(
 def interpolate(stack: object, nside: int, theta: np.ndarray, phi: np.ndarray) -> cp.ndarray:
     """Bilinear HEALPix interpolation of an interleaved stack.
 
-    The contract: :meth:`boresight.backend.KernelBackend.interpolate`.
-
-    Parameters
-    ----------
-    stack : float64 array, shape (npix, F)
-    nside : int
-    theta, phi : float64 array, shape (n,)
-        [rad].
-
-    Returns
-    -------
-    float64 array, shape (F, n)
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.interpolate`.
     """
     stack = stack if isinstance(stack, cp.ndarray) else _d(stack)
     theta, phi = _d(theta), _d(phi)
@@ -266,24 +208,7 @@ def accumulate(
 ) -> cp.ndarray:
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
-    The contract: :meth:`boresight.backend.KernelBackend.accumulate`.
-
-    Parameters
-    ----------
-    offsets : int64 array, shape (P + 1,)
-    psi : float64 array, shape (H,)
-    values_a : float64 array, shape (F, H)
-        Fields I, Q, U[, leak template] where detector A looks [muK].
-    values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
-        The same where detector B looks; empty when B looks where A does.
-    rotations, pair_angles : float64 array, shapes (K,), (M,)
-        [rad].
-    dg, leak : float64 array, shape (M,)
-
-    Returns
-    -------
-    float64 array, shape (P, 5)
-        sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate`.
     """
     out = cp.zeros((offsets.size - 1, 5))
     args = (values_a, values_b, rotations, pair_angles, dg, leak, out)
@@ -304,19 +229,10 @@ def accumulate_scatter(
 ) -> None:
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
-    The contract: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
 
     The hits are sorted by (pixel, position) on the GPU, so every pixel's sums are added
     in hit order, as on the CPU: deterministic, and equal to the CPU to rounding.
-
-    Parameters
-    ----------
-    pixels : int64 array, shape (H,)
-        RING pixel of each hit.
-    psi, values_a, values_b, rotations, pair_angles, dg, leak
-        As in :meth:`accumulate`.
-    out : float64 array, shape (npix, 5)
-        Running sums, updated in place.
     """
     pixels = _d(pixels, np.int64)
     order = cp.argsort(pixels * pixels.size + cp.arange(pixels.size))
@@ -347,31 +263,12 @@ def bin_scan(
 ) -> cp.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
 
-    The contract: :meth:`boresight.backend.KernelBackend.bin_scan`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.bin_scan`.
 
     One fused kernel: each thread draws its pixel's hits, interpolates the stack where both
     detectors of every pair look and sums in registers, without per-hit arrays.
 
     The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
-
-    Parameters
-    ----------
-    seed, nside, pixels, range_rad, centre_rad, centred
-        As in :meth:`generate_hits`.
-    n_phi : int64 array, shape (P,)
-        Hits per pixel.
-    stack : array, shape (npix, F)
-        The interleaved sky fields on the device (:meth:`to_device`).
-    rotations, pair_angles, dg, leak
-        As in :meth:`accumulate`.
-    rho, chi : float64 array, shape (M,)
-        As in :meth:`offset_points`.
-    pointing : bool
-        Whether detector B looks elsewhere.
-
-    Returns
-    -------
-    float64 array, shape (P, 5)
     """
     out = cp.empty((pixels.size, 5))
     _launch(
@@ -393,20 +290,7 @@ def bin_scan(
 def moments(offsets: object, psi: object, rotations: np.ndarray, n_max: int) -> cp.ndarray:
     """Spin moments of each pixel's hits, every rotation included.
 
-    The contract: :meth:`boresight.backend.KernelBackend.moments`.
-
-    Parameters
-    ----------
-    offsets : int64 array, shape (P + 1,)
-    psi : float64 array, shape (H,)
-    rotations : float64 array, shape (K,)
-        [rad].
-    n_max : int
-
-    Returns
-    -------
-    complex128 array, shape (P, n_max + 1)
-        <exp(i n (psi + alpha_k))>.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.moments`.
     """
     npix = offsets.size - 1
     out = cp.empty((npix, n_max + 1), dtype=cp.complex128)
@@ -429,16 +313,8 @@ def moments(offsets: object, psi: object, rotations: np.ndarray, n_max: int) -> 
 def zeros(shape: tuple) -> cp.ndarray:
     """A zeroed float64 accumulator on the device.
 
-    The contract: :meth:`boresight.backend.KernelBackend.zeros`.
+    Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.zeros`.
 
     GPU memory.
-
-    Parameters
-    ----------
-    shape : tuple of int
-
-    Returns
-    -------
-    array
     """
     return cp.zeros(shape)
