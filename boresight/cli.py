@@ -16,7 +16,9 @@ from dataclasses import replace
 
 from . import paper, studies
 from .config import ConfigError, RunOptions, add_flags, load_study, read_toml
+from .ground import is_schedule as ground_schedule
 from .sky import SkyConfig
+from .studies import LAYOUTS
 
 log = logging.getLogger("boresight")
 
@@ -40,14 +42,24 @@ def _parser():
     r.add_argument("--out", default="boresight-paper", help="output directory")
     r.add_argument("--force", action="store_true", help="overwrite an existing output directory")
 
-    for name, text in (
-        ("simulate", "simulate a study from a TOML config"),
-        ("scan-stats", "h_n, hit, N_phi and R maps of a config's scan"),
-    ):
-        s = sub.add_parser(name, help=text)
-        s.add_argument("config")
-        s.add_argument("--out", required=True, help="output directory")
-        s.add_argument("--force", action="store_true")
+    s = sub.add_parser("simulate", help="simulate a study from a TOML config")
+    s.add_argument("config")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--force", action="store_true")
+    ss = sub.add_parser("scan-stats", help="h_n, hit, N_phi and R maps of a study or a schedule")
+    ss.add_argument("config", help="a study config, or a schedule (TOML, CSV or TOAST)")
+    ss.add_argument("--out", required=True, help="output directory")
+    ss.add_argument("--force", action="store_true")
+    ss.add_argument("--nside", type=int, default=128, help="map resolution of a schedule")
+    ss.add_argument(
+        "--format",
+        choices=LAYOUTS,
+        default="boresight",
+        help="h_n maps as hn_maps.fits, or as SO/SMARTIES {prefix}_cos_{n}/_sin_{n}.fits in "
+        "TOAST's psi convention (odd h_n change sign)",
+    )
+    ss.add_argument("--prefix", default="hn", help="file name prefix of --format so")
+    _motion_flags(ss)
     sw = sub.add_parser("sweep", help="a grid or list of studies, locally or on a Dask cluster")
     sw.add_argument("sweep_file")
     sw.add_argument("--out", required=True, help="output directory (re-running resumes it)")
@@ -61,17 +73,46 @@ def _parser():
         "--repair", action="store_true", help="recompute corrupt point files, keep the rest"
     )
     cs = sub.add_parser("compare-scans", help="residual B-modes of a CES schedule and its twin")
-    cs.add_argument("schedule", help="schedule file (TOML or CSV)")
+    cs.add_argument("schedule", help="schedule file (TOML, CSV or TOAST)")
     cs.add_argument("--out", required=True, help="output directory")
     cs.add_argument("--nside", type=int, default=128)
     cs.add_argument("--systematic", choices=("gain", "pointing"), default="gain")
     cs.add_argument("--fwhm-arcmin", type=float, default=30.0)
     cs.add_argument("--force", action="store_true")
+    _motion_flags(cs)
+    ex = sub.add_parser(
+        "export-schedule",
+        help="write a schedule for TOAST (text, or ECSV for *.ecsv) and print its SimGround",
+    )
+    ex.add_argument("schedule", help="schedule file (TOML, CSV or TOAST)")
+    ex.add_argument("out", help="the TOAST schedule file to write")
+    ex.add_argument("--force", action="store_true", help="replace an existing file")
+    _motion_flags(ex)
     pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
     pr.add_argument("config")
     pr.add_argument("--out", help="write prediction.csv into this directory")
     pr.add_argument("--force", action="store_true")
     return p
+
+
+def _motion_flags(p):
+    """Flags for what a TOAST schedule leaves out; defaults are TOAST SimGround's."""
+    g = p.add_argument_group("TOAST schedules (the file does not say how the mount moves)")
+    g.add_argument("--scan-rate", type=float, default=1.0, help="azimuth rate [deg/s] (1)")
+    g.add_argument(
+        "--rate-on",
+        choices=("sky", "mount"),
+        default="sky",
+        help="the rate is on the sky (SimGround's fix_rate_on_sky, default) or the mount's",
+    )
+    g.add_argument("--scan-accel", type=float, default=1.0, help="turnaround [deg/s^2] (1)")
+    g.add_argument("--sample-rate", type=float, default=20.0, help="samples per second (20)")
+
+
+def _motion(args):
+    from .toast_schedule import ScanMotion
+
+    return ScanMotion(args.scan_rate, args.rate_on == "sky", args.scan_accel, args.sample_rate)
 
 
 def _reproduce_study(args):
@@ -188,14 +229,45 @@ def _run(args, progress, memory_check):
             force=args.force,
             log=log.info,
             memory_check=memory_check,
+            motion=_motion(args),
         )
+        return 0
+    if args.command == "export-schedule":
+        from . import ground, io, toast_schedule
+
+        schedule = ground.load_schedule(args.schedule, _motion(args))
+        io.check_output_file(args.out, args.force, [args.schedule])
+        toast_schedule.write(schedule, args.out)
+        log.info("wrote %d TOAST rows to %s", len(toast_schedule.rows(schedule)), args.out)
+        print(toast_schedule.simground_code(schedule, args.out))
+        return 0
+    if args.command == "scan-stats" and ground_schedule(args.config):
+        rows = studies.schedule_stats(
+            args.config,
+            args.out,
+            args.nside,
+            _motion(args),
+            args.force,
+            log=log.info,
+            memory_check=memory_check,
+            layout=args.format,
+            prefix=args.prefix,
+        )
+        for row in rows:
+            log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
         return 0
     study = load_study(args.config)
     if args.command == "simulate":
         studies.simulate(study, args.out, args.force, log.info, progress, memory_check)
     elif args.command == "scan-stats":
         rows = studies.scan_stats(
-            study, args.out, args.force, log=log.info, memory_check=memory_check
+            study,
+            args.out,
+            args.force,
+            log=log.info,
+            memory_check=memory_check,
+            layout=args.format,
+            prefix=args.prefix,
         )
         for row in rows:
             log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])

@@ -32,6 +32,8 @@ from .constants import DEG
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
+    from .toast_schedule import ScanMotion
+
 
 UNIX_EPOCH_JD = 2440587.5
 #: Simons Observatory site, Cerro Toco, Atacama (deg, deg, m)
@@ -50,16 +52,22 @@ class Site:
         East longitude [deg].
     alt_m : float
         Altitude [m].
+    name, telescope : str
+        Labels kept from and written to TOAST schedules (no ``|`` or line breaks).
     """
 
     lat_deg: float = ATACAMA[0]
     lon_deg: float = ATACAMA[1]
     alt_m: float = ATACAMA[2]
+    name: str = "site"
+    telescope: str = "telescope"
 
     def __post_init__(self):
         validation.number("lat_deg", self.lat_deg, -90.0, 90.0)
         validation.number("lon_deg", self.lon_deg, -180.0, 360.0)
         validation.number("alt_m", self.alt_m, -500.0, 1e5)
+        validation.label("site name", self.name)
+        validation.label("telescope", self.telescope)
 
 
 @dataclass(frozen=True)
@@ -82,6 +90,10 @@ class CES:
         Boresight rotation of this CES [deg].
     turnaround_s : float
         Time to reverse at each end, at constant deceleration [s].
+    name : str
+        Patch name (TOAST's), kept as metadata.
+    scan_index, subscan_index : int
+        TOAST's pass and sub-pass of the patch, kept as metadata.
     """
 
     start_unix: float
@@ -92,10 +104,16 @@ class CES:
     speed_deg_s: float = 1.0
     boresight_deg: float = 0.0
     turnaround_s: float = 0.0  #: time to reverse at each end, at constant deceleration
+    name: str = "ces"
+    scan_index: int = 0
+    subscan_index: int = 0
 
     def __post_init__(self):
         for name, (lo, hi) in CES_LIMITS.items():
             validation.number(f"CES {name}", getattr(self, name), lo, hi)
+        validation.label("CES name", self.name)
+        validation.integer("CES scan_index", self.scan_index, 0)
+        validation.integer("CES subscan_index", self.subscan_index, 0)
         if not 0 < self.elevation_deg < 90:
             raise ValueError(f"CES elevation_deg = {self.elevation_deg} must lie in (0, 90)")
         if self.duration_s <= 0 or self.speed_deg_s <= 0:
@@ -115,6 +133,8 @@ CES_LIMITS = {
 }
 #: the CES fields a schedule must give (the others have defaults)
 CES_REQUIRED = ("start_unix", "duration_s", "elevation_deg", "az_centre_deg", "az_throw_deg")
+#: the CES labels a schedule may give (TOAST's patch name, pass and sub-pass)
+CES_METADATA = ("name", "scan_index", "subscan_index")
 
 
 @dataclass(frozen=True)
@@ -168,15 +188,20 @@ class ScheduleError(ConfigError):
     """A schedule file that cannot be read, with the file, row and key in the message."""
 
 
-def load_schedule(path: str) -> Schedule:
-    """Read a schedule file.
+def load_schedule(path: str, motion: ScanMotion | None = None) -> Schedule:
+    """Read a schedule file: boresight's TOML or CSV, or any TOAST schedule.
 
     TOML: optional [site], sample_rate_hz, dut1_s, repeat_boresight_deg and [[ces]] tables of CES
     fields. CSV: a header naming CES fields and one CES per row. Unknown keys or columns are errors.
+    A TOAST schedule (text of any version, or ECSV; see :mod:`boresight.toast_schedule`) is
+    recognised by its content, whatever its name.
 
     Parameters
     ----------
     path : str or os.PathLike
+    motion : boresight.toast_schedule.ScanMotion, optional
+        Scan rate, acceleration and sample rate of a TOAST schedule, which its file leaves out
+        (default: ``SimGround``'s, at 20 Hz). boresight's own formats hold their own.
 
     Returns
     -------
@@ -187,9 +212,13 @@ def load_schedule(path: str) -> Schedule:
     ScheduleError
         Naming the file, the row (CSV line or [[ces]] number) and the key.
     """
+    from . import toast_schedule
+
     path = str(path)
     if not os.path.isfile(path):
         raise ScheduleError(f"schedule not found (or not a file): {path}")
+    if toast_schedule.is_toast_schedule(path):
+        return toast_schedule.read(path, motion or toast_schedule.ScanMotion())
     try:
         if path.endswith(".csv"):
             return Schedule(_csv_rows(path))
@@ -200,14 +229,36 @@ def load_schedule(path: str) -> Schedule:
         raise ScheduleError(f"schedule {path}: {err}") from None
 
 
+def is_schedule(path: str) -> bool:
+    """Whether a file is a schedule (TOAST's, CSV, or TOML with [[ces]]) rather than a study.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    bool
+    """
+    from . import toast_schedule
+
+    if toast_schedule.is_toast_schedule(path) or str(path).endswith(".csv"):
+        return True
+    try:
+        with open(path, "rb") as f:
+            return "ces" in tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return False
+
+
 def _ces(fields, where):
     """A CES from a dict of fields, with ``where`` (file and row) in every error."""
-    unknown = sorted(set(fields) - set(CES_LIMITS))
+    unknown = sorted(set(fields) - set(CES_LIMITS) - set(CES_METADATA))
     missing = [k for k in CES_REQUIRED if k not in fields]
     if unknown or missing:
         raise ScheduleError(
             f"{where}: unknown keys {unknown}, missing keys {missing}; CES keys: "
-            f"{list(CES_LIMITS)}"
+            f"{list(CES_LIMITS) + list(CES_METADATA)}"
         )
     try:
         return CES(**fields)
@@ -228,7 +279,9 @@ def _csv_rows(path):
             fields = {}
             for key, text in row.items():
                 try:
-                    fields[key] = float(text)
+                    fields[key] = (
+                        text if key == "name" else (int if key in CES_METADATA else float)(text)
+                    )
                 except ValueError:
                     raise ScheduleError(f"{where}: {key} = {text!r} is not a number") from None
             rows.append(_ces(fields, where))

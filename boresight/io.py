@@ -222,6 +222,40 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str] = ()) -> Pa
     return target
 
 
+def check_output_file(path: str | os.PathLike, force: bool, inputs: Iterable[str] = ()) -> Path:
+    """Check, before any work, that a single output file may be written.
+
+    Refused: a symlink, a directory, one of ``inputs``, an existing file without ``force``, a
+    directory that cannot be written. The file itself is written atomically (:func:`atomic_path`).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+    force : bool
+        Replace an existing file.
+    inputs : iterable of str
+
+    Returns
+    -------
+    pathlib.Path
+        The resolved path.
+
+    Raises
+    ------
+    OutputError
+    """
+    path = Path(path)
+    target = path.resolve()
+    if path.is_symlink() or target.is_dir():
+        raise OutputError(f"output file {path} is a symbolic link or a directory")
+    if any(item is not None and target == Path(item).resolve() for item in inputs):
+        raise OutputError(f"output file {path} is an input of the run")
+    if target.exists() and not force:
+        raise OutputError(f"output file {path} exists; --force replaces it")
+    _check_writable(target.parent)
+    return target
+
+
 def is_own(path: str | os.PathLike) -> bool:
     """Whether a path is a directory that boresight created (it holds :data:`MARKER`).
 

@@ -154,7 +154,9 @@ def footprint_figure(mask: np.ndarray, title: str, path_stem: str | os.PathLike)
     plt.close(fig)
 
 
-def map_figure(maps: list[np.ndarray], names: list[str], path: str | os.PathLike) -> None:
+def map_figure(
+    maps: list[np.ndarray], names: list[str], path: str | os.PathLike, unit: str = r"$\mu$K"
+) -> None:
     """Quick-look Mollweide panels of maps (UNSEEN shown grey).
 
     Parameters
@@ -162,12 +164,14 @@ def map_figure(maps: list[np.ndarray], names: list[str], path: str | os.PathLike
     maps : list of numpy.ndarray, shape (npix,)
     names : list of str
     path : pathlib.Path
+    unit : str
+        Colour-bar label.
     """
     fig = plt.figure(figsize=(5 * len(maps), 3.2))
     with warnings.catch_warnings():  # healpy warns when it draws panels into an existing figure
         warnings.simplefilter("ignore", UserWarning)
         for i, (m, name) in enumerate(zip(maps, names)):
-            hp.mollview(m, fig=fig.number, sub=(1, len(maps), i + 1), title=name, unit=r"$\mu$K")
+            hp.mollview(m, fig=fig.number, sub=(1, len(maps), i + 1), title=name, unit=unit)
     fig.savefig(path, dpi=100)
     plt.close(fig)
 

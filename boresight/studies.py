@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from .config import Study
+    from .toast_schedule import ScanMotion
 
 
 def check_memory(job, study, check=True):
@@ -241,6 +242,8 @@ def scan_stats(
     n_max: int = 4,
     log: Callable = print,
     memory_check: bool = True,
+    layout: str = "boresight",
+    prefix: str = "hn",
 ) -> list[dict]:
     """Write the h_n, hit, N_phi and R maps of a study's scan, and their survey means.
 
@@ -253,19 +256,107 @@ def scan_stats(
         Highest moment written.
     log : callable
     memory_check : bool
+    layout : {"boresight", "so"}
+        The h_n maps as one FITS table ``hn_maps.fits`` (RE_H1.., IM_H1..), or in the SO/SMARTIES
+        layout of :mod:`boresight.so_maps`.
+    prefix : str
+        File name prefix of the SO layout.
 
     Returns
     -------
     list of dict
         n, mean_abs_h2, mean_re, mean_im for n = 1..n_max.
     """
+    _check_layout(layout, prefix)
     io.check_output_dir(out_dir, force, study.inputs)
     check_memory("scan-stats", study, memory_check)
     nside = study.sky.nside
-    mask = masks.from_config(study.mask, nside)
-    obs = mask > 0
+    obs = masks.from_config(study.mask, nside) > 0
     h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run.nthreads)
     n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
+    return _write_scan_stats(
+        out_dir, force, study.inputs, h, obs, ncross, n_phi, r, n_max, layout, prefix
+    )
+
+
+def schedule_stats(
+    schedule_path: str,
+    out_dir: str,
+    nside: int = 128,
+    motion: ScanMotion | None = None,
+    force: bool = False,
+    tolerance_deg: float = 1.0,
+    log: Callable = print,
+    memory_check: bool = True,
+    layout: str = "boresight",
+    prefix: str = "hn",
+) -> list[dict]:
+    """:func:`scan_stats` of a CES schedule file (boresight's TOML or CSV, or TOAST's).
+
+    Parameters
+    ----------
+    schedule_path : str
+    out_dir : str
+    nside : int
+    motion : boresight.toast_schedule.ScanMotion, optional
+        For a TOAST schedule: scan rate, acceleration and sample rate.
+    force : bool
+    tolerance_deg : float
+        Crossing angles closer than this count as one in N_phi.
+    log : callable
+    memory_check : bool
+    layout, prefix
+        As in :func:`scan_stats`.
+
+    Returns
+    -------
+    list of dict
+        As :func:`scan_stats`.
+    """
+    from . import ground, scanstats
+
+    _check_layout(layout, prefix)
+    schedule = ground.load_schedule(schedule_path, motion)
+    sky.SkyConfig(nside=nside, lmax=2 * nside)  # validates nside
+    io.check_output_dir(out_dir, force, [schedule_path])
+    resources.require(
+        "scan-stats",
+        resources.estimate_bytes(
+            "scan-stats", nside, 2 * nside, 1, 1, 1, min(schedule.n_samples, 1 << 20)
+        ),
+        memory_check,
+    )
+    with provenance.Timer(log)("characterise the schedule"):
+        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
+    return _write_scan_stats(
+        out_dir,
+        force,
+        [schedule_path],
+        stats.h,
+        stats.observed,
+        stats.hits,
+        stats.n_distinct,
+        stats.range_rad,
+        scanstats.N_MAX,
+        layout,
+        prefix,
+    )
+
+
+LAYOUTS = ("boresight", "so")
+
+
+def _check_layout(layout, prefix):
+    if layout not in LAYOUTS:
+        raise ValueError(f"the h_n layout must be one of {LAYOUTS}, got {layout!r}")
+    if not prefix or not all(c.isalnum() or c in "_-." for c in prefix):
+        raise ValueError(f"the prefix {prefix!r} must be letters, digits, '_', '-' or '.'")
+
+
+def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max, layout, prefix):
+    """The survey means, the h_n maps in the chosen layout, the scan maps and a figure."""
+    from . import so_maps
+
     rows = [
         dict(
             n=n,
@@ -275,18 +366,21 @@ def scan_stats(
         )
         for n in range(1, n_max + 1)
     ]
-    require_finite("the h_n summary", [list(r.values()) for r in rows])
-    with io.staged_dir(out_dir, force, study.inputs) as stage:
-        cols = [np.where(obs, h[n].real, hp.UNSEEN) for n in range(1, n_max + 1)] + [
-            np.where(obs, h[n].imag, hp.UNSEEN) for n in range(1, n_max + 1)
-        ]
-        names = [f"RE_H{n}" for n in range(1, n_max + 1)] + [
-            f"IM_H{n}" for n in range(1, n_max + 1)
-        ]
-        io.write_maps(stage / "hn_maps.fits", cols, names, [""] * len(names))
+    require_finite("the h_n summary", [list(row.values()) for row in rows])
+    with io.staged_dir(out_dir, force, inputs) as stage:
+        if layout == "so":
+            so_maps.write(stage, prefix, h, crossings, range(1, n_max + 1))
+        else:
+            parts = [("RE", np.real), ("IM", np.imag)]
+            io.write_maps(
+                stage / "hn_maps.fits",
+                [np.where(obs, f(h[n]), hp.UNSEEN) for _, f in parts for n in range(1, n_max + 1)],
+                [f"{p}_H{n}" for p, _ in parts for n in range(1, n_max + 1)],
+                [""] * (2 * n_max),
+            )
         io.write_maps(
             stage / "scan_maps.fits",
-            [ncross, np.where(obs, n_phi, 0), np.where(obs, r, 0)],
+            [crossings, np.where(obs, n_phi, 0), np.where(obs, r, 0)],
             ["CROSSINGS", "N_PHI", "RANGE_RAD"],
             ["", "", "rad"],
         )
@@ -295,6 +389,7 @@ def scan_stats(
             [np.where(obs, np.abs(h[n]) ** 2, hp.UNSEEN) for n in (1, 2)],
             ["|h_1|^2", "|h_2|^2"],
             stage / "hn_maps.png",
+            unit="",
         )
     return rows
 
@@ -310,11 +405,13 @@ def compare_scans(
     force: bool = False,
     log: Callable = print,
     memory_check: bool = True,
+    motion: ScanMotion | None = None,
 ) -> list[dict]:
     """The residual B-mode of a real schedule beside its synthetic twin (paper section 3.1).
 
     Writes scan_maps.fits (crossings, N_phi, R, |h_1..4|^2), scan_stats.csv (survey means of the
     real scan and the twin), compare.csv and compare.png/pdf. Returns the binned rows.
+    ``motion`` sets the scan rate, acceleration and sample rate of a TOAST schedule.
     """
     from . import ground, scanstats
     from .instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
@@ -322,7 +419,7 @@ def compare_scans(
     systematics = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}.get(systematic)
     if systematics is None:
         raise ValueError(f"systematic must be 'gain' or 'pointing', got {systematic!r}")
-    schedule = ground.load_schedule(schedule_path)
+    schedule = ground.load_schedule(schedule_path, motion)
     sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)  # validate
     io.check_output_dir(out_dir, force, [schedule_path])
     resources.require(

@@ -82,6 +82,30 @@ def integer(name: str, value: object, lo: int | None = None, hi: int | None = No
     return int(value)
 
 
+def label(name: str, value: object) -> str:
+    """A one-word-or-more text label that schedule files can hold: non-empty, printable, with no
+    ``|``, ``#`` or line break (the field separator and comment mark of TOAST's text schedules).
+
+    Parameters
+    ----------
+    name : str
+    value : object
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    TypeError, ValueError
+    """
+    if not isinstance(value, str):
+        raise TypeError(f"{name} = {value!r} is not a string")
+    if not value.strip() or not value.isprintable() or any(c in value for c in "|#"):
+        raise ValueError(f"{name} = {value!r} must be printable text without '|' or '#'")
+    return value
+
+
 def numbers_array(
     name: str, value: object, lo: float | None = None, hi: float | None = None
 ) -> np.ndarray:
