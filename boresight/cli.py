@@ -142,6 +142,18 @@ def _reproduce_study(args):
     return replace(study, sky=sky_cfg, scan=scan, run=run, output=output)
 
 
+def configure_logging(quiet: bool = False, verbose: bool = False) -> None:
+    """boresight's own lines at INFO (WARNING with ``quiet``, DEBUG with ``verbose``); other
+    libraries' (healpy's graticule spacing, numba, dask) only from WARNING up.
+
+    Parameters
+    ----------
+    quiet, verbose : bool
+    """
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    log.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: the job unwinds and removes what it was writing."""
 
@@ -164,8 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         The exit code: 0 success, 1 a claim not reproduced, 2 bad input, 130 Ctrl-C, 143 SIGTERM.
     """
     args = _parser().parse_args(argv)
-    level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
-    logging.basicConfig(level=level, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    configure_logging(args.quiet, args.verbose)
     progress = sys.stderr.isatty() and not args.quiet
     memory_check = not args.no_memory_check
     previous = signal.signal(signal.SIGTERM, _terminate)

@@ -56,8 +56,8 @@ class Coupling:
 
 
 def mask_spectrum(mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
-    """Pseudo power spectrum W_L (lmax + 1,) of the mask (iteration-free, as NaMaster); parameters as
-    :func:`coupling_matrices`.
+    """Pseudo power spectrum W_L (lmax + 1,) of the mask (iteration-free, as NaMaster);
+    parameters as :func:`coupling_matrices`.
     """
     return harmonics.alm2cl(harmonics.map2alm(mask, lmax, iterations=0, nthreads=nthreads))
 

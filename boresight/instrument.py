@@ -126,6 +126,6 @@ class Systematics:
         return bool(np.any(np.asarray(self.leak) != 0))
 
 
-#: The paper's systematics: |dg| = 0.01 with opposite signs, rho = 0.1 arcmin, chi = 0.
+#: The paper's systematics: ``|dg|`` = 0.01 with opposite signs, rho = 0.1 arcmin, chi = 0.
 PAPER_GAIN = Systematics(dg=(0.01, -0.01))
 PAPER_POINTING = Systematics(rho_arcmin=0.1, chi_deg=0.0)

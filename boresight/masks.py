@@ -5,7 +5,8 @@ coordinates (the sky maps' frame):
 
 * deep (SAT, fsky ~ 0.10): -60 deg <= RA <= 60 deg, -70 deg <= Dec <= -20 deg, a low-foreground
   patch in the southern sky away from the Galactic plane;
-* wide (LAT, fsky ~ 0.40): -61 deg <= Dec <= 18 deg at all RA, with Galactic latitude |b| > 20 deg.
+* wide (LAT, fsky ~ 0.40): -61 deg <= Dec <= 18 deg at all RA, with Galactic latitude
+  ``|b|`` > 20 deg.
 
 They are not official SO masks; they reproduce the paper's sky fractions and geometry.
 """
@@ -39,7 +40,7 @@ def footprint(ra_deg: tuple, dec_deg: tuple, galactic_cut_deg: float, nside: int
     ra_deg, dec_deg : tuple of float
         (low, high) [deg], equatorial.
     galactic_cut_deg : float
-        Pixels with |b| below this are removed [deg].
+        Pixels with ``|b|`` below this are removed [deg].
     nside : int
 
     Returns

@@ -1,10 +1,8 @@
-"""Figures in the style of the paper: |residual| with the sign marked, analytic curve, reference
+"""Figures in the style of the paper: ``|residual|`` with the sign marked, analytic curve, reference
 curves, log axes; and survey footprints over a Galactic-emission proxy."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import warnings
 from typing import TYPE_CHECKING
 
@@ -30,14 +28,14 @@ REF_COLOURS = ("tab:purple", "tab:red", "tab:green")
 
 
 def _signed_points(ax, ell, values, colour, label):
-    """|values| on log axes: filled markers for positive, open for negative."""
+    """``|values|`` on log axes: filled markers for positive, open for negative."""
     pos = values > 0
     ax.plot(ell[pos], values[pos], "o", color=colour, label=label, ms=5)
     ax.plot(ell[~pos], -values[~pos], "o", mfc="none", color=colour, ms=5)
 
 
 def _residual_axes(ax):
-    """Log axes labelled for |residual C_BB| against ell (linear in y, with a note, when the
+    """Log axes labelled for ``|residual C_BB|`` against ell (linear in y, with a note, when the
     residual is zero everywhere: a study without a systematic)."""
     ax.set_xscale("log")
     if any((np.asarray(line.get_ydata()) > 0).any() for line in ax.get_lines()):
@@ -109,7 +107,7 @@ def residual_figure(
 
 
 def galactic_proxy(nside: int) -> np.ndarray:
-    """A smooth Galactic-emission proxy: exp(-|b| / 10 deg) + 0.01.
+    """A smooth Galactic-emission proxy: exp(-``|b|`` / 10 deg) + 0.01.
 
     Parameters
     ----------
@@ -147,8 +145,7 @@ def footprint_figure(mask: np.ndarray, title: str, path_stem: str | os.PathLike)
         max=proxy.max() + 0.3,
     )
     fig = plt.gcf()
-    with contextlib.redirect_stdout(io.StringIO()):  # healpy prints the grid spacing
-        hp.graticule(dpar=30, dmer=60, alpha=0.4)
+    hp.graticule(dpar=30, dmer=60, alpha=0.4)  # logs its spacing at INFO to "healpy"
     for ext in ("png", "pdf"):
         fig.savefig(f"{path_stem}.{ext}", dpi=110)
     plt.close(fig)
@@ -177,7 +174,7 @@ def map_figure(
 
 
 def spectrum_figure(bands: list[dict], path_stem: str | os.PathLike) -> None:
-    """|residual C_BB| per band of a simulate run, sign marked, with the h_n prediction.
+    """``|residual C_BB|`` per band of a simulate run, sign marked, with the h_n prediction.
 
     Parameters
     ----------
@@ -202,7 +199,7 @@ def _band_centres(rows):
 
 
 def compare_figure(rows: list[dict], systematic: str, path_stem: str | os.PathLike) -> None:
-    """|residual C_BB| of a real scan and its synthetic twin per band, sign marked.
+    """``|residual C_BB|`` of a real scan and its synthetic twin per band, sign marked.
 
     Parameters
     ----------
@@ -225,7 +222,7 @@ def compare_figure(rows: list[dict], systematic: str, path_stem: str | os.PathLi
 
 
 def continuum_figure(rows: list[dict], path_stem: str | os.PathLike) -> None:
-    """Suppression and |delta r| against the rotation angle, with the h_n prediction.
+    """Suppression and ``|delta r|`` against the rotation angle, with the h_n prediction.
 
     Skipped unless the sweep varies pbr_angle_deg with 0 among its values and the base has a
     systematic; seeds are pooled.

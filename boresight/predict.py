@@ -1,7 +1,7 @@
 """Analytic prediction of the spurious polarisation from the spin moments h_n (paper eqs. 5-10).
 
 For the paper's Q pair (0 deg) and U pair (45 deg), naive map-making gives
-P_hat = (1/N) sum_j exp(2 i psi_j) (d_1 + i d_2), and to first order (docs/conventions.md):
+P_hat = (1/N) sum_j exp(2 i psi_j) (d_1 + i d_2), and to first order (docs/conventions.md)::
 
   gain:     dP = 1/2 h_2 (dg_1 + i dg_2) T  - (dg_1 + dg_2)/4 P  - (dg_1 - dg_2)/4 h_4 P*   (exact)
   leak:     dP = 1/2 h_2 (l_1 + i l_2) S                                                    (exact)
@@ -12,10 +12,11 @@ P_hat = (1/N) sum_j exp(2 i psi_j) (d_1 + i d_2), and to first order (docs/conve
 with h_n = <exp(i n psi)> over a pixel's crossings. The paper's eq. 6 is the complex conjugate of
 these forms (its h_n and gradient use the opposite orientation); amplitudes are identical.
 
-Power spectra: each term c h_n F contributes C^EE = C^BB = |c|^2 / 2 * [coh_n C^FF_l +
-(<|h_n|^2> - coh_n) Omega_pix sigma_F^2]: a coherent part from h_n smoothed over blocks of pixels
-(what Wallis et al. 2017 write as <|h_n|^2> C^FF) and a white part from the pixel-to-pixel scatter
-of h_n. Masked pseudo-C_ell follow through M^{BB,BB} and M^{BB,EE} (paper eq. 10).
+Power spectra: each term c h_n F contributes C^EE = C^BB = ``|c|^2`` / 2 * [coh_n C^FF_l +
+(``<|h_n|^2>`` - coh_n) Omega_pix sigma_F^2]: a coherent part from h_n smoothed over blocks of
+pixels (what Wallis et al. 2017 write as ``<|h_n|^2>`` C^FF) and a white part from the
+pixel-to-pixel scatter of h_n. Masked pseudo-C_ell follow through M^{BB,BB} and M^{BB,EE}
+(paper eq. 10).
 """
 
 from __future__ import annotations
@@ -182,7 +183,7 @@ class PixelBlocks:
             self.used = self.block_weight > 0
 
     def coherent_power(self, hn):
-        """<|h_n|^2> over the mask and its coherent part.
+        """``<|h_n|^2>`` over the mask and its coherent part.
 
         Parameters
         ----------
@@ -191,7 +192,7 @@ class PixelBlocks:
         Returns
         -------
         total : float
-            Mask-weighted mean of |h_n|^2.
+            Mask-weighted mean of ``|h_n|^2``.
         coherent : float
             The same of h_n averaged in blocks (equal to total when Nside < block).
         """
@@ -375,7 +376,8 @@ def residual_pseudo_bb(
 
 
 def rotation_suppression(n: int, rotations_deg: Sequence[float]) -> float:
-    """|h_n|^2 after / before repeating every hit at each angle alpha_k: |<exp(i n alpha_k)>|^2.
+    """``|h_n|^2`` after / before repeating every hit at each angle alpha_k:
+    ``|<exp(i n alpha_k)>|^2``.
 
     For the schedule (0, alpha) this is cos^2(n alpha / 2).
 

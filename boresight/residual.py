@@ -159,7 +159,7 @@ class Residual:
     predicted_map_parts : concurrent.futures.Future, optional
         Of the (cross, auto) of the predicted spurious map; :attr:`predicted_map` is their sum.
     h_power : dict
-        <|h_n|^2> over the observed pixels, n = 1..4 (with a prediction).
+        ``<|h_n|^2>`` over the observed pixels, n = 1..4 (with a prediction).
     maps : tuple of boresight.mapmaking.Maps, optional
         (reference, with systematic), when kept; the reference is None when it was shared.
     stages : dict

@@ -409,7 +409,7 @@ def compare_scans(
 ) -> list[dict]:
     """The residual B-mode of a real schedule beside its synthetic twin (paper section 3.1).
 
-    Writes scan_maps.fits (crossings, N_phi, R, |h_1..4|^2), scan_stats.csv (survey means of the
+    Writes scan_maps.fits (crossings, N_phi, R, ``|h_1..4|^2``), scan_stats.csv (survey means of the
     real scan and the twin), compare.csv and compare.png/pdf. Returns the binned rows.
     ``motion`` sets the scan rate, acceleration and sample rate of a TOAST schedule.
     """

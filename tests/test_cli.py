@@ -132,3 +132,21 @@ def test_examples_are_valid(name):
 
     study = load_study(os.path.join(EXAMPLES, name))
     assert study.scan.rotations_deg[0] == 0.0
+
+
+def test_log_holds_only_boresight_lines(tmp_path, caplog):
+    """healpy's graticule logs its spacing at INFO: the CLI's log shows boresight's lines only
+    (the control, with every logger at INFO, shows the line the test looks for)."""
+    import logging
+
+    from boresight import cli, plots
+
+    cli.configure_logging()
+    logging.getLogger("boresight").info("own line")
+    plots.footprint_figure(np.ones(12 * 16**2), "t", tmp_path / "f")
+    messages = [r.getMessage() for r in caplog.records]
+    assert "own line" in messages
+    assert not any("interval between parallels" in m for m in messages)
+    with caplog.at_level(logging.INFO):  # the control: every logger at INFO
+        plots.footprint_figure(np.ones(12 * 16**2), "t", tmp_path / "f")
+    assert any("interval between parallels" in r.getMessage() for r in caplog.records)
