@@ -252,36 +252,21 @@ def _run(args, progress, memory_check):
         log.info("wrote %d TOAST rows to %s", len(toast_schedule.rows(schedule)), args.out)
         print(toast_schedule.simground_code(schedule, args.out))
         return 0
-    if args.command == "scan-stats" and ground_schedule(args.config):
-        rows = studies.schedule_stats(
-            args.config,
-            args.out,
-            args.nside,
-            _motion(args),
-            args.force,
-            log=log.info,
-            memory_check=memory_check,
-            layout=args.format,
-            prefix=args.prefix,
-        )
+    if args.command == "scan-stats":
+        opts = dict(log=log.info, memory_check=memory_check, layout=args.format, prefix=args.prefix)
+        if ground_schedule(args.config):
+            motion = _motion(args)
+            rows = studies.schedule_stats(
+                args.config, args.out, args.nside, motion, args.force, **opts
+            )
+        else:
+            rows = studies.scan_stats(load_study(args.config), args.out, args.force, **opts)
         for row in rows:
             log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
         return 0
     study = load_study(args.config)
     if args.command == "simulate":
         studies.simulate(study, args.out, args.force, log.info, progress, memory_check)
-    elif args.command == "scan-stats":
-        rows = studies.scan_stats(
-            study,
-            args.out,
-            args.force,
-            log=log.info,
-            memory_check=memory_check,
-            layout=args.format,
-            prefix=args.prefix,
-        )
-        for row in rows:
-            log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
     else:
         if args.out:
             from . import io
