@@ -1,0 +1,171 @@
+"""The survey's noise as the yardstick: the noise power N_ell^BB and sigma(r) from a Fisher sum.
+
+A residual's bias on r means something only next to the survey's own uncertainty on r. The noise
+is white (optionally with a 1/f knee in ell), given as a polarisation map depth or as the NET of
+detector pairs, their number and the observing time over a sky fraction:
+
+    depth_P = sqrt(2) NET sqrt(4 pi f_sky / (N_det t))        [muK rad -> muK arcmin]
+
+(pair differencing: a polarisation map is sqrt(2) noisier than a temperature map of the same
+detectors). Then N_ell = depth_P^2 (1 + (ell_knee / ell)^alpha) / B_ell^2 with the Gaussian beam
+B_ell. At a fiducial r, sigma(r) follows from the Fisher information of C_BB (Knox 1995), summed
+over the multipoles of the chosen bands,
+
+    F_b = sum_{ell in b} f_sky (2 ell + 1) / 2 (C_ell^tensor / (A_lens C_ell^lens
+          + r C_ell^tensor + N_ell))^2,
+
+and sigma(r) = (sum_b F_b)^(-1/2): the uncertainty of the inverse-variance weighted estimate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import healpy as hp
+import numpy as np
+
+from . import validation
+from .constants import ARCMIN
+
+if TYPE_CHECKING:
+    from .cosmology import Spectra
+
+YEAR_S = 365.25 * 86400.0
+
+
+@dataclass(frozen=True)
+class SurveyNoise:
+    """White polarisation noise of a survey, from a map depth or from detectors and time.
+
+    Give ``depth_uk_arcmin``, or all of ``net_uk_sqrt_s``, ``n_detectors`` and ``years``.
+
+    Parameters
+    ----------
+    fsky : float
+        Observed sky fraction, in (0, 1].
+    fwhm_arcmin : float
+        Gaussian beam FWHM [arcmin], >= 0.
+    depth_uk_arcmin : float, optional
+        Polarisation map depth [muK arcmin], > 0.
+    net_uk_sqrt_s : float, optional
+        Temperature NET of one detector [muK sqrt(s)], > 0.
+    n_detectors : int, optional
+        Detectors observing (pairs count twice), >= 1.
+    years : float, optional
+        Observing time on the sky fraction [yr], > 0 (efficiencies folded in).
+    ell_knee : float
+        1/f knee in ell (0: white).
+    alpha : float
+        1/f slope in ell.
+    """
+
+    fsky: float
+    fwhm_arcmin: float
+    depth_uk_arcmin: float | None = None
+    net_uk_sqrt_s: float | None = None
+    n_detectors: int | None = None
+    years: float | None = None
+    ell_knee: float = 0.0
+    alpha: float = 2.0
+
+    def __post_init__(self):
+        validation.number("noise fsky", self.fsky, 1e-6, 1.0)
+        validation.number("noise fwhm_arcmin", self.fwhm_arcmin, 0.0, 600.0)
+        validation.number("noise ell_knee", self.ell_knee, 0.0, 1e4)
+        validation.number("noise alpha", self.alpha, 0.0, 10.0)
+        detector = (self.net_uk_sqrt_s, self.n_detectors, self.years)
+        if (self.depth_uk_arcmin is None) == all(x is None for x in detector):
+            raise ValueError(
+                "noise needs either depth_uk_arcmin, or net_uk_sqrt_s, n_detectors and years"
+            )
+        if self.depth_uk_arcmin is not None:
+            validation.number("noise depth_uk_arcmin", self.depth_uk_arcmin, 1e-6, 1e6)
+        else:
+            if any(x is None for x in detector):
+                raise ValueError("noise needs all of net_uk_sqrt_s, n_detectors and years")
+            validation.number("noise net_uk_sqrt_s", self.net_uk_sqrt_s, 1e-6, 1e7)
+            validation.integer("noise n_detectors", self.n_detectors, 1)
+            validation.number("noise years", self.years, 1e-9, 1e3)
+
+    @property
+    def depth(self) -> float:
+        """Polarisation map depth [muK arcmin]."""
+        if self.depth_uk_arcmin is not None:
+            return float(self.depth_uk_arcmin)
+        seconds = self.years * YEAR_S
+        depth_rad = (
+            np.sqrt(2.0)
+            * self.net_uk_sqrt_s
+            * np.sqrt(4 * np.pi * self.fsky / (self.n_detectors * seconds))
+        )
+        return float(depth_rad / ARCMIN)
+
+    def n_ell(self, lmax: int) -> np.ndarray:
+        """Noise power of the beam-deconvolved B (or E) map.
+
+        Parameters
+        ----------
+        lmax : int
+
+        Returns
+        -------
+        numpy.ndarray, shape (lmax + 1,)
+            N_ell [muK^2]; ell = 0, 1 hold the ell = 2 value's white level.
+        """
+        ell = np.arange(lmax + 1, dtype=float)
+        white = (self.depth * ARCMIN) ** 2
+        knee = np.ones_like(ell)
+        if self.ell_knee > 0:
+            knee[2:] += (self.ell_knee / ell[2:]) ** self.alpha
+            knee[:2] = knee[2]
+        beam = hp.gauss_beam(self.fwhm_arcmin * ARCMIN, lmax=lmax)
+        return white * knee / beam**2
+
+
+def band_fisher(
+    noise: SurveyNoise, spectra: Spectra, edges: np.ndarray, r: float = 0.0, a_lens: float = 1.0
+) -> np.ndarray:
+    """The Fisher information on r of each band of C_BB.
+
+    Parameters
+    ----------
+    noise : SurveyNoise
+    spectra : boresight.cosmology.Spectra
+    edges : numpy.ndarray, int
+        Band edges: band b is edges[b] <= ell < edges[b + 1], ell >= 2.
+    r, a_lens : float
+        Fiducial tensor-to-scalar ratio and lensing amplitude.
+
+    Returns
+    -------
+    numpy.ndarray, shape (len(edges) - 1,)
+        F_b, the sum over the band's multipoles of f_sky (2 ell + 1) / 2 (C^tensor / C^total)^2.
+    """
+    edges = np.asarray(edges, dtype=int)
+    if edges.ndim != 1 or edges.size < 2 or edges[0] < 2 or np.any(np.diff(edges) <= 0):
+        raise ValueError(f"band edges must increase from ell >= 2, got {edges}")
+    lmax = int(edges[-1]) - 1
+    if lmax > spectra.lmax:
+        raise ValueError(f"bands reach ell = {lmax}, beyond the spectra's lmax = {spectra.lmax}")
+    ell = np.arange(lmax + 1)
+    total = spectra.bb(r=r, a_lens=a_lens)[: lmax + 1] + noise.n_ell(lmax)
+    per_ell = 0.5 * noise.fsky * (2 * ell + 1) * (spectra.bb_tensor[: lmax + 1] / total) ** 2
+    return np.array([per_ell[lo:hi].sum() for lo, hi in zip(edges[:-1], edges[1:])])
+
+
+def sigma_r(
+    noise: SurveyNoise, spectra: Spectra, edges: np.ndarray, r: float = 0.0, a_lens: float = 1.0
+) -> float:
+    """The survey's 1-sigma uncertainty on r: the Fisher sum over the bands, F^(-1/2).
+
+    Parameters
+    ----------
+    noise, spectra, edges, r, a_lens
+        As in :func:`band_fisher`.
+
+    Returns
+    -------
+    float
+    """
+    return float(1.0 / np.sqrt(np.sum(band_fisher(noise, spectra, edges, r, a_lens))))
