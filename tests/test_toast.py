@@ -26,7 +26,9 @@ ARCSEC = np.pi / 180 / 3600
 def toast_files(tmp_path_factory):
     """TOAST's scheduler's own files: each text version and the ECSV form of one schedule."""
     pytest.importorskip("toast")
-    from toast.schedule_sim_ground import run_scheduler  # what toast_ground_schedule runs
+    from toast.schedule_sim_ground import (
+        run_scheduler,  # what toast_ground_schedule runs
+    )
 
     d = tmp_path_factory.mktemp("toast")
     flags = {
