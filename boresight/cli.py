@@ -88,6 +88,17 @@ def _parser():
     ex.add_argument("out", help="the TOAST schedule file to write")
     ex.add_argument("--force", action="store_true", help="replace an existing file")
     _motion_flags(ex)
+    de = sub.add_parser(
+        "design", help="choose the boresight angles of a schedule against a systematics budget"
+    )
+    de.add_argument("budget", help="TOML with [systematics], [noise] and [design] tables")
+    de.add_argument("schedule", help="schedule file (TOML, CSV or TOAST)")
+    de.add_argument("--out", required=True, help="output directory")
+    de.add_argument("--force", action="store_true")
+    de.add_argument(
+        "--no-validate", action="store_true", help="skip the TOD simulation of the design"
+    )
+    _motion_flags(de)
     pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
     pr.add_argument("config")
     pr.add_argument("--out", help="write prediction.csv into this directory")
@@ -186,11 +197,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"boresight: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
-        kept = (
-            f"finished points are kept in {args.out}; re-run to resume"
-            if args.command == "sweep"
-            else "nothing was written"
-        )
+        kept = {
+            "sweep": f"finished points are kept in {args.out}; re-run to resume",
+            "design": f"the best schedule found so far is in {args.out}",
+        }.get(args.command, "nothing was written")
         print(
             f"boresight: {'terminated' if isinstance(err, Terminated) else 'interrupted'}; {kept}",
             file=sys.stderr,
@@ -242,6 +252,25 @@ def _run(args, progress, memory_check):
             memory_check=memory_check,
             motion=_motion(args),
         )
+        return 0
+    if args.command == "design":
+        result = studies.design_schedule(
+            args.budget,
+            args.schedule,
+            args.out,
+            args.force,
+            _motion(args),
+            not args.no_validate,
+            log.info,
+            progress,
+        )
+        for row in result["strategies"]:
+            log.info(
+                "%-14s delta_r = %.3g  (%.3g sigma(r))",
+                row["strategy"],
+                row["delta_r"],
+                row["delta_r_over_sigma_r"],
+            )
         return 0
     if args.command == "export-schedule":
         from . import ground, io, toast_schedule

@@ -18,6 +18,7 @@ angle (position angle of the zenith, east of north).
 from __future__ import annotations
 
 import csv
+import json
 import os
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -307,7 +308,7 @@ def _toml_schedule(path):
     site, ces = raw.get("site", {}), raw.get("ces", [])
     if not isinstance(site, dict) or not isinstance(ces, list):
         raise ScheduleError(f"schedule {path}: [site] must be a table and [[ces]] a list of tables")
-    bad_site = sorted(set(site) - {"lat_deg", "lon_deg", "alt_m"})
+    bad_site = sorted(set(site) - {"lat_deg", "lon_deg", "alt_m", "name", "telescope"})
     if bad_site:
         raise ScheduleError(f"schedule {path}: unknown [site] keys {bad_site}")
     if not all(isinstance(c, dict) for c in ces):
@@ -322,6 +323,61 @@ def _toml_schedule(path):
         raw.get("dut1_s", 0.0),
         tuple(repeat),
     )
+
+
+def schedule_format(path: str) -> str:
+    """The format of a schedule file: "toast", "csv" or "toml"."""
+    from . import toast_schedule
+
+    if toast_schedule.is_toast_schedule(path):
+        return "toast"
+    return "csv" if str(path).endswith(".csv") else "toml"
+
+
+def write_schedule(schedule: Schedule, path: str, fmt: str) -> None:
+    """Write a schedule in one of the formats :func:`load_schedule` reads, atomically.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    path : str
+    fmt : {"toml", "csv", "toast"}
+        TOML keeps everything; CSV holds the CESs only (the default site and sample rate), with
+        the repeats as rows; TOAST as :func:`boresight.toast_schedule.write`.
+    """
+    from . import io, toast_schedule
+
+    if fmt == "toast":
+        toast_schedule.write(schedule, path)
+        return
+    keys = list(CES_LIMITS) + list(CES_METADATA)
+    if fmt == "csv":
+        rows = [
+            {k: getattr(replace(c, boresight_deg=c.boresight_deg + rep), k) for k in keys}
+            for rep in schedule.repeat_boresight_deg
+            for c in schedule.ces
+        ]
+        io.write_csv(path, rows, keys)
+        return
+    if fmt != "toml":
+        raise ValueError(f"schedule format must be toml, csv or toast, got {fmt!r}")
+    s = schedule.site
+
+    def value(v):
+        return json.dumps(v) if isinstance(v, str) else repr(v)
+
+    lines = [
+        f"sample_rate_hz = {schedule.sample_rate_hz!r}",
+        f"dut1_s = {schedule.dut1_s!r}",
+        f"repeat_boresight_deg = {list(schedule.repeat_boresight_deg)!r}",
+        "",
+        "[site]",
+        *(f"{k} = {value(getattr(s, k))}" for k in ("lat_deg", "lon_deg", "alt_m", "name")),
+        f"telescope = {value(s.telescope)}",
+    ]
+    for c in schedule.ces:
+        lines += ["", "[[ces]]", *(f"{k} = {value(getattr(c, k))}" for k in keys)]
+    io.write_text(path, "\n".join(lines) + "\n")
 
 
 @numba.njit(inline="always")

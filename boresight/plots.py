@@ -20,6 +20,9 @@ if TYPE_CHECKING:
     import os
 
     from .config import Study
+    from .cosmology import Spectra
+    from .design import Objective
+    from .noise import SurveyNoise
     from .paper import BandTable, ExperimentResult
 
 
@@ -264,3 +267,48 @@ def continuum_figure(rows: list[dict], path_stem: str | os.PathLike) -> None:
     fig.tight_layout()
     fig.savefig(f"{path_stem}.png", dpi=110)
     plt.close(fig)
+
+
+def design_figure(
+    curves: dict,
+    objective: Objective,
+    noise: SurveyNoise,
+    sigma_r: float,
+    spectra: Spectra,
+    path_stem: str | os.PathLike,
+) -> None:
+    """Predicted residual pseudo-C_BB of each rotation strategy beside the noise and r.
+
+    Parameters
+    ----------
+    curves : dict of str -> numpy.ndarray
+        Strategy name -> predicted residual pseudo-C_BB (lmax + 1,) [muK^2].
+    objective : boresight.design.Objective
+        Its coupling and the mask's Nside.
+    noise : boresight.noise.SurveyNoise
+    sigma_r : float
+        The survey's sigma(r): its tensor spectrum is drawn.
+    spectra : boresight.cosmology.Spectra
+    path_stem : pathlib.Path
+    """
+    from .constants import ARCMIN
+
+    coupling = objective.coupling
+    nside = objective.moments.nside
+    ell = np.arange(coupling.lmax + 1)
+    keep = ell >= 10
+    fsky = objective.moments.pixels.size / (12 * nside**2)
+    fig, ax = plt.subplots(figsize=(7.0, 4.8))
+    for i, (name, cl) in enumerate(curves.items()):
+        style = dict(lw=2.5, color="black") if name == "optimised" else dict(lw=1, color=f"C{i}")
+        ax.plot(ell[keep], np.abs(cl[keep]), label=name, **style)
+    white = fsky * (noise.depth * ARCMIN) ** 2
+    ax.axhline(white, color="grey", ls=":", label=f"noise ({noise.depth:.3g} $\\mu$K')")
+    for r, ls in ((sigma_r, "--"), (10 * sigma_r, "-.")):
+        ref = predict.reference_bb(coupling, spectra, noise.fwhm_arcmin, nside, r=r)
+        ax.plot(ell[keep], ref[keep], "k", ls=ls, lw=1, label=f"r = {r:.2g}")
+    _residual_axes(ax)
+    ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ predicted [$\mu$K$^2$]")
+    ax.set_title("predicted residual B-modes of each rotation strategy")
+    ax.legend(fontsize=7, ncol=2)
+    _save(fig, path_stem)

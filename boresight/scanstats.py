@@ -80,7 +80,7 @@ def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
 
 
 @numba.njit(parallel=True, cache=True)
-def _ces_hits(
+def ces_hits(
     k0,
     n,
     start_unix,
@@ -317,6 +317,6 @@ def characterise_schedule(
 
     def binned(nbins):
         for args in chunk_arguments(schedule, chunk_samples):
-            yield _ces_hits(*args, nside, nbins)
+            yield ces_hits(*args, nside, nbins)
 
     return _stats(nside, tolerance_deg, binned)

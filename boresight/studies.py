@@ -7,6 +7,7 @@ an interrupted job leaves nothing behind, and an existing directory is kept unle
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -510,3 +511,189 @@ def compare_scans(
             ),
         )
     return rows
+
+
+def design_schedule(
+    budget_path: str,
+    schedule_path: str,
+    out_dir: str,
+    force: bool = False,
+    motion: ScanMotion | None = None,
+    validate: bool = True,
+    log: Callable = print,
+    progress: bool = False,
+) -> dict:
+    """``boresight design``: choose a boresight angle per unit of a schedule against a budget.
+
+    Writes the optimised schedule in the input's format (``schedule_designed.*``), a table of
+    every strategy (``strategies.csv``: predicted delta_r, delta_r / sigma(r), changes of angle
+    and ``<|h_n|^2>``), the optimiser's history (``history.csv``), the residual spectra of each
+    strategy with the noise and r references (``design.png``/``.pdf``), ``|h_n|^2`` maps before
+    and after (``hn_before_after.png``), and with ``validate`` a TOD simulation of the budget on
+    the designed and the unrotated schedule (``validation.csv``). Ctrl-C during the search keeps
+    the best schedule found so far, and the outputs say so.
+
+    Parameters
+    ----------
+    budget_path, schedule_path, out_dir : str
+    force : bool
+    motion : boresight.toast_schedule.ScanMotion, optional
+        For a TOAST schedule.
+    validate : bool
+        Run the TOD simulation.
+    log : callable
+    progress : bool
+
+    Returns
+    -------
+    dict
+        sigma_r, the strategies' rows and the designed angles per unit.
+    """
+    from . import design, ground, noise
+    from .cosmology import load_spectra
+
+    budget = design.load_budget(budget_path)
+    opts = budget.design
+    schedule = ground.load_schedule(schedule_path, motion)
+    fmt = ground.schedule_format(schedule_path)
+    inputs = [budget_path, schedule_path]
+    io.check_output_dir(out_dir, force, inputs)
+    timer = provenance.Timer(log)
+    spectra_ = load_spectra()
+    with timer("per-unit spin moments"):
+        moments = design.unit_moments(schedule, opts.nside, opts.group)
+    with timer("objective"):
+        obj = design.objective(
+            moments, budget.systematics, spectra_, opts.fwhm_arcmin, opts.change_cost
+        )
+    sigma_r = noise.sigma_r(
+        budget.noise, spectra_, np.array([predict.R_RANGE[0], predict.R_RANGE[1] + 1])
+    )
+    strategies = design.baselines(moments.n_units, opts.angles_deg, opts.seed)
+    allowed = set(opts.angles_deg)
+    startable = {k: v for k, v in strategies.items() if set(v) <= allowed}
+    start = (
+        min(startable.values(), key=obj)
+        if startable
+        else np.full(moments.n_units, opts.angles_deg[0])
+    )
+    log(f"{moments.n_units} units, {moments.pixels.size} pixels; sigma(r) = {sigma_r:.3g}")
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=opts.sweeps * moments.n_units, desc="design", unit="unit")
+    with timer("coordinate descent"):
+        found = design.optimise(
+            obj, opts.angles_deg, start, opts.sweeps, opts.seed, bar.update if bar else None
+        )
+    if bar:
+        bar.close()
+    strategies["optimised"] = found.angles_deg
+    rows, h_maps = [], {}
+    for name, angles in strategies.items():
+        h = moments.h(angles)
+        h_maps[name] = h
+        dr = obj.delta_r(angles)
+        rows.append(
+            dict(
+                strategy=name,
+                delta_r=dr,
+                delta_r_over_sigma_r=dr / sigma_r,
+                changes=obj.changes(angles),
+                **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(h[n]) ** 2)) for n in range(1, 5)},
+            )
+        )
+    require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
+    validation = []
+    if validate and not found.interrupted:
+        with timer("TOD simulation of the designed and unrotated schedules"):
+            validation = _validate_design(budget, moments, obj, schedule, strategies)
+    mask = np.zeros(12 * opts.nside**2)
+    mask[moments.pixels] = 1.0
+    curves = {
+        name: predict.residual_pseudo_bb(
+            moments.full_sky(h), mask, obj.coupling, budget.systematics, spectra_, opts.fwhm_arcmin
+        )
+        for name, h in h_maps.items()
+    }
+    designed = moments.schedule(schedule, found.angles_deg)
+    suffix = {"toml": ".toml", "csv": ".csv", "toast": ".txt"}[fmt]
+    with io.staged_dir(out_dir, force, inputs) as stage:
+        ground.write_schedule(designed, stage / f"schedule_designed{suffix}", fmt)
+        io.write_csv(stage / "strategies.csv", rows, list(rows[0]))
+        io.write_csv(stage / "history.csv", found.history, ["sweep", "objective", "moves"])
+        io.write_csv(
+            stage / "units.csv",
+            [
+                dict(unit=u, first_ces=idx[0], n_ces=len(idx), angle_deg=a)
+                for u, (idx, a) in enumerate(zip(moments.units, found.angles_deg))
+            ],
+            ["unit", "first_ces", "n_ces", "angle_deg"],
+        )
+        if validation:
+            io.write_csv(stage / "validation.csv", validation, list(validation[0]))
+        plots.design_figure(curves, obj, budget.noise, sigma_r, spectra_, stage / "design")
+        dominant = max(obj.terms, key=lambda n: obj.alpha[n] + obj.beta[n])
+        plots.map_figure(
+            [
+                np.where(mask > 0, np.abs(moments.full_sky(h_maps[k][dominant])) ** 2, hp.UNSEEN)
+                for k in ("none", "optimised")
+            ],
+            [f"|h_{dominant}|^2, no rotation", f"|h_{dominant}|^2, optimised"],
+            stage / "hn_before_after.png",
+            unit="",
+        )
+        io.write_json(
+            stage / "manifest.json",
+            provenance.manifest(
+                {
+                    "budget": budget_path,
+                    "schedule": schedule_path,
+                    "design": dataclasses.asdict(budget.design),
+                    "sigma_r": sigma_r,
+                    "interrupted": found.interrupted,
+                },
+                {"design": opts.seed},
+                timer.stages,
+            ),
+        )
+    if found.interrupted:
+        raise KeyboardInterrupt
+    return dict(
+        sigma_r=sigma_r, strategies=rows, angles_deg=found.angles_deg, validation=validation
+    )
+
+
+def _validate_design(budget, moments, obj, schedule, strategies):
+    """Simulated against predicted delta_r of the designed and the unrotated schedule.
+
+    The simulation runs the budget's systematics through the TOD engine on the schedule's own
+    samples, at the design's Nside with lmax = 2 Nside; its delta_r is that of the leaked power
+    (the prediction's quantity) and, for reference, of the whole residual with its cross term.
+    """
+    from .instrument import Instrument
+
+    opts = budget.design
+    nside, lmax = opts.nside, 2 * opts.nside
+    the_sky = sky.make_sky(sky.SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=opts.fwhm_arcmin))
+    mask = np.zeros(12 * nside**2)
+    mask[moments.pixels] = 1.0
+    out = []
+    for name in ("optimised", "none"):
+        scan = moments.schedule(schedule, strategies[name])
+        res = residual.residual(
+            the_sky, scan, budget.systematics, mask, lmax, instrument=Instrument()
+        )
+        predicted = obj.delta_r(strategies[name])
+        simulated = predict.delta_r(res.auto, obj.template) + obj.const
+        out.append(
+            dict(
+                strategy=name,
+                predicted_delta_r=predicted,
+                simulated_delta_r=simulated,
+                simulated_delta_r_with_cross_term=predict.delta_r(res.total, obj.template),
+                ratio=simulated / predicted if predicted else float("nan"),
+            )
+        )
+    return out

@@ -1,0 +1,593 @@
+"""Choosing the boresight-rotation schedule against a systematics budget and the survey's noise.
+
+The paper's design rule is to rotate so that the spin moments that couple to the systematics
+vanish. Here a schedule's CESs are grouped into units (each CES, each UTC day, or each TOAST pass)
+and every unit gets one boresight angle. A unit's hits contribute, per observed pixel p,
+
+    S_n,u(p) = sum over its samples of exp(i n psi0),
+
+with psi0 the crossing angle at boresight angle 0; at angle a_u they contribute
+S_n,u exp(i n a_u). So the h_n of any assignment is
+
+    h_n(p) = sum_u S_n,u(p) exp(i n a_u) / hits(p),
+
+and the hits do not depend on the angles. The prediction of :mod:`boresight.predict` is linear in
+the survey means <|h_n|^2> and their coherent parts, and the bias delta_r is linear in the
+predicted pseudo-C_BB, so the predicted delta_r of an assignment is
+
+    delta_r = const + sum_n (alpha_n <|h_n|^2> + beta_n coh_n),
+
+with alpha_n, beta_n and const computed once from the budget (:class:`Objective`). One evaluation
+is linear in the units' stored pixel entries, and changing one unit's angle touches only its own
+pixels, which makes coordinate descent over the units cheap (:func:`optimise`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from typing import TYPE_CHECKING
+
+import healpy as hp
+import numpy as np
+
+from . import coupling, predict, validation
+from .constants import DEG
+from .ground import Schedule, chunk_arguments
+from .scanstats import N_MAX, ces_hits
+from .validation import option
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from .cosmology import Spectra
+    from .instrument import Systematics
+    from .noise import SurveyNoise
+
+GROUPS = ("ces", "day", "pass")
+#: BICEP2/Keck's four deck angles [deg]
+KECK_DECKS = (68.0, 113.0, 248.0, 293.0)
+
+
+@dataclass(frozen=True)
+class DesignOptions:
+    """The ``[design]`` table: what the optimiser may choose and how it searches.
+
+    Parameters
+    ----------
+    angles_deg : tuple of float
+        The allowed boresight angles [deg], for example a mount's fixed positions.
+    group : {"ces", "day", "pass"}
+        One angle per CES, per UTC day of the CES start, or per TOAST pass (scan_index).
+    change_cost : float
+        Added to delta_r for each change of angle between consecutive units (time order).
+    sweeps : int
+        Most passes of coordinate descent over the units.
+    seed : int
+        Order of the units in each pass, and the random baseline.
+    nside : int
+        Resolution of the h_n maps and the prediction.
+    fwhm_arcmin : float
+        The beam [arcmin] of the sky the systematics act on.
+    """
+
+    angles_deg: tuple = option(
+        (-90.0, -45.0, 0.0, 45.0, 90.0), "allowed boresight angles [deg]", (list,)
+    )
+    group: str = option("ces", "one angle per: ces, day or pass", (str,), GROUPS)
+    change_cost: float = option(0.0, "delta_r added per change of angle", (int, float))
+    sweeps: int = option(8, "most coordinate-descent passes", (int,))
+    seed: int = option(0, "seed of the unit order and the random baseline", (int,))
+    nside: int = option(128, "resolution of the h_n maps", (int,))
+    fwhm_arcmin: float = option(30.0, "beam FWHM of the sky [arcmin]", (int, float))
+
+    def __post_init__(self):
+        angles = validation.numbers_array("design.angles_deg", self.angles_deg, -3600.0, 3600.0)
+        if angles.ndim != 1 or angles.size == 0:
+            raise ValueError("angles_deg must list at least one allowed angle")
+        object.__setattr__(self, "angles_deg", tuple(float(a) for a in angles))
+        if self.group not in GROUPS:
+            raise ValueError(f"group must be one of {GROUPS}, got {self.group!r}")
+        validation.number("change_cost", self.change_cost, 0.0, 1e6)
+        validation.integer("sweeps", self.sweeps, 1, 1000)
+        validation.integer("seed", self.seed, 0)
+        validation.integer("nside", self.nside, 16, 2048)
+        if self.nside & (self.nside - 1):
+            raise ValueError(f"nside must be a power of two, got {self.nside}")
+        validation.number("fwhm_arcmin", self.fwhm_arcmin, 0.0, 600.0)
+
+
+def expand(schedule: Schedule) -> tuple:
+    """The schedule's CESs in observing order with the boresight repeats as CESs of their own.
+
+    Parameters
+    ----------
+    schedule : boresight.ground.Schedule
+
+    Returns
+    -------
+    tuple of boresight.ground.CES
+        Each with ``boresight_deg`` = its own + the repeat's.
+    """
+    return tuple(
+        replace(c, boresight_deg=c.boresight_deg + rep)
+        for rep in schedule.repeat_boresight_deg
+        for c in schedule.ces
+    )
+
+
+def units_of(rows: tuple, group: str) -> list[list[int]]:
+    """The CES rows of each unit, in time order of the units' first CES.
+
+    Parameters
+    ----------
+    rows : tuple of boresight.ground.CES
+    group : {"ces", "day", "pass"}
+
+    Returns
+    -------
+    list of list of int
+    """
+    if group not in GROUPS:
+        raise ValueError(f"group must be one of {GROUPS}, got {group!r}")
+    keys = {}
+    for i, c in enumerate(rows):
+        if group == "ces":
+            key = i
+        elif group == "day":
+            key = datetime.fromtimestamp(c.start_unix, timezone.utc).date()
+        else:
+            key = (c.name, c.scan_index)
+        keys.setdefault(key, []).append(i)
+    return sorted(keys.values(), key=lambda idx: min(rows[i].start_unix for i in idx))
+
+
+@dataclass
+class UnitMoments:
+    """Every unit's spin sums over the observed pixels, at boresight angle 0.
+
+    Parameters
+    ----------
+    nside : int
+    pixels : numpy.ndarray, int64, shape (n_obs,)
+        RING indices of the observed pixels.
+    hits : numpy.ndarray, float64, shape (n_obs,)
+        Samples per observed pixel (all units).
+    offsets : numpy.ndarray, int64, shape (n_units + 1,)
+        Unit u's entries are offsets[u]:offsets[u + 1].
+    index : numpy.ndarray, int64, shape (n_entries,)
+        Observed-pixel index of each entry.
+    sums : numpy.ndarray, complex128, shape (N_MAX, n_entries)
+        S_n of each entry, n = 1..N_MAX.
+    units : list of list of int
+        The CES rows of each unit.
+    rows : tuple of boresight.ground.CES
+    """
+
+    nside: int
+    pixels: np.ndarray
+    hits: np.ndarray
+    offsets: np.ndarray
+    index: np.ndarray
+    sums: np.ndarray
+    units: list
+    rows: tuple
+
+    @property
+    def n_units(self):
+        return len(self.units)
+
+    def h(self, angles_deg: np.ndarray) -> np.ndarray:
+        """h_n on the observed pixels for one angle per unit.
+
+        Parameters
+        ----------
+        angles_deg : numpy.ndarray, shape (n_units,)
+
+        Returns
+        -------
+        numpy.ndarray, complex128, shape (N_MAX + 1, n_obs)
+            h_0 = 1 and h_1..h_N_MAX.
+        """
+        out = np.ones((N_MAX + 1, self.pixels.size), dtype=np.complex128)
+        unit_of_entry = np.repeat(np.arange(self.n_units), np.diff(self.offsets))
+        a = np.asarray(angles_deg, dtype=float)[unit_of_entry] * DEG
+        for n in range(1, N_MAX + 1):
+            num = self.sums[n - 1] * np.exp(1j * n * a)
+            out[n] = (
+                np.bincount(self.index, num.real, self.pixels.size)
+                + 1j * np.bincount(self.index, num.imag, self.pixels.size)
+            ) / self.hits
+        return out
+
+    def full_sky(self, h_obs: np.ndarray) -> np.ndarray:
+        """Observed-pixel maps as full-sky RING maps, 0 elsewhere."""
+        out = np.zeros(h_obs.shape[:-1] + (12 * self.nside**2,), dtype=h_obs.dtype)
+        out[..., self.pixels] = h_obs
+        return out
+
+    def schedule(self, schedule: Schedule, angles_deg: np.ndarray) -> Schedule:
+        """The schedule with every CES at its unit's angle, repeats as CESs of their own."""
+        rows = list(self.rows)
+        for u, idx in enumerate(self.units):
+            for i in idx:
+                rows[i] = replace(rows[i], boresight_deg=float(angles_deg[u]))
+        return replace(schedule, ces=tuple(rows), repeat_boresight_deg=(0.0,))
+
+
+def unit_moments(
+    schedule: Schedule, nside: int, group: str = "ces", chunk_samples: int = 1 << 20
+) -> UnitMoments:
+    """Build every unit's spin sums once, with the fused pointing of ``scanstats``.
+
+    Parameters
+    ----------
+    schedule : boresight.ground.Schedule
+    nside : int
+    group : {"ces", "day", "pass"}
+    chunk_samples : int
+
+    Returns
+    -------
+    UnitMoments
+    """
+    rows = expand(schedule)
+    units = units_of(rows, group)
+    per_unit = []
+    for idx in units:
+        pix, cos, sin = [], [], []
+        for i in idx:
+            one = replace(schedule, ces=(replace(rows[i], boresight_deg=0.0),))
+            for args in chunk_arguments(one.single(), chunk_samples):
+                p, c, s, _ = ces_hits(*args, nside, 1)
+                pix.append(p)
+                cos.append(c)
+                sin.append(s)
+        pix, e1 = np.concatenate(pix), np.concatenate(cos) + 1j * np.concatenate(sin)
+        upix, inverse = np.unique(pix, return_inverse=True)
+        power = np.ones_like(e1)
+        sums = np.empty((N_MAX, upix.size), dtype=np.complex128)
+        for n in range(N_MAX):
+            power = power * e1
+            sums[n] = np.bincount(inverse, power.real, upix.size) + 1j * np.bincount(
+                inverse, power.imag, upix.size
+            )
+        per_unit.append((upix, np.bincount(inverse, minlength=upix.size), sums))
+    pixels = np.unique(np.concatenate([u[0] for u in per_unit]))
+    index = np.concatenate([np.searchsorted(pixels, u[0]) for u in per_unit])
+    hits = np.bincount(index, np.concatenate([u[1] for u in per_unit]), pixels.size)
+    offsets = np.concatenate([[0], np.cumsum([u[0].size for u in per_unit])])
+    sums = np.concatenate([u[2] for u in per_unit], axis=1)
+    return UnitMoments(nside, pixels, hits, offsets, index, sums, units, rows)
+
+
+@dataclass
+class Objective:
+    """Predicted delta_r of an angle assignment, as const + sum_n alpha_n <|h_n|^2> + beta_n coh_n.
+
+    Parameters
+    ----------
+    moments : UnitMoments
+    alpha, beta : numpy.ndarray, shape (N_MAX + 1,)
+        Coefficients of the mean |h_n|^2 and of its coherent part (index n).
+    const : float
+        The angle-independent part (the gain's common rescaling of the signal).
+    change_cost : float
+        Added per change of angle between consecutive units.
+    template : numpy.ndarray
+        Pseudo-C_BB of tensors at r = 1 over the observed pixels.
+    coupling : boresight.coupling.Coupling
+    """
+
+    moments: UnitMoments
+    alpha: np.ndarray
+    beta: np.ndarray
+    const: float
+    change_cost: float
+    template: np.ndarray
+    coupling: object
+    parent: np.ndarray = field(init=False)
+    block_weight: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        m = self.moments
+        nest = hp.ring2nest(m.nside, m.pixels) // (predict.COHERENT_BLOCK**2)
+        blocks, self.parent = np.unique(nest, return_inverse=True)
+        self.block_weight = np.bincount(self.parent, minlength=blocks.size).astype(float)
+        if m.nside < predict.COHERENT_BLOCK:  # as PixelBlocks: every pixel is its own block
+            self.parent = np.arange(m.pixels.size)
+            self.block_weight = np.ones(m.pixels.size)
+
+    @property
+    def terms(self):
+        """The moments n with a non-zero coefficient."""
+        return [n for n in range(1, N_MAX + 1) if self.alpha[n] or self.beta[n]]
+
+    def powers(self, h: np.ndarray) -> dict:
+        """``<|h_n|^2>`` and its coherent part of each n, from observed-pixel h_n."""
+        out = {}
+        n_obs = self.moments.pixels.size
+        for n in range(1, N_MAX + 1):
+            b = np.bincount(self.parent, h[n].real) + 1j * np.bincount(self.parent, h[n].imag)
+            out[n] = (
+                float(np.sum(np.abs(h[n]) ** 2) / n_obs),
+                float(np.sum(np.abs(b) ** 2 / self.block_weight) / n_obs),
+            )
+        return out
+
+    def delta_r(self, angles_deg: np.ndarray) -> float:
+        """Predicted delta_r, without the change cost."""
+        powers = self.powers(self.moments.h(angles_deg))
+        return self.const + sum(
+            self.alpha[n] * powers[n][0] + self.beta[n] * powers[n][1] for n in self.terms
+        )
+
+    def changes(self, angles_deg: np.ndarray) -> int:
+        """Changes of angle between consecutive units."""
+        return int(np.sum(np.diff(np.asarray(angles_deg, dtype=float)) != 0))
+
+    def __call__(self, angles_deg: np.ndarray) -> float:
+        """The optimiser's objective: delta_r + change_cost x changes."""
+        return self.delta_r(angles_deg) + self.change_cost * self.changes(angles_deg)
+
+
+def objective(
+    moments: UnitMoments,
+    systematics: Systematics,
+    spectra: Spectra,
+    fwhm_arcmin: float,
+    change_cost: float = 0.0,
+    nthreads: int = 0,
+) -> Objective:
+    """The predicted-delta_r objective of a budget over a schedule's observed pixels.
+
+    The coefficients follow :func:`boresight.predict.residual_pseudo_bb` term by term: each term
+    c h_n F adds 0.5 |c|^2 [coh_n C^FF + (<|h_n|^2> - coh_n) Omega_pix sigma_F^2] to the
+    full-sky spurious spectrum, which the mask's coupling turns into pseudo-C_BB and
+    :func:`boresight.predict.delta_r` into a bias on r.
+
+    Parameters
+    ----------
+    moments : UnitMoments
+    systematics : boresight.instrument.Systematics
+        Of the paper's Q/U pair layout.
+    spectra : boresight.cosmology.Spectra
+    fwhm_arcmin : float
+    change_cost : float
+    nthreads : int
+
+    Returns
+    -------
+    Objective
+    """
+    nside = moments.nside
+    lmax = 2 * nside
+    mask = np.zeros(12 * nside**2)
+    mask[moments.pixels] = 1.0
+    couplings = coupling.coupling_matrices(mask, lmax, nthreads)
+    template = predict.tensor_template(couplings, spectra, fwhm_arcmin, nside)
+
+    def bias(cl):
+        cl = np.array(cl, dtype=float)
+        cl[:2] = 0.0
+        return predict.delta_r(couplings.pseudo_bb(cl, cl), template)
+
+    cl_tt, cl_ee, cl_bb = predict.field_spectra(spectra, lmax, fwhm_arcmin)
+    ell = np.arange(lmax + 1)
+    omega_pix = 4 * np.pi / (12 * nside**2)
+    white_unit = bias(np.ones(lmax + 1))
+    alpha, beta = np.zeros(N_MAX + 1), np.zeros(N_MAX + 1)
+    for n, c, cl_ff in predict.leak_terms(systematics, cl_tt, cl_ee + cl_bb):
+        weight = 0.5 * abs(c) ** 2
+        white = omega_pix * np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff) * white_unit
+        alpha[n] += weight * white
+        beta[n] += weight * (bias(cl_ff) - white)
+    dg = systematics.per_pair(2)[0]
+    scale = (1 - (dg[0] + dg[1]) / 4) ** 2 - 1
+    const = scale * predict.delta_r(couplings.pseudo_bb(cl_bb, cl_ee), template)
+    return Objective(moments, alpha, beta, float(const), change_cost, template, couplings)
+
+
+@dataclass
+class Design:
+    """The optimiser's result.
+
+    Parameters
+    ----------
+    angles_deg : numpy.ndarray, shape (n_units,)
+        The best assignment found.
+    value : float
+        Its objective.
+    history : list of dict
+        sweep, objective, moves (accepted in that sweep), after each sweep; sweep 0 is the start.
+    interrupted : bool
+        Stopped by Ctrl-C; ``angles_deg`` is the best found until then.
+    """
+
+    angles_deg: np.ndarray
+    value: float
+    history: list
+    interrupted: bool = False
+
+
+def optimise(
+    obj: Objective,
+    allowed_deg: tuple,
+    start_deg: np.ndarray,
+    sweeps: int = 8,
+    seed: int = 0,
+    progress: Callable | None = None,
+) -> Design:
+    """Coordinate descent: each unit in turn takes the allowed angle that lowers the objective
+    most, the others held; passes repeat until one changes nothing.
+
+    Each trial is evaluated incrementally on the unit's own pixel entries and the blocks they
+    touch. The unit order of each pass is a permutation drawn from ``seed``, so the result is
+    deterministic.
+
+    Parameters
+    ----------
+    obj : Objective
+    allowed_deg : tuple of float
+    start_deg : numpy.ndarray, shape (n_units,)
+    sweeps : int
+    seed : int
+    progress : callable, optional
+        Called with the number of units done after each unit.
+
+    Returns
+    -------
+    Design
+    """
+    m = obj.moments
+    angles = np.array(start_deg, dtype=float)
+    allowed = np.asarray(allowed_deg, dtype=float)
+    terms = obj.terms
+    h = m.h(angles)
+    blocks = {
+        n: np.bincount(obj.parent, h[n].real) + 1j * np.bincount(obj.parent, h[n].imag)
+        for n in terms
+    }
+    n_obs = m.pixels.size
+    value = obj(angles)
+    history = [dict(sweep=0, objective=value, moves=0)]
+    rng = np.random.default_rng(seed)
+    try:
+        for sweep in range(1, sweeps + 1):
+            moves = 0
+            for u in rng.permutation(m.n_units):
+                lo, hi = m.offsets[u], m.offsets[u + 1]
+                idx, inv_hits = m.index[lo:hi], 1.0 / m.hits[m.index[lo:hi]]
+                ublk, local = np.unique(obj.parent[idx], return_inverse=True)
+                change = np.zeros(allowed.size)
+                steps = {}
+                for n in terms:
+                    s = m.sums[n - 1, lo:hi] * inv_hits
+                    step = s[None, :] * (
+                        np.exp(1j * n * allowed * DEG)[:, None] - np.exp(1j * n * angles[u] * DEG)
+                    )
+                    new = h[n][idx][None, :] + step
+                    d_total = np.sum(np.abs(new) ** 2 - np.abs(h[n][idx]) ** 2, axis=1) / n_obs
+                    d_blocks = np.stack(
+                        [
+                            np.bincount(local, row.real, ublk.size)
+                            + 1j * np.bincount(local, row.imag, ublk.size)
+                            for row in step
+                        ]
+                    )
+                    old_b = blocks[n][ublk]
+                    d_coh = (
+                        np.sum(
+                            (np.abs(old_b + d_blocks) ** 2 - np.abs(old_b) ** 2)
+                            / obj.block_weight[ublk],
+                            axis=1,
+                        )
+                        / n_obs
+                    )
+                    change += obj.alpha[n] * d_total + obj.beta[n] * d_coh
+                    steps[n] = (step, d_blocks)
+                if obj.change_cost:
+                    for k, a in enumerate(allowed):
+                        trial = angles.copy()
+                        trial[u] = a
+                        change[k] += obj.change_cost * (obj.changes(trial) - obj.changes(angles))
+                best = int(np.argmin(change))
+                if change[best] < -1e-15 * max(abs(value), 1e-300) and allowed[best] != angles[u]:
+                    for n in terms:
+                        step, d_blocks = steps[n]
+                        h[n][idx] += step[best]
+                        blocks[n][ublk] += d_blocks[best]
+                    angles[u] = allowed[best]
+                    value += change[best]
+                    moves += 1
+                if progress is not None:
+                    progress(1)
+            value = obj(angles)  # re-anchor: no drift from the incremental sums
+            history.append(dict(sweep=sweep, objective=value, moves=moves))
+            if moves == 0:
+                break
+    except KeyboardInterrupt:
+        return Design(angles, obj(angles), history, interrupted=True)
+    return Design(angles, value, history)
+
+
+def baselines(n_units: int, allowed_deg: tuple, seed: int = 0) -> dict[str, np.ndarray]:
+    """The strategies a design must beat, one angle per unit in time order.
+
+    Parameters
+    ----------
+    n_units : int
+    allowed_deg : tuple of float
+        The mount's allowed angles: the stepped and random baselines draw from them.
+    seed : int
+
+    Returns
+    -------
+    dict of str -> numpy.ndarray
+        no rotation; the paper's 0/90 and 0/180 repeats (alternate units); BICEP2/Keck's four
+        deck angles in turn; the allowed angles stepped in turn; random allowed angles.
+    """
+    u = np.arange(n_units)
+    allowed = np.asarray(allowed_deg, dtype=float)
+    return {
+        "none": np.zeros(n_units),
+        "paper 0/90": np.where(u % 2 == 0, 0.0, 90.0),
+        "paper 0/180": np.where(u % 2 == 0, 0.0, 180.0),
+        "keck 4 decks": np.asarray(KECK_DECKS)[u % 4],
+        "stepped": allowed[u % allowed.size],
+        "random": np.random.default_rng(seed).choice(allowed, n_units),
+    }
+
+
+@dataclass(frozen=True)
+class Budget:
+    """A design's inputs: the ``[systematics]``, ``[noise]`` and ``[design]`` tables.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+        The systematics' mean amplitudes over the focal plane (the paper's Q/U pair layout).
+    noise : boresight.noise.SurveyNoise
+    design : DesignOptions
+    """
+
+    systematics: Systematics
+    noise: SurveyNoise
+    design: DesignOptions
+
+
+BUDGET_SECTIONS = ("systematics", "noise", "design")
+
+
+def load_budget(path: str) -> Budget:
+    """Read a budget file; every problem is one :class:`boresight.config.ConfigError`.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    Budget
+    """
+    from .config import ConfigError, build_section, read_toml
+    from .instrument import Systematics
+    from .noise import SurveyNoise
+
+    raw = read_toml(path, "budget")
+    unknown = sorted(set(raw) - set(BUDGET_SECTIONS))
+    if unknown:
+        raise ConfigError(f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS}")
+    if "noise" not in raw:
+        raise ConfigError(f"budget {path}: a [noise] table is required")
+    tables = {}
+    for name, cls in zip(BUDGET_SECTIONS, (Systematics, SurveyNoise, DesignOptions)):
+        table = raw.get(name, {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"budget {path}: [{name}] must be a table")
+        tables[name] = build_section(name, cls, table)
+    if not (tables["systematics"].has_pointing or tables["systematics"].has_leak) and not any(
+        np.atleast_1d(tables["systematics"].dg)
+    ):
+        raise ConfigError(f"budget {path}: [systematics] has no non-zero amplitude")
+    return Budget(**tables)
