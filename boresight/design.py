@@ -12,10 +12,10 @@ S_n,u exp(i n a_u). So the h_n of any assignment is
     h_n(p) = sum_u S_n,u(p) exp(i n a_u) / hits(p),
 
 and the hits do not depend on the angles. The prediction of :mod:`boresight.predict` is linear in
-the survey means <|h_n|^2> and their coherent parts, and the bias delta_r is linear in the
+the survey means ``<|h_n|^2>`` and their coherent parts, and the bias delta_r is linear in the
 predicted pseudo-C_BB, so the predicted delta_r of an assignment is
 
-    delta_r = const + sum_n (alpha_n <|h_n|^2> + beta_n coh_n),
+    delta_r = const + sum_n (alpha_n ``<|h_n|^2>`` + beta_n coh_n),
 
 with alpha_n, beta_n and const computed once from the budget (:class:`Objective`). One evaluation
 is linear in the units' stored pixel entries, and changing one unit's angle touches only its own
@@ -29,6 +29,7 @@ from datetime import datetime, timezone
 from typing import TYPE_CHECKING
 
 import healpy as hp
+import numba
 import numpy as np
 
 from . import coupling, predict, validation
@@ -189,15 +190,12 @@ class UnitMoments:
         numpy.ndarray, complex128, shape (N_MAX + 1, n_obs)
             h_0 = 1 and h_1..h_N_MAX.
         """
-        out = np.ones((N_MAX + 1, self.pixels.size), dtype=np.complex128)
-        unit_of_entry = np.repeat(np.arange(self.n_units), np.diff(self.offsets))
-        a = np.asarray(angles_deg, dtype=float)[unit_of_entry] * DEG
-        for n in range(1, N_MAX + 1):
-            num = self.sums[n - 1] * np.exp(1j * n * a)
-            out[n] = (
-                np.bincount(self.index, num.real, self.pixels.size)
-                + 1j * np.bincount(self.index, num.imag, self.pixels.size)
-            ) / self.hits
+        a = np.asarray(angles_deg, dtype=float) * DEG
+        phases = np.exp(1j * np.arange(1, N_MAX + 1)[None, :] * a[:, None])  # (n_units, N_MAX)
+        out = np.zeros((N_MAX + 1, self.pixels.size), dtype=np.complex128)
+        _rotate_and_sum(self.offsets, self.index, self.sums, phases, out)
+        out[1:] /= self.hits
+        out[0] = 1.0
         return out
 
     def full_sky(self, h_obs: np.ndarray) -> np.ndarray:
@@ -213,6 +211,16 @@ class UnitMoments:
             for i in idx:
                 rows[i] = replace(rows[i], boresight_deg=float(angles_deg[u]))
         return replace(schedule, ces=tuple(rows), repeat_boresight_deg=(0.0,))
+
+
+@numba.njit(cache=True)
+def _rotate_and_sum(offsets, index, sums, phases, out):
+    """out[n, pixel] += S_n of each entry times exp(i n a) of its unit (n = 1..N_MAX)."""
+    for u in range(offsets.size - 1):
+        for e in range(offsets[u], offsets[u + 1]):
+            p = index[e]
+            for n in range(sums.shape[0]):
+                out[n + 1, p] += sums[n, e] * phases[u, n]
 
 
 def unit_moments(
@@ -263,13 +271,13 @@ def unit_moments(
 
 @dataclass
 class Objective:
-    """Predicted delta_r of an angle assignment, as const + sum_n alpha_n <|h_n|^2> + beta_n coh_n.
+    """Predicted delta_r of an angle assignment: const + sum_n alpha_n ``<|h_n|^2>`` + beta_n coh_n.
 
     Parameters
     ----------
     moments : UnitMoments
     alpha, beta : numpy.ndarray, shape (N_MAX + 1,)
-        Coefficients of the mean |h_n|^2 and of its coherent part (index n).
+        Coefficients of the mean ``|h_n|^2`` and of its coherent part (index n).
     const : float
         The angle-independent part (the gain's common rescaling of the signal).
     change_cost : float
@@ -342,7 +350,7 @@ def objective(
     """The predicted-delta_r objective of a budget over a schedule's observed pixels.
 
     The coefficients follow :func:`boresight.predict.residual_pseudo_bb` term by term: each term
-    c h_n F adds 0.5 |c|^2 [coh_n C^FF + (<|h_n|^2> - coh_n) Omega_pix sigma_F^2] to the
+    c h_n F adds 0.5 ``|c|^2`` [coh_n C^FF + (``<|h_n|^2>`` - coh_n) Omega_pix sigma_F^2] to the
     full-sky spurious spectrum, which the mask's coupling turns into pseudo-C_BB and
     :func:`boresight.predict.delta_r` into a bias on r.
 
