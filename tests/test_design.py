@@ -169,3 +169,29 @@ def test_design_command_speaks_toast_and_refuses_bad_budgets(tmp_path, schedule)
     assert cli.main(["-q", "design", _budget(tmp_path, design="angles_deg = []"), str(src),
                      "--out", str(tmp_path / "e")]) == 2  # fmt: skip
     assert not (tmp_path / "e").exists()
+
+
+def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, monkeypatch):
+    """An interrupt in the coordinate descent still writes the best schedule so far (and says
+    so in the manifest), skips the TOD check and exits 130."""
+    import json
+
+    original = design.optimise
+    calls = []
+
+    def interrupting(*args):
+        def stop(_):
+            calls.append(1)
+            if len(calls) == 3:
+                raise KeyboardInterrupt
+
+        return original(*args[:5], progress=stop)
+
+    monkeypatch.setattr(design, "optimise", interrupting)
+    src = tmp_path / "s.toml"
+    ground.write_schedule(schedule, str(src), "toml")
+    out = tmp_path / "d"
+    assert cli.main(["-q", "design", _budget(tmp_path), str(src), "--out", str(out)]) == 130
+    assert ground.load_schedule(str(out / "schedule_designed.toml")).ces
+    assert json.loads((out / "manifest.json").read_text())["config"]["interrupted"] is True
+    assert not (out / "validation.csv").exists()
