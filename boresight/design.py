@@ -68,8 +68,8 @@ class DesignOptions:
         Order of the units in each pass, and the random baseline.
     nside : int
         Resolution of the h_n maps and the prediction.
-    fwhm_arcmin : float
-        The beam [arcmin] of the sky the systematics act on.
+
+    The beam of the sky the systematics act on is the instrument's, ``[noise] fwhm_arcmin``.
     """
 
     angles_deg: tuple = option(
@@ -80,7 +80,6 @@ class DesignOptions:
     sweeps: int = option(8, "most coordinate-descent passes", (int,))
     seed: int = option(0, "seed of the unit order and the random baseline", (int,))
     nside: int = option(128, "resolution of the h_n maps", (int,))
-    fwhm_arcmin: float = option(30.0, "beam FWHM of the sky [arcmin]", (int, float))
 
     def __post_init__(self):
         angles = validation.numbers_array("design.angles_deg", self.angles_deg, -3600.0, 3600.0)
@@ -95,26 +94,6 @@ class DesignOptions:
         validation.integer("nside", self.nside, 16, 2048)
         if self.nside & (self.nside - 1):
             raise ValueError(f"nside must be a power of two, got {self.nside}")
-        validation.number("fwhm_arcmin", self.fwhm_arcmin, 0.0, 600.0)
-
-
-def expand(schedule: Schedule) -> tuple:
-    """The schedule's CESs in observing order with the boresight repeats as CESs of their own.
-
-    Parameters
-    ----------
-    schedule : boresight.ground.Schedule
-
-    Returns
-    -------
-    tuple of boresight.ground.CES
-        Each with ``boresight_deg`` = its own + the repeat's.
-    """
-    return tuple(
-        replace(c, boresight_deg=c.boresight_deg + rep)
-        for rep in schedule.repeat_boresight_deg
-        for c in schedule.ces
-    )
 
 
 def units_of(rows: tuple, group: str) -> list[list[int]]:
@@ -198,6 +177,11 @@ class UnitMoments:
         out[0] = 1.0
         return out
 
+    @property
+    def mask(self) -> np.ndarray:
+        """The observed pixels as a full-sky RING mask of ones (npix,)."""
+        return self.full_sky(np.ones(self.pixels.size))
+
     def full_sky(self, h_obs: np.ndarray) -> np.ndarray:
         """Observed-pixel maps as full-sky RING maps, 0 elsewhere."""
         out = np.zeros(h_obs.shape[:-1] + (12 * self.nside**2,), dtype=h_obs.dtype)
@@ -239,7 +223,7 @@ def unit_moments(
     -------
     UnitMoments
     """
-    rows = expand(schedule)
+    rows = schedule.expanded()
     units = units_of(rows, group)
     per_unit = []
     for idx in units:
@@ -325,7 +309,11 @@ class Objective:
 
     def delta_r(self, angles_deg: np.ndarray) -> float:
         """Predicted delta_r, without the change cost."""
-        powers = self.powers(self.moments.h(angles_deg))
+        return self.delta_r_of(self.moments.h(angles_deg))
+
+    def delta_r_of(self, h: np.ndarray) -> float:
+        """Predicted delta_r of observed-pixel h_n (:meth:`UnitMoments.h`)."""
+        powers = self.powers(h)
         return self.const + sum(
             self.alpha[n] * powers[n][0] + self.beta[n] * powers[n][1] for n in self.terms
         )
@@ -370,9 +358,7 @@ def objective(
     """
     nside = moments.nside
     lmax = 2 * nside
-    mask = np.zeros(12 * nside**2)
-    mask[moments.pixels] = 1.0
-    couplings = coupling.coupling_matrices(mask, lmax, nthreads)
+    couplings = coupling.coupling_matrices(moments.mask, lmax, nthreads)
     template = predict.tensor_template(couplings, spectra, fwhm_arcmin, nside)
 
     def bias(cl):
@@ -460,13 +446,17 @@ def optimise(
     value = obj(angles)
     history = [dict(sweep=0, objective=value, moves=0)]
     rng = np.random.default_rng(seed)
+    unit_blocks = [
+        np.unique(obj.parent[m.index[lo:hi]], return_inverse=True)
+        for lo, hi in zip(m.offsets[:-1], m.offsets[1:])
+    ]
     try:
         for sweep in range(1, sweeps + 1):
             moves = 0
             for u in rng.permutation(m.n_units):
                 lo, hi = m.offsets[u], m.offsets[u + 1]
                 idx, inv_hits = m.index[lo:hi], 1.0 / m.hits[m.index[lo:hi]]
-                ublk, local = np.unique(obj.parent[idx], return_inverse=True)
+                ublk, local = unit_blocks[u]
                 change = np.zeros(allowed.size)
                 steps = {}
                 for n in terms:
@@ -494,11 +484,10 @@ def optimise(
                     )
                     change += obj.alpha[n] * d_total + obj.beta[n] * d_coh
                     steps[n] = (step, d_blocks)
-                if obj.change_cost:
-                    for k, a in enumerate(allowed):
-                        trial = angles.copy()
-                        trial[u] = a
-                        change[k] += obj.change_cost * (obj.changes(trial) - obj.changes(angles))
+                if obj.change_cost:  # only the changes to and from the neighbouring units move
+                    near = [angles[v] for v in (u - 1, u + 1) if 0 <= v < m.n_units]
+                    count = np.array([sum(a != b for b in near) for a in allowed])
+                    change += obj.change_cost * (count - sum(angles[u] != b for b in near))
                 best = int(np.argmin(change))
                 if change[best] < -1e-15 * max(abs(value), 1e-300) and allowed[best] != angles[u]:
                     for n in terms:

@@ -184,6 +184,20 @@ class Schedule:
         """The CES set observed once, without the boresight repeats."""
         return replace(self, repeat_boresight_deg=(0.0,))
 
+    def expanded(self):
+        """The CESs in observing order, each boresight repeat as CESs of their own.
+
+        Returns
+        -------
+        tuple of CES
+            The CES set once per repeat angle, ``boresight_deg`` = its own + the repeat's.
+        """
+        return tuple(
+            replace(c, boresight_deg=c.boresight_deg + rep)
+            for rep in self.repeat_boresight_deg
+            for c in self.ces
+        )
+
 
 class ScheduleError(ConfigError):
     """A schedule file that cannot be read, with the file, row and key in the message."""
@@ -352,11 +366,7 @@ def write_schedule(schedule: Schedule, path: str, fmt: str) -> None:
         return
     keys = list(CES_LIMITS) + list(CES_METADATA)
     if fmt == "csv":
-        rows = [
-            {k: getattr(replace(c, boresight_deg=c.boresight_deg + rep), k) for k in keys}
-            for rep in schedule.repeat_boresight_deg
-            for c in schedule.ces
-        ]
+        rows = [{k: getattr(c, k) for k in keys} for c in schedule.expanded()]
         io.write_csv(path, rows, keys)
         return
     if fmt != "toml":

@@ -564,7 +564,7 @@ def design_schedule(
         moments = design.unit_moments(schedule, opts.nside, opts.group)
     with timer("objective"):
         obj = design.objective(
-            moments, budget.systematics, spectra_, opts.fwhm_arcmin, opts.change_cost
+            moments, budget.systematics, spectra_, budget.noise.fwhm_arcmin, opts.change_cost
         )
     sigma_r = noise.sigma_r(
         budget.noise, spectra_, np.array([predict.R_RANGE[0], predict.R_RANGE[1] + 1])
@@ -594,7 +594,7 @@ def design_schedule(
     for name, angles in strategies.items():
         h = moments.h(angles)
         h_maps[name] = h
-        dr = obj.delta_r(angles)
+        dr = obj.delta_r_of(h)
         rows.append(
             dict(
                 strategy=name,
@@ -608,12 +608,17 @@ def design_schedule(
     validation = []
     if validate and not found.interrupted:
         with timer("TOD simulation of the designed and unrotated schedules"):
-            validation = _validate_design(budget, moments, obj, schedule, strategies)
-    mask = np.zeros(12 * opts.nside**2)
-    mask[moments.pixels] = 1.0
+            predicted = {row["strategy"]: row["delta_r"] for row in rows}
+            validation = _validate_design(budget, moments, obj, schedule, strategies, predicted)
+    mask = moments.mask
     curves = {
         name: predict.residual_pseudo_bb(
-            moments.full_sky(h), mask, obj.coupling, budget.systematics, spectra_, opts.fwhm_arcmin
+            moments.full_sky(h),
+            mask,
+            obj.coupling,
+            budget.systematics,
+            spectra_,
+            budget.noise.fwhm_arcmin,
         )
         for name, h in h_maps.items()
     }
@@ -665,35 +670,29 @@ def design_schedule(
     )
 
 
-def _validate_design(budget, moments, obj, schedule, strategies):
+def _validate_design(budget, moments, obj, schedule, strategies, predicted):
     """Simulated against predicted delta_r of the designed and the unrotated schedule.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
     samples, at the design's Nside with lmax = 2 Nside; its delta_r is that of the leaked power
     (the prediction's quantity) and, for reference, of the whole residual with its cross term.
     """
-    from .instrument import Instrument
-
-    opts = budget.design
-    nside, lmax = opts.nside, 2 * opts.nside
-    the_sky = sky.make_sky(sky.SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=opts.fwhm_arcmin))
-    mask = np.zeros(12 * nside**2)
-    mask[moments.pixels] = 1.0
+    nside, lmax = moments.nside, 2 * moments.nside
+    the_sky = sky.make_sky(
+        sky.SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=budget.noise.fwhm_arcmin)
+    )
     out = []
     for name in ("optimised", "none"):
         scan = moments.schedule(schedule, strategies[name])
-        res = residual.residual(
-            the_sky, scan, budget.systematics, mask, lmax, instrument=Instrument()
-        )
-        predicted = obj.delta_r(strategies[name])
+        res = residual.residual(the_sky, scan, budget.systematics, moments.mask, lmax)
         simulated = predict.delta_r(res.auto, obj.template) + obj.const
         out.append(
             dict(
                 strategy=name,
-                predicted_delta_r=predicted,
+                predicted_delta_r=predicted[name],
                 simulated_delta_r=simulated,
                 simulated_delta_r_with_cross_term=predict.delta_r(res.total, obj.template),
-                ratio=simulated / predicted if predicted else float("nan"),
+                ratio=simulated / predicted[name] if predicted[name] else float("nan"),
             )
         )
     return out

@@ -304,23 +304,20 @@ def rows(schedule: Schedule) -> list[dict]:
         start, stop [datetime, UTC], rotation, azmin, azmax, el [deg], name, scan_index,
         subscan_index; in observing order (the CES set once per repeat angle).
     """
-    out = []
-    for repeat in schedule.repeat_boresight_deg:
-        for c in schedule.ces:
-            out.append(
-                dict(
-                    start=datetime.fromtimestamp(c.start_unix, timezone.utc),
-                    stop=datetime.fromtimestamp(c.start_unix + c.duration_s, timezone.utc),
-                    rotation=c.boresight_deg + repeat,
-                    name=c.name,
-                    azmin=c.az_centre_deg - 0.5 * c.az_throw_deg,
-                    azmax=c.az_centre_deg + 0.5 * c.az_throw_deg,
-                    el=c.elevation_deg,
-                    scan_index=c.scan_index,
-                    subscan_index=c.subscan_index,
-                )
-            )
-    return out
+    return [
+        dict(
+            start=datetime.fromtimestamp(c.start_unix, timezone.utc),
+            stop=datetime.fromtimestamp(c.start_unix + c.duration_s, timezone.utc),
+            rotation=c.boresight_deg,
+            name=c.name,
+            azmin=c.az_centre_deg - 0.5 * c.az_throw_deg,
+            azmax=c.az_centre_deg + 0.5 * c.az_throw_deg,
+            el=c.elevation_deg,
+            scan_index=c.scan_index,
+            subscan_index=c.subscan_index,
+        )
+        for c in schedule.expanded()
+    ]
 
 
 def _time(when):

@@ -54,8 +54,9 @@ def test_objective_is_the_prediction_of_the_designed_schedule(schedule, moments,
 
 def test_units_follow_the_schedule(schedule, moments):
     assert moments.n_units == 2 * len(schedule.ces)
-    for unit in design.units_of(design.expand(schedule), "day"):  # the UTC date of the start
-        dates = {__import__("time").gmtime(design.expand(schedule)[i].start_unix)[:3] for i in unit}
+    rows = schedule.expanded()
+    for unit in design.units_of(rows, "day"):  # the UTC date of the start
+        dates = {__import__("time").gmtime(rows[i].start_unix)[:3] for i in unit}
         assert len(dates) == 1
     np.testing.assert_allclose(moments.hits.sum(), schedule.n_samples)
     # angles per unit replace the schedule's: the repeats become CESs of their own
@@ -94,6 +95,14 @@ def test_change_cost_and_interrupt(moments, theory):
     obj = design.objective(moments, BUDGET, theory, 30.0, change_cost=1e3)
     found = design.optimise(obj, ALLOWED, np.zeros(moments.n_units), 3)
     assert obj.changes(found.angles_deg) == 0
+    free = design.optimise(
+        design.objective(moments, BUDGET, theory, 30.0), ALLOWED, np.zeros(moments.n_units), 6
+    )
+    costly = design.objective(moments, BUDGET, theory, 30.0, change_cost=0.1)
+    found = design.optimise(costly, ALLOWED, np.zeros(moments.n_units), 6)
+    values = [h["objective"] for h in found.history]  # re-evaluated directly after each pass
+    assert all(b <= a + 1e-12 for a, b in zip(values, values[1:]))
+    assert costly.changes(found.angles_deg) < costly.changes(free.angles_deg)
     obj = design.objective(moments, BUDGET, theory, 30.0)
     calls = []
 

@@ -96,8 +96,9 @@ def test_toast_reads_the_schedules_boresight_writes(toast_files, tmp_path):
 
 
 def test_pointing_matches_toast_simground(toast_files):
-    """Azimuth within 1 arcsec and psi_boresight - psi_TOAST within 0.1 deg of 180 deg, on CESs at
-    three boresight angles; the positions agree to TOAST's J2000 vs boresight's date (< 1')."""
+    """Azimuth within 0.01 arcsec (the issue asks 1) and psi_boresight - psi_TOAST within 0.02 deg
+    (the issue asks 0.1) of 180 deg, on CESs at three boresight angles; the positions agree to
+    TOAST's J2000 vs boresight's frame of date at 2000-01-01 (nutation and aberration, < 40")."""
     import toast
     import toast.ops
     from astropy import units as u
@@ -134,12 +135,12 @@ def test_pointing_matches_toast_simground(toast_files):
         np.testing.assert_array_equal(t_toast[:n], t[:n])
         wrap = lambda x: (x + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
         az_toast = np.asarray(ob.shared["azimuth"])[:n]
-        assert np.max(np.abs(wrap(az_toast - az[:n]))) < 1 * ARCSEC
+        assert np.max(np.abs(wrap(az_toast - az[:n]))) < 0.01 * ARCSEC
         th_t, ph_t, psi_t = qarray.to_iso_angles(np.asarray(ob.shared["boresight_radec"])[:n])
         offset = np.degrees(wrap(psi[:n] - psi_t - np.pi))
-        assert np.max(np.abs(offset)) < 0.1, ces.boresight_deg
-        assert np.max(np.abs(theta[:n] - th_t)) < 60 * ARCSEC
-        assert np.max(np.abs(wrap(phi[:n] - ph_t)) * np.sin(th_t)) < 60 * ARCSEC
+        assert np.max(np.abs(offset)) < 0.02, ces.boresight_deg
+        assert np.max(np.abs(theta[:n] - th_t)) < 40 * ARCSEC
+        assert np.max(np.abs(wrap(phi[:n] - ph_t)) * np.sin(th_t)) < 40 * ARCSEC
 
 
 def test_a_fresh_toast_schedule_runs_end_to_end(toast_files, tmp_path):
