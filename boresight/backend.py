@@ -75,7 +75,7 @@ class KernelBackend(Protocol):
         float64 array, shape (F, n)
         """
 
-    def accumulate(self, offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
+    def accumulate(self, offsets, psi, values_a, values_b, response, leak, jitter, seed, pixels):
         """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
         Parameters
@@ -86,9 +86,15 @@ class KernelBackend(Protocol):
             Fields I, Q, U[, leak template] where detector A looks [muK].
         values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
             The same where detector B looks; empty when B looks where A does.
-        rotations, pair_angles : float64 array, shapes (K,), (M,)
-            [rad].
-        dg, leak : float64 array, shape (M,)
+        response : float64 array, shape (K, M, 7)
+            Assumed and true polarisation angles and detector B's gain per (rotation, pair)
+            (:func:`boresight.instrument.response`).
+        leak, jitter : float64 array, shape (M,)
+            Additive leak and rms of the per-sample gain jitter.
+        seed : int
+            Key of the jitter draws, with the pixel and hit.
+        pixels : int64 array, shape (P,)
+            RING index of each pixel.
 
         Returns
         -------
@@ -96,16 +102,15 @@ class KernelBackend(Protocol):
             sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
         """
 
-    def accumulate_scatter(
-        self, pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out
-    ):
-        """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
+    def accumulate_scatter(self, pixels, psi, values_a, values_b, response, leak, out):
+        """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order
+        (no jitter: such samples have no (pixel, hit) key).
 
         Parameters
         ----------
         pixels : int64 array, shape (H,)
             RING pixel of each hit.
-        psi, values_a, values_b, rotations, pair_angles, dg, leak
+        psi, values_a, values_b, response, leak
             As in :meth:`accumulate`.
         out : float64 array, shape (npix, 5)
             Running sums, updated in place.
@@ -123,10 +128,11 @@ class KernelBackend(Protocol):
         stack,
         rotations,
         pair_angles,
-        dg,
+        response,
         rho,
         chi,
         leak,
+        jitter,
         pointing,
     ):
         """Normal-equation sums of a synthetic scan with an interpolated sky.
@@ -141,7 +147,9 @@ class KernelBackend(Protocol):
             Hits per pixel.
         stack : array, shape (npix, F)
             The interleaved sky fields on the device (:meth:`to_device`).
-        rotations, pair_angles, dg, leak
+        rotations, pair_angles : float64 array, shapes (K,), (M,)
+            Boresight rotations and nominal pair angles [rad] (detector B's pointing).
+        response, leak, jitter
             As in :meth:`accumulate`.
         rho, chi : float64 array, shape (M,)
             As in :meth:`offset_points`.

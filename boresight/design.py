@@ -371,14 +371,13 @@ def objective(
     omega_pix = 4 * np.pi / (12 * nside**2)
     white_unit = bias(np.ones(lmax + 1))
     alpha, beta = np.zeros(N_MAX + 1), np.zeros(N_MAX + 1)
-    for n, c, cl_ff in predict.leak_terms(systematics, cl_tt, cl_ee + cl_bb):
+    coefs = predict.coefficients(systematics)
+    for n, c, cl_ff in predict.leak_terms(coefs, systematics, cl_tt, cl_ee + cl_bb):
         weight = 0.5 * abs(c) ** 2
         white = omega_pix * np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff) * white_unit
         alpha[n] += weight * white
         beta[n] += weight * (bias(cl_ff) - white)
-    dg = systematics.per_pair(2)[0]
-    scale = (1 - (dg[0] + dg[1]) / 4) ** 2 - 1
-    const = scale * predict.delta_r(couplings.pseudo_bb(cl_bb, cl_ee), template)
+    const = predict.delta_r(predict.signal_bb(couplings, coefs, cl_ee, cl_bb), template)
     return Objective(moments, alpha, beta, float(const), change_cost, template, couplings)
 
 

@@ -17,7 +17,7 @@ from tqdm.auto import tqdm
 from . import harmonics
 from .backend import get_backend
 from .evaluation import METHODS, SkyFields, pair_fields
-from .instrument import Instrument, Systematics
+from .instrument import Instrument, Systematics, response
 from .mapmaking import RCOND_MIN, Maps, solve
 from .pixels import ang2pix_array
 from .scan import hit_offsets
@@ -211,10 +211,17 @@ class _Binner:
         if evaluation not in METHODS:
             raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
         self.kernels = get_backend(backend)
-        self.dg, self.rho, self.chi, self.leak = systematics.per_pair(instrument.n_pairs)
+        params = systematics.per_pair(instrument.n_pairs)
+        self.rho, self.chi, self.leak, self.jitter = (
+            params.rho,
+            params.chi,
+            params.leak,
+            params.dg_jitter,
+        )
         self.pointing = systematics.has_pointing
         self.fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
         self.rot, self.ang = np.asarray(rotations, dtype=np.float64), instrument.pair_angles_rad
+        self.response = response(self.rot, self.ang, params, systematics.per_repeat(self.rot.size))
         self.stack = self.kernels.to_device(self.fields.stack) if evaluation == "interp" else None
         self.evaluation, self.nthreads = evaluation, nthreads
 
@@ -258,23 +265,32 @@ class _Binner:
                 self.stack,
                 self.rot,
                 self.ang,
-                self.dg,
+                self.response,
                 self.rho,
                 self.chi,
                 self.leak,
+                self.jitter,
                 self.pointing,
             )
         offsets, theta, phi, psi = _hits(self.kernels, scan, nside, chunk)
         values_a, values_b = self._values(theta, phi, psi)
         return self.kernels.accumulate(
-            offsets, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak
+            offsets,
+            psi,
+            values_a,
+            values_b,
+            self.response,
+            self.leak,
+            self.jitter,
+            scan.seed,
+            chunk,
         )
 
     def scatter(self, pixels, theta, phi, psi, normal):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal``."""
         values_a, values_b = self._values(theta, phi, psi)
         self.kernels.accumulate_scatter(
-            pixels, psi, values_a, values_b, self.rot, self.ang, self.dg, self.leak, normal
+            pixels, psi, values_a, values_b, self.response, self.leak, normal
         )
 
 
@@ -308,6 +324,11 @@ def simulate_samples(
     -------
     boresight.mapmaking.Maps
     """
+    if systematics.has_jitter:
+        raise ValueError(
+            "dg_jitter is simulated for synthetic scans only: a real sample stream has no "
+            "(pixel, hit) key for its draws"
+        )
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )

@@ -18,7 +18,7 @@ import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -262,9 +262,29 @@ def simulate(
     )
 
 
+class Moments(NamedTuple):
+    """What the predictions need of a scan's crossings.
+
+    h : numpy.ndarray, complex128, shape (N_MAX + 1, npix)
+        h_n of one repeat's crossings (a real schedule's, rotations included), 0 where unobserved.
+    crossings : numpy.ndarray, int64, shape (npix,)
+        Crossings per pixel in one repeat.
+    rotations_deg : tuple of float
+        Boresight rotation of each repeat [deg]; (0,) for a real schedule.
+    """
+
+    h: np.ndarray
+    crossings: np.ndarray
+    rotations_deg: tuple
+
+    def rotated(self, n):
+        """h_n of all the repeats together, (npix,)."""
+        return self.h[n] * np.mean(np.exp(1j * n * np.radians(self.rotations_deg)))
+
+
 def moments(
     scan: SyntheticScan | Schedule, nside: int, pixels: np.ndarray, run: RunOptions = RunOptions()
-) -> np.ndarray:
+) -> Moments:
     """h_n of a synthetic or real scan.
 
     Parameters
@@ -277,15 +297,15 @@ def moments(
 
     Returns
     -------
-    numpy.ndarray, complex128, shape (N_MAX + 1, npix)
-        0 where unobserved.
+    Moments
     """
     if isinstance(scan, ground.Schedule):
-        return scanstats.characterise_schedule(scan, nside).h
-    h, _ = engine.scan_moments(
-        scan, nside, pixels=pixels, nthreads=run.nthreads, backend=run.backend
+        stats = scanstats.characterise_schedule(scan, nside)
+        return Moments(stats.h, stats.hits, (0.0,))
+    h, crossings = engine.scan_moments(
+        scan.one_repeat(), nside, pixels=pixels, nthreads=run.nthreads, backend=run.backend
     )
-    return h
+    return Moments(h, crossings, scan.rotations_deg)
 
 
 def _masked_b(qu, mask, lmax, nthreads):
@@ -399,7 +419,8 @@ def residual(
         The no-systematic side, when shared by several jobs (the same sky and scan positions);
         simulated here by default. ``Reference.zero()`` measures the systematic's own spectrum.
     prediction : Prediction, optional
-        Predict the residual from h_n (needs the paper's Q/U pair layout; None otherwise).
+        Predict the residual from h_n; the C_ell level where :func:`boresight.predict.supports`
+        the instrument and its repeats.
     predict_map : bool
         Also transform the predicted spurious map (the map-level check).
     leak_template : numpy.ndarray, optional
@@ -430,13 +451,15 @@ def residual(
     if prediction is None:
         return result
     t0 = time.perf_counter()
-    h = moments(scan, sky.nside, obs, run)
-    result.h_power = {n: float(np.mean(np.abs(h[n, obs]) ** 2)) for n in range(1, N_MAX + 1)}
-    if predict.supports(instrument):
+    mom = moments(scan, sky.nside, obs, run)
+    result.h_power = {
+        n: float(np.mean(np.abs(mom.rotated(n)[obs]) ** 2)) for n in range(1, N_MAX + 1)
+    }
+    if predict.supports(instrument, mom.rotations_deg):
         field_cl = prediction.field_cl
         field_cl = field_cl.result() if isinstance(field_cl, Future) else field_cl
         result.predicted_cl = predict.residual_pseudo_bb(
-            h,
+            mom.h,
             mask,
             prediction.couplings,
             systematics,
@@ -444,13 +467,17 @@ def residual(
             prediction.fwhm_arcmin,
             instrument,
             field_cl=field_cl,
+            rotations_deg=mom.rotations_deg,
+            crossings=mom.crossings,
         )
-        if predict_map:
-            dp = predict.delta_p(sky, h, systematics, nthreads=run.nthreads)
-            dp *= obs
-            result.predicted_map_parts = transforms.submit(
-                _parts, np.array([dp.real, dp.imag]), reference_, mask, lmax, run.nthreads
-            )
+    if predict_map:
+        dp = predict.delta_p(
+            sky, mom.h, systematics, instrument, leak_template, run.nthreads, mom.rotations_deg
+        )
+        dp *= obs
+        result.predicted_map_parts = transforms.submit(
+            _parts, np.array([dp.real, dp.imag]), reference_, mask, lmax, run.nthreads
+        )
     stages["predict"] = time.perf_counter() - t0
     return result
 
@@ -513,11 +540,9 @@ def study_prediction(
 
     Returns
     -------
-    Prediction or None
-        With the sky's own spectra inside the mask; None where the instrument has no prediction.
+    Prediction
+        With the sky's own spectra inside the mask.
     """
-    if not predict.supports(study.instrument):
-        return None
     from . import coupling
     from .cosmology import load_spectra
 

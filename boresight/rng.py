@@ -7,6 +7,9 @@ SplitMix64 finalisers (Steele, Lea & Flood 2014), each a bijection on 64-bit int
     h = mix(mix(mix(seed ^ SEED_SALT) ^ pixel) ^ (hit * N_STREAMS + stream))
 
 and a uniform double in [0, 1) is the top 53 bits of h. The GPU backend uses the same arithmetic.
+Draws that are not per hit (per-sample gain jitter, per-pair systematic parameters) take a key
+derived from the pixel's, ``mix(key ^ salt)``, and count their own draws; a normal deviate is the
+Box-Muller transform of two uniforms of one count.
 """
 
 import numba
@@ -15,6 +18,9 @@ import numpy as np
 N_STREAMS = 4  #: independent draws per hit: crossing angle, in-pixel u, in-pixel v, spare
 STREAM_PSI, STREAM_U, STREAM_V = 0, 1, 2
 SEED_SALT = np.uint64(0x9E3779B97F4A7C15)
+JITTER_SALT = np.uint64(0xD1B54A32D192ED03)  #: per-sample gain jitter
+PAIR_SALT = np.uint64(0xAEF17502108EF2D9)  #: per-pair systematic parameters
+REPEAT_SALT = np.uint64(0x8CB92BA72F3D8DD7)  #: per-repeat gain drift
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
@@ -108,4 +114,60 @@ def uniform_array(seed, pixels, hits, stream):
     out = np.empty(pixels.size)
     for k in numba.prange(pixels.size):
         out[k] = uniform(seed, pixels[k], hits[k], stream)
+    return out
+
+
+@numba.njit(inline="always")
+def derived_key(key, salt):
+    """A key for another family of draws of the same pixel: mix(key ^ salt).
+
+    Parameters
+    ----------
+    key, salt : numpy.uint64
+
+    Returns
+    -------
+    numpy.uint64
+    """
+    return mix64(key ^ salt)
+
+
+@numba.njit(inline="always")
+def normal_from_key(key, count):
+    """A standard normal deviate: Box-Muller of the uniforms (count, 0) and (count, 1) of a key.
+
+    Parameters
+    ----------
+    key : numpy.uint64
+    count : int
+        >= 0.
+
+    Returns
+    -------
+    float
+    """
+    u1 = 1.0 - uniform_from_key(key, count, 0)  # in (0, 1]: the log is finite
+    u2 = uniform_from_key(key, count, 1)
+    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+
+
+@numba.njit(cache=True)
+def normal_array(seed, pixel, salt, n):
+    """n standard normal deviates of the key (seed, pixel) and a salt, counts 0 .. n - 1.
+
+    Parameters
+    ----------
+    seed, pixel : int
+        >= 0.
+    salt : numpy.uint64
+    n : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    key = derived_key(pixel_key(seed, pixel), salt)
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = normal_from_key(key, i)
     return out

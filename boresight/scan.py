@@ -9,6 +9,7 @@ or per-pixel RING maps. Angles are measured on the sky from e_theta towards e_ph
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,6 +96,11 @@ class SyntheticScan:
     @property
     def rotations_rad(self):
         return np.asarray(self.rotations_deg) * DEG
+
+    def one_repeat(self) -> SyntheticScan:
+        """The same hits without boresight rotation: every repeat's h_n are these times
+        exp(i n alpha_k), which is how the predictions use them."""
+        return dataclasses.replace(self, rotations_deg=(0.0,))
 
     def per_pixel(self, pixels: np.ndarray, npix: int) -> list[np.ndarray]:
         """(n_phi, R, centre) of some pixels.

@@ -221,16 +221,18 @@ def predict_study(study: Study, log: Callable = print, memory_check: bool = True
     check_memory("predict", study, memory_check)
     nside, lmax = study.sky.nside, study.output.lmax
     mask = masks.from_config(study.mask, nside)
-    h, _ = engine.scan_moments(study.scan, nside, pixels=mask > 0, nthreads=study.run.nthreads)
+    mom = residual.moments(study.scan, nside, mask > 0, study.run)
     couplings = coupling.coupling_matrices(mask, lmax, study.run.nthreads)
     pred = predict.residual_pseudo_bb(
-        h,
+        mom.h,
         mask,
         couplings,
         study.systematics,
         load_spectra(),
         study.sky.fwhm_arcmin,
         study.instrument,
+        rotations_deg=mom.rotations_deg,
+        crossings=mom.crossings,
     )
     require_finite("the predicted spectrum", pred)
     return [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]

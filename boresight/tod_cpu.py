@@ -12,7 +12,16 @@ import numpy as np
 
 from .evaluation import pair_fields
 from .pixels import face_point, interpolate_interleaved, ring2xyf
-from .rng import STREAM_PSI, STREAM_U, STREAM_V, pixel_key, uniform_from_key
+from .rng import (
+    JITTER_SALT,
+    STREAM_PSI,
+    STREAM_U,
+    STREAM_V,
+    derived_key,
+    normal_from_key,
+    pixel_key,
+    uniform_from_key,
+)
 from .scan import hit_offsets
 
 __all__ = [
@@ -104,26 +113,15 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     return tb, pb
 
 
-@numba.njit(cache=True)
-def _turns(rotations, pair_angles):
-    """cos, sin of 2 (alpha_k + angle_m): exp(2i(psi + alpha + angle)) = exp(2i psi) turn[k, m]."""
-    turn_c = np.empty((rotations.size, pair_angles.size))
-    turn_s = np.empty((rotations.size, pair_angles.size))
-    for k in range(rotations.size):
-        for m in range(pair_angles.size):
-            turn_c[k, m] = np.cos(2.0 * (rotations[k] + pair_angles[m]))
-            turn_s[k, m] = np.sin(2.0 * (rotations[k] + pair_angles[m]))
-    return turn_c, turn_s
-
-
 @numba.njit(inline="always")
-def _pair_difference(c, s, field_a, field_b, dg, leak):
-    """d = (d_A - d_B) / 2 of one pair at polarisation angle (c, s) = (cos, sin) 2a, with gain
-    (1 - dg on B), pointing (B sees field_b) and additive leak; fields are (I, Q, U, template)."""
-    i_a, q_a, u_a, s_a = field_a
-    i_b, q_b, u_b, s_b = field_b
-    d_a = i_a + q_a * c + u_a * s + 0.5 * leak * s_a
-    d_b = (1.0 - dg) * (i_b - q_b * c - u_b * s) - 0.5 * leak * s_b
+def _pair_difference(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak):
+    """d = (d_A - d_B) / 2 of one pair: detector A responds to (cos, sin) 2 x its angle (c_a, s_a),
+    detector B to (c_b, s_b) of its angle less 90 deg with gain g_b, B sees field_b (pointing), and
+    the additive leak; fields are (I, Q, U, template)."""
+    i_a, q_a, u_a, t_a = field_a
+    i_b, q_b, u_b, t_b = field_b
+    d_a = i_a + q_a * c_a + u_a * s_a + 0.5 * leak * t_a
+    d_b = g_b * (i_b - q_b * c_b - u_b * s_b) - 0.5 * leak * t_b
     return 0.5 * (d_a - d_b)
 
 
@@ -142,23 +140,38 @@ def _flat(values_b):
 
 
 @numba.njit(inline="always")
-def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
+def _hit_sums(h, psi, values_a, values_b, response, leak, jitter, jitter_key, j):
     """The five normal-equation terms of hit h over every rotation and pair: sum c^2, c s, s^2,
     c d, s d. values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened,
-    or has no columns when B looks where A does."""
-    nk, nm = turn_c.shape
+    or has no columns when B looks where A does. ``response`` is
+    :func:`boresight.instrument.response`; pairs with ``jitter`` > 0 draw a normal deviate for
+    each (hit j of the pixel, rotation, pair) from ``jitter_key``."""
+    nk, nm = response.shape[0], response.shape[1]
     field_a = _fields(values_a, h)
     c0 = np.cos(2.0 * psi[h])
     s0 = np.sin(2.0 * psi[h])
     a11 = a12 = a22 = b1 = b2 = 0.0
     for k in range(nk):
         for m in range(nm):
-            c = c0 * turn_c[k, m] - s0 * turn_s[k, m]
-            s = s0 * turn_c[k, m] + c0 * turn_s[k, m]
+            r = response[k, m]
+            c = c0 * r[0] - s0 * r[1]
+            s = s0 * r[0] + c0 * r[1]
+            g_b = r[6]
+            if jitter[m] != 0.0:
+                g_b -= jitter[m] * normal_from_key(jitter_key, (j * nk + k) * nm + m)
             field_b = (
                 field_a if values_b.shape[1] == 0 else _fields(values_b, (h * nk + k) * nm + m)
             )
-            d = _pair_difference(c, s, field_a, field_b, dg[m], leak[m])
+            d = _pair_difference(
+                c0 * r[2] - s0 * r[3],
+                s0 * r[2] + c0 * r[3],
+                c0 * r[4] - s0 * r[5],
+                s0 * r[4] + c0 * r[5],
+                g_b,
+                field_a,
+                field_b,
+                leak[m],
+            )
             a11 += c * c
             a12 += c * s
             a22 += s * s
@@ -168,20 +181,22 @@ def _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak):
 
 
 @numba.njit(parallel=True, cache=True)
-def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak):
+def accumulate(offsets, psi, values_a, values_b, response, leak, jitter, seed, pixels):
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate`.
 
     Parallel over pixels.
     """
-    turn_c, turn_s = _turns(rotations, pair_angles)
     values_b = _flat(values_b)
     out = np.zeros((offsets.size - 1, 5))
     for p in numba.prange(offsets.size - 1):
+        jitter_key = derived_key(pixel_key(seed, pixels[p]), JITTER_SALT)
         a11 = a12 = a22 = b1 = b2 = 0.0
         for h in range(offsets[p], offsets[p + 1]):
-            t = _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak)
+            t = _hit_sums(
+                h, psi, values_a, values_b, response, leak, jitter, jitter_key, h - offsets[p]
+            )
             a11 += t[0]
             a12 += t[1]
             a22 += t[2]
@@ -196,17 +211,18 @@ def accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, lea
 
 
 @numba.njit(cache=True)
-def accumulate_scatter(pixels, psi, values_a, values_b, rotations, pair_angles, dg, leak, out):
+def accumulate_scatter(pixels, psi, values_a, values_b, response, leak, out):
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
 
-    Serial, so no two hits race for a pixel.
+    Serial, so no two hits race for a pixel. No jitter: samples in any order have no
+    (pixel, hit) key.
     """
-    turn_c, turn_s = _turns(rotations, pair_angles)
     values_b = _flat(values_b)
+    no_jitter = np.zeros(response.shape[1])
     for h in range(pixels.size):
-        t = _hit_sums(h, psi, values_a, values_b, turn_c, turn_s, dg, leak)
+        t = _hit_sums(h, psi, values_a, values_b, response, leak, no_jitter, np.uint64(0), 0)
         p = pixels[h]
         for j in range(5):
             out[p, j] += t[j]
@@ -223,10 +239,11 @@ def bin_scan(
     stack: np.ndarray,
     rotations: np.ndarray,
     pair_angles: np.ndarray,
-    dg: np.ndarray,
+    response: np.ndarray,
     rho: np.ndarray,
     chi: np.ndarray,
     leak: np.ndarray,
+    jitter: np.ndarray,
     pointing: bool,
 ) -> np.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
@@ -256,7 +273,7 @@ def bin_scan(
         chi,
         pointing,
     )
-    return accumulate(offsets, psi, values_a, values_b, rotations, pair_angles, dg, leak)
+    return accumulate(offsets, psi, values_a, values_b, response, leak, jitter, seed, pixels)
 
 
 @numba.njit(parallel=True, cache=True)

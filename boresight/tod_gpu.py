@@ -165,15 +165,31 @@ def interpolate(stack: object, nside: int, theta: np.ndarray, phi: np.ndarray) -
     return out
 
 
-def _physics(rotations, pair_angles, dg, leak):
-    """Device arrays of the per-(rotation, pair) turns cos, sin 2(alpha + angle), dg and leak."""
-    turn = 2.0 * (np.asarray(rotations)[:, None] + np.asarray(pair_angles)[None, :])
+def _physics(response, leak, jitter=None):
+    """Device arrays of the per-(rotation, pair) turns cos, sin 2(alpha + angle), dg and leak.
+
+    The CUDA kernels model a constant gain per pair: polarisation-angle errors, gain drift
+    between repeats and gain jitter are refused with a clear error (they run on the CPU).
+    """
+    response = np.asarray(response)
+    g_b = response[..., 6]
+    ideal = (
+        np.array_equal(response[..., 2:4], response[..., 0:2])
+        and np.array_equal(response[..., 4:6], response[..., 0:2])
+        and (g_b == g_b[:1]).all()
+        and (jitter is None or not np.any(jitter))
+    )
+    if not ideal:
+        raise ValueError(
+            "the GPU backend simulates per-pair gain, pointing and leak only; polarisation-angle "
+            "errors, gain drift (dg_repeat) and gain jitter need backend = 'cpu'"
+        )
     return (
-        np.int32(turn.shape[0]),
-        np.int32(turn.shape[1]),
-        _d(np.cos(turn)),
-        _d(np.sin(turn)),
-        _d(dg),
+        np.int32(response.shape[0]),
+        np.int32(response.shape[1]),
+        _d(response[..., 0]),
+        _d(response[..., 1]),
+        _d(1.0 - g_b[0]),
         _d(leak),
     )
 
@@ -185,13 +201,13 @@ def _stored_values(values_a, values_b):
     return va, vb, np.int64(va.shape[1]), np.int32(va.shape[0])
 
 
-def _accumulate(offsets, psi, target, values_a, values_b, rotations, pair_angles, dg, leak, out):
+def _accumulate(offsets, psi, target, values_a, values_b, physics, out):
     _launch(
         "accumulate",
         offsets.size - 1,
         (_d(offsets, np.int64), _d(psi), np.int64(offsets.size - 1), target)
         + _stored_values(values_a, values_b)
-        + _physics(rotations, pair_angles, dg, leak)
+        + physics
         + (out,),
     )
 
@@ -201,17 +217,20 @@ def accumulate(
     psi: object,
     values_a: object,
     values_b: object,
-    rotations: np.ndarray,
-    pair_angles: np.ndarray,
-    dg: np.ndarray,
+    response: np.ndarray,
     leak: np.ndarray,
+    jitter: np.ndarray,
+    seed: int,
+    pixels: np.ndarray,
 ) -> cp.ndarray:
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate`.
+
+    Without jitter, so ``seed`` and ``pixels`` are unused.
     """
     out = cp.zeros((offsets.size - 1, 5))
-    args = (values_a, values_b, rotations, pair_angles, dg, leak, out)
+    args = (values_a, values_b, _physics(response, leak, jitter), out)
     _accumulate(offsets, psi, np.uint64(0), *args)
     return out
 
@@ -221,9 +240,7 @@ def accumulate_scatter(
     psi: object,
     values_a: object,
     values_b: object,
-    rotations: np.ndarray,
-    pair_angles: np.ndarray,
-    dg: np.ndarray,
+    response: np.ndarray,
     leak: np.ndarray,
     out: cp.ndarray,
 ) -> None:
@@ -240,7 +257,7 @@ def accumulate_scatter(
     offsets = cp.zeros(target.size + 1, dtype=cp.int64)
     cp.cumsum(counts, out=offsets[1:])
     values_b = _d(values_b)[:, order] if values_b.shape[1] > 0 else values_b
-    args = (_d(values_a)[:, order], values_b, rotations, pair_angles, dg, leak, out)
+    args = (_d(values_a)[:, order], values_b, _physics(response, leak), out)
     _accumulate(offsets, _d(psi)[order], target, *args)
 
 
@@ -255,10 +272,11 @@ def bin_scan(
     stack: cp.ndarray,
     rotations: np.ndarray,
     pair_angles: np.ndarray,
-    dg: np.ndarray,
+    response: np.ndarray,
     rho: np.ndarray,
     chi: np.ndarray,
     leak: np.ndarray,
+    jitter: np.ndarray,
     pointing: bool,
 ) -> cp.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
@@ -271,6 +289,7 @@ def bin_scan(
     The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
     """
     out = cp.empty((pixels.size, 5))
+    physics = _physics(response, leak, jitter)
     _launch(
         "bin_scan",
         pixels.size,
@@ -281,8 +300,8 @@ def bin_scan(
             _d(rotations),
             _d(pair_angles),
         )
-        + _physics(rotations, pair_angles, dg, leak)[:4]
-        + (_d(dg), _d(rho), _d(chi), _d(leak), np.int32(bool(pointing)), out),
+        + physics[:4]
+        + (physics[4], _d(rho), _d(chi), physics[5], np.int32(bool(pointing)), out),
     )
     return out
 

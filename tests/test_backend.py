@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from boresight import backend, engine, scan, tod_cpu
-from boresight.instrument import PAPER_POINTING
+from boresight.instrument import Systematics, response
 
 CONTRACT = {
     name: [p for p in inspect.signature(fn).parameters if p != "self"]
@@ -56,17 +56,19 @@ def test_cpu_bin_scan_equals_its_stages(small_sky):
     n_phi = np.full(pixels.size, 3)
     rng_rad, centre = np.full(pixels.size, 0.7), np.zeros(pixels.size)
     rot, ang = np.radians([0.0, 180.0]), np.radians([0.0, 45.0])
-    dg, rho, chi, leak = PAPER_POINTING.per_pair(2)
+    systematics = Systematics(rho_arcmin=0.1, pol_angle_deg=0.5, dg=0.01, dg_jitter=0.02)
+    par = systematics.per_pair(2)
+    table = response(rot, ang, par, systematics.per_repeat(2))
+    rho, chi, leak, jitter = par.rho, par.chi, par.leak, par.dg_jitter
     stack = small_sky.interleaved
-    fused = tod_cpu.bin_scan(
-        5, 64, pixels, n_phi, rng_rad, centre, False, stack, rot, ang, dg, rho, chi, leak, True
-    )
+    args = (rot, ang, table, rho, chi, leak, jitter, True)
+    fused = tod_cpu.bin_scan(5, 64, pixels, n_phi, rng_rad, centre, False, stack, *args)
     offsets = scan.hit_offsets(n_phi)
     theta, phi, psi = tod_cpu.generate_hits(5, 64, pixels, offsets, rng_rad, centre, False)
     values_a = tod_cpu.interpolate(stack, 64, theta, phi)
     tb, pb = tod_cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
     values_b = tod_cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
-    staged = tod_cpu.accumulate(offsets, psi, values_a, values_b, rot, ang, dg, leak)
+    staged = tod_cpu.accumulate(offsets, psi, values_a, values_b, table, leak, jitter, 5, pixels)
     np.testing.assert_array_equal(fused, staged)
 
 

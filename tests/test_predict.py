@@ -97,12 +97,20 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         pbr = engine.simulate(s0, pbr_scan, systematics=sysm, evaluation="exact")
         no_pbr = spectra.residual_bb(base.qu, zero, mask, lmax)[2:].max()
         sim = np.abs(spectra.residual_bb(pbr.qu, zero, mask, lmax)[2:]).max()
-        h, _ = engine.scan_moments(pbr_scan, nside)
+        h, _ = engine.scan_moments(pbr_scan.one_repeat(), nside)
         # The sky's own (zero) polarisation spectrum: theory EE would feed the h_4 P* term.
         local = predict.local_cl(s0, mask, lmax)
-        pred = np.abs(
-            predict.residual_pseudo_bb(h, mask, couplings, sysm, theory, 30.0, field_cl=local)[2:]
-        ).max()
+        pred = predict.residual_pseudo_bb(
+            h,
+            mask,
+            couplings,
+            sysm,
+            theory,
+            30.0,
+            field_cl=local,
+            rotations_deg=pbr_scan.rotations_deg,
+        )
+        pred = np.abs(pred[2:]).max()
         # Gain: exact cancellation, rounding of ~1e-16 squared. Pointing: the second-order term
         # relative to the first is ~ rho l_beam / 2 ~ 0.004, i.e. ~2e-5 in power.
         assert sim < floor * no_pbr, survey
@@ -116,19 +124,24 @@ def test_spectrum_suppression_follows_cos2(alpha, theory):
     mask = masks.survey_mask("wide", nside)
     sysm = Systematics(dg=(0.01, 0.01))
     ratios = []
+    h, _ = engine.scan_moments(SyntheticScan(n_phi=3, range_rad=0.8), nside)
     for rot in ((0.0,), (0.0, alpha)):
-        h, _ = engine.scan_moments(SyntheticScan(n_phi=3, range_rad=0.8, rotations_deg=rot), nside)
-        ratios.append(predict.systematic_cl(h, mask, sysm, theory, 60, 7.0)[2:])
+        cl = predict.systematic_cl(h, mask, sysm, theory, 60, 7.0, rotations_deg=rot)
+        ratios.append(cl[2:])
     assert np.allclose(ratios[1] / ratios[0], np.cos(np.radians(alpha)) ** 2, rtol=1e-10)
 
 
-def test_prediction_needs_qu_pairs(small_sky):
+def test_cl_prediction_needs_cancelling_4x_angles(small_sky, theory):
+    """Pairs at (0, 30) deg couple h_4 into the map-maker (m_4 != 0): the C_ell level refuses them,
+    unless a repeat cancels h_4 (0/45 deg rotation)."""
     from boresight.instrument import Instrument
 
-    with pytest.raises(ValueError, match="pairs"):
-        predict.delta_p(
-            small_sky, np.zeros((5, small_sky.maps.shape[1])), PAPER_GAIN, Instrument((0.0, 30.0))
-        )
+    inst = Instrument((0.0, 30.0))
+    assert not predict.supports(inst) and predict.supports(inst, (0.0, 45.0))
+    mask = masks.survey_mask("deep", small_sky.nside)
+    h = np.zeros((5, mask.size), dtype=complex)
+    with pytest.raises(ValueError, match="m_4"):
+        predict.systematic_cl(h, mask, PAPER_GAIN, theory, 60, 7.0, inst)
 
 
 def test_coherent_power_of_constant_and_white_h():
