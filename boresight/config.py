@@ -23,7 +23,7 @@ import numpy as np
 from . import io, validation
 from .backend import BACKENDS
 from .evaluation import METHODS
-from .instrument import Instrument, Systematics
+from .instrument import Instrument, Systematics, response
 from .masks import SURVEYS
 from .scan import SyntheticScan
 from .sky import SkyConfig
@@ -496,6 +496,12 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
     try:
         systematics.per_pair(instrument.n_pairs)
+        response(
+            scan.rotations_rad,
+            instrument.pair_angles_rad,
+            systematics.per_pair(instrument.n_pairs),
+            systematics.per_repeat(len(scan.rotations_deg)),
+        )
     except ValueError as err:
         raise ConfigError(f"[systematics] {err}") from None
     mask_raw = dict(raw.get("mask", {}))

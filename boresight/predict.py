@@ -34,7 +34,7 @@ map level has no such limit.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
 import numba
@@ -327,10 +327,17 @@ def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None):
     return terms
 
 
-def local_cl(
-    sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Beam-smoothed (TT, EE + BB) of one sky inside a mask: pseudo-C_ell / <w^2>.
+class FieldSpectra(NamedTuple):
+    """Beam-smoothed spectra of the fields a prediction scales, (lmax + 1,) [muK^2] each: TT,
+    EE + BB (the h_4 P* term) and EE (the h_0 term)."""
+
+    tt: np.ndarray
+    pol: np.ndarray
+    ee: np.ndarray
+
+
+def local_cl(sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0) -> FieldSpectra:
+    """Beam-smoothed TT, EE + BB and EE of one sky inside a mask: pseudo-C_ell / <w^2>.
 
     Feeding these to :func:`systematic_cl` instead of the theory removes the patch's sample variance
     when a prediction is compared with a simulation of that sky.
@@ -344,13 +351,12 @@ def local_cl(
 
     Returns
     -------
-    tt, pol : numpy.ndarray, shape (lmax + 1,)
-        [muK^2].
+    FieldSpectra
     """
     from .spectra import pseudo_spectra
 
     cl = pseudo_spectra(sky.maps, mask, lmax, nthreads) / np.mean(np.asarray(mask) ** 2)
-    return cl[0], cl[1] + cl[2]
+    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1])
 
 
 def systematic_cl(
@@ -362,7 +368,7 @@ def systematic_cl(
     fwhm_arcmin: float,
     instrument: Instrument | None = None,
     template_cl: np.ndarray | None = None,
-    field_cl: tuple | None = None,
+    field_cl: FieldSpectra | None = None,
     rotations_deg: Sequence[float] = (0.0,),
     crossings: np.ndarray | None = None,
 ) -> np.ndarray:
@@ -380,8 +386,8 @@ def systematic_cl(
     instrument : boresight.instrument.Instrument, optional
     template_cl : numpy.ndarray, optional
         Spectrum of the leak's template.
-    field_cl : tuple of numpy.ndarray, optional
-        Beam-smoothed (TT, EE + BB) to use instead of the theory (:func:`local_cl`).
+    field_cl : FieldSpectra, optional
+        Beam-smoothed spectra to use instead of the theory (:func:`local_cl`).
     rotations_deg : sequence of float
         The repeats' boresight rotations [deg].
     crossings : numpy.ndarray, shape (npix,), optional
@@ -402,7 +408,7 @@ def systematic_cl(
     cl_tt, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
     cl_pol = cl_ee + cl_bb
     if field_cl is not None:
-        cl_tt, cl_pol = (np.asarray(c)[: lmax + 1] for c in field_cl)
+        cl_tt, cl_pol = field_cl.tt[: lmax + 1], field_cl.pol[: lmax + 1]
     omega_pix = 4 * np.pi / h.shape[1]
     ell = np.arange(lmax + 1)
     out = np.zeros(lmax + 1)
@@ -458,7 +464,7 @@ def residual_pseudo_bb(
     fwhm_arcmin: float,
     instrument: Instrument | None = None,
     template_cl: np.ndarray | None = None,
-    field_cl: tuple | None = None,
+    field_cl: FieldSpectra | None = None,
     rotations_deg: Sequence[float] = (0.0,),
     crossings: np.ndarray | None = None,
 ) -> np.ndarray:
@@ -496,6 +502,8 @@ def residual_pseudo_bb(
         crossings,
     )
     _, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
+    if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
+        cl_ee = field_cl.ee[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
     return coupling.pseudo_bb(cl_sys, cl_sys) + signal_bb(coupling, coefs, cl_ee, cl_bb)
 

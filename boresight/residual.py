@@ -134,8 +134,8 @@ class Prediction:
         Coupling matrices of the mask at the job's lmax.
     fwhm_arcmin : float
         The sky's Gaussian beam [arcmin].
-    field_cl : tuple of numpy.ndarray or Future, optional
-        (TT, EE + BB) [muK^2] of the sky inside the mask (:func:`boresight.predict.local_cl`),
+    field_cl : boresight.predict.FieldSpectra or Future, optional
+        Spectra [muK^2] of the sky inside the mask (:func:`boresight.predict.local_cl`),
         which removes the patch's sample variance from the comparison; default: the theory.
     """
 
