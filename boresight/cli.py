@@ -99,6 +99,16 @@ def _parser():
         "--no-validate", action="store_true", help="skip the TOD simulation of the design"
     )
     _motion_flags(de)
+    su = sub.add_parser(
+        "suppression",
+        help="every systematic alone through 0/45/90/180 deg rotation: table and figure",
+    )
+    su.add_argument("--out", required=True, help="output directory")
+    su.add_argument("--nside", type=int, default=256, help="HEALPix Nside (lmax = 2 Nside)")
+    su.add_argument("--survey", choices=("deep", "wide"), default="deep")
+    su.add_argument("--fwhm-arcmin", type=float, default=30.0, help="the sky's beam")
+    su.add_argument("--seed", type=int, default=0, help="the sky's seed")
+    su.add_argument("--force", action="store_true")
     pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
     pr.add_argument("config")
     pr.add_argument("--out", help="write prediction.csv into this directory")
@@ -271,6 +281,14 @@ def _run(args, progress, memory_check):
                 row["delta_r"],
                 row["delta_r_over_sigma_r"],
             )
+        return 0
+    if args.command == "suppression":
+        sky_cfg = SkyConfig(
+            nside=args.nside, lmax=3 * args.nside - 1, fwhm_arcmin=args.fwhm_arcmin, seed=args.seed
+        )
+        studies.suppression_map(
+            sky_cfg, args.survey, args.out, args.force, log.info, progress, memory_check
+        )
         return 0
     if args.command == "export-schedule":
         from . import ground, io, toast_schedule

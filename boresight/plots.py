@@ -312,3 +312,51 @@ def design_figure(
     ax.set_title("predicted residual B-modes of each rotation strategy")
     ax.legend(fontsize=7, ncol=2)
     _save(fig, path_stem)
+
+
+def suppression_figure(result, nside: int, path_stem: str | os.PathLike) -> None:
+    """The suppression map: one panel per systematic, the residual pseudo-C_BB of each rotation
+    schedule simulated (solid) and predicted (dashed), against lensing and r = 0.01.
+
+    Parameters
+    ----------
+    result : boresight.suppression.Result
+    nside : int
+    path_stem : pathlib.Path
+        Writes .png and .pdf.
+    """
+    from .suppression import ANGLES, CATALOGUE
+
+    ncol = 4
+    nrow = -(-len(CATALOGUE) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.8 * nrow), sharex=True, sharey=True)
+    ell = np.arange(result.template.size)
+    keep = ell >= 20
+    for ax, entry in zip(axes.flat, CATALOGUE):
+        ax.plot(ell[keep], result.lensing[keep], color="0.6", lw=1, label=r"lensing $A_L = 1$")
+        ax.plot(ell[keep], 0.01 * result.template[keep], "k:", lw=1, label="$r = 0.01$")
+        for i, angle in enumerate(ANGLES):
+            colour = f"C{i}"
+            label = "no rotation" if angle is None else f"0/{angle:g}$^\\circ$"
+            sim = np.abs(result.simulated[entry.name, i])
+            ax.plot(ell[keep], sim[keep], color=colour, lw=1, label=label)
+            pred = result.predicted[entry.name, i]
+            if pred is not None:
+                ax.plot(ell[keep], np.abs(pred[keep]), "--", color=colour, lw=1)
+        ax.set_title(f"{entry.name}: {entry.amplitude}", fontsize=9)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+    for ax in axes.flat[len(CATALOGUE) :]:
+        ax.axis("off")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    axes.flat[-1].legend(
+        handles, labels + [], loc="center", fontsize=9, title="solid: simulated\ndashed: predicted"
+    )
+    for ax in axes[-1]:
+        ax.set_xlabel(r"multipole $\ell$")
+    for ax in axes[:, 0]:
+        ax.set_ylabel(r"$|\Delta \tilde C_\ell^{BB}|$ [$\mu$K$^2$]")
+    ax0 = axes.flat[0]
+    ax0.set_ylim(1e-12, None)
+    fig.suptitle(f"Residual B-mode of each systematic under boresight rotation (Nside {nside})")
+    _save(fig, path_stem)

@@ -432,11 +432,17 @@ def systematic_cl(
 
 
 def signal_bb(
-    coupling: Coupling, coefs: Coefficients, cl_ee: np.ndarray, cl_bb: np.ndarray
+    coupling: Coupling,
+    coefs: Coefficients,
+    cl_ee: np.ndarray,
+    cl_bb: np.ndarray,
+    leaked: bool = False,
 ) -> np.ndarray:
     """Pseudo-C_BB change of the h_0 term, which turns the sky's P into u P with u = 1 + p_0.
 
     E' + i B' = u (E + i B), so C^B'B' - C^BB = Im(u)^2 C^EE + (Re(u)^2 - 1) C^BB, and E likewise.
+    Its leaked power alone, of dB = Im(u) E + (Re(u) - 1) B, has (Re(u) - 1)^2 in place of
+    Re(u)^2 - 1: the rest is the cross term 2 (Re(u) - 1) C^BB, a rescaling of the sky's own B.
 
     Parameters
     ----------
@@ -444,6 +450,8 @@ def signal_bb(
     coefs : Coefficients
     cl_ee, cl_bb : numpy.ndarray, shape (lmax + 1,)
         [muK^2].
+    leaked : bool
+        The leaked power <dB, dB> only.
 
     Returns
     -------
@@ -451,7 +459,7 @@ def signal_bb(
         [muK^2].
     """
     u = 1 + coefs.p0
-    re2, im2 = u.real**2 - 1, u.imag**2
+    re2, im2 = (u.real - 1) ** 2 if leaked else u.real**2 - 1, u.imag**2
     return re2 * coupling.pseudo_bb(cl_bb, cl_ee) + im2 * coupling.pseudo_bb(cl_ee, cl_bb)
 
 
@@ -467,6 +475,7 @@ def residual_pseudo_bb(
     field_cl: FieldSpectra | None = None,
     rotations_deg: Sequence[float] = (0.0,),
     crossings: np.ndarray | None = None,
+    leaked: bool = False,
 ) -> np.ndarray:
     """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
@@ -481,6 +490,9 @@ def residual_pseudo_bb(
         The mask's coupling matrices; their lmax is the prediction's.
     rotations_deg, crossings
         As in :func:`systematic_cl`.
+    leaked : bool
+        Predict the leaked power <dB, dB> alone, without the h_0 term's rescaling of the sky's own
+        B (:func:`signal_bb`).
 
     Returns
     -------
@@ -505,7 +517,8 @@ def residual_pseudo_bb(
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
         cl_ee = field_cl.ee[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
-    return coupling.pseudo_bb(cl_sys, cl_sys) + signal_bb(coupling, coefs, cl_ee, cl_bb)
+    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked)
+    return coupling.pseudo_bb(cl_sys, cl_sys) + signal
 
 
 def rotation_suppression(n: int, rotations_deg: Sequence[float]) -> float:

@@ -137,12 +137,15 @@ class Prediction:
     field_cl : boresight.predict.FieldSpectra or Future, optional
         Spectra [muK^2] of the sky inside the mask (:func:`boresight.predict.local_cl`),
         which removes the patch's sample variance from the comparison; default: the theory.
+    leaked : bool
+        Predict the leaked power (:attr:`Residual.auto`) rather than the whole residual.
     """
 
     theory: object
     couplings: object
     fwhm_arcmin: float
     field_cl: object = None
+    leaked: bool = False
 
 
 @dataclass
@@ -469,6 +472,7 @@ def residual(
             field_cl=field_cl,
             rotations_deg=mom.rotations_deg,
             crossings=mom.crossings,
+            leaked=prediction.leaked,
         )
     if predict_map:
         dp = predict.delta_p(

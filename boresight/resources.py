@@ -22,6 +22,7 @@ BYTES_PER_PIXEL = {
     "predict": 160.0,
     "scan-stats": 160.0,
     "compare-scans": 320.0,
+    "suppression": 380.0,  # the reproduction's pattern: one survey, transforms queued
 }
 
 
