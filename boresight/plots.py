@@ -344,6 +344,8 @@ def suppression_figure(result, nside: int, path_stem: str | os.PathLike) -> None
             if pred is not None:
                 ax.plot(ell[keep], np.abs(pred[keep]), "--", color=colour, lw=1)
         ax.set_title(f"{entry.name}: {entry.amplitude}", fontsize=9)
+        if max(np.max(np.abs(result.simulated[entry.name, i])) for i in range(len(ANGLES))) < 1e-12:
+            ax.text(0.5, 0.5, "below the axis at every ell", transform=ax.transAxes, ha="center")
         ax.set_xscale("log")
         ax.set_yscale("log")
     for ax in axes.flat[len(CATALOGUE) :]:

@@ -1,0 +1,59 @@
+"""What each systematic costs to simulate, and the whole `boresight suppression` map.
+
+1. Per systematic of boresight.suppression.CATALOGUE: the engine's time for the paper's deep
+   survey at 0/90 deg rotation (the simulation alone, interpolated sky, all cores), against the
+   same scan without a systematic.
+2. The whole suppression map (sky, 7 systematics x 4 schedules, predictions, transforms): wall
+   time and peak RSS of this process.
+
+Usage: python bench/bench_suppression.py [NSIDE ...]   (default 256 512)
+"""
+
+import resource
+import sys
+import time
+
+from boresight import engine, masks, sky, suppression
+from boresight.instrument import Systematics
+from boresight.scan import paper_scan
+
+
+def per_systematic(the_sky):
+    obs = masks.survey_mask("deep", the_sky.nside) > 0
+    scan = paper_scan("deep", 90.0)
+    rows = []
+    for name, sysm in [("none", Systematics())] + [
+        (e.name, e.for_repeats(2)) for e in suppression.CATALOGUE
+    ]:
+        engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)  # compile, warm caches
+        t0 = time.perf_counter()
+        engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
+        rows.append((name, time.perf_counter() - t0))
+    return rows, int(obs.sum())
+
+
+def main(nsides):
+    print("| Nside | systematic | engine time, deep survey at 0/90 deg [s] | x no systematic |")
+    print("|---|---|---|---|")
+    whole = []
+    for nside in nsides:
+        cfg = sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=30.0)
+        the_sky = sky.make_sky(cfg)
+        rows, npix = per_systematic(the_sky)
+        base = rows[0][1]
+        for name, t in rows:
+            print(f"| {nside} | {name} | {t:.2f} | {t / base:.2f} |")
+        t0 = time.perf_counter()
+        suppression.run(sky.make_sky(cfg), log=lambda *a: None)
+        whole.append((nside, npix, time.perf_counter() - t0))
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    print()
+    print("| Nside | observed pixels | suppression map (28 simulations + predictions) [s] |")
+    print("|---|---|---|")
+    for nside, npix, t in whole:
+        print(f"| {nside} | {npix} | {t:.1f} |")
+    print(f"\npeak RSS of this process: {rss:.2f} GiB")
+
+
+if __name__ == "__main__":
+    main([int(a) for a in sys.argv[1:]] or [256, 512])
