@@ -4,7 +4,8 @@
    survey at 0/90 deg rotation (the simulation alone, interpolated sky, all cores), against the
    same scan without a systematic.
 2. The whole suppression map (sky, 7 systematics x 4 schedules, predictions, transforms): wall
-   time and peak RSS of this process.
+   time and peak RSS of this process, and the map's table at the last Nside (deterministic: the
+   same as `boresight suppression --nside N`).
 
 Usage: python bench/bench_suppression.py [NSIDE ...]   (default 256 512)
 """
@@ -44,8 +45,9 @@ def main(nsides):
         for name, t in rows:
             print(f"| {nside} | {name} | {t:.2f} | {t / base:.2f} |")
         t0 = time.perf_counter()
-        suppression.run(sky.make_sky(cfg), log=lambda *a: None)
+        result = suppression.run(sky.make_sky(cfg), log=lambda *a: None)
         whole.append((nside, npix, time.perf_counter() - t0))
+        table = suppression.markdown(suppression.table(result, nside))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print()
     print("| Nside | observed pixels | suppression map (28 simulations + predictions) [s] |")
@@ -53,6 +55,8 @@ def main(nsides):
     for nside, npix, t in whole:
         print(f"| {nside} | {npix} | {t:.1f} |")
     print(f"\npeak RSS of this process: {rss:.2f} GiB")
+    print(f"\nThe suppression map at Nside {nsides[-1]} (the README's table):\n")
+    print(table)
 
 
 if __name__ == "__main__":

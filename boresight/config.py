@@ -494,8 +494,7 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
     systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
-    try:
-        systematics.per_pair(instrument.n_pairs)
+    try:  # list lengths against pairs and repeats, and detector B's gain in [0, 2]
         response(
             scan.rotations_rad,
             instrument.pair_angles_rad,

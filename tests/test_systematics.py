@@ -1,6 +1,8 @@
 """Polarisation-angle errors, gain drift, gain jitter and focal planes (issue 14): the engine's
 sample-by-sample pair differences against the analytic coefficients of boresight.predict."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from conftest import rel_max
@@ -104,8 +106,11 @@ def test_jitter_does_not_depend_on_chunks_or_threads(small_sky):
     b = engine.simulate(small_sky, scan, systematics=sysm, chunk_pixels=7919, nthreads=2)
     np.testing.assert_array_equal(a.q, b.q)
     np.testing.assert_array_equal(a.u, b.u)
-    other = engine.simulate(small_sky, SyntheticScan(**{**scan.__dict__, "seed": 10}))
-    assert not np.array_equal(a.q, other.q)
+    other = engine.simulate(small_sky, replace(scan, seed=10), systematics=sysm)
+    ref_other = engine.simulate(small_sky, replace(scan, seed=10))
+    ref = engine.simulate(small_sky, scan)
+    # another seed draws other jitter (the hits move too, so compare the jitter's own part)
+    assert not np.allclose(a.q - ref.q, other.q - ref_other.q)
 
 
 def test_jitter_needs_a_synthetic_scan(small_sky):
@@ -179,7 +184,9 @@ def test_per_pair_draws_are_keyed_by_seed_and_pair():
 def test_random_focal_plane_residual_falls_as_one_over_n_pairs(small_sky):
     """Zero-mean per-pair gain and angle errors: the residual power over N = 1, 4, 16, 64 pairs
     falls as N^-1. Each N averages 48 focal-plane draws (scatter ~ 1 / sqrt(48) per point); the
-    fitted slope is good to ~0.05. The 0/45 deg repeat makes one pair's 2x2 system as well
+    fitted slope is good to ~0.05. The powers are those of the map-level closed form, which the
+    first two draws of every N check against the engine to 1e-9 (simulating all 192 focal planes
+    would cost the suite ~30 s for the same numbers). The 0/45 deg repeat makes one pair's 2x2 system as well
     conditioned as many pairs' (m_4 = 0), so N = 1 is on the same law."""
     scan = SyntheticScan(**CENTRED, rotations_deg=(0.0, 45.0))
     powers = []
