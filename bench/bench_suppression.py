@@ -3,7 +3,7 @@
 1. Per systematic of boresight.suppression.CATALOGUE: the engine's time for the paper's deep
    survey at 0/90 deg rotation (the simulation alone, interpolated sky, all cores), against the
    same scan without a systematic.
-2. The whole suppression map (sky, 7 systematics x 4 schedules, predictions, transforms): wall
+2. The whole suppression map (sky, 9 systematics x 4 schedules, predictions, transforms): wall
    time and peak RSS of this process, and the map's table at the last Nside (deterministic: the
    same as `boresight suppression --nside N`).
 
@@ -50,7 +50,7 @@ def main(nsides):
         table = suppression.markdown(suppression.table(result, nside))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print()
-    print("| Nside | observed pixels | suppression map (28 simulations + predictions) [s] |")
+    print("| Nside | observed pixels | suppression map (36 simulations + predictions) [s] |")
     print("|---|---|---|")
     for nside, npix, t in whole:
         print(f"| {nside} | {npix} | {t:.1f} |")

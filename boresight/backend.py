@@ -75,7 +75,9 @@ class KernelBackend(Protocol):
         float64 array, shape (F, n)
         """
 
-    def accumulate(self, offsets, psi, values_a, values_b, response, leak, jitter, seed, pixels):
+    def accumulate(
+        self, offsets, psi, values_a, values_b, beams, response, leak, jitter, seed, pixels
+    ):
         """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
         Parameters
@@ -86,6 +88,9 @@ class KernelBackend(Protocol):
             Fields I, Q, U[, leak template] where detector A looks [muK].
         values_b : float64 array, shape (F, H, K, M) or (F, 0, K, M)
             The same where detector B looks; empty when B looks where A does.
+        beams : float64 array, shape (2, H, K, M) or (2, 0, K, M)
+            Detector A's and B's extra signal from their own beams [muK]
+            (:class:`boresight.beams.BeamConvolver`); empty when both beams are the sky's.
         response : float64 array, shape (K, M, 7)
             Assumed and true polarisation angles and detector B's gain per (rotation, pair)
             (:func:`boresight.instrument.response`).
@@ -102,7 +107,7 @@ class KernelBackend(Protocol):
             sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
         """
 
-    def accumulate_scatter(self, pixels, psi, values_a, values_b, response, leak, out):
+    def accumulate_scatter(self, pixels, psi, values_a, values_b, beams, response, leak, out):
         """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order
         (no jitter: such samples have no (pixel, hit) key).
 
@@ -110,7 +115,7 @@ class KernelBackend(Protocol):
         ----------
         pixels : int64 array, shape (H,)
             RING pixel of each hit.
-        psi, values_a, values_b, response, leak
+        psi, values_a, values_b, beams, response, leak
             As in :meth:`accumulate`.
         out : float64 array, shape (npix, 5)
             Running sums, updated in place.

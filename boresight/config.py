@@ -22,6 +22,8 @@ import numpy as np
 
 from . import io, validation
 from .backend import BACKENDS
+from .beams import pair_beams
+from .constants import ARCMIN
 from .evaluation import METHODS
 from .instrument import Instrument, Systematics, response
 from .masks import SURVEYS
@@ -494,13 +496,16 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
     systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
-    try:  # list lengths against pairs and repeats, and detector B's gain in [0, 2]
+    try:  # list lengths against pairs and repeats, B's gain in [0, 2], drawn beams in range
+        params = systematics.per_pair(instrument.n_pairs)
         response(
             scan.rotations_rad,
             instrument.pair_angles_rad,
-            systematics.per_pair(instrument.n_pairs),
+            params,
             systematics.per_repeat(len(scan.rotations_deg)),
         )
+        if systematics.has_beams:
+            pair_beams(params, sky_cfg.fwhm_arcmin * ARCMIN)
     except ValueError as err:
         raise ConfigError(f"[systematics] {err}") from None
     mask_raw = dict(raw.get("mask", {}))

@@ -16,6 +16,8 @@ from tqdm.auto import tqdm
 
 from . import harmonics
 from .backend import get_backend
+from .beams import BeamConvolver, pair_beams
+from .constants import ARCMIN
 from .evaluation import METHODS, SkyFields, pair_fields
 from .instrument import Instrument, Systematics, response
 from .mapmaking import RCOND_MIN, Maps, solve
@@ -219,6 +221,12 @@ class _Binner:
             params.dg_jitter,
         )
         self.pointing = systematics.has_pointing
+        self.beams = None
+        if systematics.has_beams:
+            self.pair_beams = pair_beams(params, sky.fwhm_arcmin * ARCMIN)
+            self.beams = BeamConvolver(sky.alm, sky.fwhm_arcmin * ARCMIN, nthreads)
+            self.angle_a = params.pol_angle - 0.5 * params.nonortho
+            self.angle_b = params.pol_angle + 0.5 * params.nonortho + 0.5 * np.pi
         self.fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
         self.rot, self.ang = np.asarray(rotations, dtype=np.float64), instrument.pair_angles_rad
         self.response = response(self.rot, self.ang, params, systematics.per_repeat(self.rot.size))
@@ -232,6 +240,38 @@ class _Binner:
         if self.evaluation == "interp":
             return k.interpolate(self.stack, self.fields.nside, theta, phi)
         return self.fields.exact(k.to_host(theta), k.to_host(phi), self.nthreads)
+
+    def _beam_terms(self, theta, phi, psi):
+        """(2, H, K, M) extra signal of detectors A and B from their own beams, or (2, 0, K, M)."""
+        k = self.kernels
+        out = np.zeros((2, 0 if self.beams is None else theta.size, self.rot.size, self.ang.size))
+        if self.beams is None:
+            return out
+        theta, phi, psi = k.to_host(theta), k.to_host(phi), k.to_host(psi)
+        if self.pointing:
+            tb, pb = (
+                k.to_host(x)
+                for x in k.offset_points(theta, phi, psi, self.rot, self.ang, self.rho, self.chi)
+            )
+        else:
+            tb = np.broadcast_to(theta[:, None, None], out.shape[1:])
+            pb = np.broadcast_to(phi[:, None, None], out.shape[1:])
+        angle = psi[:, None] + self.rot[None, :]
+        for m, (beam_a, beam_b) in enumerate(self.pair_beams):
+            base = angle + self.ang[m]
+            out[0, :, :, m] = self.beams.extra(
+                beam_a,
+                np.repeat(theta, self.rot.size),
+                np.repeat(phi, self.rot.size),
+                (base + self.angle_a[m]).ravel(),
+            ).reshape(base.shape)
+            out[1, :, :, m] = self.beams.extra(
+                beam_b,
+                np.ascontiguousarray(tb[:, :, m]).ravel(),
+                np.ascontiguousarray(pb[:, :, m]).ravel(),
+                (base + self.angle_b[m]).ravel(),
+            ).reshape(base.shape)
+        return out
 
     def _values(self, theta, phi, psi):
         return pair_fields(
@@ -250,9 +290,9 @@ class _Binner:
 
     def scan_normal(self, scan, nside, chunk):
         """(npix_chunk, 5) normal-equation sums of a synthetic scan over a chunk of pixels, on the
-        backend's device: the backend's bin_scan for an interpolated sky, else hits -> exact sky
-        at both detectors -> accumulate."""
-        if self.evaluation == "interp":
+        backend's device: the backend's bin_scan for an interpolated sky and the sky's beam, else
+        hits -> sky (and beams) at both detectors -> accumulate."""
+        if self.evaluation == "interp" and self.beams is None:
             n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
             return self.kernels.bin_scan(
                 scan.seed,
@@ -279,6 +319,7 @@ class _Binner:
             psi,
             values_a,
             values_b,
+            self._beam_terms(theta, phi, psi),
             self.response,
             self.leak,
             self.jitter,
@@ -289,8 +330,9 @@ class _Binner:
     def scatter(self, pixels, theta, phi, psi, normal):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal``."""
         values_a, values_b = self._values(theta, phi, psi)
+        beams = self._beam_terms(theta, phi, psi)
         self.kernels.accumulate_scatter(
-            pixels, psi, values_a, values_b, self.response, self.leak, normal
+            pixels, psi, values_a, values_b, beams, self.response, self.leak, normal
         )
 
 

@@ -16,6 +16,9 @@ where psi is the crossing angle of the hit. Systematics, per pair:
   map-maker assumes angle_i and angle_i + 90 deg;
 * gain jitter ``dg_jitter``: every sample's differential gain gets a white normal deviate of this
   rms, drawn from the counter-based generator (:mod:`boresight.rng`);
+* beams ``dfwhm_a_arcmin``, ``dfwhm_b_arcmin``, ``ellipticity_a``, ``ellipticity_b``,
+  ``ellipticity_angle_a_deg``, ``ellipticity_angle_b_deg``: each detector's elliptical Gaussian
+  beam, relative to the sky's (:mod:`boresight.beams`);
 
 and per rotation repeat k, gain drift ``dg_repeat``: detector B of every pair is scaled by
 (1 - dg - dg_repeat[k]) during repeat k.
@@ -37,6 +40,8 @@ from .constants import ARCMIN, DEG
 from .validation import option
 
 MAX_ANGLE_DEG = 3600.0  #: angles beyond ten turns are input mistakes
+#: ellipticity (sigma_maj - sigma_min) / (sigma_maj + sigma_min) at most: axes 39:1
+MAX_ELLIPTICITY = 0.95
 #: allowed range of each per-pair systematic parameter: detector B's gain 1 - dg stays in [0, 2];
 #: pointing offsets up to 10 deg (far beyond any pair, still handled exactly by the engine);
 #: angle errors up to a quarter (common) and an eighth (non-orthogonality) of a turn
@@ -48,6 +53,12 @@ LIMITS = {
     "pol_angle_deg": (-90.0, 90.0),
     "nonortho_deg": (-45.0, 45.0),
     "dg_jitter": (0.0, 1.0),
+    "dfwhm_a_arcmin": (-600.0, 600.0),
+    "dfwhm_b_arcmin": (-600.0, 600.0),
+    "ellipticity_a": (0.0, MAX_ELLIPTICITY),
+    "ellipticity_b": (0.0, MAX_ELLIPTICITY),
+    "ellipticity_angle_a_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG),
+    "ellipticity_angle_b_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG),
 }
 #: the unit that turns each per-pair parameter into the engine's (radians for angles)
 UNITS = {
@@ -58,6 +69,17 @@ UNITS = {
     "pol_angle_deg": DEG,
     "nonortho_deg": DEG,
     "dg_jitter": 1.0,
+    "dfwhm_a_arcmin": ARCMIN,
+    "dfwhm_b_arcmin": ARCMIN,
+    "ellipticity_a": 1.0,
+    "ellipticity_b": 1.0,
+    "ellipticity_angle_a_deg": DEG,
+    "ellipticity_angle_b_deg": DEG,
+}
+#: the beam keys of each detector: FWHM change, ellipticity, major-axis angle
+BEAM_KEYS = {
+    "a": ("dfwhm_a_arcmin", "ellipticity_a", "ellipticity_angle_a_deg"),
+    "b": ("dfwhm_b_arcmin", "ellipticity_b", "ellipticity_angle_b_deg"),
 }
 REPEAT_LIMITS = (-1.0, 1.0)  #: dg_repeat
 #: focal-plane presets: the polarisation angle of pair i of n [deg]
@@ -134,7 +156,8 @@ class Spread:
 class PairParameters(NamedTuple):
     """Every pair's systematics in engine units: arrays of shape (n_pairs,).
 
-    dg, leak and dg_jitter are fractions; rho, chi, pol_angle and nonortho are in rad.
+    dg, leak, dg_jitter and the ellipticities are fractions; rho, chi, pol_angle, nonortho, the
+    FWHM changes and the ellipticities' angles are in rad.
     """
 
     dg: np.ndarray
@@ -144,6 +167,12 @@ class PairParameters(NamedTuple):
     pol_angle: np.ndarray
     nonortho: np.ndarray
     dg_jitter: np.ndarray
+    dfwhm_a: np.ndarray
+    dfwhm_b: np.ndarray
+    ellipticity_a: np.ndarray
+    ellipticity_b: np.ndarray
+    ellipticity_angle_a: np.ndarray
+    ellipticity_angle_b: np.ndarray
 
 
 def _spread_or_numbers(name, value, lo, hi):
@@ -206,6 +235,12 @@ class Systematics:
         Non-orthogonality epsilon: B is at 90 + epsilon deg from A [deg], in [-45, 45].
     dg_jitter : float, tuple or Spread
         Rms of the white per-sample differential-gain jitter, in [0, 1].
+    dfwhm_a_arcmin, dfwhm_b_arcmin : float, tuple or Spread
+        Detector A's and B's beam FWHM less the sky's [arcmin] (:mod:`boresight.beams`).
+    ellipticity_a, ellipticity_b : float, tuple or Spread
+        Their beams' ellipticity (sigma_maj - sigma_min) / (sigma_maj + sigma_min), in [0, 0.95].
+    ellipticity_angle_a_deg, ellipticity_angle_b_deg : float, tuple or Spread
+        Direction of each major axis from the detector's polarisation axis [deg].
     dg_repeat : float, tuple or Spread
         Gain drift: added to every pair's dg during each rotation repeat (one per repeat).
     seed : int
@@ -228,6 +263,24 @@ class Systematics:
     )
     dg_jitter: object = option(
         0.0, "rms of the per-sample gain jitter, per pair or {mean, rms}", _TABLE
+    )
+    dfwhm_a_arcmin: object = option(
+        0.0, "detector A's beam FWHM less the sky's [arcmin], per pair or {mean, rms}", _TABLE
+    )
+    dfwhm_b_arcmin: object = option(
+        0.0, "detector B's beam FWHM less the sky's [arcmin], per pair or {mean, rms}", _TABLE
+    )
+    ellipticity_a: object = option(
+        0.0, "detector A's beam ellipticity in [0, 0.95], per pair or {mean, rms}", _TABLE
+    )
+    ellipticity_b: object = option(
+        0.0, "detector B's beam ellipticity in [0, 0.95], per pair or {mean, rms}", _TABLE
+    )
+    ellipticity_angle_a_deg: object = option(
+        0.0, "A's beam major axis from its polarisation axis [deg], per pair or {mean, rms}", _TABLE
+    )
+    ellipticity_angle_b_deg: object = option(
+        0.0, "B's beam major axis from its polarisation axis [deg], per pair or {mean, rms}", _TABLE
     )
     dg_repeat: object = option(
         0.0, "gain drift: dg added during each rotation repeat, one per repeat", _TABLE
@@ -303,6 +356,11 @@ class Systematics:
     @property
     def has_leak(self):
         return _nonzero(self.leak)
+
+    @property
+    def has_beams(self):
+        """Whether a detector's beam differs from the sky's (FWHM or ellipticity)."""
+        return any(_nonzero(getattr(self, k)) for keys in BEAM_KEYS.values() for k in keys[:2])
 
     @property
     def has_jitter(self):

@@ -20,6 +20,12 @@ no repeat these are the paper's eq. 5-9 (its eq. 6 is the complex conjugate of t
 h_n and gradient use the opposite orientation; amplitudes are identical). Gain, leak and angle
 terms are exact for pixel-centre hits; pointing is first order in rho.
 
+Detector beams (:mod:`boresight.beams`) add, from each detector X's extra signal W_X + Re[D_X*
+e^{2 i beta_X}], the terms h_2 W + D0 + h_4 D4* to Y (:func:`beam_filters`): W (beam width,
+~ nabla^2 T) joins the gain's h_2 T; D (ellipticity, ~ eth^2 T) enters at h_0, which no rotation
+changes, and at h_4. Exact in the temperature windows (to the k = 2 azimuthal moment of the beam);
+the beams' smoothing of P is left out (1 % of the map-level residual for a 60 arcmin beam).
+
 Power spectra: each term c h_n F contributes C^EE = C^BB = ``|c|^2`` / 2 * [coh_n C^FF_l +
 (``<|h_n|^2>`` - coh_n) Omega_pix sigma_F^2]: a coherent part from h_n smoothed over blocks of
 pixels (what Wallis et al. 2017 write as ``<|h_n|^2>`` C^FF) and a white part from the
@@ -33,7 +39,8 @@ map level has no such limit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
 from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
@@ -41,6 +48,7 @@ import numba
 import numpy as np
 
 from . import harmonics
+from .beams import pair_beams, windows
 from .constants import ARCMIN, DEG
 from .instrument import Instrument
 from .threads import numba_threads
@@ -109,23 +117,196 @@ def coefficients(
     instrument = Instrument() if instrument is None else instrument
     alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
     par = systematics.per_pair(instrument.n_pairs)
-    ang = alpha[:, None] + instrument.pair_angles_rad[None, :]
-    dg = par.dg[None, :] + systematics.per_repeat(alpha.size)[:, None]
+    terms = _pair_terms(par, instrument.pair_angles_rad, alpha, systematics.per_repeat(alpha.size))
+    return Coefficients(
+        **{name: complex(np.mean(f)) for name, f in terms.items()},
+        jitter_var=float(np.mean(par.dg_jitter**2)),
+        n_samples=int(alpha.size * instrument.n_pairs),
+    )
+
+
+def _pair_terms(par, pair_angles, alpha, dg_repeat):
+    """Each coefficient's share from every pair: its mean over the repeats, (n_pairs,) complex
+    (a coefficient is the mean of these over the pairs)."""
+    ang = alpha[:, None] + pair_angles[None, :]
+    dg = par.dg[None, :] + dg_repeat[:, None]
     off = par.pol_angle[None, :]
     half = 0.5 * par.nonortho[None, :]
     gamma = 0.5 * (np.exp(2j * (off - half)) + (1 - dg) * np.exp(2j * (off + half))) - 1
     e2 = np.exp(2j * ang)
-    return Coefficients(
-        t2=complex(np.mean(dg * e2)),
-        s2=complex(np.mean(par.leak * e2)),
-        g1=complex(-0.5 * np.mean(par.rho * np.exp(1j * (ang - par.chi)))),
-        g3=complex(-0.5 * np.mean(par.rho * np.exp(1j * (3 * ang + par.chi)))),
-        p0=complex(np.mean(np.conj(gamma))),
-        p4=complex(np.mean(gamma * e2**2)),
-        m4=complex(np.mean(e2**2)),
-        jitter_var=float(np.mean(par.dg_jitter**2)),
-        n_samples=int(ang.size),
+    terms = dict(
+        t2=dg * e2,
+        s2=par.leak * e2,
+        g1=-0.5 * par.rho * np.exp(1j * (ang - par.chi)),
+        g3=-0.5 * par.rho * np.exp(1j * (3 * ang + par.chi)),
+        p0=np.conj(gamma),
+        p4=gamma * e2**2,
+        m4=e2**2 + 0j * dg,
     )
+    return {name: np.mean(f, axis=0) for name, f in terms.items()}
+
+
+QUADRATURE_NODES = 3  #: Gauss-Hermite nodes per drawn parameter (exact for powers of linear terms)
+
+
+class ExpectedPower(NamedTuple):
+    """The power of each coefficient averaged over the per-pair draws of {mean, rms} parameters:
+    E``|c|^2`` of t2, s2, g1, g3, p4, and of the h_0 term E Re p0, E (Re p0)^2, E (Im p0)^2."""
+
+    t2: float
+    s2: float
+    g1: float
+    g3: float
+    p4: float
+    re_p0: float
+    re_p0_2: float
+    im_p0_2: float
+
+
+def expected_power(
+    systematics: Systematics,
+    instrument: Instrument | None = None,
+    rotations_deg: Sequence[float] = (0.0,),
+) -> ExpectedPower:
+    """What a focal plane's coefficients give on average over its pairs' random draws.
+
+    A coefficient c is the mean over N pairs of independent shares F_m, so
+    E``|c|^2`` = ``|E c|^2`` (coherent: the means of the parameters) + sum_m Var(F_m) / N^2
+    (incoherent: rms^2 / N for a linear term). E F_m and E``|F_m|^2`` are Gauss-Hermite sums over
+    the pair's drawn parameters (:data:`QUADRATURE_NODES` per parameter).
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+        Without beams and with numbers for ``dg_repeat`` (both are shared, not per pair).
+    instrument : boresight.instrument.Instrument, optional
+    rotations_deg : sequence of float
+
+    Returns
+    -------
+    ExpectedPower
+    """
+    from .instrument import LIMITS, UNITS, Spread
+
+    if systematics.has_beams or isinstance(systematics.dg_repeat, Spread):
+        raise ValueError(
+            "the expected focal-plane power covers per-pair gain, pointing, leak and angle "
+            "errors: give beams and dg_repeat as numbers of one realisation"
+        )
+    instrument = Instrument() if instrument is None else instrument
+    alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
+    n = instrument.n_pairs
+    drawn = [
+        name
+        for name in LIMITS
+        if isinstance(getattr(systematics, name), Spread) and getattr(systematics, name).rms > 0
+    ]
+    z, w = np.polynomial.hermite_e.hermegauss(QUADRATURE_NODES)
+    grids = np.meshgrid(*([z] * len(drawn)), indexing="ij")
+    nodes = np.stack([g.ravel() for g in grids], axis=1) if drawn else np.zeros((1, 0))
+    weight = np.prod(np.meshgrid(*([w] * len(drawn)), indexing="ij"), axis=0).ravel()
+    weight = np.atleast_1d(weight) / np.sum(weight)
+    par = systematics.per_pair(n)
+    values = {}
+    for name, column in zip(par._fields, par):
+        values[name] = np.repeat(column, nodes.shape[0])
+    for j, name in enumerate(drawn):
+        spread = getattr(systematics, name)
+        field = par._fields[list(LIMITS).index(name)]
+        values[field] = np.tile((spread.mean + spread.rms * nodes[:, j]) * UNITS[name], n)
+    virtual = type(par)(**values)
+    terms = _pair_terms(
+        virtual,
+        np.repeat(instrument.pair_angles_rad, nodes.shape[0]),
+        alpha,
+        systematics.per_repeat(alpha.size),
+    )
+
+    def moments(f):
+        f = f.reshape(n, -1)
+        return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight
+
+    out = {}
+    for name in ("t2", "s2", "g1", "g3", "p4", "p0"):
+        mean, re2, im2 = moments(terms[name])
+        out[name] = (
+            abs(np.mean(mean)) ** 2 + np.sum(re2 + im2 - np.abs(mean) ** 2) / n**2,
+            np.mean(mean.real),
+            np.mean(mean.real) ** 2 + np.sum(re2 - mean.real**2) / n**2,
+            np.mean(mean.imag) ** 2 + np.sum(im2 - mean.imag**2) / n**2,
+        )
+    p0 = out.pop("p0")
+    return ExpectedPower(
+        **{name: float(v[0]) for name, v in out.items()},
+        re_p0=float(p0[1]),
+        re_p0_2=float(p0[2]),
+        im_p0_2=float(p0[3]),
+    )
+
+
+class BeamFilters(NamedTuple):
+    """Harmonic filters of the beam terms, applied to the sky's (beam-smoothed) T alm, each
+    complex of shape (lmax + 1,) (module docstring):
+
+    w2 : the h_2 term's spin-0 field W, added to the gain's t2.
+    e0 : the h_0 term's spin-2 field D0, E + i B = e0 T.
+    e4 : the h_4 term's D4 (the term is h_4 D4*).
+    """
+
+    w2: np.ndarray
+    e0: np.ndarray
+    e4: np.ndarray
+
+
+def beam_filters(
+    systematics: Systematics,
+    instrument: Instrument | None,
+    rotations_deg: Sequence[float],
+    fwhm_arcmin: float,
+    lmax: int,
+) -> BeamFilters:
+    """The filters of the detectors' beam terms: means over (repeat, pair) of each detector's
+    windows (:func:`boresight.beams.windows`) times its sign, gain and orientation phase.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+    instrument : boresight.instrument.Instrument or None
+    rotations_deg : sequence of float
+    fwhm_arcmin : float
+        The sky's beam.
+    lmax : int
+
+    Returns
+    -------
+    BeamFilters
+    """
+    instrument = Instrument() if instrument is None else instrument
+    alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
+    par = systematics.per_pair(instrument.n_pairs)
+    nominal = fwhm_arcmin * ARCMIN
+    smoothing = hp.gauss_beam(nominal, lmax=lmax)
+    ang = alpha[:, None] + instrument.pair_angles_rad[None, :]  # (K, M)
+    gain_b = 1 - (par.dg[None, :] + systematics.per_repeat(alpha.size)[:, None])
+    phase = {  # e^{-2 i c_X}: the detector's angle from the assumed one plus its major axis's
+        "a": np.exp(-2j * (par.pol_angle - 0.5 * par.nonortho + par.ellipticity_angle_a)),
+        "b": -np.exp(-2j * (par.pol_angle + 0.5 * par.nonortho + par.ellipticity_angle_b)),
+    }
+    w2 = np.zeros(lmax + 1, dtype=np.complex128)
+    e0, e4 = np.zeros_like(w2), np.zeros_like(w2)
+    cache = {}
+    for m, beam_pair in enumerate(pair_beams(par, nominal)):
+        for detector, beam, sign, gain in zip("ab", beam_pair, (1, -1), (1.0, gain_b[:, m])):
+            if beam not in cache:
+                cache[beam] = windows(beam, nominal, lmax)
+            win0, win2 = cache[beam]
+            weight = sign * gain * np.ones(alpha.size)  # (K,)
+            w2 += np.mean(weight * np.exp(2j * ang[:, m])) * win0
+            d = 0.5 * weight * phase[detector][m]
+            e0 += np.mean(d) * win2
+            e4 += np.mean(d * np.exp(-4j * ang[:, m])) * win2
+    n = instrument.n_pairs
+    return BeamFilters(*(f / n / smoothing for f in (w2, e0, e4)))
 
 
 def supports(instrument: Instrument | None, rotations_deg: Sequence[float] = (0.0,)) -> bool:
@@ -197,6 +378,9 @@ def delta_p(
         s = t if template is None else np.asarray(template, dtype=np.float64)
     if systematics.has_pointing:
         grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads)
+    beam = np.empty(0, dtype=np.complex128)
+    if systematics.has_beams:
+        beam = _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads)
     out = np.empty(t.size, dtype=np.complex128)
     with numba_threads(nthreads):
         _delta_p(
@@ -207,19 +391,39 @@ def delta_p(
             s,
             grad[0],
             grad[1],
+            beam,
             np.array([c.t2, c.s2, c.g1, c.g3, c.p0, c.p4, c.m4]),
             out,
         )
     return out
 
 
+def _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads):
+    """The beam terms' part of Y: h_2 W + D0 + h_4 D4* (:func:`beam_filters`), (npix,) complex."""
+    f = beam_filters(systematics, instrument, rotations_deg, sky.fwhm_arcmin, sky.lmax)
+    t = sky.alm[0]
+
+    def spin0(filt):
+        return harmonics.alm2map(harmonics.almxfl(t, filt), sky.nside, nthreads=nthreads)
+
+    def spin2(filt):
+        eb = np.stack([harmonics.almxfl(t, filt.real), harmonics.almxfl(t, filt.imag)])
+        q, u = harmonics.alm2map(eb, sky.nside, spin=2, nthreads=nthreads)
+        return q + 1j * u
+
+    w = spin0(f.w2.real) + 1j * spin0(f.w2.imag)
+    return h[2] * w + spin2(f.e0) + h[4] * np.conj(spin2(f.e4))
+
+
 @numba.njit(parallel=True, cache=True)
-def _delta_p(h, t, q, u, s, grad_theta, grad_phi, c, out):
-    """dP of every pixel: the leak term if s is not empty, pointing if grad is not empty; c holds
-    (t2, s2, g1, g3, p0, p4, m4)."""
+def _delta_p(h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
+    """dP of every pixel: the leak term if s is not empty, pointing if grad is not empty, the
+    beams' part of Y if beam is not empty; c holds (t2, s2, g1, g3, p0, p4, m4)."""
     for i in numba.prange(t.size):
         p = complex(q[i], u[i])
         y = c[0] * h[2, i] * t[i] + c[4] * p + c[5] * h[4, i] * p.conjugate()
+        if beam.size:
+            y += beam[i]
         if s.size:
             y += c[1] * h[2, i] * s[i]
         if grad_theta.size:
@@ -299,8 +503,8 @@ def field_spectra(spectra, lmax, fwhm_arcmin):
     return tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2
 
 
-def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None):
-    """The terms c h_n F of the spurious P whose spectra add (all but the h_0 term).
+def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, beam_tt=None):
+    """The terms c h_n F of the spurious P whose spectra add (all but the h_0 terms).
 
     Parameters
     ----------
@@ -311,6 +515,10 @@ def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None):
         Spectra of T and of P (EE + BB) [muK^2].
     template_cl : numpy.ndarray, optional
         Spectrum of the leak's template (default: TT).
+    beam : BeamFilters, optional
+        The beam terms: W joins the gain's h_2 T term, D4 is an h_4 term.
+    beam_tt : numpy.ndarray, optional
+        The TT those two terms scale (default cl_tt).
 
     Returns
     -------
@@ -319,8 +527,17 @@ def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None):
     """
     ell = np.arange(cl_tt.size)
     terms = [(2, coefs.t2, cl_tt), (4, coefs.p4, cl_pol)]
+    if beam is not None:
+        n = cl_tt.size
+        tt = cl_tt if beam_tt is None else beam_tt[:n]
+        terms[0] = (2, 1.0, np.abs(coefs.t2 + beam.w2[:n]) ** 2 * tt)
+        terms.append((4, 1.0, np.abs(beam.e4[:n]) ** 2 * tt))
     if systematics.has_leak:
-        terms.append((2, coefs.s2, cl_tt if template_cl is None else template_cl[: cl_tt.size]))
+        template = cl_tt if template_cl is None else np.zeros(cl_tt.size)
+        if template_cl is not None:  # zero beyond the template's own band limit
+            n = min(cl_tt.size, template_cl.size)
+            template[:n] = template_cl[:n]
+        terms.append((2, coefs.s2, template))
     if systematics.has_pointing:
         grad = ell * (ell + 1) * cl_tt
         terms += [(1, coefs.g1, grad), (3, coefs.g3, grad)]
@@ -329,14 +546,21 @@ def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None):
 
 class FieldSpectra(NamedTuple):
     """Beam-smoothed spectra of the fields a prediction scales, (lmax + 1,) [muK^2] each: TT,
-    EE + BB (the h_4 P* term) and EE (the h_0 term)."""
+    EE + BB (the h_4 P* term), EE (the h_0 term) and TT through the apodized mask (the beam
+    terms, :func:`_beam_tt`)."""
 
     tt: np.ndarray
     pol: np.ndarray
     ee: np.ndarray
+    tt_apodized: np.ndarray | None = None
 
 
-def local_cl(sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0) -> FieldSpectra:
+BEAM_TT_APODIZATION_DEG = 2.0  #: apodization of the mask for the beam terms' local TT
+
+
+def local_cl(
+    sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0, beams: bool = False
+) -> FieldSpectra:
     """Beam-smoothed TT, EE + BB and EE of one sky inside a mask: pseudo-C_ell / <w^2>.
 
     Feeding these to :func:`systematic_cl` instead of the theory removes the patch's sample variance
@@ -348,15 +572,23 @@ def local_cl(sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0) -> FieldS
     mask : numpy.ndarray, shape (npix,)
     lmax : int
     nthreads : int
+    beams : bool
+        Also TT through the apodized mask, for beam systematics (one more transform).
 
     Returns
     -------
     FieldSpectra
     """
+    from .masks import apodize
     from .spectra import pseudo_spectra
 
-    cl = pseudo_spectra(sky.maps, mask, lmax, nthreads) / np.mean(np.asarray(mask) ** 2)
-    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1])
+    mask = np.asarray(mask, dtype=np.float64)
+    cl = pseudo_spectra(sky.maps, mask, lmax, nthreads) / np.mean(mask**2)
+    if not beams:
+        return FieldSpectra(cl[0], cl[1] + cl[2], cl[1])
+    smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_TT_APODIZATION_DEG)
+    tt = harmonics.alm2cl(harmonics.map2alm(sky.maps[0] * smooth, lmax, nthreads=nthreads))
+    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], tt / np.mean(smooth**2))
 
 
 def systematic_cl(
@@ -371,6 +603,8 @@ def systematic_cl(
     field_cl: FieldSpectra | None = None,
     rotations_deg: Sequence[float] = (0.0,),
     crossings: np.ndarray | None = None,
+    in_pixel: str = "centre",
+    expected: bool = False,
 ) -> np.ndarray:
     """Full-sky spurious C^EE = C^BB predicted from h_n over a mask (all terms but h_0).
 
@@ -391,7 +625,13 @@ def systematic_cl(
     rotations_deg : sequence of float
         The repeats' boresight rotations [deg].
     crossings : numpy.ndarray, shape (npix,), optional
-        Crossings per pixel in one repeat; needed with gain jitter.
+        Crossings per pixel in one repeat; needed with gain jitter or random in-pixel hits.
+    in_pixel : {"centre", "random"}
+        Where the scan's hits fall in their pixels (``SyntheticScan.in_pixel``): "random" adds
+        the pixel window and the in-pixel scatter of every field (:class:`_HitSpread`).
+    expected : bool
+        The average over the per-pair draws of {mean, rms} parameters (:func:`expected_power`)
+        instead of the drawn focal plane.
 
     Returns
     -------
@@ -401,25 +641,36 @@ def systematic_cl(
     Raises
     ------
     ValueError
-        m_4 != 0 (:func:`supports`), or jitter without ``crossings``.
+        m_4 != 0 (:func:`supports`), or jitter or random hits without ``crossings``.
     """
     coefs = coefficients(systematics, instrument, rotations_deg)
     _check_supported(coefs)
-    cl_tt, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
-    cl_pol = cl_ee + cl_bb
-    if field_cl is not None:
-        cl_tt, cl_pol = field_cl.tt[: lmax + 1], field_cl.pol[: lmax + 1]
+    if expected:  # only |c|^2 enters below
+        power = expected_power(systematics, instrument, rotations_deg)
+        coefs = replace(
+            coefs, **{k: np.sqrt(getattr(power, k)) for k in ("t2", "s2", "g1", "g3", "p4")}
+        )
+    nside = hp.npix2nside(h.shape[1])
+    band = 3 * nside - 1 if in_pixel == "random" else lmax  # the fields' variance needs all ell
+    cl_tt, cl_pol = _field_cl(spectra, band, fwhm_arcmin, field_cl)
     omega_pix = 4 * np.pi / h.shape[1]
-    ell = np.arange(lmax + 1)
+    ell = np.arange(band + 1)
     out = np.zeros(lmax + 1)
     blocks = PixelBlocks(mask)
-    for n, c, cl_ff in leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl):
+    beam = beam_tt = None
+    if systematics.has_beams:  # theory TT: see _beam_tt
+        beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band)
+        beam_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
+    spread = _HitSpread(in_pixel, nside, band, blocks, crossings)
+    terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt)
+    for n, c, cl_ff in terms:
         if c == 0:
             continue
         total, coherent = blocks.coherent_power(h[n])
+        cl_ff, in_pixel_noise = spread(cl_ff)
         variance = np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff)
-        white = (total - coherent) * omega_pix * variance
-        out += 0.5 * abs(c) ** 2 * (coherent * cl_ff + white)
+        white = (total - coherent) * omega_pix * variance + in_pixel_noise
+        out += 0.5 * abs(c) ** 2 * (coherent * cl_ff[: lmax + 1] + white)
     if coefs.jitter_var > 0:
         if crossings is None:
             raise ValueError("the gain jitter's prediction needs the crossings per pixel")
@@ -431,12 +682,102 @@ def systematic_cl(
     return out
 
 
+def _field_cl(spectra, band, fwhm_arcmin, field_cl):
+    """TT and EE + BB to ``band``: the patch's own (``field_cl``) where it has them, else the
+    theory's."""
+    cl_tt, cl_ee, cl_bb = field_spectra(spectra, band, fwhm_arcmin)
+    cl_pol = cl_ee + cl_bb
+    if field_cl is not None:
+        n = min(band + 1, field_cl.tt.size)
+        cl_tt[:n], cl_pol[:n] = field_cl.tt[:n], field_cl.pol[:n]
+    return cl_tt, cl_pol
+
+
+SPREAD_PIXELS = 1 << 16  #: pixels whose hit pairs sample the window of hits spread over pixels
+
+
+@lru_cache(maxsize=8)
+def hit_spread_window(nside: int, band: int) -> np.ndarray:
+    """w_l^2 = <P_l(cos gamma)> over two hits of one pixel, drawn as the engine draws them
+    (uniform in the pixel's face coordinates): the window, squared, of a field averaged over its
+    pixel's hits, and 1 - w_l^2 the share of C_l that scatters from hit to hit within a pixel.
+
+    A quadrature over ``SPREAD_PIXELS`` pixels of the whole sphere (the HEALPix pixel shapes
+    included), with a fixed seed.
+
+    Parameters
+    ----------
+    nside, band : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (band + 1,)
+    """
+    from .tod_cpu import generate_hits
+
+    npix = 12 * nside**2
+    pixels = np.unique(np.linspace(0, npix - 1, min(npix, SPREAD_PIXELS)).astype(np.int64))
+    offsets = 2 * np.arange(pixels.size + 1, dtype=np.int64)
+    zeros = np.zeros(pixels.size)
+    theta, phi, _ = generate_hits(0, nside, pixels, offsets, zeros, zeros, False)
+    vec = np.array(hp.ang2vec(theta, phi))
+    x = np.clip(np.sum(vec[0::2] * vec[1::2], axis=1), -1.0, 1.0)
+    out = np.empty(band + 1)
+    p_prev, p = np.ones_like(x), x.copy()
+    out[0] = 1.0
+    for ell in range(1, band + 1):  # Legendre recurrence
+        out[ell] = p.mean()
+        p_prev, p = p, ((2 * ell + 1) * x * p - ell * p_prev) / (ell + 1)
+    return out
+
+
+def _beam_tt(spectra, band, fwhm_arcmin, field_cl):
+    """The TT that the beam terms scale: the patch's through the apodized mask where given, else
+    the theory's. The sharp mask's pseudo-C_ell / <w^2> carries the mask's mixing of low-ell
+    power into high ell, which the l^4 weight of nabla^2 T and eth^2 T turned into a 20x
+    overshoot at ell > 600 for a 30 arcmin beam at Nside 512; the theory alone misses the patch's
+    sample variance (11 % in a band at Nside 256)."""
+    tt = field_spectra(spectra, band, fwhm_arcmin)[0]
+    if field_cl is not None and field_cl.tt_apodized is not None:
+        n = min(band + 1, field_cl.tt_apodized.size)
+        tt[:n] = field_cl.tt_apodized[:n]
+    return tt
+
+
+class _HitSpread:
+    """What hits spread at random over their pixels do to a field F's term: its coherent part is
+    F averaged over the pixel (C^FF w_l^2, :func:`hit_spread_window`), and each hit's departure
+    from that average adds white noise of variance sigma_in^2 / N_hits per pixel, sigma_in^2 =
+    sum_l (2l + 1) / 4 pi C^FF (1 - w_l^2). Nothing for pixel-centre hits."""
+
+    def __init__(self, in_pixel, nside, band, blocks, crossings):
+        if in_pixel not in ("centre", "random"):
+            raise ValueError(f"in_pixel must be 'centre' or 'random', got {in_pixel!r}")
+        self.on = in_pixel == "random"
+        if self.on:
+            if crossings is None:
+                raise ValueError("hits spread over their pixels need the crossings per pixel")
+            self.window2 = hit_spread_window(nside, band)
+            w2 = blocks.weight**2
+            inverse_hits = np.sum(w2 / crossings[blocks.obs]) / np.sum(w2)
+            self.noise = 4 * np.pi / (12 * nside**2) * inverse_hits
+            self.ell = np.arange(band + 1)
+
+    def __call__(self, cl_ff):
+        """(C^FF of the pixel-averaged field, the white power of the in-pixel scatter)."""
+        if not self.on:
+            return cl_ff, 0.0
+        scatter = np.sum((2 * self.ell + 1) / (4 * np.pi) * cl_ff * (1 - self.window2))
+        return cl_ff * self.window2, self.noise * scatter
+
+
 def signal_bb(
     coupling: Coupling,
     coefs: Coefficients,
     cl_ee: np.ndarray,
     cl_bb: np.ndarray,
     leaked: bool = False,
+    expected: ExpectedPower | None = None,
 ) -> np.ndarray:
     """Pseudo-C_BB change of the h_0 term, which turns the sky's P into u P with u = 1 + p_0.
 
@@ -452,14 +793,20 @@ def signal_bb(
         [muK^2].
     leaked : bool
         The leaked power <dB, dB> only.
+    expected : ExpectedPower, optional
+        Use its average of (Re u - 1)^2 and Im(u)^2 over the per-pair draws instead of coefs'.
 
     Returns
     -------
     numpy.ndarray, shape (lmax + 1,)
         [muK^2].
     """
-    u = 1 + coefs.p0
-    re2, im2 = (u.real - 1) ** 2 if leaked else u.real**2 - 1, u.imag**2
+    if expected is None:
+        u = 1 + coefs.p0
+        re2, im2 = (u.real - 1) ** 2 if leaked else u.real**2 - 1, u.imag**2
+    else:  # E (Re u)^2 - 1 = 2 E Re p0 + E (Re p0)^2
+        re2 = expected.re_p0_2 + (0.0 if leaked else 2 * expected.re_p0)
+        im2 = expected.im_p0_2
     return re2 * coupling.pseudo_bb(cl_bb, cl_ee) + im2 * coupling.pseudo_bb(cl_ee, cl_bb)
 
 
@@ -476,11 +823,15 @@ def residual_pseudo_bb(
     rotations_deg: Sequence[float] = (0.0,),
     crossings: np.ndarray | None = None,
     leaked: bool = False,
+    in_pixel: str = "centre",
+    expected: bool = False,
 ) -> np.ndarray:
     """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
     The leaked power M^{BB,BB} C^BB_sys + M^{BB,EE} C^EE_sys plus the h_0 term's change of the
-    cosmological signal (:func:`signal_bb`; for the paper's gain (1 - (dg_1 + dg_2)/4)^2 - 1).
+    cosmological signal (:func:`signal_bb`; for the paper's gain (1 - (dg_1 + dg_2)/4)^2 - 1),
+    plus the beams' h_0 field D0 = e0 T (pure E rotated by e0's phase: C^BB = Im(e0)^2 C^TT,
+    C^EE = Re(e0)^2 C^TT; its cross term with an angle error's rotation of E is left out).
 
     Parameters
     ----------
@@ -488,7 +839,7 @@ def residual_pseudo_bb(
         As in :func:`systematic_cl`.
     coupling : boresight.coupling.Coupling
         The mask's coupling matrices; their lmax is the prediction's.
-    rotations_deg, crossings
+    rotations_deg, crossings, in_pixel, expected
         As in :func:`systematic_cl`.
     leaked : bool
         Predict the leaked power <dB, dB> alone, without the h_0 term's rescaling of the sky's own
@@ -512,12 +863,25 @@ def residual_pseudo_bb(
         field_cl,
         rotations_deg,
         crossings,
+        in_pixel,
+        expected,
     )
     _, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
         cl_ee = field_cl.ee[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
-    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked)
+    power = expected_power(systematics, instrument, rotations_deg) if expected else None
+    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked, power)
+    if systematics.has_beams:
+        nside = hp.npix2nside(h.shape[1])
+        band = 3 * nside - 1 if in_pixel == "random" else lmax
+        cl_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
+        e0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band).e0
+        spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings)
+        cl_b, noise_b = spread(e0.imag**2 * cl_tt)
+        cl_e, noise_e = spread(e0.real**2 * cl_tt)
+        white = 0.5 * (noise_b + noise_e)  # the scatter's phase is random: half in each of E, B
+        signal = signal + coupling.pseudo_bb(cl_b[: lmax + 1] + white, cl_e[: lmax + 1] + white)
     return coupling.pseudo_bb(cl_sys, cl_sys) + signal
 
 

@@ -473,6 +473,8 @@ def residual(
             rotations_deg=mom.rotations_deg,
             crossings=mom.crossings,
             leaked=prediction.leaked,
+            # the hits' spread over their pixels, for now in the beam terms (sub-pixel power)
+            in_pixel=getattr(scan, "in_pixel", "random") if systematics.has_beams else "centre",
         )
     if predict_map:
         dp = predict.delta_p(
@@ -553,7 +555,7 @@ def study_prediction(
     lmax, nthreads = study.output.lmax, study.run.nthreads
     if couplings is None:
         couplings = coupling.coupling_matrices(mask, lmax, nthreads)
-    field_cl = predict.local_cl(the_sky, mask, lmax, nthreads)
+    field_cl = predict.local_cl(the_sky, mask, lmax, nthreads, study.systematics.has_beams)
     return Prediction(load_spectra(), couplings, study.sky.fwhm_arcmin, field_cl)
 
 

@@ -69,6 +69,8 @@ CATALOGUE = (
     ),
     Entry("gain drift", "dg_repeat = +-0.001", "h_2 T per repeat", Systematics(dg_repeat=0.001)),
     Entry("gain jitter", "sigma = 0.01 per sample", "white", Systematics(dg_jitter=0.01)),
+    Entry("beam width", "FWHM_B + 0.3 arcmin", "h_2 nabla^2 T", Systematics(dfwhm_b_arcmin=0.3)),
+    Entry("ellipticity", "e_B = 0.01", "h_0, h_4 eth^2 T", Systematics(ellipticity_b=0.01)),
 )
 ANGLES = (None, 45.0, 90.0, 180.0)  #: the second repeat of each schedule [deg], None: no rotation
 
@@ -127,7 +129,7 @@ def run(
     nside, lmax = the_sky.nside, 2 * the_sky.nside
     mask = masks.survey_mask(survey, nside)
     couplings = coupling.coupling_matrices(mask, lmax, run_options.nthreads)
-    local = predict.local_cl(the_sky, mask, lmax, run_options.nthreads)
+    local = predict.local_cl(the_sky, mask, lmax, run_options.nthreads, beams=True)
     prediction = residual.Prediction(theory, couplings, the_sky.fwhm_arcmin, local, leaked=True)
     simulated, predicted = {}, {}
     with residual.Transforms(background=True) as transforms:

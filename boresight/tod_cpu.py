@@ -114,14 +114,15 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
 
 
 @numba.njit(inline="always")
-def _pair_difference(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak):
+def _pair_difference(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak, beam_a, beam_b):
     """d = (d_A - d_B) / 2 of one pair: detector A responds to (cos, sin) 2 x its angle (c_a, s_a),
-    detector B to (c_b, s_b) of its angle less 90 deg with gain g_b, B sees field_b (pointing), and
-    the additive leak; fields are (I, Q, U, template)."""
+    detector B to (c_b, s_b) of its angle less 90 deg with gain g_b, B sees field_b (pointing), the
+    additive leak, and each detector's extra signal from its own beam; fields are (I, Q, U,
+    template)."""
     i_a, q_a, u_a, t_a = field_a
     i_b, q_b, u_b, t_b = field_b
-    d_a = i_a + q_a * c_a + u_a * s_a + 0.5 * leak * t_a
-    d_b = g_b * (i_b - q_b * c_b - u_b * s_b) - 0.5 * leak * t_b
+    d_a = i_a + q_a * c_a + u_a * s_a + beam_a + 0.5 * leak * t_a
+    d_b = g_b * (i_b - q_b * c_b - u_b * s_b + beam_b) - 0.5 * leak * t_b
     return 0.5 * (d_a - d_b)
 
 
@@ -133,17 +134,18 @@ def _fields(values, i):
 
 @numba.njit(inline="always")
 def _flat(values_b):
-    """(F, H, K, M) values of detector B as (F, H K M)."""
+    """(F, H, K, M) values per (hit, rotation, pair) as (F, H K M)."""
     return values_b.reshape(
         (values_b.shape[0], values_b.shape[1] * values_b.shape[2] * values_b.shape[3])
     )
 
 
 @numba.njit(inline="always")
-def _hit_sums(h, psi, values_a, values_b, response, leak, jitter, jitter_key, j):
+def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_key, j):
     """The five normal-equation terms of hit h over every rotation and pair: sum c^2, c s, s^2,
     c d, s d. values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened,
-    or has no columns when B looks where A does. ``response`` is
+    or has no columns when B looks where A does; beams (2, H K M) likewise A's and B's extra signal
+    from their beams, or has no columns. ``response`` is
     :func:`boresight.instrument.response`; pairs with ``jitter`` > 0 draw a normal deviate for
     each (hit j of the pixel, rotation, pair) from ``jitter_key``."""
     nk, nm = response.shape[0], response.shape[1]
@@ -159,9 +161,11 @@ def _hit_sums(h, psi, values_a, values_b, response, leak, jitter, jitter_key, j)
             g_b = r[6]
             if jitter[m] != 0.0:
                 g_b -= jitter[m] * normal_from_key(jitter_key, (j * nk + k) * nm + m)
-            field_b = (
-                field_a if values_b.shape[1] == 0 else _fields(values_b, (h * nk + k) * nm + m)
-            )
+            i = (h * nk + k) * nm + m
+            field_b = field_a if values_b.shape[1] == 0 else _fields(values_b, i)
+            beam_a = beam_b = 0.0
+            if beams.shape[1] > 0:
+                beam_a, beam_b = beams[0, i], beams[1, i]
             d = _pair_difference(
                 c0 * r[2] - s0 * r[3],
                 s0 * r[2] + c0 * r[3],
@@ -171,6 +175,8 @@ def _hit_sums(h, psi, values_a, values_b, response, leak, jitter, jitter_key, j)
                 field_a,
                 field_b,
                 leak[m],
+                beam_a,
+                beam_b,
             )
             a11 += c * c
             a12 += c * s
@@ -181,21 +187,30 @@ def _hit_sums(h, psi, values_a, values_b, response, leak, jitter, jitter_key, j)
 
 
 @numba.njit(parallel=True, cache=True)
-def accumulate(offsets, psi, values_a, values_b, response, leak, jitter, seed, pixels):
+def accumulate(offsets, psi, values_a, values_b, beams, response, leak, jitter, seed, pixels):
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate`.
 
     Parallel over pixels.
     """
-    values_b = _flat(values_b)
+    values_b, beams = _flat(values_b), _flat(beams)
     out = np.zeros((offsets.size - 1, 5))
     for p in numba.prange(offsets.size - 1):
         jitter_key = derived_key(pixel_key(seed, pixels[p]), JITTER_SALT)
         a11 = a12 = a22 = b1 = b2 = 0.0
         for h in range(offsets[p], offsets[p + 1]):
             t = _hit_sums(
-                h, psi, values_a, values_b, response, leak, jitter, jitter_key, h - offsets[p]
+                h,
+                psi,
+                values_a,
+                values_b,
+                beams,
+                response,
+                leak,
+                jitter,
+                jitter_key,
+                h - offsets[p],
             )
             a11 += t[0]
             a12 += t[1]
@@ -211,7 +226,7 @@ def accumulate(offsets, psi, values_a, values_b, response, leak, jitter, seed, p
 
 
 @numba.njit(cache=True)
-def accumulate_scatter(pixels, psi, values_a, values_b, response, leak, out):
+def accumulate_scatter(pixels, psi, values_a, values_b, beams, response, leak, out):
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
@@ -219,10 +234,10 @@ def accumulate_scatter(pixels, psi, values_a, values_b, response, leak, out):
     Serial, so no two hits race for a pixel. No jitter: samples in any order have no
     (pixel, hit) key.
     """
-    values_b = _flat(values_b)
+    values_b, beams = _flat(values_b), _flat(beams)
     no_jitter = np.zeros(response.shape[1])
     for h in range(pixels.size):
-        t = _hit_sums(h, psi, values_a, values_b, response, leak, no_jitter, np.uint64(0), 0)
+        t = _hit_sums(h, psi, values_a, values_b, beams, response, leak, no_jitter, np.uint64(0), 0)
         p = pixels[h]
         for j in range(5):
             out[p, j] += t[j]
@@ -273,7 +288,10 @@ def bin_scan(
         chi,
         pointing,
     )
-    return accumulate(offsets, psi, values_a, values_b, response, leak, jitter, seed, pixels)
+    no_beams = np.empty((2, 0, rotations.size, pair_angles.size))
+    return accumulate(
+        offsets, psi, values_a, values_b, no_beams, response, leak, jitter, seed, pixels
+    )
 
 
 @numba.njit(parallel=True, cache=True)

@@ -165,12 +165,17 @@ def interpolate(stack: object, nside: int, theta: np.ndarray, phi: np.ndarray) -
     return out
 
 
-def _physics(response, leak, jitter=None):
+def _physics(response, leak, jitter=None, beams=None):
     """Device arrays of the per-(rotation, pair) turns cos, sin 2(alpha + angle), dg and leak.
 
-    The CUDA kernels model a constant gain per pair: polarisation-angle errors, gain drift
-    between repeats and gain jitter are refused with a clear error (they run on the CPU).
+    The CUDA kernels model a constant gain per pair and the sky's beam: polarisation-angle errors,
+    gain drift between repeats, gain jitter and detector beams are refused with a clear error
+    (they run on the CPU).
     """
+    if beams is not None and beams.shape[1] > 0:
+        raise ValueError(
+            "the GPU backend has no detector beams; beam systematics need backend = 'cpu'"
+        )
     response = np.asarray(response)
     g_b = response[..., 6]
     ideal = (
@@ -217,6 +222,7 @@ def accumulate(
     psi: object,
     values_a: object,
     values_b: object,
+    beams: np.ndarray,
     response: np.ndarray,
     leak: np.ndarray,
     jitter: np.ndarray,
@@ -230,7 +236,7 @@ def accumulate(
     Without jitter, so ``seed`` and ``pixels`` are unused.
     """
     out = cp.zeros((offsets.size - 1, 5))
-    args = (values_a, values_b, _physics(response, leak, jitter), out)
+    args = (values_a, values_b, _physics(response, leak, jitter, beams), out)
     _accumulate(offsets, psi, np.uint64(0), *args)
     return out
 
@@ -240,6 +246,7 @@ def accumulate_scatter(
     psi: object,
     values_a: object,
     values_b: object,
+    beams: np.ndarray,
     response: np.ndarray,
     leak: np.ndarray,
     out: cp.ndarray,
@@ -257,7 +264,7 @@ def accumulate_scatter(
     offsets = cp.zeros(target.size + 1, dtype=cp.int64)
     cp.cumsum(counts, out=offsets[1:])
     values_b = _d(values_b)[:, order] if values_b.shape[1] > 0 else values_b
-    args = (_d(values_a)[:, order], values_b, _physics(response, leak), out)
+    args = (_d(values_a)[:, order], values_b, _physics(response, leak, beams=beams), out)
     _accumulate(offsets, _d(psi)[order], target, *args)
 
 

@@ -68,7 +68,10 @@ def test_cpu_bin_scan_equals_its_stages(small_sky):
     values_a = tod_cpu.interpolate(stack, 64, theta, phi)
     tb, pb = tod_cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
     values_b = tod_cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
-    staged = tod_cpu.accumulate(offsets, psi, values_a, values_b, table, leak, jitter, 5, pixels)
+    no_beams = np.empty((2, 0) + tb.shape[1:])
+    staged = tod_cpu.accumulate(
+        offsets, psi, values_a, values_b, no_beams, table, leak, jitter, 5, pixels
+    )
     np.testing.assert_array_equal(fused, staged)
 
 

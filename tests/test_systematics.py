@@ -262,3 +262,69 @@ def test_suppression_map_end_to_end(tmp_path):
     )
     assert sup["gain", "0/45"] == pytest.approx(pred["gain", "0/45"], rel=0.1)
     assert (out / "suppression.png").is_file() and "cancels" in (out / "suppression.md").read_text()
+
+
+def test_expected_focal_plane_power_is_coherent_plus_rms2_over_n():
+    """A linear term's power over the draws is |mean x <e^{2ia}>|^2 + rms^2 / N exactly: 0.5 mu^2 +
+    rms^2 / 2 for the paper's two pairs, and so on for uniform planes of N pairs."""
+    paper = predict.expected_power(Systematics(dg=Spread(0.02, 0.01)))
+    assert paper.t2 == pytest.approx(0.5 * 0.02**2 + 0.01**2 / 2, rel=1e-12)
+    for n in (4, 16, 64):
+        inst = Instrument("uniform", n)
+        power = predict.expected_power(Systematics(leak=Spread(0.3, 0.01)), inst)
+        coherent = abs(0.3 * np.mean(np.exp(2j * inst.pair_angles_rad))) ** 2
+        assert power.s2 == pytest.approx(coherent + 0.01**2 / n, rel=1e-12)
+
+
+@pytest.mark.parametrize("n", [4, 16])
+def test_expected_power_is_the_mean_over_many_focal_planes(n):
+    """Gauss-Hermite expectation against the mean of 1500 drawn focal planes (an independent route:
+    the per-pair draws of rng.normal_array), within 4 standard errors, for every term."""
+    inst = Instrument("uniform", n)
+    table = dict(
+        dg=Spread(0.005, 0.01),
+        pol_angle_deg=Spread(0.5, 1.0),
+        nonortho_deg=Spread(0.0, 1.0),
+        rho_arcmin=Spread(0.1, 0.05),
+        chi_deg=Spread(10.0, 30.0),
+    )
+    power = predict.expected_power(Systematics(**table), inst)
+    draws = [predict.coefficients(Systematics(**table, seed=s), inst) for s in range(1500)]
+    samples = {
+        "t2": [abs(c.t2) ** 2 for c in draws],
+        "g1": [abs(c.g1) ** 2 for c in draws],
+        "g3": [abs(c.g3) ** 2 for c in draws],
+        "p4": [abs(c.p4) ** 2 for c in draws],
+        "re_p0": [c.p0.real for c in draws],
+        "im_p0_2": [c.p0.imag**2 for c in draws],
+    }
+    for name, x in samples.items():
+        error = np.std(x) / np.sqrt(len(x))
+        assert abs(getattr(power, name) - np.mean(x)) < 4 * error, name
+
+
+def test_expected_cl_falls_as_one_over_n_and_equals_a_fixed_plane_without_scatter(small_sky):
+    mask = masks.survey_mask("deep", 64)
+    h, _ = engine.scan_moments(SyntheticScan(**CENTRED), 64)
+    theory = small_sky_theory()
+    cl = {}
+    for n in (4, 16):
+        sysm = Systematics(dg=Spread(0.0, 0.01), pol_angle_deg=Spread(0.0, 0.5))
+        inst = Instrument("uniform", n)
+        cl[n] = predict.systematic_cl(h, mask, sysm, theory, 100, 60.0, inst, expected=True)
+    np.testing.assert_allclose(cl[4][2:], 4 * cl[16][2:], rtol=1e-10)
+    fixed = Systematics(dg=(0.01, -0.004), pol_angle_deg=0.3)
+    spread = Systematics(dg=(0.01, -0.004), pol_angle_deg=Spread(0.3, 0.0))
+    np.testing.assert_allclose(
+        predict.systematic_cl(h, mask, spread, theory, 100, 60.0, expected=True),
+        predict.systematic_cl(h, mask, fixed, theory, 100, 60.0),
+        rtol=1e-12,
+    )
+    with pytest.raises(ValueError, match="dg_repeat"):
+        predict.expected_power(Systematics(dg_repeat=Spread(0.0, 0.01)))
+
+
+def small_sky_theory():
+    from boresight.cosmology import load_spectra
+
+    return load_spectra()

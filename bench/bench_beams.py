@@ -1,0 +1,113 @@
+"""Detector beams through ducc0 totalconvolve: the cost of the convolution cube, and the C_ell-level
+prediction against the simulation at Nside 512.
+
+1. Per Nside (lmax = 3 Nside - 1, a 7 arcmin sky beam) and beam (FWHM + 1 %, kmax 2; and e = 0.03,
+   kmax from boresight.beams.truncate): the cube's build time, the interpolation rate and the peak
+   RSS of a fresh process that builds it and evaluates 4 million samples.
+2. Nside 512, the paper's scans (random in-pixel hits), both masks: predicted / simulated leaked
+   power of each beam systematic in the bands of 32 multipoles from 40 to 1024 (= 2 Nside).
+
+Usage: python bench/bench_beams.py [NSIDE ...]   (cube table; default 256 512 1024)
+       python bench/bench_beams.py --cl           (the prediction table only)
+"""
+
+import subprocess
+import sys
+
+import numpy as np
+
+CUBE = """
+import resource, time, numpy as np
+from boresight import beams, harmonics
+from boresight.constants import ARCMIN
+nside, e, dfwhm = {nside}, {e}, {dfwhm}
+lmax = 3 * nside - 1
+rng = np.random.default_rng(0)
+n = harmonics.n_alm(lmax)
+alm = rng.normal(size=(3, n)) + 1j * rng.normal(size=(3, n))
+alm[:, : lmax + 1] = alm[:, : lmax + 1].real
+conv = beams.BeamConvolver(alm, 7 * ARCMIN)
+beam = beams.Beam((7 + dfwhm) * ARCMIN, e)
+t0 = time.perf_counter()
+conv._cube(beam)
+build = time.perf_counter() - t0
+diff = beams.beam_alm(beam, lmax) - beams.beam_alm(conv.nominal, lmax)
+kmax = beams.truncate(diff, lmax, beams.KMAX_LIMIT)[1]
+m = 4_000_000
+th, ph = np.arccos(rng.uniform(-1, 1, m)), rng.uniform(0, 2 * np.pi, m)
+psi = rng.uniform(-np.pi, np.pi, m)
+t0 = time.perf_counter()
+conv.extra(beam, th, ph, psi)
+rate = m / (time.perf_counter() - t0) / 1e6
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+print(f"| {{nside}} | {{lmax}} | {{'e = ' + str(e) if e else 'FWHM + 1 %'}} | {{kmax}} | "
+      f"{{build:.1f}} | {{rate:.2f}} | {{rss:.2f}} |")
+"""
+
+
+def cube_table(nsides):
+    print("| Nside | lmax | beam | kmax | cube build [s] | Msamples/s | peak RSS [GiB] |")
+    print("|---|---|---|---|---|---|---|")
+    for nside in nsides:
+        for e, dfwhm in ((0.0, 0.07), (0.03, 0.0)):
+            code = CUBE.format(nside=nside, e=e, dfwhm=dfwhm)
+            subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def cl_table(nside=512):
+    from boresight import coupling, engine, masks, predict, sky, spectra
+    from boresight.cosmology import load_spectra
+    from boresight.instrument import Systematics
+    from boresight.scan import paper_scan
+
+    theory = load_spectra()
+    lmax = 2 * nside
+    cfg = sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=7.0, seed=1)
+    the_sky = sky.make_sky(cfg, theory)
+    edges = spectra.linear_bins(40, lmax, 32)
+    cases = {
+        "width, FWHM_B + 0.5'": Systematics(dfwhm_b_arcmin=0.5),
+        "ellipticity e_B = 0.03": Systematics(ellipticity_b=0.03, ellipticity_angle_b_deg=30.0),
+    }
+    print(f"\nPredicted / simulated leaked power at Nside {nside}, bands of 32 from ell = 40:")
+    print("| survey | systematic | min | max | worst band | every band within 10 % |")
+    print("|---|---|---|---|---|---|")
+    for survey in ("deep", "wide"):
+        mask = masks.survey_mask(survey, nside)
+        obs = mask > 0
+        scan = paper_scan(survey)
+        ref = engine.simulate(the_sky, scan, pixels=obs)
+        h, crossings = engine.scan_moments(scan.one_repeat(), nside, pixels=obs)
+        couplings = coupling.coupling_matrices(mask, lmax)
+        local = predict.local_cl(the_sky, mask, lmax, beams=True)
+        for name, sysm in cases.items():
+            sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
+            auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1]
+            pred = predict.residual_pseudo_bb(
+                h,
+                mask,
+                couplings,
+                sysm,
+                theory,
+                cfg.fwhm_arcmin,
+                field_cl=local,
+                crossings=crossings,
+                leaked=True,
+                in_pixel="random",
+            )
+            centres, p = spectra.bin_spectrum(pred, edges)
+            ratio = p / spectra.bin_spectrum(auto, edges)[1]
+            worst = int(np.argmax(np.abs(ratio - 1)))
+            print(
+                f"| {survey} | {name} | {ratio.min():.3f} | {ratio.max():.3f} | "
+                f"ell ~ {centres[worst]:.0f} | {bool(np.all(np.abs(ratio - 1) < 0.1))} |"
+            )
+
+
+if __name__ == "__main__":
+    args = sys.argv[1:]
+    if args == ["--cl"]:
+        cl_table()
+    else:
+        cube_table([int(a) for a in args] or [256, 512, 1024])
+        cl_table()

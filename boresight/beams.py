@@ -1,0 +1,324 @@
+"""Detector beams: elliptical Gaussian beams and their convolution with the sky by ducc0.
+
+A detector's beam, in a frame whose x axis is its polarisation axis, is an elliptical Gaussian of
+mean width sigma = FWHM / sqrt(8 ln 2), ellipticity e = (sigma_maj - sigma_min) / (sigma_maj +
+sigma_min) (Shimon et al. 2008), so sigma_maj = sigma (1 + e) and sigma_min = sigma (1 - e), with
+its major axis at ``angle`` from the polarisation axis, in the sense of the pointing offset's chi.
+The polarised part co-rotates: the detector responds to Q cos 2 psi + U sin 2 psi over the same
+shape. Its harmonic coefficients b_lk (T, E, B; k <= kmax) come from a Gauss-Legendre analysis of
+the beam on the sphere (ducc0), unit integral; a circular beam gives healpy's ``blm_gauss`` window
+(with the polarised part scaled by -sqrt(2), its response convention).
+
+The engine samples each detector's sky through its own beam at every hit and at the hit's
+orientation with ``ducc0.totalconvolve``: the sky's maps carry the nominal beam (the sky's FWHM),
+so :class:`BeamConvolver` convolves the un-smoothed sky with the difference between a detector's
+beam and the nominal one and adds that to the detector's sample.
+
+To first order in the difference, the temperature part of a detector's extra signal is
+W + Re[D* e^{2 i beta}] with beta its polarisation angle plus ``angle`` (docs/conventions.md):
+W has the harmonic window w0 = sqrt(4 pi / (2l + 1)) (b_l0 - b_l0 nominal) ~ 1/2 (sigma_X^2 (1 +
+e^2) - sigma^2) nabla^2 T, and D, spin 2, the E-mode window w2 = -2 sqrt(4 pi / (2l + 1)) b_l2 ~
+sigma_X^2 e eth^2 T (:func:`windows`).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
+
+import ducc0
+import healpy as hp
+import numpy as np
+
+from . import harmonics
+from .constants import ARCMIN
+from .instrument import MAX_ELLIPTICITY, PairParameters
+
+FWHM_PER_SIGMA = np.sqrt(8.0 * np.log(2.0))
+BEAM_TOLERANCE = 1e-7  #: b_lk of higher k than kmax are below this times the largest
+KMAX_LIMIT = 24  #: azimuthal moments of a beam at most (e <= 0.5 needs far fewer)
+MAX_RINGS = 200_000  #: Gauss-Legendre rings of a beam's analysis at most (a 0.32' axis)
+MIN_AXIS_FWHM = 8.0 / MAX_RINGS * FWHM_PER_SIGMA  #: the narrowest beam axis analysed [rad]
+CONVOLUTION_EPSILON = 1e-8  #: ducc0 totalconvolve accuracy, relative to the convolved signal
+#: the cube's oversampling: ducc0's default search (for 1e9 samples) picks up to 2.6, with 3.5x
+#: the memory and 5x the build time at Nside 512 (bench/bench_beams.py)
+CUBE_OVERSAMPLING = 1.5
+
+
+class Beam(NamedTuple):
+    """One detector's elliptical Gaussian beam.
+
+    fwhm : mean FWHM [rad], > 0.
+    ellipticity : e in [0, 1).
+    angle : direction of the major axis from the polarisation axis [rad].
+    """
+
+    fwhm: float
+    ellipticity: float = 0.0
+    angle: float = 0.0
+
+
+def pair_beams(params: PairParameters, nominal_fwhm: float) -> list[tuple[Beam, Beam]]:
+    """Detector A's and B's beam of every pair.
+
+    Parameters
+    ----------
+    params : boresight.instrument.PairParameters
+    nominal_fwhm : float
+        The sky's FWHM [rad].
+
+    Returns
+    -------
+    list of (Beam, Beam)
+        One (A, B) per pair; a circular beam has angle 0.
+
+    Raises
+    ------
+    ValueError
+        No sky beam, a FWHM <= 0 or a (drawn) ellipticity outside [0, MAX_ELLIPTICITY].
+    """
+    if not nominal_fwhm >= MIN_AXIS_FWHM:
+        raise ValueError(
+            f"beam systematics need a sky beam: set [sky] fwhm_arcmin > 0 (at least "
+            f"{MIN_AXIS_FWHM / ARCMIN:.2f})"
+        )
+    out = []
+    for i in range(params.dg.size):
+        pair = []
+        for name, dfwhm, e, angle in (
+            ("a", params.dfwhm_a, params.ellipticity_a, params.ellipticity_angle_a),
+            ("b", params.dfwhm_b, params.ellipticity_b, params.ellipticity_angle_b),
+        ):
+            fwhm = nominal_fwhm + dfwhm[i]
+            if not fwhm > 0:
+                raise ValueError(
+                    f"pair {i}: detector {name.upper()}'s beam FWHM is {fwhm / ARCMIN:.4g} arcmin; "
+                    f"dfwhm_{name}_arcmin must keep it above 0"
+                )
+            if not 0 <= e[i] <= MAX_ELLIPTICITY:
+                raise ValueError(
+                    f"pair {i}: ellipticity_{name} = {e[i]:.4g} (drawn) is outside "
+                    f"[0, {MAX_ELLIPTICITY}]"
+                )
+            if fwhm * (1 - e[i]) < MIN_AXIS_FWHM:
+                raise ValueError(
+                    f"pair {i}: detector {name.upper()}'s narrow axis, FWHM x (1 - e) = "
+                    f"{fwhm * (1 - e[i]) / ARCMIN:.3g} arcmin, is below "
+                    f"{MIN_AXIS_FWHM / ARCMIN:.2f} arcmin"
+                )
+            pair.append(Beam(float(fwhm), float(e[i]), float(angle[i]) if e[i] > 0 else 0.0))
+        out.append(tuple(pair))
+    return out
+
+
+def _grid(sigma_min, lmax, kmax_guess):
+    """Gauss-Legendre rings fine enough for the beam's narrowest axis, and enough azimuths for
+    its elongation."""
+    if 8.0 / sigma_min > MAX_RINGS:
+        raise ValueError(
+            f"a beam axis of sigma {sigma_min / ARCMIN:.3g} arcmin is too narrow to analyse "
+            f"(FWHM x (1 - e) must be >= {8.0 / MAX_RINGS * FWHM_PER_SIGMA / ARCMIN:.2f} arcmin)"
+        )
+    ntheta = lmax + 1 + int(np.ceil(8.0 / sigma_min))
+    nphi = 2 * (kmax_guess + 16) + 1
+    return ducc0.misc.GL_thetas(ntheta), 2 * np.pi * np.arange(nphi) / nphi
+
+
+def beam_alm(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> np.ndarray:
+    """Harmonic coefficients of an elliptical Gaussian polarised beam pointing at the north pole.
+
+    Parameters
+    ----------
+    beam : Beam
+    lmax, kmax : int
+        Band limit and highest azimuthal moment.
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (3, healpy.Alm.getsize(lmax, kmax))
+        T, E, B coefficients (healpy ordering with mmax = kmax), unit integral: convolving I, Q,
+        U gives I + Q cos 2 psi + U sin 2 psi for a circular beam.
+    """
+    sigma = beam.fwhm / FWHM_PER_SIGMA
+    e, alpha = beam.ellipticity, beam.angle
+    s_maj, s_min = sigma * (1 + e), sigma * (1 - e)
+    theta, phi = _grid(s_min, lmax, kmax + int(8 * s_maj / s_min))
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    b = np.exp(
+        -0.5 * t**2 * (np.cos(p - alpha) ** 2 / s_maj**2 + np.sin(p - alpha) ** 2 / s_min**2)
+    )
+    out = np.empty((3, hp.Alm.getsize(lmax, kmax)), dtype=np.complex128)
+    out[0] = ducc0.sht.analysis_2d(map=b[None], spin=0, lmax=lmax, mmax=kmax, geometry="GL")[0]
+    pol = b * np.exp(
+        -2j * p
+    )  # polarisation along the frame's x axis, in the (e_theta, e_phi) basis
+    out[1:] = ducc0.sht.analysis_2d(
+        map=np.stack([pol.real, pol.imag]), spin=2, lmax=lmax, mmax=kmax, geometry="GL"
+    )
+    return out / (out[0, 0].real * np.sqrt(4 * np.pi))
+
+
+def _moment(blm, lmax, k):
+    """b_lk for l = k..lmax of one component (healpy ordering with mmax >= k)."""
+    return blm[..., hp.Alm.getidx(lmax, np.arange(k, lmax + 1), k)]
+
+
+def truncate(blm: np.ndarray, lmax: int, kmax: int, tolerance: float = BEAM_TOLERANCE):
+    """A beam's coefficients cut at the last azimuthal moment above ``tolerance``.
+
+    Parameters
+    ----------
+    blm : numpy.ndarray, shape (3, healpy.Alm.getsize(lmax, kmax))
+    lmax, kmax : int
+    tolerance : float
+        Relative to the largest ``|b_lk|``.
+
+    Returns
+    -------
+    blm : numpy.ndarray, shape (3, healpy.Alm.getsize(lmax, k))
+    k : int
+        The kept kmax.
+    """
+    limit = tolerance * np.abs(blm).max()
+    keep = max([k for k in range(kmax + 1) if np.abs(_moment(blm, lmax, k)).max() > limit] or [0])
+    out = np.zeros((blm.shape[0], hp.Alm.getsize(lmax, keep)), dtype=blm.dtype)
+    for k in range(keep + 1):
+        out[:, hp.Alm.getidx(lmax, np.arange(k, lmax + 1), k)] = _moment(blm, lmax, k)
+    return out, keep
+
+
+def windows(beam: Beam, nominal_fwhm: float, lmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """The temperature windows of a detector's beam relative to the nominal one.
+
+    Parameters
+    ----------
+    beam : Beam
+        With ``angle`` ignored (its orientation is a phase, e^{-2 i angle} of D).
+    nominal_fwhm : float
+        [rad].
+    lmax : int
+
+    Returns
+    -------
+    w0 : numpy.ndarray, shape (lmax + 1,)
+        sqrt(4 pi / (2l + 1)) (b_l0 - b_l0 nominal): the window of the spin-0 extra signal W.
+    w2 : numpy.ndarray, shape (lmax + 1,)
+        -2 sqrt(4 pi / (2l + 1)) b_l2 at angle 0: the E-mode window of the spin-2 field D.
+    """
+    ell = np.arange(lmax + 1)
+    norm = np.sqrt(4 * np.pi / (2 * ell + 1))
+    own = beam_alm(Beam(beam.fwhm, beam.ellipticity), lmax, 2)
+    ref = beam_alm(Beam(nominal_fwhm), lmax, 0)
+    w0 = norm * (_moment(own[0], lmax, 0) - ref[0]).real
+    w2 = np.zeros(lmax + 1)
+    w2[2:] = -2 * norm[2:] * _moment(own[0], lmax, 2).real
+    return w0, w2
+
+
+def unsmoothed_alm(alm: np.ndarray, fwhm: float) -> np.ndarray:
+    """A sky's T, E, B alm with its Gaussian beam (healpy.gauss_beam, polarised) divided out.
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128, shape (3, nalm)
+    fwhm : float
+        [rad].
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (3, nalm)
+    """
+    lmax = harmonics.alm_lmax(alm.shape[1])
+    beam = hp.gauss_beam(fwhm, lmax=lmax, pol=True)
+    if beam[-1, 0] < 1e-280:
+        raise ValueError(
+            f"a {fwhm / ARCMIN:.4g} arcmin beam leaves nothing of the sky at l = {lmax}: lower lmax"
+        )
+    return np.stack([harmonics.almxfl(alm[c], 1.0 / beam[:, c]) for c in range(3)])
+
+
+class BeamConvolver:
+    """Each detector's extra signal from its beam: the sky convolved with (beam - nominal beam).
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128, shape (3, nalm)
+        The sky's T, E, B with the nominal beam [muK].
+    nominal_fwhm : float
+        The sky's beam [rad], > 0.
+    nthreads : int
+
+    Notes
+    -----
+    One convolution cube per distinct beam, built on first use and kept: (2 kmax + 1) planes of
+    the sky on a (theta, phi) grid oversampled 1.5 times, in doubles, whatever the number of
+    components: 2.9 GiB for e = 0.03 at Nside 512 (``bench/bench_beams.py`` measures it to
+    Nside 1024). ducc0's plane transforms round differently on different thread counts (3e-13),
+    so each plane is made on one thread, the planes in parallel, the components added in a fixed
+    order: the cube, and ducc0's interpolation from it, do not depend on ``nthreads``.
+    """
+
+    def __init__(self, alm, nominal_fwhm, nthreads=0):
+        if not nominal_fwhm > 0:
+            raise ValueError("beam systematics need a sky beam: set [sky] fwhm_arcmin > 0")
+        self.lmax = harmonics.alm_lmax(alm.shape[1])
+        self.nominal = Beam(float(nominal_fwhm))
+        self.nthreads = nthreads if nthreads > 0 else os.cpu_count() or 1
+        self._sky = unsmoothed_alm(alm, nominal_fwhm)
+        self._nominal_alm = beam_alm(self.nominal, self.lmax)
+        self._cubes = {}
+
+    def _plan(self, kmax, nthreads):
+        return ducc0.totalconvolve.ConvolverPlan(
+            self.lmax,
+            kmax,
+            sigma=CUBE_OVERSAMPLING,
+            epsilon=CONVOLUTION_EPSILON,
+            nthreads=nthreads,
+        )
+
+    def _cube(self, beam):
+        """(plan, cube) of one beam: the planes of (beam - nominal) x sky, prepared for psi."""
+        if beam in self._cubes:
+            return self._cubes[beam]
+        diff, kmax = truncate(beam_alm(beam, self.lmax) - self._nominal_alm, self.lmax, KMAX_LIMIT)
+        plan = self._plan(kmax, 1)
+        cube = np.zeros((plan.Npsi(), plan.Ntheta(), plan.Nphi()))
+
+        def planes(k):  # moment k of the beam: 1 plane for k = 0, else re and im
+            rows = slice(0, 1) if k == 0 else slice(2 * k - 1, 2 * k + 1)
+            own, out = self._plan(kmax, 1), np.empty_like(cube[rows])
+            for c in range(diff.shape[0]):
+                own.getPlane(self._sky[c], diff[c], k, out)
+                cube[rows] += out
+
+        with ThreadPoolExecutor(max_workers=self.nthreads) as pool:
+            list(pool.map(planes, range(kmax + 1)))
+        plan.prepPsi(cube)
+        self._cubes[beam] = (self._plan(kmax, self.nthreads), cube)
+        return self._cubes[beam]
+
+    def extra(self, beam: Beam, theta: np.ndarray, phi: np.ndarray, psi: np.ndarray) -> np.ndarray:
+        """A detector's extra signal where it looks.
+
+        Parameters
+        ----------
+        beam : Beam
+        theta, phi : numpy.ndarray, shape (n,)
+            Where the detector looks [rad]; phi in [0, 2 pi).
+        psi : numpy.ndarray, shape (n,)
+            Its polarisation angle [rad], any value.
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            [muK]; zero for the nominal beam.
+        """
+        out = np.zeros(np.size(theta))
+        if beam == self.nominal:
+            return out
+        plan, cube = self._cube(beam)
+        as_array = (np.ascontiguousarray(x, dtype=np.float64) for x in (theta, phi, psi))
+        plan.interpol(cube, 0, 0, *as_array, out)
+        return out
