@@ -136,8 +136,8 @@ def beam_alm(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> np.ndarray:
 
     Returns
     -------
-    numpy.ndarray, complex128, shape (3, healpy.Alm.getsize(lmax, kmax))
-        T, E, B coefficients (healpy ordering with mmax = kmax), unit integral: convolving I, Q,
+    numpy.ndarray, complex128, shape (3, nalm)
+        T, E, B coefficients, healpy ordering with mmax = kmax, unit integral: convolving I, Q,
         U gives I + Q cos 2 psi + U sin 2 psi for a circular beam.
     """
     sigma = beam.fwhm / FWHM_PER_SIGMA
@@ -150,9 +150,8 @@ def beam_alm(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> np.ndarray:
     )
     out = np.empty((3, hp.Alm.getsize(lmax, kmax)), dtype=np.complex128)
     out[0] = ducc0.sht.analysis_2d(map=b[None], spin=0, lmax=lmax, mmax=kmax, geometry="GL")[0]
-    pol = b * np.exp(
-        -2j * p
-    )  # polarisation along the frame's x axis, in the (e_theta, e_phi) basis
+    # polarisation along the frame's x axis, in the (e_theta, e_phi) basis
+    pol = b * np.exp(-2j * p)
     out[1:] = ducc0.sht.analysis_2d(
         map=np.stack([pol.real, pol.imag]), spin=2, lmax=lmax, mmax=kmax, geometry="GL"
     )
@@ -169,14 +168,16 @@ def truncate(blm: np.ndarray, lmax: int, kmax: int, tolerance: float = BEAM_TOLE
 
     Parameters
     ----------
-    blm : numpy.ndarray, shape (3, healpy.Alm.getsize(lmax, kmax))
+    blm : numpy.ndarray, shape (3, nalm)
+        Healpy ordering with mmax = kmax.
     lmax, kmax : int
     tolerance : float
         Relative to the largest ``|b_lk|``.
 
     Returns
     -------
-    blm : numpy.ndarray, shape (3, healpy.Alm.getsize(lmax, k))
+    blm : numpy.ndarray, shape (3, nalm)
+        Healpy ordering with mmax = k.
     k : int
         The kept kmax.
     """

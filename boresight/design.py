@@ -35,6 +35,7 @@ import numpy as np
 from . import coupling, predict, validation
 from .constants import DEG
 from .ground import Schedule, chunk_arguments
+from .instrument import Instrument
 from .scanstats import N_MAX, ces_hits
 from .validation import option
 
@@ -263,12 +264,15 @@ class Objective:
     alpha, beta : numpy.ndarray, shape (N_MAX + 1,)
         Coefficients of the mean ``|h_n|^2`` and of its coherent part (index n).
     const : float
-        The angle-independent part (the gain's common rescaling of the signal).
+        The angle-independent part that is not leaked power (the gain's common rescaling of the
+        signal).
     change_cost : float
         Added per change of angle between consecutive units.
     template : numpy.ndarray
         Pseudo-C_BB of tensors at r = 1 over the observed pixels.
     coupling : boresight.coupling.Coupling
+    leaked_const : float
+        The angle-independent leaked power's delta_r: a beam ellipticity's h_0 term.
     """
 
     moments: UnitMoments
@@ -278,6 +282,7 @@ class Objective:
     change_cost: float
     template: np.ndarray
     coupling: object
+    leaked_const: float = 0.0
     parent: np.ndarray = field(init=False)
     block_weight: np.ndarray = field(init=False)
 
@@ -314,8 +319,10 @@ class Objective:
     def delta_r_of(self, h: np.ndarray) -> float:
         """Predicted delta_r of observed-pixel h_n (:meth:`UnitMoments.h`)."""
         powers = self.powers(h)
-        return self.const + sum(
-            self.alpha[n] * powers[n][0] + self.beta[n] * powers[n][1] for n in self.terms
+        return (
+            self.const
+            + self.leaked_const
+            + sum(self.alpha[n] * powers[n][0] + self.beta[n] * powers[n][1] for n in self.terms)
         )
 
     def changes(self, angles_deg: np.ndarray) -> int:
@@ -334,23 +341,28 @@ def objective(
     fwhm_arcmin: float,
     change_cost: float = 0.0,
     nthreads: int = 0,
+    instrument: Instrument | None = None,
 ) -> Objective:
     """The predicted-delta_r objective of a budget over a schedule's observed pixels.
 
     The coefficients follow :func:`boresight.predict.residual_pseudo_bb` term by term: each term
     c h_n F adds 0.5 ``|c|^2`` [coh_n C^FF + (``<|h_n|^2>`` - coh_n) Omega_pix sigma_F^2] to the
     full-sky spurious spectrum, which the mask's coupling turns into pseudo-C_BB and
-    :func:`boresight.predict.delta_r` into a bias on r.
+    :func:`boresight.predict.delta_r` into a bias on r. Parameters given as {mean, rms} enter by
+    their expectation over the focal plane's draws (:func:`boresight.predict.expected_power`,
+    coherent part plus rms^2 / N_pairs); beams by their filters
+    (:func:`boresight.predict.beam_filters`), whose h_0 term no rotation changes.
 
     Parameters
     ----------
     moments : UnitMoments
     systematics : boresight.instrument.Systematics
-        Of the paper's Q/U pair layout.
     spectra : boresight.cosmology.Spectra
     fwhm_arcmin : float
     change_cost : float
     nthreads : int
+    instrument : boresight.instrument.Instrument, optional
+        The focal plane (default: the paper's Q/U pairs).
 
     Returns
     -------
@@ -371,14 +383,46 @@ def objective(
     omega_pix = 4 * np.pi / (12 * nside**2)
     white_unit = bias(np.ones(lmax + 1))
     alpha, beta = np.zeros(N_MAX + 1), np.zeros(N_MAX + 1)
-    coefs = predict.coefficients(systematics)
-    for n, c, cl_ff in predict.leak_terms(coefs, systematics, cl_tt, cl_ee + cl_bb):
+    coefs = predict.coefficients(systematics, instrument)
+    power = t2_mean = beam = None
+    if drawn(systematics):
+        power = predict.expected_power(systematics, instrument)
+        coefs, t2_mean = predict.expected_coefficients(coefs, power), power.t2_mean
+    leaked_const = 0.0
+    if systematics.has_beams:
+        beam = predict.beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, lmax)
+        e0 = beam.e0
+        h0 = couplings.pseudo_bb(e0.imag**2 * cl_tt, e0.real**2 * cl_tt)
+        leaked_const = predict.delta_r(h0, template)
+    terms = predict.leak_terms(coefs, systematics, cl_tt, cl_ee + cl_bb, beam=beam, t2_mean=t2_mean)
+    for n, c, cl_ff in terms:
         weight = 0.5 * abs(c) ** 2
         white = omega_pix * np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff) * white_unit
         alpha[n] += weight * white
         beta[n] += weight * (bias(cl_ff) - white)
-    const = predict.delta_r(predict.signal_bb(couplings, coefs, cl_ee, cl_bb), template)
-    return Objective(moments, alpha, beta, float(const), change_cost, template, couplings)
+    signal = predict.signal_bb(couplings, coefs, cl_ee, cl_bb, expected=power)
+    const = predict.delta_r(signal, template)
+    return Objective(
+        moments, alpha, beta, float(const), change_cost, template, couplings, float(leaked_const)
+    )
+
+
+def drawn(systematics: Systematics) -> bool:
+    """Whether a budget gives any parameter as {mean, rms} with rms > 0.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+
+    Returns
+    -------
+    bool
+    """
+    from .instrument import LIMITS, Spread
+
+    return any(
+        isinstance(v, Spread) and v.rms > 0 for v in (getattr(systematics, k) for k in LIMITS)
+    )
 
 
 @dataclass
@@ -542,17 +586,20 @@ class Budget:
     Parameters
     ----------
     systematics : boresight.instrument.Systematics
-        The systematics' mean amplitudes over the focal plane (the paper's Q/U pair layout).
+        The systematics over the focal plane: numbers, or {mean, rms} per parameter.
     noise : boresight.noise.SurveyNoise
     design : DesignOptions
+    instrument : boresight.instrument.Instrument
+        The focal plane (the optional ``[instrument]`` table; default: the paper's Q/U pairs).
     """
 
     systematics: Systematics
     noise: SurveyNoise
     design: DesignOptions
+    instrument: Instrument = Instrument()
 
 
-BUDGET_SECTIONS = ("systematics", "noise", "design")
+BUDGET_SECTIONS = ("systematics", "noise", "design", "instrument")
 
 
 def load_budget(path: str) -> Budget:
@@ -566,7 +613,9 @@ def load_budget(path: str) -> Budget:
     -------
     Budget
     """
+    from .beams import pair_beams
     from .config import ConfigError, build_section, read_toml
+    from .constants import ARCMIN
     from .instrument import Systematics
     from .noise import SurveyNoise
 
@@ -577,13 +626,23 @@ def load_budget(path: str) -> Budget:
     if "noise" not in raw:
         raise ConfigError(f"budget {path}: a [noise] table is required")
     tables = {}
-    for name, cls in zip(BUDGET_SECTIONS, (Systematics, SurveyNoise, DesignOptions)):
+    classes = (Systematics, SurveyNoise, DesignOptions, Instrument)
+    for name, cls in zip(BUDGET_SECTIONS, classes):
         table = raw.get(name, {})
         if not isinstance(table, dict):
             raise ConfigError(f"budget {path}: [{name}] must be a table")
+        if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
+            table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
         tables[name] = build_section(name, cls, table)
-    if not (tables["systematics"].has_pointing or tables["systematics"].has_leak) and not any(
-        np.atleast_1d(tables["systematics"].dg)
-    ):
+    sysm, instrument = tables["systematics"], tables["instrument"]
+    if sysm == Systematics(seed=sysm.seed):
         raise ConfigError(f"budget {path}: [systematics] has no non-zero amplitude")
+    try:
+        params = sysm.per_pair(instrument.n_pairs)
+        if sysm.has_beams:
+            pair_beams(params, tables["noise"].fwhm_arcmin * ARCMIN)
+        if not predict.supports(instrument):
+            raise ValueError("its pairs' 4 x angles must cancel (m_4 = 0), e.g. 'uniform'")
+    except ValueError as err:
+        raise ConfigError(f"budget {path}: [systematics] / [instrument]: {err}") from None
     return Budget(**tables)

@@ -114,15 +114,20 @@ def coefficients(
     -------
     Coefficients
     """
-    instrument = Instrument() if instrument is None else instrument
-    alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
-    par = systematics.per_pair(instrument.n_pairs)
+    instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
     terms = _pair_terms(par, instrument.pair_angles_rad, alpha, systematics.per_repeat(alpha.size))
     return Coefficients(
         **{name: complex(np.mean(f)) for name, f in terms.items()},
         jitter_var=float(np.mean(par.dg_jitter**2)),
         n_samples=int(alpha.size * instrument.n_pairs),
     )
+
+
+def _drawn(systematics, instrument, rotations_deg):
+    """(instrument, rotations [rad], the pairs' parameters): the paper's pairs by default."""
+    instrument = Instrument() if instrument is None else instrument
+    alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
+    return instrument, alpha, systematics.per_pair(instrument.n_pairs)
 
 
 def _pair_terms(par, pair_angles, alpha, dg_repeat):
@@ -151,8 +156,10 @@ QUADRATURE_NODES = 3  #: Gauss-Hermite nodes per drawn parameter (exact for powe
 
 class ExpectedPower(NamedTuple):
     """The power of each coefficient averaged over the per-pair draws of {mean, rms} parameters:
-    E``|c|^2`` of t2, s2, g1, g3, p4, and of the h_0 term E Re p0, E (Re p0)^2, E (Im p0)^2."""
+    E``|c|^2`` of t2, s2, g1, g3, p4, and of the h_0 term E Re p0, E (Re p0)^2, E (Im p0)^2;
+    t2_mean, E t2, gives the cross term with a beam width's W (:func:`leak_terms`)."""
 
+    t2_mean: complex
     t2: float
     s2: float
     g1: float
@@ -161,6 +168,22 @@ class ExpectedPower(NamedTuple):
     re_p0: float
     re_p0_2: float
     im_p0_2: float
+
+
+def expected_coefficients(coefs: Coefficients, power: ExpectedPower) -> Coefficients:
+    """Coefficients whose ``|c|^2`` are the expected powers (their phases are dropped): what the
+    spectra of the terms c h_n F need, which see ``|c|^2`` only.
+
+    Parameters
+    ----------
+    coefs : Coefficients
+    power : ExpectedPower
+
+    Returns
+    -------
+    Coefficients
+    """
+    return replace(coefs, **{k: np.sqrt(getattr(power, k)) for k in ("t2", "s2", "g1", "g3", "p4")})
 
 
 def expected_power(
@@ -178,7 +201,8 @@ def expected_power(
     Parameters
     ----------
     systematics : boresight.instrument.Systematics
-        Without beams and with numbers for ``dg_repeat`` (both are shared, not per pair).
+        With numbers for the beams and ``dg_repeat`` (the filters of :func:`beam_filters` and the
+        drift are taken as given).
     instrument : boresight.instrument.Instrument, optional
     rotations_deg : sequence of float
 
@@ -186,15 +210,15 @@ def expected_power(
     -------
     ExpectedPower
     """
-    from .instrument import LIMITS, UNITS, Spread
+    from .instrument import BEAM_KEYS, LIMITS, UNITS, Spread
 
-    if systematics.has_beams or isinstance(systematics.dg_repeat, Spread):
+    shared = ("dg_repeat",) + BEAM_KEYS["a"] + BEAM_KEYS["b"]
+    if any(isinstance(getattr(systematics, k), Spread) for k in shared):
         raise ValueError(
             "the expected focal-plane power covers per-pair gain, pointing, leak and angle "
-            "errors: give beams and dg_repeat as numbers of one realisation"
+            "errors: give the beams and dg_repeat as numbers"
         )
-    instrument = Instrument() if instrument is None else instrument
-    alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
+    instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
     n = instrument.n_pairs
     drawn = [
         name
@@ -206,7 +230,6 @@ def expected_power(
     nodes = np.stack([g.ravel() for g in grids], axis=1) if drawn else np.zeros((1, 0))
     weight = np.prod(np.meshgrid(*([w] * len(drawn)), indexing="ij"), axis=0).ravel()
     weight = np.atleast_1d(weight) / np.sum(weight)
-    par = systematics.per_pair(n)
     values = {}
     for name, column in zip(par._fields, par):
         values[name] = np.repeat(column, nodes.shape[0])
@@ -237,6 +260,7 @@ def expected_power(
         )
     p0 = out.pop("p0")
     return ExpectedPower(
+        t2_mean=complex(np.mean(moments(terms["t2"])[0])),
         **{name: float(v[0]) for name, v in out.items()},
         re_p0=float(p0[1]),
         re_p0_2=float(p0[2]),
@@ -281,9 +305,7 @@ def beam_filters(
     -------
     BeamFilters
     """
-    instrument = Instrument() if instrument is None else instrument
-    alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
-    par = systematics.per_pair(instrument.n_pairs)
+    instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
     nominal = fwhm_arcmin * ARCMIN
     smoothing = hp.gauss_beam(nominal, lmax=lmax)
     ang = alpha[:, None] + instrument.pair_angles_rad[None, :]  # (K, M)
@@ -503,7 +525,9 @@ def field_spectra(spectra, lmax, fwhm_arcmin):
     return tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2
 
 
-def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, beam_tt=None):
+def leak_terms(
+    coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, beam_tt=None, t2_mean=None
+):
     """The terms c h_n F of the spurious P whose spectra add (all but the h_0 terms).
 
     Parameters
@@ -519,6 +543,9 @@ def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, b
         The beam terms: W joins the gain's h_2 T term, D4 is an h_4 term.
     beam_tt : numpy.ndarray, optional
         The TT those two terms scale (default cl_tt).
+    t2_mean : complex, optional
+        E t2 when ``coefs`` holds expected powers (:func:`expected_coefficients`): the h_2 term is
+        then E``|t2 + w|^2`` = ``|coefs.t2|^2`` + 2 Re(E t2 w*) + ``|w|^2``.
 
     Returns
     -------
@@ -530,7 +557,12 @@ def leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, b
     if beam is not None:
         n = cl_tt.size
         tt = cl_tt if beam_tt is None else beam_tt[:n]
-        terms[0] = (2, 1.0, np.abs(coefs.t2 + beam.w2[:n]) ** 2 * tt)
+        w = beam.w2[:n]
+        if t2_mean is None:
+            terms[0] = (2, 1.0, np.abs(coefs.t2 + w) ** 2 * tt)
+        else:
+            cross = 2 * np.real(t2_mean * np.conj(w))
+            terms[0] = (2, 1.0, (abs(coefs.t2) ** 2 + cross + np.abs(w) ** 2) * tt)
         terms.append((4, 1.0, np.abs(beam.e4[:n]) ** 2 * tt))
     if systematics.has_leak:
         template = cl_tt if template_cl is None else np.zeros(cl_tt.size)
@@ -645,11 +677,10 @@ def systematic_cl(
     """
     coefs = coefficients(systematics, instrument, rotations_deg)
     _check_supported(coefs)
-    if expected:  # only |c|^2 enters below
+    t2_mean = None
+    if expected:
         power = expected_power(systematics, instrument, rotations_deg)
-        coefs = replace(
-            coefs, **{k: np.sqrt(getattr(power, k)) for k in ("t2", "s2", "g1", "g3", "p4")}
-        )
+        coefs, t2_mean = expected_coefficients(coefs, power), power.t2_mean
     nside = hp.npix2nside(h.shape[1])
     band = 3 * nside - 1 if in_pixel == "random" else lmax  # the fields' variance needs all ell
     cl_tt, cl_pol = _field_cl(spectra, band, fwhm_arcmin, field_cl)
@@ -662,7 +693,7 @@ def systematic_cl(
         beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band)
         beam_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
     spread = _HitSpread(in_pixel, nside, band, blocks, crossings)
-    terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt)
+    terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt, t2_mean)
     for n, c, cl_ff in terms:
         if c == 0:
             continue

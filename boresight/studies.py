@@ -566,7 +566,12 @@ def design_schedule(
         moments = design.unit_moments(schedule, opts.nside, opts.group)
     with timer("objective"):
         obj = design.objective(
-            moments, budget.systematics, spectra_, budget.noise.fwhm_arcmin, opts.change_cost
+            moments,
+            budget.systematics,
+            spectra_,
+            budget.noise.fwhm_arcmin,
+            opts.change_cost,
+            instrument=budget.instrument,
         )
     sigma_r = noise.sigma_r(
         budget.noise, spectra_, np.array([predict.R_RANGE[0], predict.R_RANGE[1] + 1])
@@ -621,6 +626,8 @@ def design_schedule(
             budget.systematics,
             spectra_,
             budget.noise.fwhm_arcmin,
+            budget.instrument,
+            expected=design.drawn(budget.systematics),
         )
         for name, h in h_maps.items()
     }
@@ -678,6 +685,8 @@ def _validate_design(budget, moments, obj, schedule, strategies, predicted):
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
     samples, at the design's Nside with lmax = 2 Nside; its delta_r is that of the leaked power
     (the prediction's quantity) and, for reference, of the whole residual with its cross term.
+    A budget with {mean, rms} parameters simulates one draw of its focal plane (``seed``), which
+    scatters about the predicted expectation.
     """
     nside, lmax = moments.nside, 2 * moments.nside
     the_sky = sky.make_sky(
@@ -686,7 +695,9 @@ def _validate_design(budget, moments, obj, schedule, strategies, predicted):
     out = []
     for name in ("optimised", "none"):
         scan = moments.schedule(schedule, strategies[name])
-        res = residual.residual(the_sky, scan, budget.systematics, moments.mask, lmax)
+        res = residual.residual(
+            the_sky, scan, budget.systematics, moments.mask, lmax, instrument=budget.instrument
+        )
         simulated = predict.delta_r(res.auto, obj.template) + obj.const
         out.append(
             dict(

@@ -6,7 +6,7 @@ import pytest
 
 from boresight import cli, cosmology, design, ground, predict, scanstats
 from boresight.config import ConfigError
-from boresight.instrument import Systematics
+from boresight.instrument import Instrument, Spread, Systematics
 
 ALLOWED = (-90.0, -45.0, 0.0, 45.0, 90.0)
 NSIDE = 32
@@ -33,12 +33,22 @@ def theory():
 
 
 BUDGET = Systematics(dg=(0.01, -0.01), rho_arcmin=0.5, chi_deg=30.0)
+BEAMS = Systematics(dg=(0.01, -0.01), dfwhm_b_arcmin=0.3, ellipticity_b=0.01, ellipticity_a=0.02)
+SPREAD = Systematics(dg=Spread(0.002, 0.01), pol_angle_deg=Spread(0.0, 0.5), rho_arcmin=0.3)
 
 
-def test_objective_is_the_prediction_of_the_designed_schedule(schedule, moments, theory):
+@pytest.mark.parametrize(
+    "budget, instrument",
+    [(BUDGET, None), (BEAMS, None), (SPREAD, Instrument("uniform", 4))],
+    ids=["gain+pointing", "beams", "rms over 4 pairs"],
+)
+def test_objective_is_the_prediction_of_the_designed_schedule(
+    schedule, moments, theory, budget, instrument
+):
     """For random angles, the objective's delta_r equals predict.delta_r of
-    predict.residual_pseudo_bb on the h_n that scanstats measures on the written-out schedule."""
-    obj = design.objective(moments, BUDGET, theory, 30.0)
+    predict.residual_pseudo_bb on the h_n that scanstats measures on the written-out schedule
+    (for {mean, rms} budgets, its expectation over the focal plane's draws)."""
+    obj = design.objective(moments, budget, theory, 30.0, instrument=instrument)
     rng = np.random.default_rng(3)
     for _ in range(3):
         angles = rng.choice(ALLOWED, moments.n_units)
@@ -47,9 +57,34 @@ def test_objective_is_the_prediction_of_the_designed_schedule(schedule, moments,
         mask = (stats.hits > 0).astype(float)
         np.testing.assert_array_equal(np.flatnonzero(mask), moments.pixels)
         np.testing.assert_allclose(moments.full_sky(moments.h(angles))[1:], stats.h[1:], atol=1e-13)
-        res = predict.residual_pseudo_bb(stats.h, mask, obj.coupling, BUDGET, theory, 30.0)
+        res = predict.residual_pseudo_bb(
+            stats.h,
+            mask,
+            obj.coupling,
+            budget,
+            theory,
+            30.0,
+            instrument,
+            expected=design.drawn(budget),
+        )
         expected = predict.delta_r(res, obj.template)
         assert obj.delta_r(angles) == pytest.approx(expected, rel=1e-12)
+
+
+def test_ellipticity_is_a_floor_no_schedule_moves_and_rms_falls_as_one_over_n(moments, theory):
+    """An ellipticity's h_0 term is the same for every schedule; a zero-mean rms budget's delta_r
+    falls as 1 / N_pairs exactly (every term is rms^2 / N)."""
+    obj = design.objective(moments, Systematics(ellipticity_b=0.02), theory, 30.0)
+    values = [obj.delta_r(a) for a in design.baselines(moments.n_units, ALLOWED).values()]
+    assert obj.leaked_const > 0
+    assert np.ptp(values) < 0.02 * obj.leaked_const
+    zero_mean = Systematics(dg=Spread(0.0, 0.01), rho_arcmin=Spread(0.0, 0.3))
+    angles = np.zeros(moments.n_units)
+    dr = {
+        n: design.objective(moments, zero_mean, theory, 30.0, instrument=Instrument("uniform", n))
+        for n in (4, 16)
+    }
+    assert dr[4].delta_r(angles) == pytest.approx(4 * dr[16].delta_r(angles), rel=1e-10)
 
 
 def test_units_follow_the_schedule(schedule, moments):

@@ -104,10 +104,16 @@ def test_distinct_angles_and_range():
     assert abs(np.degrees(stats.centre_rad[p]) - 65.0) <= 1.0
 
 
-def test_sample_stream_uses_the_same_pipeline(small_sky):
+@pytest.mark.parametrize(
+    "sysm",
+    [
+        Systematics(dg=(0.01, -0.01), rho_arcmin=1.0),
+        Systematics(rho_arcmin=1.0, dfwhm_b_arcmin=2.0, ellipticity_a=0.03),  # beams too
+    ],
+)
+def test_sample_stream_uses_the_same_pipeline(small_sky, sysm):
     """Synthetic hits fed as a sample stream give the synthetic engine's maps (to rounding)."""
     scan = SyntheticScan(n_phi=3, range_rad=0.6, seed=4)
-    sysm = Systematics(dg=(0.01, -0.01), rho_arcmin=1.0)
     pix = np.arange(12 * 64**2, dtype=np.int64)
     offsets = np.arange(pix.size + 1, dtype=np.int64) * 3
     n_phi, rng_rad, centre = scan.per_pixel(pix, pix.size)
