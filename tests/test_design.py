@@ -173,6 +173,12 @@ def _budget(tmp_path, nside=NSIDE, **tables):
         (dict(design="group = 'week'"), "group"),
         (dict(noise=None), "noise"),
         (dict(systematics="dg = 0.0"), "no non-zero"),
+        (dict(systematics="ellipticity_b = 0.99"), "ellipticity_b"),
+        (dict(systematics="dfwhm_b_arcmin = -40.0"), "FWHM"),
+        (dict(systematics="dg = {mean = 0.0, rms = 0.01}", instrument="pair_angles_deg = [0.0]"),
+         "m_4"),  # fmt: skip
+        (dict(systematics="dg = 0.01", instrument="pair_angles_deg = 'hexagonal'\nn_pairs = 6"),
+         "preset"),  # fmt: skip
     ],
 )
 def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
@@ -181,7 +187,8 @@ def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
 
 
 def test_design_command_on_the_deep_example(tmp_path):
-    """The issue's check: gain + pointing budget on examples/schedule_deep_sat.toml at Nside 128.
+    """The issue's check: gain + pointing + ellipticity budget on examples/schedule_deep_sat.toml
+    at Nside 128.
     The optimised schedule's predicted delta_r is below every baseline's, and the TOD simulation
     confirms the prediction within 15 % for the optimised and the unrotated schedule."""
     import csv
