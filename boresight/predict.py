@@ -637,6 +637,7 @@ def systematic_cl(
     crossings: np.ndarray | None = None,
     in_pixel: str = "centre",
     expected: bool = False,
+    interpolated: bool = False,
 ) -> np.ndarray:
     """Full-sky spurious C^EE = C^BB predicted from h_n over a mask (all terms but h_0).
 
@@ -664,6 +665,10 @@ def systematic_cl(
     expected : bool
         The average over the per-pair draws of {mean, rms} parameters (:func:`expected_power`)
         instead of the drawn focal plane.
+    interpolated : bool
+        With random in-pixel hits: the sky's fields are read by bilinear interpolation of the
+        maps (the engine's ``evaluation="interp"``), so the terms of T, P, the leak's template and
+        the pointing take :func:`interpolation_window`; the beams' terms are read exactly.
 
     Returns
     -------
@@ -692,13 +697,15 @@ def systematic_cl(
     if systematics.has_beams:  # theory TT: see _beam_tt
         beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band)
         beam_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
-    spread = _HitSpread(in_pixel, nside, band, blocks, crossings)
+    exact = _HitSpread(in_pixel, nside, band, blocks, crossings)
+    spread = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated)
     terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt, t2_mean)
-    for n, c, cl_ff in terms:
+    beam_terms = () if beam is None else (0, len(terms) - 1)  # leak_terms: first and last
+    for i, (n, c, cl_ff) in enumerate(terms):
         if c == 0:
             continue
         total, coherent = blocks.coherent_power(h[n])
-        cl_ff, in_pixel_noise = spread(cl_ff)
+        cl_ff, in_pixel_noise = (exact if i in beam_terms else spread)(cl_ff)
         variance = np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff)
         white = (total - coherent) * omega_pix * variance + in_pixel_noise
         out += 0.5 * abs(c) ** 2 * (coherent * cl_ff[: lmax + 1] + white)
@@ -775,20 +782,76 @@ def _beam_tt(spectra, band, fwhm_arcmin, field_cl):
     return tt
 
 
+@lru_cache(maxsize=8)
+def interpolation_window(nside: int, band: int) -> tuple[np.ndarray, np.ndarray]:
+    """The windows of a field read by bilinear interpolation of its pixel-centre values
+    (healpy.get_interp_weights, the engine's "interp" evaluation) at hits spread over the pixel.
+
+    With f(x) = sum_c w_c(x) F(n_c) over the four neighbours c of x: ``point`` =
+    <sum_cc' w_c(x) w_c'(x) P_l(n_c . n_c')> (the variance of f at a hit, per unit C_l) and
+    ``pair`` = the same for two hits x, y of one pixel (the variance of the pixel's mean over
+    many hits). A quadrature over ``SPREAD_PIXELS`` / 4 pixels with the engine's hit draws.
+
+    Parameters
+    ----------
+    nside, band : int
+
+    Returns
+    -------
+    pair, point : numpy.ndarray, shape (band + 1,)
+    """
+    from .tod_cpu import generate_hits
+
+    npix = 12 * nside**2
+    pixels = np.unique(np.linspace(0, npix - 1, min(npix, SPREAD_PIXELS // 4)).astype(np.int64))
+    offsets = 2 * np.arange(pixels.size + 1, dtype=np.int64)
+    zeros = np.zeros(pixels.size)
+    theta, phi, _ = generate_hits(0, nside, pixels, offsets, zeros, zeros, False)
+    neighbours, weights = hp.get_interp_weights(nside, theta, phi)  # (4, 2 n)
+    vec = np.array(hp.pix2vec(nside, neighbours.ravel())).reshape(3, 4, -1)
+    x_vec, y_vec = vec[:, :, 0::2], vec[:, :, 1::2]
+    x_w, y_w = weights[:, 0::2], weights[:, 1::2]
+    cos = {
+        "pair": np.einsum("icn,idn->cdn", x_vec, y_vec),
+        "point": np.einsum("icn,idn->cdn", x_vec, x_vec),
+    }
+    weight = {
+        "pair": x_w[:, None, :] * y_w[None, :, :],
+        "point": x_w[:, None, :] * x_w[None, :, :],
+    }
+    out = {}
+    for key in cos:
+        x, w = np.clip(cos[key], -1.0, 1.0), weight[key]
+        total = np.sum(w) / x.shape[-1]
+        window = np.empty(band + 1)
+        p_prev, p = np.ones_like(x), x.copy()
+        window[0] = total
+        for ell in range(1, band + 1):  # Legendre recurrence
+            window[ell] = np.sum(w * p) / x.shape[-1]
+            p_prev, p = p, ((2 * ell + 1) * x * p - ell * p_prev) / (ell + 1)
+        out[key] = window
+    return out["pair"], out["point"]
+
+
 class _HitSpread:
     """What hits spread at random over their pixels do to a field F's term: its coherent part is
-    F averaged over the pixel (C^FF w_l^2, :func:`hit_spread_window`), and each hit's departure
-    from that average adds white noise of variance sigma_in^2 / N_hits per pixel, sigma_in^2 =
-    sum_l (2l + 1) / 4 pi C^FF (1 - w_l^2). Nothing for pixel-centre hits."""
+    F averaged over the pixel's hits (C^FF times the pair window), and each hit's departure from
+    that average adds white noise of variance sigma_in^2 / N_hits per pixel, sigma_in^2 =
+    sum_l (2l + 1) / 4 pi C^FF (point - pair). A field read exactly at the hit has point = 1 and
+    pair = w_l^2 (:func:`hit_spread_window`); one interpolated from pixel centres has
+    :func:`interpolation_window`. Nothing for pixel-centre hits."""
 
-    def __init__(self, in_pixel, nside, band, blocks, crossings):
+    def __init__(self, in_pixel, nside, band, blocks, crossings, interpolated=False):
         if in_pixel not in ("centre", "random"):
             raise ValueError(f"in_pixel must be 'centre' or 'random', got {in_pixel!r}")
         self.on = in_pixel == "random"
         if self.on:
             if crossings is None:
                 raise ValueError("hits spread over their pixels need the crossings per pixel")
-            self.window2 = hit_spread_window(nside, band)
+            if interpolated:
+                self.pair, self.point = interpolation_window(nside, band)
+            else:
+                self.pair, self.point = hit_spread_window(nside, band), 1.0
             w2 = blocks.weight**2
             inverse_hits = np.sum(w2 / crossings[blocks.obs]) / np.sum(w2)
             self.noise = 4 * np.pi / (12 * nside**2) * inverse_hits
@@ -798,8 +861,8 @@ class _HitSpread:
         """(C^FF of the pixel-averaged field, the white power of the in-pixel scatter)."""
         if not self.on:
             return cl_ff, 0.0
-        scatter = np.sum((2 * self.ell + 1) / (4 * np.pi) * cl_ff * (1 - self.window2))
-        return cl_ff * self.window2, self.noise * scatter
+        scatter = np.sum((2 * self.ell + 1) / (4 * np.pi) * cl_ff * (self.point - self.pair))
+        return cl_ff * self.pair, self.noise * scatter
 
 
 def signal_bb(
@@ -856,6 +919,7 @@ def residual_pseudo_bb(
     leaked: bool = False,
     in_pixel: str = "centre",
     expected: bool = False,
+    interpolated: bool = False,
 ) -> np.ndarray:
     """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
@@ -870,7 +934,7 @@ def residual_pseudo_bb(
         As in :func:`systematic_cl`.
     coupling : boresight.coupling.Coupling
         The mask's coupling matrices; their lmax is the prediction's.
-    rotations_deg, crossings, in_pixel, expected
+    rotations_deg, crossings, in_pixel, expected, interpolated
         As in :func:`systematic_cl`.
     leaked : bool
         Predict the leaked power <dB, dB> alone, without the h_0 term's rescaling of the sky's own
@@ -896,6 +960,7 @@ def residual_pseudo_bb(
         crossings,
         in_pixel,
         expected,
+        interpolated,
     )
     _, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak

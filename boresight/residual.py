@@ -473,8 +473,9 @@ def residual(
             rotations_deg=mom.rotations_deg,
             crossings=mom.crossings,
             leaked=prediction.leaked,
-            # the hits' spread over their pixels, for now in the beam terms (sub-pixel power)
-            in_pixel=getattr(scan, "in_pixel", "random") if systematics.has_beams else "centre",
+            # the hits' spread over their pixels, and the maps read by interpolation there
+            in_pixel=getattr(scan, "in_pixel", "random"),
+            interpolated=run.evaluation == "interp",
         )
     if predict_map:
         dp = predict.delta_p(
