@@ -698,14 +698,18 @@ def systematic_cl(
         beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band)
         beam_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
     exact = _HitSpread(in_pixel, nside, band, blocks, crossings)
-    spread = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated)
+    value = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated)
+    slope = value  # replaced for the pointing terms below
+    if systematics.has_pointing:
+        slope = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated, gradient=True)
     terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt, t2_mean)
     beam_terms = () if beam is None else (0, len(terms) - 1)  # leak_terms: first and last
     for i, (n, c, cl_ff) in enumerate(terms):
         if c == 0:
             continue
         total, coherent = blocks.coherent_power(h[n])
-        cl_ff, in_pixel_noise = (exact if i in beam_terms else spread)(cl_ff)
+        spread = exact if i in beam_terms else slope if n in (1, 3) else value  # 1, 3: pointing
+        cl_ff, in_pixel_noise = spread(cl_ff)
         variance = np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff)
         white = (total - coherent) * omega_pix * variance + in_pixel_noise
         out += 0.5 * abs(c) ** 2 * (coherent * cl_ff[: lmax + 1] + white)
@@ -783,18 +787,25 @@ def _beam_tt(spectra, band, fwhm_arcmin, field_cl):
 
 
 @lru_cache(maxsize=8)
-def interpolation_window(nside: int, band: int) -> tuple[np.ndarray, np.ndarray]:
+def interpolation_window(
+    nside: int, band: int, gradient: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """The windows of a field read by bilinear interpolation of its pixel-centre values
     (healpy.get_interp_weights, the engine's "interp" evaluation) at hits spread over the pixel.
 
     With f(x) = sum_c w_c(x) F(n_c) over the four neighbours c of x: ``point`` =
     <sum_cc' w_c(x) w_c'(x) P_l(n_c . n_c')> (the variance of f at a hit, per unit C_l) and
     ``pair`` = the same for two hits x, y of one pixel (the variance of the pixel's mean over
-    many hits). A quadrature over ``SPREAD_PIXELS`` / 4 pixels with the engine's hit draws.
+    many hits). With ``gradient``, the same for the gradient of the interpolated surface (what a
+    pointing offset reads: f(x + rho) - f(x)), with grad w_c . grad w_c' in place of w_c w_c'
+    and divided by l (l + 1), the gradient's own factor. A quadrature over ``SPREAD_PIXELS`` / 4
+    pixels with the engine's hit draws; gradients by central differences of 1e-6 rad along
+    e_theta and e_phi (hits whose neighbours change within that step are left out).
 
     Parameters
     ----------
     nside, band : int
+    gradient : bool
 
     Returns
     -------
@@ -808,28 +819,39 @@ def interpolation_window(nside: int, band: int) -> tuple[np.ndarray, np.ndarray]
     zeros = np.zeros(pixels.size)
     theta, phi, _ = generate_hits(0, nside, pixels, offsets, zeros, zeros, False)
     neighbours, weights = hp.get_interp_weights(nside, theta, phi)  # (4, 2 n)
+    keep = np.ones(theta.size, dtype=bool)
+    if gradient:
+        step, parts = 1e-6, []
+        for d_theta, d_phi in ((step, 0.0), (0.0, step / np.sin(theta))):
+            up, w_up = hp.get_interp_weights(nside, theta + d_theta, phi + d_phi)
+            down, w_down = hp.get_interp_weights(nside, theta - d_theta, phi - d_phi)
+            keep &= np.all(up == neighbours, axis=0) & np.all(down == neighbours, axis=0)
+            parts.append((w_up - w_down) / (2 * step))
+        weights = np.stack(parts)  # (2, 4, 2 n): d w_c / d e_theta, d w_c / d e_phi
+    else:
+        weights = weights[None]
+    both = keep[0::2] & keep[1::2]
     vec = np.array(hp.pix2vec(nside, neighbours.ravel())).reshape(3, 4, -1)
-    x_vec, y_vec = vec[:, :, 0::2], vec[:, :, 1::2]
-    x_w, y_w = weights[:, 0::2], weights[:, 1::2]
-    cos = {
-        "pair": np.einsum("icn,idn->cdn", x_vec, y_vec),
-        "point": np.einsum("icn,idn->cdn", x_vec, x_vec),
-    }
-    weight = {
-        "pair": x_w[:, None, :] * y_w[None, :, :],
-        "point": x_w[:, None, :] * x_w[None, :, :],
-    }
+    x_vec, y_vec = vec[:, :, 0::2][..., both], vec[:, :, 1::2][..., both]
+    x_w, y_w = weights[:, :, 0::2][..., both], weights[:, :, 1::2][..., both]
+    ell = np.arange(band + 1)
+    norm = np.maximum(ell * (ell + 1), 1) if gradient else np.ones(band + 1)
     out = {}
-    for key in cos:
-        x, w = np.clip(cos[key], -1.0, 1.0), weight[key]
-        total = np.sum(w) / x.shape[-1]
+    for key, (a, b, w_a, w_b) in {
+        "pair": (x_vec, y_vec, x_w, y_w),
+        "point": (x_vec, x_vec, x_w, x_w),
+    }.items():
+        x = np.clip(np.einsum("icn,idn->cdn", a, b), -1.0, 1.0)
+        w = np.einsum("icn,idn->cdn", w_a, w_b)
         window = np.empty(band + 1)
         p_prev, p = np.ones_like(x), x.copy()
-        window[0] = total
-        for ell in range(1, band + 1):  # Legendre recurrence
-            window[ell] = np.sum(w * p) / x.shape[-1]
-            p_prev, p = p, ((2 * ell + 1) * x * p - ell * p_prev) / (ell + 1)
-        out[key] = window
+        window[0] = np.sum(w) / x.shape[-1]
+        for k in range(1, band + 1):  # Legendre recurrence
+            window[k] = np.sum(w * p) / x.shape[-1]
+            p_prev, p = p, ((2 * k + 1) * x * p - k * p_prev) / (k + 1)
+        out[key] = window / norm
+    if gradient:
+        out["pair"][0] = out["point"][0] = 1.0  # the monopole has no gradient
     return out["pair"], out["point"]
 
 
@@ -841,7 +863,9 @@ class _HitSpread:
     pair = w_l^2 (:func:`hit_spread_window`); one interpolated from pixel centres has
     :func:`interpolation_window`. Nothing for pixel-centre hits."""
 
-    def __init__(self, in_pixel, nside, band, blocks, crossings, interpolated=False):
+    def __init__(
+        self, in_pixel, nside, band, blocks, crossings, interpolated=False, gradient=False
+    ):
         if in_pixel not in ("centre", "random"):
             raise ValueError(f"in_pixel must be 'centre' or 'random', got {in_pixel!r}")
         self.on = in_pixel == "random"
@@ -849,7 +873,7 @@ class _HitSpread:
             if crossings is None:
                 raise ValueError("hits spread over their pixels need the crossings per pixel")
             if interpolated:
-                self.pair, self.point = interpolation_window(nside, band)
+                self.pair, self.point = interpolation_window(nside, band, gradient)
             else:
                 self.pair, self.point = hit_spread_window(nside, band), 1.0
             w2 = blocks.weight**2
