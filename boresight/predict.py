@@ -718,7 +718,8 @@ def systematic_cl(
             raise ValueError("the gain jitter's prediction needs the crossings per pixel")
         w2 = blocks.weight**2
         inverse_samples = np.sum(w2 / (crossings[blocks.obs] * coefs.n_samples)) / np.sum(w2)
-        variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * cl_tt)
+        point = value.point if value.on else 1.0  # T's variance where the hits read it
+        variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * cl_tt * point)
         out += 0.5 * omega_pix * coefs.jitter_var * variance_t * inverse_samples
     out[:2] = 0.0
     return out
@@ -986,15 +987,22 @@ def residual_pseudo_bb(
         expected,
         interpolated,
     )
-    _, cl_ee, cl_bb = field_spectra(spectra, lmax, fwhm_arcmin)
+    nside = hp.npix2nside(h.shape[1])
+    band = 3 * nside - 1 if in_pixel == "random" else lmax
+    _, cl_ee, cl_bb = field_spectra(spectra, band, fwhm_arcmin)
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
-        cl_ee = field_cl.ee[: lmax + 1]
+        n = min(band + 1, field_cl.ee.size)
+        cl_ee[:n] = field_cl.ee[:n]
+    if in_pixel == "random":  # the maps' P as the hits read it: windowed, plus in-pixel scatter
+        spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings, interpolated)
+        (cl_ee, noise_e), (cl_bb, noise_b) = spread(cl_ee), spread(cl_bb)
+        white = 0.5 * (noise_e + noise_b)
+        cl_ee, cl_bb = cl_ee + white, cl_bb + white
+    cl_ee, cl_bb = cl_ee[: lmax + 1], cl_bb[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
     power = expected_power(systematics, instrument, rotations_deg) if expected else None
     signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked, power)
     if systematics.has_beams:
-        nside = hp.npix2nside(h.shape[1])
-        band = 3 * nside - 1 if in_pixel == "random" else lmax
         cl_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
         e0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band).e0
         spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings)
