@@ -146,7 +146,7 @@ def _pair_terms(par, pair_angles, alpha, dg_repeat):
         g3=-0.5 * par.rho * np.exp(1j * (3 * ang + par.chi)),
         p0=np.conj(gamma),
         p4=gamma * e2**2,
-        m4=e2**2 + 0j * dg,
+        m4=e2**2,
     )
     return {name: np.mean(f, axis=0) for name, f in terms.items()}
 
@@ -249,9 +249,10 @@ def expected_power(
         f = f.reshape(n, -1)
         return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight
 
-    out = {}
+    out, means = {}, {}
     for name in ("t2", "s2", "g1", "g3", "p4", "p0"):
         mean, re2, im2 = moments(terms[name])
+        means[name] = complex(np.mean(mean))
         out[name] = (
             abs(np.mean(mean)) ** 2 + np.sum(re2 + im2 - np.abs(mean) ** 2) / n**2,
             np.mean(mean.real),
@@ -260,7 +261,7 @@ def expected_power(
         )
     p0 = out.pop("p0")
     return ExpectedPower(
-        t2_mean=complex(np.mean(moments(terms["t2"])[0])),
+        t2_mean=means["t2"],
         **{name: float(v[0]) for name, v in out.items()},
         re_p0=float(p0[1]),
         re_p0_2=float(p0[2]),
@@ -550,20 +551,11 @@ def leak_terms(
     Returns
     -------
     list of (int, complex, numpy.ndarray)
-        (n, coefficient c, C^FF of the field F).
+        (n, coefficient c, C^FF of the field F); with ``beam``, the first (h_2: gain and W) and
+        the last (h_4 D4) carry the beams.
     """
     ell = np.arange(cl_tt.size)
     terms = [(2, coefs.t2, cl_tt), (4, coefs.p4, cl_pol)]
-    if beam is not None:
-        n = cl_tt.size
-        tt = cl_tt if beam_tt is None else beam_tt[:n]
-        w = beam.w2[:n]
-        if t2_mean is None:
-            terms[0] = (2, 1.0, np.abs(coefs.t2 + w) ** 2 * tt)
-        else:
-            cross = 2 * np.real(t2_mean * np.conj(w))
-            terms[0] = (2, 1.0, (abs(coefs.t2) ** 2 + cross + np.abs(w) ** 2) * tt)
-        terms.append((4, 1.0, np.abs(beam.e4[:n]) ** 2 * tt))
     if systematics.has_leak:
         template = cl_tt if template_cl is None else np.zeros(cl_tt.size)
         if template_cl is not None:  # zero beyond the template's own band limit
@@ -573,7 +565,21 @@ def leak_terms(
     if systematics.has_pointing:
         grad = ell * (ell + 1) * cl_tt
         terms += [(1, coefs.g1, grad), (3, coefs.g3, grad)]
+    if beam is not None:  # the first term and the last (:data:`BEAM_TERMS`)
+        n = cl_tt.size
+        tt = cl_tt if beam_tt is None else beam_tt[:n]
+        w = beam.w2[:n]
+        if t2_mean is None:
+            terms[0] = (2, 1.0, np.abs(coefs.t2 + w) ** 2 * tt)
+        else:
+            cross = 2 * np.real(t2_mean * np.conj(w))
+            terms[0] = (2, 1.0, (abs(coefs.t2) ** 2 + cross + np.abs(w) ** 2) * tt)
+        terms.append((4, 1.0, np.abs(beam.e4[:n]) ** 2 * tt))
     return terms
+
+
+#: the positions in :func:`leak_terms` of the terms that carry the beams (read exactly at hits)
+BEAM_TERMS = (0, -1)
 
 
 class FieldSpectra(NamedTuple):
@@ -694,7 +700,7 @@ def systematic_cl(
     out = np.zeros(lmax + 1)
     blocks = PixelBlocks(mask)
     beam = beam_tt = None
-    if systematics.has_beams:  # theory TT: see _beam_tt
+    if systematics.has_beams:  # the patch's TT through the apodized mask: see _beam_tt
         beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band)
         beam_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
     exact = _HitSpread(in_pixel, nside, band, blocks, crossings)
@@ -703,7 +709,7 @@ def systematic_cl(
     if systematics.has_pointing:
         slope = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated, gradient=True)
     terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt, t2_mean)
-    beam_terms = () if beam is None else (0, len(terms) - 1)  # leak_terms: first and last
+    beam_terms = () if beam is None else {i % len(terms) for i in BEAM_TERMS}
     for i, (n, c, cl_ff) in enumerate(terms):
         if c == 0:
             continue
@@ -765,11 +771,27 @@ def hit_spread_window(nside: int, band: int) -> np.ndarray:
     theta, phi, _ = generate_hits(0, nside, pixels, offsets, zeros, zeros, False)
     vec = np.array(hp.ang2vec(theta, phi))
     x = np.clip(np.sum(vec[0::2] * vec[1::2], axis=1), -1.0, 1.0)
+    return _legendre_means(x, np.ones_like(x), band)
+
+
+def _legendre_means(x, weight, band):
+    """sum(weight P_l(x)) / n for l = 0..band, n the size of x's last axis (Legendre recurrence).
+
+    Parameters
+    ----------
+    x, weight : numpy.ndarray, same shape
+        Cosines of angles and their weights.
+    band : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (band + 1,)
+    """
     out = np.empty(band + 1)
     p_prev, p = np.ones_like(x), x.copy()
-    out[0] = 1.0
-    for ell in range(1, band + 1):  # Legendre recurrence
-        out[ell] = p.mean()
+    out[0] = np.sum(weight) / x.shape[-1]
+    for ell in range(1, band + 1):
+        out[ell] = np.sum(weight * p) / x.shape[-1]
         p_prev, p = p, ((2 * ell + 1) * x * p - ell * p_prev) / (ell + 1)
     return out
 
@@ -844,13 +866,7 @@ def interpolation_window(
     }.items():
         x = np.clip(np.einsum("icn,idn->cdn", a, b), -1.0, 1.0)
         w = np.einsum("icn,idn->cdn", w_a, w_b)
-        window = np.empty(band + 1)
-        p_prev, p = np.ones_like(x), x.copy()
-        window[0] = np.sum(w) / x.shape[-1]
-        for k in range(1, band + 1):  # Legendre recurrence
-            window[k] = np.sum(w * p) / x.shape[-1]
-            p_prev, p = p, ((2 * k + 1) * x * p - k * p_prev) / (k + 1)
-        out[key] = window / norm
+        out[key] = _legendre_means(x, w, band) / norm
     if gradient:
         out["pair"][0] = out["point"][0] = 1.0  # the monopole has no gradient
     return out["pair"], out["point"]

@@ -155,11 +155,12 @@ def test_engine_beams_equal_the_analytic_map(small_sky_unpolarised, systematics,
 
 
 def test_the_beams_smoothing_of_p_is_a_percent_of_the_map(small_sky):
-    """The prediction leaves out the beams' smoothing of P, 1 % of the residual here."""
+    """The prediction leaves out the beams' smoothing of P and the ellipticity's k = 4 moment:
+    together 1.9 % of the residual here."""
     sysm = Systematics(dfwhm_b_arcmin=1.0, ellipticity_b=0.05)
     dp = _residual(small_sky, CENTRED, sysm)
     pred = _predicted(small_sky, CENTRED, sysm)
-    assert np.linalg.norm(dp - pred) < 0.03 * np.linalg.norm(dp)
+    assert np.linalg.norm(dp - pred) < 0.025 * np.linalg.norm(dp)
 
 
 def test_width_cancels_at_90_and_ellipticity_survives_90_and_180(small_sky_unpolarised):
@@ -261,3 +262,18 @@ def test_beam_maps_do_not_depend_on_chunks_or_threads(small_sky):
     two = engine.simulate(small_sky, scan, systematics=sysm, nthreads=2)
     np.testing.assert_array_equal(one.q, two.q)
     np.testing.assert_array_equal(one.u, two.u)
+
+
+def test_beam_terms_are_where_systematic_cl_reads_them_exactly(theory):
+    """With leak and pointing on too, leak_terms puts the beams' terms at predict.BEAM_TERMS (the
+    h_2 term with W, and h_4 D4), which systematic_cl spreads as fields read exactly at hits."""
+    sysm = Systematics(dg=0.01, leak=0.01, rho_arcmin=0.3, ellipticity_b=0.02, dfwhm_b_arcmin=0.2)
+    lmax = 60
+    coefs = predict.coefficients(sysm)
+    beam = predict.beam_filters(sysm, None, (0.0,), 30.0, lmax)
+    tt, ee, bb = predict.field_spectra(theory, lmax, 30.0)
+    terms = predict.leak_terms(coefs, sysm, tt, ee + bb, beam=beam)
+    assert [t[0] for t in terms] == [2, 4, 2, 1, 3, 4]
+    first, last = (terms[i] for i in predict.BEAM_TERMS)
+    np.testing.assert_allclose(first[2], np.abs(coefs.t2 + beam.w2) ** 2 * tt)
+    np.testing.assert_allclose(last[2], np.abs(beam.e4) ** 2 * tt)
