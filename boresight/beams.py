@@ -14,11 +14,12 @@ orientation with ``ducc0.totalconvolve``: the sky's maps carry the nominal beam 
 so :class:`BeamConvolver` convolves the un-smoothed sky with the difference between a detector's
 beam and the nominal one and adds that to the detector's sample.
 
-To first order in the difference, the temperature part of a detector's extra signal is
-W + Re[D* e^{2 i beta}] with beta its polarisation angle plus ``angle`` (docs/conventions.md):
-W has the harmonic window w0 = sqrt(4 pi / (2l + 1)) (b_l0 - b_l0 nominal) ~ 1/2 (sigma_X^2 (1 +
-e^2) - sigma^2) nabla^2 T, and D, spin 2, the E-mode window w2 = -2 sqrt(4 pi / (2l + 1)) b_l2 ~
-sigma_X^2 e eth^2 T (:func:`windows`).
+A detector's extra signal is, exactly, a sum over the beam's azimuthal moments k of spin-k
+fields of the sky times e^{-i k psi} (:func:`moment_filters`). Its temperature part is W +
+Re[D* e^{2 i beta}] to the k = 4 moment, with beta its polarisation angle plus ``angle``
+(docs/conventions.md): W ~ 1/2 (sigma_X^2 (1 + e^2) - sigma^2) nabla^2 T and D ~ sigma_X^2 e
+eth^2 T, spin 2. Its polarised part smooths P and, for an elliptical beam, adds a spin-0 and a
+spin-4 field of ~ sigma_X^2 e eth-bar^2 P and eth^2 P.
 """
 
 from __future__ import annotations
@@ -189,32 +190,35 @@ def truncate(blm: np.ndarray, lmax: int, kmax: int, tolerance: float = BEAM_TOLE
     return out, keep
 
 
-def windows(beam: Beam, nominal_fwhm: float, lmax: int) -> tuple[np.ndarray, np.ndarray]:
-    """The temperature windows of a detector's beam relative to the nominal one.
+def moment_filters(beam: Beam, nominal_fwhm: float, lmax: int, kmax: int) -> np.ndarray:
+    """The harmonic filters of a detector's extra signal, moment by moment in its angle.
+
+    The signal of (beam - nominal beam) at a point, for a detector at polarisation angle psi,
+    is F_0 + sum_{k > 0} 2 Re[F_k e^{-i k psi}], where F_k is a spin-k field whose harmonic
+    coefficients are sum_c g[k, c, l] a^c_lm over the un-smoothed sky's T, E, B alm (healpy's
+    spin-k (E', B') = -(Re, Im) of that sum; for k = 0 the sum's real and imaginary parts are
+    two spin-0 fields). g = sqrt(4 pi / (2l + 1)) (b_lk - b_lk,nominal) of :func:`beam_alm` at
+    the beam's own angle; the E and B rows carry the beam's smoothing of P (docs/conventions.md).
 
     Parameters
     ----------
     beam : Beam
-        With ``angle`` ignored (its orientation is a phase, e^{-2 i angle} of D).
     nominal_fwhm : float
         [rad].
-    lmax : int
+    lmax, kmax : int
 
     Returns
     -------
-    w0 : numpy.ndarray, shape (lmax + 1,)
-        sqrt(4 pi / (2l + 1)) (b_l0 - b_l0 nominal): the window of the spin-0 extra signal W.
-    w2 : numpy.ndarray, shape (lmax + 1,)
-        -2 sqrt(4 pi / (2l + 1)) b_l2 at angle 0: the E-mode window of the spin-2 field D.
+    numpy.ndarray, complex128, shape (kmax + 1, 3, lmax + 1)
+        0 below l = k.
     """
     ell = np.arange(lmax + 1)
     norm = np.sqrt(4 * np.pi / (2 * ell + 1))
-    own = beam_alm(Beam(beam.fwhm, beam.ellipticity), lmax, 2)
-    ref = beam_alm(Beam(nominal_fwhm), lmax, 0)
-    w0 = norm * (_moment(own[0], lmax, 0) - ref[0]).real
-    w2 = np.zeros(lmax + 1)
-    w2[2:] = -2 * norm[2:] * _moment(own[0], lmax, 2).real
-    return w0, w2
+    diff = beam_alm(beam, lmax, kmax) - beam_alm(Beam(nominal_fwhm), lmax, kmax)
+    out = np.zeros((kmax + 1, 3, lmax + 1), dtype=np.complex128)
+    for k in range(kmax + 1):
+        out[k, :, k:] = norm[k:] * _moment(diff, lmax, k)
+    return out
 
 
 def unsmoothed_alm(alm: np.ndarray, fwhm: float) -> np.ndarray:

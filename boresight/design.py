@@ -272,7 +272,9 @@ class Objective:
         Pseudo-C_BB of tensors at r = 1 over the observed pixels.
     coupling : boresight.coupling.Coupling
     leaked_const : float
-        The angle-independent leaked power's delta_r: a beam ellipticity's h_0 term.
+        The angle-independent part's delta_r: a beam ellipticity's h_0 term, its leaked power
+        plus its first-order cross term with the sky's E (through TE and the mask's E-to-B
+        leakage; it can be negative).
     """
 
     moments: UnitMoments
@@ -373,15 +375,15 @@ def objective(
     couplings = coupling.coupling_matrices(moments.mask, lmax, nthreads)
     template = predict.tensor_template(couplings, spectra, fwhm_arcmin, nside)
 
-    def bias(cl):
-        cl = np.array(cl, dtype=float)
-        cl[:2] = 0.0
-        return predict.delta_r(couplings.pseudo_bb(cl, cl), template)
+    def bias(cl_e, cl_b):
+        cl = np.array([cl_e, cl_b], dtype=float)
+        cl[:, :2] = 0.0
+        return predict.delta_r(couplings.pseudo_bb(cl[1], cl[0]), template)
 
     cl_tt, cl_ee, cl_bb = predict.field_spectra(spectra, lmax, fwhm_arcmin)
     ell = np.arange(lmax + 1)
     omega_pix = 4 * np.pi / (12 * nside**2)
-    white_unit = bias(np.ones(lmax + 1))
+    white_unit = bias(np.ones(lmax + 1), np.ones(lmax + 1))
     alpha, beta = np.zeros(N_MAX + 1), np.zeros(N_MAX + 1)
     coefs = predict.coefficients(systematics, instrument)
     power = t2_mean = beam = None
@@ -389,17 +391,21 @@ def objective(
         power = predict.expected_power(systematics, instrument)
         coefs, t2_mean = predict.expected_coefficients(coefs, power), power.t2_mean
     leaked_const = 0.0
+    beam_cl = predict.beam_spectra(spectra, lmax, fwhm_arcmin)
     if systematics.has_beams:
-        beam = predict.beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, lmax)
-        e0 = beam.e0
-        h0 = couplings.pseudo_bb(e0.imag**2 * cl_tt, e0.real**2 * cl_tt)
+        beam = predict.beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, lmax, N_MAX)
+        h0 = predict.beam_h0_bb(couplings, beam[0], beam_cl)
         leaked_const = predict.delta_r(h0, template)
-    terms = predict.leak_terms(coefs, systematics, cl_tt, cl_ee + cl_bb, beam=beam, t2_mean=t2_mean)
-    for n, c, cl_ff in terms:
+    terms = predict.leak_terms(
+        coefs, systematics, cl_tt, cl_ee + cl_bb, beam=beam, beam_cl=beam_cl, t2_mean=t2_mean
+    )
+    for n, c, cl_e, cl_b, _ in terms:
+        n = abs(n)
         weight = 0.5 * abs(c) ** 2
-        white = omega_pix * np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff) * white_unit
+        variance = np.sum((2 * ell + 1) / (4 * np.pi) * (cl_e + cl_b)) / 2
+        white = omega_pix * variance * white_unit
         alpha[n] += weight * white
-        beta[n] += weight * (bias(cl_ff) - white)
+        beta[n] += weight * (bias(cl_e, cl_b) - white)
     signal = predict.signal_bb(couplings, coefs, cl_ee, cl_bb, expected=power)
     const = predict.delta_r(signal, template)
     return Objective(

@@ -20,17 +20,19 @@ no repeat these are the paper's eq. 5-9 (its eq. 6 is the complex conjugate of t
 h_n and gradient use the opposite orientation; amplitudes are identical). Gain, leak and angle
 terms are exact for pixel-centre hits; pointing is first order in rho.
 
-Detector beams (:mod:`boresight.beams`) add, from each detector X's extra signal W_X + Re[D_X*
-e^{2 i beta_X}], the terms h_2 W + D0 + h_4 D4* to Y (:func:`beam_filters`): W (beam width,
-~ nabla^2 T) joins the gain's h_2 T; D (ellipticity, ~ eth^2 T) enters at h_0, which no rotation
-changes, and at h_4. Exact in the temperature windows (to the k = 2 azimuthal moment of the beam);
-the beams' smoothing of P is left out (1 % of the map-level residual for a 60 arcmin beam).
+Detector beams (:mod:`boresight.beams`): detector X's extra signal is a sum over its beam's
+azimuthal moments k of spin-k fields F_k of the sky (T, E and B) times e^{-i k psi_X}, so Y gains
+the terms h_n G_n, n = 2 -+ k (:func:`beam_filters`): the width's nabla^2 T and the ellipticity's
+eth-bar^2 P at h_2 (joining the gain's h_2 T), the ellipticity's eth^2 T at h_0 (which no rotation
+changes) and h_4, its eth^2 P at h_{-2} and h_6, and higher orders in e beyond. Exact to the
+moments h holds (:data:`BEAM_N_MAX` covers every term of first order in e).
 
 Power spectra: each term c h_n F contributes C^EE = C^BB = ``|c|^2`` / 2 * [coh_n C^FF_l +
 (``<|h_n|^2>`` - coh_n) Omega_pix sigma_F^2]: a coherent part from h_n smoothed over blocks of
 pixels (what Wallis et al. 2017 write as ``<|h_n|^2>`` C^FF) and a white part from the
-pixel-to-pixel scatter of h_n. The h_0 term rotates and rescales the sky's own polarisation, u P
-with u = 1 + p_0. Gain jitter of rms sigma adds white noise of variance
+pixel-to-pixel scatter of h_n. A beam pair h_n G_n + h_{-n} G_{-n} splits its coherent part
+unequally: B takes ``|g_n - (-1)^n conj(g_-n)|^2`` and E the sum (docs/conventions.md). The
+h_0 term rotates and rescales the sky's own polarisation, u P with u = 1 + p_0. Gain jitter of rms sigma adds white noise of variance
 ``<sigma^2>`` T^2 / N_samples per pixel. Masked pseudo-C_ell follow through M^{BB,BB} and
 M^{BB,EE} (paper eq. 10). The C_ell level needs m_4 = 0 (pairs whose 4 x angles cancel, e.g.
 (0, 45) deg or any "uniform" focal plane of 2 or more pairs, or a repeat that cancels h_4); the
@@ -48,7 +50,7 @@ import numba
 import numpy as np
 
 from . import harmonics
-from .beams import pair_beams, windows
+from .beams import moment_filters, pair_beams
 from .constants import ARCMIN, DEG
 from .instrument import Instrument
 from .threads import numba_threads
@@ -156,8 +158,9 @@ QUADRATURE_NODES = 3  #: Gauss-Hermite nodes per drawn parameter (exact for powe
 
 class ExpectedPower(NamedTuple):
     """The power of each coefficient averaged over the per-pair draws of {mean, rms} parameters:
-    E``|c|^2`` of t2, s2, g1, g3, p4, and of the h_0 term E Re p0, E (Re p0)^2, E (Im p0)^2;
-    t2_mean, E t2, gives the cross term with a beam width's W (:func:`leak_terms`)."""
+    E``|c|^2`` of t2, s2, g1, g3, p4, and of the h_0 term E Re p0, E Im p0, E (Re p0)^2,
+    E (Im p0)^2, E Re p0 Im p0; t2_mean, E t2, gives the cross term with the beams' h_2 fields
+    (:func:`leak_terms`)."""
 
     t2_mean: complex
     t2: float
@@ -166,8 +169,10 @@ class ExpectedPower(NamedTuple):
     g3: float
     p4: float
     re_p0: float
+    im_p0: float
     re_p0_2: float
     im_p0_2: float
+    re_im_p0: float
 
 
 def expected_coefficients(coefs: Coefficients, power: ExpectedPower) -> Coefficients:
@@ -247,40 +252,32 @@ def expected_power(
 
     def moments(f):
         f = f.reshape(n, -1)
-        return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight
+        return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight, (f.real * f.imag) @ weight
 
     out, means = {}, {}
     for name in ("t2", "s2", "g1", "g3", "p4", "p0"):
-        mean, re2, im2 = moments(terms[name])
+        mean, re2, im2, reim = moments(terms[name])
         means[name] = complex(np.mean(mean))
+        re, im = np.mean(mean.real), np.mean(mean.imag)
         out[name] = (
             abs(np.mean(mean)) ** 2 + np.sum(re2 + im2 - np.abs(mean) ** 2) / n**2,
-            np.mean(mean.real),
-            np.mean(mean.real) ** 2 + np.sum(re2 - mean.real**2) / n**2,
-            np.mean(mean.imag) ** 2 + np.sum(im2 - mean.imag**2) / n**2,
+            re**2 + np.sum(re2 - mean.real**2) / n**2,
+            im**2 + np.sum(im2 - mean.imag**2) / n**2,
+            re * im + np.sum(reim - mean.real * mean.imag) / n**2,
         )
     p0 = out.pop("p0")
     return ExpectedPower(
         t2_mean=means["t2"],
         **{name: float(v[0]) for name, v in out.items()},
-        re_p0=float(p0[1]),
-        re_p0_2=float(p0[2]),
-        im_p0_2=float(p0[3]),
+        re_p0=means["p0"].real,
+        im_p0=means["p0"].imag,
+        re_p0_2=float(p0[1]),
+        im_p0_2=float(p0[2]),
+        re_im_p0=float(p0[3]),
     )
 
 
-class BeamFilters(NamedTuple):
-    """Harmonic filters of the beam terms, applied to the sky's (beam-smoothed) T alm, each
-    complex of shape (lmax + 1,) (module docstring):
-
-    w2 : the h_2 term's spin-0 field W, added to the gain's t2.
-    e0 : the h_0 term's spin-2 field D0, E + i B = e0 T.
-    e4 : the h_4 term's D4 (the term is h_4 D4*).
-    """
-
-    w2: np.ndarray
-    e0: np.ndarray
-    e4: np.ndarray
+BEAM_N_MAX = 6  #: the beams' terms reach h_6 at first order in the ellipticity (eth^2 P)
 
 
 def beam_filters(
@@ -289,9 +286,17 @@ def beam_filters(
     rotations_deg: Sequence[float],
     fwhm_arcmin: float,
     lmax: int,
-) -> BeamFilters:
-    """The filters of the detectors' beam terms: means over (repeat, pair) of each detector's
-    windows (:func:`boresight.beams.windows`) times its sign, gain and orientation phase.
+    n_max: int = BEAM_N_MAX,
+) -> dict[int, np.ndarray]:
+    """The filters of the detectors' beam terms h_n G_n of Y, -n_max <= n <= n_max.
+
+    Detector X's extra signal is F_0 + sum_k 2 Re[F_k e^{-i k psi_X}]
+    (:func:`boresight.beams.moment_filters`), so with psi_X = phi + c_X Y gains, from each
+    detector, s_X g_X [h_2 F_0 + sum_k (h_{2-k} e^{-i k c_X} F_k + h_{2+k} e^{i k c_X} F_k*)],
+    each h_n carrying its repeat's and pair's phase e^{i n (alpha + a)}, means over (repeat, pair)
+    (docs/conventions.md). G_n is a spin-(2 - n) field for n <= 2, and for n > 2 the conjugate
+    of a spin-(n - 2) field H_n; the filters give G_n's (or H_n's) harmonic coefficients as
+    sum_c filter[c, l] a^c_lm over the sky's beam-smoothed T, E, B alm.
 
     Parameters
     ----------
@@ -300,36 +305,64 @@ def beam_filters(
     rotations_deg : sequence of float
     fwhm_arcmin : float
         The sky's beam.
-    lmax : int
+    lmax, n_max : int
 
     Returns
     -------
-    BeamFilters
+    dict of int to numpy.ndarray
+        n -> complex array of shape (3, lmax + 1); h_{-n} = conj(h_n).
     """
     instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
     nominal = fwhm_arcmin * ARCMIN
-    smoothing = hp.gauss_beam(nominal, lmax=lmax)
+    smoothing = hp.gauss_beam(nominal, lmax=lmax, pol=True).T[:3]  # (T, E, B), (3, lmax + 1)
+    kmax = n_max + 2
     ang = alpha[:, None] + instrument.pair_angles_rad[None, :]  # (K, M)
     gain_b = 1 - (par.dg[None, :] + systematics.per_repeat(alpha.size)[:, None])
-    phase = {  # e^{-2 i c_X}: the detector's angle from the assumed one plus its major axis's
-        "a": np.exp(-2j * (par.pol_angle - 0.5 * par.nonortho + par.ellipticity_angle_a)),
-        "b": -np.exp(-2j * (par.pol_angle + 0.5 * par.nonortho + par.ellipticity_angle_b)),
+    offset = {  # c_X: the detector's angle from the assumed one
+        "a": par.pol_angle - 0.5 * par.nonortho,
+        "b": par.pol_angle + 0.5 * par.nonortho + np.pi / 2,
     }
-    w2 = np.zeros(lmax + 1, dtype=np.complex128)
-    e0, e4 = np.zeros_like(w2), np.zeros_like(w2)
+    out = {n: np.zeros((3, lmax + 1), dtype=np.complex128) for n in range(-n_max, n_max + 1)}
     cache = {}
     for m, beam_pair in enumerate(pair_beams(par, nominal)):
         for detector, beam, sign, gain in zip("ab", beam_pair, (1, -1), (1.0, gain_b[:, m])):
             if beam not in cache:
-                cache[beam] = windows(beam, nominal, lmax)
-            win0, win2 = cache[beam]
+                cache[beam] = moment_filters(beam, nominal, lmax, kmax)
+            g = cache[beam]
             weight = sign * gain * np.ones(alpha.size)  # (K,)
-            w2 += np.mean(weight * np.exp(2j * ang[:, m])) * win0
-            d = 0.5 * weight * phase[detector][m]
-            e0 += np.mean(d) * win2
-            e4 += np.mean(d * np.exp(-4j * ang[:, m])) * win2
+            c = offset[detector][m]
+            for k in range(kmax + 1):
+                # F_k enters at h_{2-k}; F_k* at h_{2+k}, as H_n = conj(weight) F_k
+                for n, phase in ((2 - k, 1j * (2 - k)), (2 + k, -1j * (2 + k)))[: 1 + (k > 0)]:
+                    if abs(n) <= n_max:
+                        out[n] += np.mean(weight * np.exp(phase * ang[:, m] - 1j * k * c)) * g[k]
     n = instrument.n_pairs
-    return BeamFilters(*(f / n / smoothing for f in (w2, e0, e4)))
+    return {key: f / n / np.where(smoothing > 0, smoothing, np.inf) for key, f in out.items()}
+
+
+def beam_power(filt: np.ndarray, cl: np.ndarray) -> np.ndarray:
+    """The power spectrum of a field whose coefficients are sum_c filt[c] a^c_lm.
+
+    Parameters
+    ----------
+    filt : numpy.ndarray, shape (3, lmax + 1)
+        On T, E, B; real or complex.
+    cl : numpy.ndarray, shape (4, >= lmax + 1)
+        TT, EE, BB, TE [muK^2].
+
+    Returns
+    -------
+    numpy.ndarray, shape (lmax + 1,)
+        [muK^2].
+    """
+    tt, ee, bb, te = cl[:, : filt.shape[1]]
+    t, e, b = filt
+    return (
+        np.abs(t) ** 2 * tt
+        + np.abs(e) ** 2 * ee
+        + np.abs(b) ** 2 * bb
+        + 2 * np.real(t * np.conj(e)) * te
+    )
 
 
 def supports(instrument: Instrument | None, rotations_deg: Sequence[float] = (0.0,)) -> bool:
@@ -422,20 +455,33 @@ def delta_p(
 
 
 def _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads):
-    """The beam terms' part of Y: h_2 W + D0 + h_4 D4* (:func:`beam_filters`), (npix,) complex."""
-    f = beam_filters(systematics, instrument, rotations_deg, sky.fwhm_arcmin, sky.lmax)
-    t = sky.alm[0]
+    """The beam terms' part of Y: sum_n h_n G_n over the n that h holds (:func:`beam_filters`),
+    (npix,) complex."""
+    n_max = h.shape[0] - 1
+    filters = beam_filters(systematics, instrument, rotations_deg, sky.fwhm_arcmin, sky.lmax, n_max)
+    out = np.zeros(h.shape[1], dtype=np.complex128)
+    for n, filt in filters.items():
+        if np.any(filt):
+            field = _beam_field(sky, filt, abs(2 - n), nthreads)
+            field = np.conj(field) if n > 2 else field
+            out += (h[n] if n >= 0 else np.conj(h[-n])) * field
+    return out
 
-    def spin0(filt):
-        return harmonics.alm2map(harmonics.almxfl(t, filt), sky.nside, nthreads=nthreads)
 
-    def spin2(filt):
-        eb = np.stack([harmonics.almxfl(t, filt.real), harmonics.almxfl(t, filt.imag)])
-        q, u = harmonics.alm2map(eb, sky.nside, spin=2, nthreads=nthreads)
-        return q + 1j * u
-
-    w = spin0(f.w2.real) + 1j * spin0(f.w2.imag)
-    return h[2] * w + spin2(f.e0) + h[4] * np.conj(spin2(f.e4))
+def _beam_field(sky, filt, spin, nthreads):
+    """The spin-``spin`` field with coefficients sum_c filt[c] a^c_lm of the sky's T, E, B,
+    (npix,) complex (for spin > 0, Q + i U of healpy's (E', B') = -(Re, Im) of the sum)."""
+    n = min(filt.shape[1], sky.lmax + 1)
+    parts = [
+        sum(harmonics.almxfl(sky.alm[c], getattr(filt[c, :n], part)) for c in range(3))
+        for part in ("real", "imag")
+    ]
+    if spin == 0:
+        return harmonics.alm2map(parts[0], sky.nside, nthreads=nthreads) + 1j * harmonics.alm2map(
+            parts[1], sky.nside, nthreads=nthreads
+        )
+    qu = harmonics.alm2map(-np.stack(parts), sky.nside, spin=spin, nthreads=nthreads)
+    return qu[0] + 1j * qu[1]
 
 
 @numba.njit(parallel=True, cache=True)
@@ -526,8 +572,21 @@ def field_spectra(spectra, lmax, fwhm_arcmin):
     return tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2
 
 
+class Term(NamedTuple):
+    """One term c h_n F of the spurious P (with, for a pair of beam terms, its partner c' h_{-n} F'):
+    its moment n (h_{-n} = conj h_n), coefficient c, the spectra [muK^2] whose halves its E and
+    B modes take (equal but for such a pair), and whether the engine reads its field exactly at
+    the hits (the beams' fields) rather than by interpolation of the sky's maps."""
+
+    n: int
+    c: complex
+    cl_e: np.ndarray
+    cl_b: np.ndarray
+    exact: bool = False
+
+
 def leak_terms(
-    coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, beam_tt=None, t2_mean=None
+    coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, beam_cl=None, t2_mean=None
 ):
     """The terms c h_n F of the spurious P whose spectra add (all but the h_0 terms).
 
@@ -540,60 +599,78 @@ def leak_terms(
         Spectra of T and of P (EE + BB) [muK^2].
     template_cl : numpy.ndarray, optional
         Spectrum of the leak's template (default: TT).
-    beam : BeamFilters, optional
-        The beam terms: W joins the gain's h_2 T term, D4 is an h_4 term.
-    beam_tt : numpy.ndarray, optional
-        The TT those two terms scale (default cl_tt).
+    beam : dict of int to numpy.ndarray, optional
+        The beam terms' filters (:func:`beam_filters`): G_2 joins the gain's h_2 T term, every
+        other n but 0 is a term of its own.
+    beam_cl : numpy.ndarray, shape (4, >= lmax + 1), optional
+        The TT, EE, BB, TE those terms scale (:func:`beam_spectra`); required with ``beam``.
     t2_mean : complex, optional
         E t2 when ``coefs`` holds expected powers (:func:`expected_coefficients`): the h_2 term is
-        then E``|t2 + w|^2`` = ``|coefs.t2|^2`` + 2 Re(E t2 w*) + ``|w|^2``.
+        then E``|t2 T + G_2|^2`` = ``|coefs.t2|^2`` TT + 2 Re(E t2 conj(g_T)) TT
+        + 2 Re(E t2 conj(g_E)) TE + ``|G_2|^2``.
 
     Returns
     -------
-    list of (int, complex, numpy.ndarray)
-        (n, coefficient c, C^FF of the field F); with ``beam``, the first (h_2: gain and W) and
-        the last (h_4 D4) carry the beams.
+    list of Term
+        With ``beam``, the first (h_2: gain and G_2) and those after the others carry the beams.
     """
     ell = np.arange(cl_tt.size)
-    terms = [(2, coefs.t2, cl_tt), (4, coefs.p4, cl_pol)]
+    terms = [Term(2, coefs.t2, cl_tt, cl_tt), Term(4, coefs.p4, cl_pol, cl_pol)]
     if systematics.has_leak:
         template = cl_tt if template_cl is None else np.zeros(cl_tt.size)
         if template_cl is not None:  # zero beyond the template's own band limit
             n = min(cl_tt.size, template_cl.size)
             template[:n] = template_cl[:n]
-        terms.append((2, coefs.s2, template))
+        terms.append(Term(2, coefs.s2, template, template))
     if systematics.has_pointing:
         grad = ell * (ell + 1) * cl_tt
-        terms += [(1, coefs.g1, grad), (3, coefs.g3, grad)]
-    if beam is not None:  # the first term and the last (:data:`BEAM_TERMS`)
-        n = cl_tt.size
-        tt = cl_tt if beam_tt is None else beam_tt[:n]
-        w = beam.w2[:n]
-        if t2_mean is None:
-            terms[0] = (2, 1.0, np.abs(coefs.t2 + w) ** 2 * tt)
-        else:
-            cross = 2 * np.real(t2_mean * np.conj(w))
-            terms[0] = (2, 1.0, (abs(coefs.t2) ** 2 + cross + np.abs(w) ** 2) * tt)
-        terms.append((4, 1.0, np.abs(beam.e4[:n]) ** 2 * tt))
+        terms += [Term(1, coefs.g1, grad, grad), Term(3, coefs.g3, grad, grad)]
+    if beam is not None:
+        terms[0] = Term(2, 1.0, *_gain_and_beam(coefs, beam, beam_cl, t2_mean), exact=True)
+        for n, filt in beam.items():
+            if n in (0, 2, -2) or (n < 0 and -n in beam):
+                continue  # h_0 is beam_h0_bb's; a negative n with a partner goes with it
+            partner = np.conj(beam.get(-n, np.zeros_like(filt))) * (-1) ** n
+            if not (np.any(filt) or np.any(partner)):
+                continue
+            cl_e, cl_b = (beam_power(filt + sign * partner, beam_cl) for sign in (1, -1))
+            terms.append(Term(n, 1.0, cl_e, cl_b, exact=True))
     return terms
 
 
-#: the positions in :func:`leak_terms` of the terms that carry the beams (read exactly at hits)
-BEAM_TERMS = (0, -1)
+def _gain_and_beam(coefs, beam, beam_cl, t2_mean):
+    """E and B spectra of the h_2 terms with the beams: t2 T + G_2 and its partner G_{-2}, whose
+    B modes subtract (docs/conventions.md); with ``t2_mean``, averaged over the gain's draws."""
+    g2 = beam[2]
+    partner = np.conj(beam.get(-2, np.zeros_like(g2)))
+    out = []
+    for v in (g2 + partner, g2 - partner):
+        if t2_mean is None:
+            out.append(beam_power(v + np.array([coefs.t2, 0, 0])[:, None], beam_cl))
+            continue
+        tt, te = beam_cl[0], beam_cl[3]
+        cross = (
+            2 * np.real(t2_mean * np.conj(v[0])) * tt + 2 * np.real(t2_mean * np.conj(v[1])) * te
+        )
+        out.append(abs(coefs.t2) ** 2 * tt + cross + beam_power(v, beam_cl))
+    return out
 
 
 class FieldSpectra(NamedTuple):
-    """Beam-smoothed spectra of the fields a prediction scales, (lmax + 1,) [muK^2] each: TT,
-    EE + BB (the h_4 P* term), EE (the h_0 term) and TT through the apodized mask (the beam
-    terms, :func:`_beam_tt`)."""
+    """Beam-smoothed spectra of the fields a prediction scales [muK^2]: TT, EE + BB (the h_4 P*
+    term) and EE, (lmax + 1,) each, as full-sky equivalents (pseudo-C_ell / <w^2>); the maps'
+    own pseudo-C_ell EE, BB, EB through the mask, (3, lmax + 1) (the h_0 term,
+    :func:`signal_bb`); and, for the beam terms (:func:`beam_spectra`), TT, EE, BB, TE through
+    the apodized mask, (4, lmax + 1)."""
 
     tt: np.ndarray
     pol: np.ndarray
     ee: np.ndarray
-    tt_apodized: np.ndarray | None = None
+    masked: np.ndarray | None = None
+    apodized: np.ndarray | None = None
 
 
-BEAM_TT_APODIZATION_DEG = 2.0  #: apodization of the mask for the beam terms' local TT
+BEAM_APODIZATION_DEG = 2.0  #: apodization of the mask for the beam terms' local spectra
 
 
 def local_cl(
@@ -611,7 +688,7 @@ def local_cl(
     lmax : int
     nthreads : int
     beams : bool
-        Also TT through the apodized mask, for beam systematics (one more transform).
+        Also TT, EE, BB, TE through the apodized mask, for beam systematics (one more analysis).
 
     Returns
     -------
@@ -621,12 +698,14 @@ def local_cl(
     from .spectra import pseudo_spectra
 
     mask = np.asarray(mask, dtype=np.float64)
-    cl = pseudo_spectra(sky.maps, mask, lmax, nthreads) / np.mean(mask**2)
+    pseudo = pseudo_spectra(sky.maps, mask, lmax, nthreads)
+    cl = pseudo / np.mean(mask**2)
+    masked = pseudo[[1, 2, 4]]
     if not beams:
-        return FieldSpectra(cl[0], cl[1] + cl[2], cl[1])
-    smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_TT_APODIZATION_DEG)
-    tt = harmonics.alm2cl(harmonics.map2alm(sky.maps[0] * smooth, lmax, nthreads=nthreads))
-    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], tt / np.mean(smooth**2))
+        return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked)
+    smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_APODIZATION_DEG)
+    apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads)[:4] / np.mean(smooth**2)
+    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, apodized)
 
 
 def systematic_cl(
@@ -645,12 +724,16 @@ def systematic_cl(
     expected: bool = False,
     interpolated: bool = False,
 ) -> np.ndarray:
-    """Full-sky spurious C^EE = C^BB predicted from h_n over a mask (all terms but h_0).
+    """Full-sky spurious C^EE and C^BB predicted from h_n over a mask (all terms but h_0).
+
+    Every term shares its power equally between E and B but the beams' pairs of terms h_n G_n
+    and h_{-n} G_{-n}, whose B modes partly cancel (docs/conventions.md).
 
     Parameters
     ----------
     h : numpy.ndarray, complex128, shape (>= 5, npix)
-        h_n of one repeat (as in :func:`delta_p`).
+        h_n of one repeat (as in :func:`delta_p`); the beams' terms use the moments it holds, to
+        :data:`BEAM_N_MAX`.
     mask : numpy.ndarray, shape (npix,)
     systematics : boresight.instrument.Systematics
     spectra : boresight.cosmology.Spectra
@@ -678,8 +761,8 @@ def systematic_cl(
 
     Returns
     -------
-    numpy.ndarray, shape (lmax + 1,)
-        [muK^2], 0 at ell < 2.
+    numpy.ndarray, shape (2, lmax + 1)
+        C^EE, C^BB [muK^2], 0 at ell < 2.
 
     Raises
     ------
@@ -697,28 +780,29 @@ def systematic_cl(
     cl_tt, cl_pol = _field_cl(spectra, band, fwhm_arcmin, field_cl)
     omega_pix = 4 * np.pi / h.shape[1]
     ell = np.arange(band + 1)
-    out = np.zeros(lmax + 1)
+    out = np.zeros((2, lmax + 1))
     blocks = PixelBlocks(mask)
-    beam = beam_tt = None
-    if systematics.has_beams:  # the patch's TT through the apodized mask: see _beam_tt
-        beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band)
-        beam_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
+    beam = beam_cl = None
+    if systematics.has_beams:  # the patch's spectra through the apodized mask: beam_spectra
+        n_max = min(BEAM_N_MAX, h.shape[0] - 1)
+        beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max)
+        beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
     exact = _HitSpread(in_pixel, nside, band, blocks, crossings)
     value = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated)
     slope = value  # replaced for the pointing terms below
     if systematics.has_pointing:
         slope = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated, gradient=True)
-    terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_tt, t2_mean)
-    beam_terms = () if beam is None else {i % len(terms) for i in BEAM_TERMS}
-    for i, (n, c, cl_ff) in enumerate(terms):
+    terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_cl, t2_mean)
+    for n, c, cl_e, cl_b, read_exactly in terms:
         if c == 0:
             continue
-        total, coherent = blocks.coherent_power(h[n])
-        spread = exact if i in beam_terms else slope if n in (1, 3) else value  # 1, 3: pointing
-        cl_ff, in_pixel_noise = spread(cl_ff)
-        variance = np.sum((2 * ell + 1) / (4 * np.pi) * cl_ff)
-        white = (total - coherent) * omega_pix * variance + in_pixel_noise
-        out += 0.5 * abs(c) ** 2 * (coherent * cl_ff[: lmax + 1] + white)
+        total, coherent = blocks.coherent_power(h[abs(n)])
+        spread = exact if read_exactly else slope if n in (1, 3) else value  # 1, 3: pointing
+        (cl_e, noise_e), (cl_b, noise_b) = spread(cl_e), spread(cl_b)
+        variance = np.sum((2 * ell + 1) / (4 * np.pi) * (cl_e + cl_b)) / 2
+        white = (total - coherent) * omega_pix * variance + (noise_e + noise_b) / 2
+        for row, cl in enumerate((cl_e, cl_b)):
+            out[row] += 0.5 * abs(c) ** 2 * (coherent * cl[: lmax + 1] + white)
     if coefs.jitter_var > 0:
         if crossings is None:
             raise ValueError("the gain jitter's prediction needs the crossings per pixel")
@@ -727,7 +811,7 @@ def systematic_cl(
         point = value.point if value.on else 1.0  # T's variance where the hits read it
         variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * cl_tt * point)
         out += 0.5 * omega_pix * coefs.jitter_var * variance_t * inverse_samples
-    out[:2] = 0.0
+    out[:, :2] = 0.0
     return out
 
 
@@ -796,17 +880,36 @@ def _legendre_means(x, weight, band):
     return out
 
 
-def _beam_tt(spectra, band, fwhm_arcmin, field_cl):
-    """The TT that the beam terms scale: the patch's through the apodized mask where given, else
-    the theory's. The sharp mask's pseudo-C_ell / <w^2> carries the mask's mixing of low-ell
-    power into high ell, which the l^4 weight of nabla^2 T and eth^2 T turned into a 20x
-    overshoot at ell > 600 for a 30 arcmin beam at Nside 512; the theory alone misses the patch's
-    sample variance (11 % in a band at Nside 256)."""
-    tt = field_spectra(spectra, band, fwhm_arcmin)[0]
-    if field_cl is not None and field_cl.tt_apodized is not None:
-        n = min(band + 1, field_cl.tt_apodized.size)
-        tt[:n] = field_cl.tt_apodized[:n]
-    return tt
+def beam_spectra(
+    spectra: Spectra, band: int, fwhm_arcmin: float, field_cl: FieldSpectra | None = None
+) -> np.ndarray:
+    """The beam-smoothed TT, EE, BB, TE that the beam terms scale: the patch's through the
+    apodized mask where ``field_cl`` has them (:func:`local_cl` with ``beams=True``), else the
+    theory's.
+
+    The sharp mask's pseudo-C_ell / <w^2> carries the mask's mixing of low-ell power into high
+    ell, which the l^4 weight of nabla^2 T and eth^2 T turned into a 20x overshoot at ell > 600
+    for a 30 arcmin beam at Nside 512; the theory alone misses the patch's sample variance
+    (11 % in a band at Nside 256).
+
+    Parameters
+    ----------
+    spectra : boresight.cosmology.Spectra
+    band : int
+    fwhm_arcmin : float
+    field_cl : FieldSpectra, optional
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, band + 1)
+        [muK^2].
+    """
+    # healpy's TE window is sqrt(b_T b_E), so every column squared is the spectrum's window
+    cl = spectra.total(lmax=band) * hp.gauss_beam(fwhm_arcmin * ARCMIN, band, pol=True).T ** 2
+    if field_cl is not None and field_cl.apodized is not None:
+        n = min(band + 1, field_cl.apodized.shape[1])
+        cl[:, :n] = field_cl.apodized[:, :n]
+    return cl
 
 
 @lru_cache(maxsize=8)
@@ -913,23 +1016,29 @@ def signal_bb(
     cl_bb: np.ndarray,
     leaked: bool = False,
     expected: ExpectedPower | None = None,
+    masked: np.ndarray | None = None,
 ) -> np.ndarray:
     """Pseudo-C_BB change of the h_0 term, which turns the sky's P into u P with u = 1 + p_0.
 
-    E' + i B' = u (E + i B), so C^B'B' - C^BB = Im(u)^2 C^EE + (Re(u)^2 - 1) C^BB, and E likewise.
-    Its leaked power alone, of dB = Im(u) E + (Re(u) - 1) B, has (Re(u) - 1)^2 in place of
-    Re(u)^2 - 1: the rest is the cross term 2 (Re(u) - 1) C^BB, a rescaling of the sky's own B.
+    E' + i B' = u (E + i B), so dB = Im(u) E + (Re(u) - 1) B. Its leaked power <dB, dB> is
+    (Re u - 1)^2 BB + Im(u)^2 EE + 2 (Re u - 1) Im(u) EB; the whole change adds the cross terms
+    2 (Re u - 1) BB + 2 Im(u) EB. For full-sky spectra (EB = 0) that is Im(u)^2 C^EE +
+    (Re(u)^2 - 1) C^BB through the mask's coupling. As u is one number for the whole map, the
+    maps' own masked pseudo-spectra (``masked``) give it exactly, the mask's E-to-B leakage of
+    this very sky included.
 
     Parameters
     ----------
     coupling : boresight.coupling.Coupling
     coefs : Coefficients
     cl_ee, cl_bb : numpy.ndarray, shape (lmax + 1,)
-        [muK^2].
+        Full-sky spectra [muK^2], used without ``masked``.
     leaked : bool
         The leaked power <dB, dB> only.
     expected : ExpectedPower, optional
-        Use its average of (Re u - 1)^2 and Im(u)^2 over the per-pair draws instead of coefs'.
+        Use its averages of p_0's powers over the per-pair draws instead of coefs'.
+    masked : numpy.ndarray, shape (3, lmax + 1), optional
+        The maps' pseudo-C_ell EE, BB, EB through the mask [muK^2].
 
     Returns
     -------
@@ -937,12 +1046,20 @@ def signal_bb(
         [muK^2].
     """
     if expected is None:
-        u = 1 + coefs.p0
-        re2, im2 = (u.real - 1) ** 2 if leaked else u.real**2 - 1, u.imag**2
-    else:  # E (Re u)^2 - 1 = 2 E Re p0 + E (Re p0)^2
-        re2 = expected.re_p0_2 + (0.0 if leaked else 2 * expected.re_p0)
-        im2 = expected.im_p0_2
-    return re2 * coupling.pseudo_bb(cl_bb, cl_ee) + im2 * coupling.pseudo_bb(cl_ee, cl_bb)
+        w = coefs.p0
+        re, im, re2, im2, reim = w.real, w.imag, w.real**2, w.imag**2, w.real * w.imag
+    else:
+        e = expected
+        re, im, re2, im2, reim = e.re_p0, e.im_p0, e.re_p0_2, e.im_p0_2, e.re_im_p0
+    if masked is None:
+        ee, bb = coupling.pseudo_bb(cl_ee, cl_bb), coupling.pseudo_bb(cl_bb, cl_ee)
+        eb = np.zeros_like(ee)
+    else:
+        ee, bb, eb = masked[:, : coupling.lmax + 1]
+    out = re2 * bb + im2 * ee + 2 * reim * eb
+    if not leaked:
+        out = out + 2 * re * bb + 2 * im * eb
+    return out
 
 
 def residual_pseudo_bb(
@@ -961,13 +1078,15 @@ def residual_pseudo_bb(
     in_pixel: str = "centre",
     expected: bool = False,
     interpolated: bool = False,
+    sky: Sky | None = None,
 ) -> np.ndarray:
     """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
     The leaked power M^{BB,BB} C^BB_sys + M^{BB,EE} C^EE_sys plus the h_0 term's change of the
     cosmological signal (:func:`signal_bb`; for the paper's gain (1 - (dg_1 + dg_2)/4)^2 - 1),
-    plus the beams' h_0 field D0 = e0 T (pure E rotated by e0's phase: C^BB = Im(e0)^2 C^TT,
-    C^EE = Re(e0)^2 C^TT; its cross term with an angle error's rotation of E is left out).
+    plus the beams' h_0 field (:func:`beam_h0_bb`; its cross term with an angle error's
+    rotation of E is left out). With ``field_cl`` the h_0 term of u uses the maps' own masked
+    spectra (:func:`signal_bb`).
 
     Parameters
     ----------
@@ -980,6 +1099,9 @@ def residual_pseudo_bb(
     leaked : bool
         Predict the leaked power <dB, dB> alone, without the h_0 term's rescaling of the sky's own
         B (:func:`signal_bb`).
+    sky : boresight.sky.Sky, optional
+        The simulated sky: the beams' h_0 field is then made on the sphere and masked
+        (:func:`beam_h0_bb`), so its leaked power is this realisation's.
 
     Returns
     -------
@@ -1009,24 +1131,97 @@ def residual_pseudo_bb(
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
         n = min(band + 1, field_cl.ee.size)
         cl_ee[:n] = field_cl.ee[:n]
+    masked = None if field_cl is None else field_cl.masked
+    if masked is not None and masked.shape[1] < lmax + 1:
+        raise ValueError(f"field_cl holds the maps' spectra to {masked.shape[1] - 1} < lmax {lmax}")
     if in_pixel == "random":  # the maps' P as the hits read it: windowed, plus in-pixel scatter
         spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings, interpolated)
         (cl_ee, noise_e), (cl_bb, noise_b) = spread(cl_ee), spread(cl_bb)
         white = 0.5 * (noise_e + noise_b)
         cl_ee, cl_bb = cl_ee + white, cl_bb + white
+        if masked is not None:
+            scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
+            masked = masked[:, : lmax + 1] * spread.pair[: lmax + 1] + [
+                scatter,
+                scatter,
+                0 * scatter,
+            ]
     cl_ee, cl_bb = cl_ee[: lmax + 1], cl_bb[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
     power = expected_power(systematics, instrument, rotations_deg) if expected else None
-    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked, power)
+    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked, power, masked)
     if systematics.has_beams:
-        cl_tt = _beam_tt(spectra, band, fwhm_arcmin, field_cl)
-        e0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band).e0
+        g0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, 0)[0]
+        beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
         spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings)
-        cl_b, noise_b = spread(e0.imag**2 * cl_tt)
-        cl_e, noise_e = spread(e0.real**2 * cl_tt)
-        white = 0.5 * (noise_b + noise_e)  # the scatter's phase is random: half in each of E, B
-        signal = signal + coupling.pseudo_bb(cl_b[: lmax + 1] + white, cl_e[: lmax + 1] + white)
-    return coupling.pseudo_bb(cl_sys, cl_sys) + signal
+        signal = signal + beam_h0_bb(coupling, g0, beam_cl, leaked, spread, sky, mask)
+    return coupling.pseudo_bb(cl_sys[1], cl_sys[0]) + signal
+
+
+def beam_h0_bb(
+    coupling: Coupling,
+    g0: np.ndarray,
+    cl: np.ndarray,
+    leaked: bool = False,
+    spread: _HitSpread | None = None,
+    sky: Sky | None = None,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """Pseudo-C_BB of the beams' h_0 term, which no rotation changes.
+
+    G_0 = sum_c g0[c] a^c is a spin-2 field: its E' and B' have the real filters -Re g0 and
+    -Im g0 on (T, E, B) (a pure-E field rotated by the phase of g0; for an ellipticity,
+    E' + i B' = -g0_T T to first order). Its leaked power is C^E'E', C^B'B'; the whole residual
+    adds the cross terms 2 C^EE' and 2 C^BB' with the sky's own E and B (a smoothing of P).
+
+    Parameters
+    ----------
+    coupling : boresight.coupling.Coupling
+    g0 : numpy.ndarray, complex128, shape (3, band + 1)
+        The h_0 filter of :func:`beam_filters`.
+    cl : numpy.ndarray, shape (4, band + 1)
+        TT, EE, BB, TE [muK^2] (:func:`beam_spectra`).
+    leaked : bool
+        The leaked power alone.
+    spread : _HitSpread, optional
+        Hits spread over their pixels, the field read exactly at each (default: pixel centres).
+    sky, mask : optional
+        The simulated sky and the mask: G_0 is then made on the sphere and its leaked power is
+        its own masked pseudo-C_ell (windowed by the hits' spread, plus their scatter), this
+        realisation's E-to-B leakage included, rather than the coupling's average.
+
+    Returns
+    -------
+    numpy.ndarray, shape (coupling.lmax + 1,)
+        [muK^2].
+    """
+    from .spectra import masked_pol_alm
+
+    lmax = coupling.lmax
+    e_filt, b_filt = -g0.real, -g0.imag
+    (cl_e, noise_e), (cl_b, noise_b) = (
+        (beam_power(f, cl), 0.0) if spread is None else spread(beam_power(f, cl))
+        for f in (e_filt, b_filt)
+    )
+    white = 0.5 * (noise_b + noise_e)  # the scatter's phase is random: half in each of E, B
+    if sky is not None:
+        field = _beam_field(sky, g0, 2, 0)
+        e_alm, b_alm = masked_pol_alm(np.array([field.real, field.imag]), mask, lmax)
+        window = spread.pair[: lmax + 1] if spread is not None and spread.on else 1.0
+        scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
+        out = harmonics.alm2cl(b_alm) * window + scatter
+        if leaked:
+            return out
+        cl_e, cl_b = np.zeros(lmax + 1), np.zeros(lmax + 1)  # the cross terms below only
+    else:
+        out = 0.0
+        cl_e, cl_b = cl_e[: lmax + 1] + white, cl_b[: lmax + 1] + white
+    if not leaked:  # <E E'> = f_T TE + f_E EE, <B B'> = f_B BB, averaged over the pixel's hits
+        window = spread.pair if spread is not None and spread.on else 1.0
+        cross_e = 2 * (e_filt[0] * cl[3] + e_filt[1] * cl[1]) * window
+        cross_b = 2 * b_filt[2] * cl[2] * window
+        cl_e, cl_b = cl_e + cross_e[: lmax + 1], cl_b + cross_b[: lmax + 1]
+    return out + coupling.pseudo_bb(cl_b, cl_e)
 
 
 def rotation_suppression(n: int, rotations_deg: Sequence[float]) -> float:

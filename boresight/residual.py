@@ -286,7 +286,11 @@ class Moments(NamedTuple):
 
 
 def moments(
-    scan: SyntheticScan | Schedule, nside: int, pixels: np.ndarray, run: RunOptions = RunOptions()
+    scan: SyntheticScan | Schedule,
+    nside: int,
+    pixels: np.ndarray,
+    run: RunOptions = RunOptions(),
+    n_max: int = N_MAX,
 ) -> Moments:
     """h_n of a synthetic or real scan.
 
@@ -297,6 +301,9 @@ def moments(
     pixels : numpy.ndarray, bool, shape (npix,)
         Pixels of a synthetic scan.
     run : boresight.config.RunOptions
+    n_max : int
+        The highest moment of a synthetic scan (:func:`n_max_for`); a real schedule's are
+        :data:`boresight.scanstats.N_MAX`.
 
     Returns
     -------
@@ -306,9 +313,24 @@ def moments(
         stats = scanstats.characterise_schedule(scan, nside)
         return Moments(stats.h, stats.hits, (0.0,))
     h, crossings = engine.scan_moments(
-        scan.one_repeat(), nside, pixels=pixels, nthreads=run.nthreads, backend=run.backend
+        scan.one_repeat(), nside, n_max, pixels=pixels, nthreads=run.nthreads, backend=run.backend
     )
     return Moments(h, crossings, scan.rotations_deg)
+
+
+def n_max_for(systematics: Systematics) -> int:
+    """The highest h_n a prediction of these systematics uses: the beams' reach h_6
+    (:data:`boresight.predict.BEAM_N_MAX`), the others h_4.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+
+    Returns
+    -------
+    int
+    """
+    return predict.BEAM_N_MAX if systematics.has_beams else N_MAX
 
 
 def _masked_b(qu, mask, lmax, nthreads):
@@ -454,7 +476,7 @@ def residual(
     if prediction is None:
         return result
     t0 = time.perf_counter()
-    mom = moments(scan, sky.nside, obs, run)
+    mom = moments(scan, sky.nside, obs, run, n_max_for(systematics))
     result.h_power = {
         n: float(np.mean(np.abs(mom.rotated(n)[obs]) ** 2)) for n in range(1, N_MAX + 1)
     }
@@ -476,6 +498,7 @@ def residual(
             # the hits' spread over their pixels, and the maps read by interpolation there
             in_pixel=getattr(scan, "in_pixel", "random"),
             interpolated=run.evaluation == "interp",
+            sky=sky if prediction.field_cl is not None else None,
         )
     if predict_map:
         dp = predict.delta_p(

@@ -221,7 +221,8 @@ def predict_study(study: Study, log: Callable = print, memory_check: bool = True
     check_memory("predict", study, memory_check)
     nside, lmax = study.sky.nside, study.output.lmax
     mask = masks.from_config(study.mask, nside)
-    mom = residual.moments(study.scan, nside, mask > 0, study.run)
+    n_max = residual.n_max_for(study.systematics)
+    mom = residual.moments(study.scan, nside, mask > 0, study.run, n_max)
     couplings = coupling.coupling_matrices(mask, lmax, study.run.nthreads)
     pred = predict.residual_pseudo_bb(
         mom.h,

@@ -72,12 +72,13 @@ def test_objective_is_the_prediction_of_the_designed_schedule(
 
 
 def test_ellipticity_is_a_floor_no_schedule_moves_and_rms_falls_as_one_over_n(moments, theory):
-    """An ellipticity's h_0 term is the same for every schedule; a zero-mean rms budget's delta_r
-    falls as 1 / N_pairs exactly (every term is rms^2 / N)."""
+    """An ellipticity's h_0 term is the same for every schedule (its first-order cross term with
+    the sky's E, through TE and the mask's E-to-B leakage, makes it negative here); a zero-mean
+    rms budget's delta_r falls as 1 / N_pairs exactly (every term is rms^2 / N)."""
     obj = design.objective(moments, Systematics(ellipticity_b=0.02), theory, 30.0)
     values = [obj.delta_r(a) for a in design.baselines(moments.n_units, ALLOWED).values()]
-    assert obj.leaked_const > 0
-    assert np.ptp(values) < 0.02 * obj.leaked_const
+    assert abs(obj.leaked_const) > 1e-4
+    assert np.ptp(values) < 0.02 * abs(obj.leaked_const)
     zero_mean = Systematics(dg=Spread(0.0, 0.01), rho_arcmin=Spread(0.0, 0.3))
     angles = np.zeros(moments.n_units)
     dr = {
