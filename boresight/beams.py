@@ -210,7 +210,7 @@ def moment_filters(beam: Beam, nominal_fwhm: float, lmax: int, kmax: int) -> np.
     Returns
     -------
     numpy.ndarray, complex128, shape (kmax + 1, 3, lmax + 1)
-        0 below l = k.
+        0 below l = k, and for moments below :data:`BEAM_TOLERANCE` of the largest.
     """
     ell = np.arange(lmax + 1)
     norm = np.sqrt(4 * np.pi / (2 * ell + 1))
@@ -218,6 +218,8 @@ def moment_filters(beam: Beam, nominal_fwhm: float, lmax: int, kmax: int) -> np.
     out = np.zeros((kmax + 1, 3, lmax + 1), dtype=np.complex128)
     for k in range(kmax + 1):
         out[k, :, k:] = norm[k:] * _moment(diff, lmax, k)
+    small = np.abs(out).max(axis=(1, 2)) < BEAM_TOLERANCE * np.abs(out).max()
+    out[small] = 0.0  # the analysis' rounding in moments the beam has not (odd k, by symmetry)
     return out
 
 

@@ -1144,7 +1144,7 @@ def residual_pseudo_bb(
             masked = masked[:, : lmax + 1] * spread.pair[: lmax + 1] + [
                 scatter,
                 scatter,
-                0 * scatter,
+                np.zeros_like(scatter),
             ]
     cl_ee, cl_bb = cl_ee[: lmax + 1], cl_bb[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
