@@ -6,6 +6,11 @@ leaked power <dB, dB> of the residual pseudo-C_BB over the simulated one in band
 multipoles from 40 to 2 Nside, through the residual pipeline (boresight.residual, with the
 patch's own spectra). Ratios, not times: the numbers do not depend on the machine.
 
+The prediction is the expectation over the hits' random places in their pixels. Where their
+in-pixel scatter is most of the leaked power (the deep survey's ellipticity: about 80 % below
+ell = 300), one draw of the hits scatters by about 6 % per band, so the simulated power is the mean
+over HIT_SEEDS draws; the last column gives the worst band of any single draw.
+
 Usage: python bench/bench_prediction.py [NSIDE]   (default 512; 7 arcmin sky beam)
 """
 
@@ -17,6 +22,8 @@ from boresight import coupling, masks, predict, residual, sky, spectra, suppress
 from boresight.cosmology import load_spectra
 from boresight.scan import paper_scan
 
+HIT_SEEDS = (0, 1, 2, 3)
+
 
 def main(nside):
     theory = load_spectra()
@@ -25,29 +32,39 @@ def main(nside):
     the_sky = sky.make_sky(cfg, theory)
     edges = spectra.linear_bins(40, lmax, 32)
     print(f"Predicted / simulated leaked power, Nside {nside}, no rotation, bands of 32 from 40:")
-    print("| survey | systematic | min | max | every band within 10 % |")
-    print("|---|---|---|---|---|")
+    print("| survey | systematic | min | max | every band within 10 % | one draw: min, max |")
+    print("|---|---|---|---|---|---|")
     for survey in ("deep", "wide"):
         mask = masks.survey_mask(survey, nside)
         couplings = coupling.coupling_matrices(mask, lmax)
         local = predict.local_cl(the_sky, mask, lmax, beams=True)
         prediction = residual.Prediction(theory, couplings, cfg.fwhm_arcmin, local, leaked=True)
-        scan = paper_scan(survey)
-        ref, _ = residual.reference(the_sky, scan, mask, lmax)
+        sims = {entry.name: [] for entry in suppression.CATALOGUE}
+        predicted = {}
+        for seed in HIT_SEEDS:
+            scan = paper_scan(survey, seed=seed)
+            ref, _ = residual.reference(the_sky, scan, mask, lmax)
+            for entry in suppression.CATALOGUE:
+                job = residual.residual(
+                    the_sky,
+                    scan,
+                    entry.for_repeats(1),
+                    mask,
+                    lmax,
+                    reference_=ref,
+                    prediction=prediction,
+                )
+                sims[entry.name].append(spectra.bin_spectrum(job.auto, edges)[1])
+                predicted[entry.name] = spectra.bin_spectrum(job.predicted_cl, edges)[1]
         for entry in suppression.CATALOGUE:
-            job = residual.residual(
-                the_sky,
-                scan,
-                entry.for_repeats(1),
-                mask,
-                lmax,
-                reference_=ref,
-                prediction=prediction,
-            )
-            sim = spectra.bin_spectrum(job.auto, edges)[1]
-            ratio = spectra.bin_spectrum(job.predicted_cl, edges)[1] / sim
+            pred, sim = predicted[entry.name], np.array(sims[entry.name])
+            ratio = pred / sim.mean(axis=0)
+            single = pred / sim
             ok = bool(np.all(np.abs(ratio - 1) < 0.10))
-            print(f"| {survey} | {entry.name} | {ratio.min():.3f} | {ratio.max():.3f} | {ok} |")
+            print(
+                f"| {survey} | {entry.name} | {ratio.min():.3f} | {ratio.max():.3f} | {ok} "
+                f"| {single.min():.3f}, {single.max():.3f} |"
+            )
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from .backend import BACKENDS
 from .beams import pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS
+from .harmonics import ANALYSES
 from .instrument import Instrument, Systematics, response
 from .masks import SURVEYS
 from .scan import SyntheticScan
@@ -102,12 +103,17 @@ class RunOptions:
         Pixels per chunk (default: the backend's).
     nthreads : int
         CPU threads, 0 for all cores.
+    analysis : str
+        How masked maps become pseudo-alm (:func:`boresight.harmonics.map2alm`): "auto" (one
+        pass with ring weights at lmax <= 2 nside, LSQR above), "ring_weights", "jacobi"
+        (healpy.anafast's 3 iterations) or "lsqr".
     """
 
     evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
     backend: str = option("cpu", "kernels: numba (cpu) or CuPy (gpu)", choices=BACKENDS)
     chunk_pixels: int = option(None, "pixels per chunk, >= 1 (default: the backend's)", (int,))
     nthreads: int = option(0, "CPU threads, 0 for all cores")
+    analysis: str = option("auto", "masked maps -> pseudo-alm", choices=ANALYSES)
 
     def __post_init__(self):
         if self.evaluation not in METHODS:
@@ -116,6 +122,8 @@ class RunOptions:
         if self.chunk_pixels is not None:
             validation.integer("chunk_pixels", self.chunk_pixels, 1)
         check_threads("nthreads", self.nthreads)
+        if self.analysis not in ANALYSES:
+            raise ValueError(f"analysis = {self.analysis!r}; allowed: {ANALYSES}")
 
     def engine_kwargs(self):
         """The keyword arguments :func:`boresight.engine.simulate` takes from these options.

@@ -59,7 +59,7 @@ def mask_spectrum(mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
     """Pseudo power spectrum W_L (lmax + 1,) of the mask (iteration-free, as NaMaster);
     parameters as :func:`coupling_matrices`.
     """
-    return harmonics.alm2cl(harmonics.map2alm(mask, lmax, iterations=0, nthreads=nthreads))
+    return harmonics.alm2cl(harmonics.map2alm(mask, lmax, 0, "jacobi", 0, nthreads))
 
 
 def coupling_matrices(mask: np.ndarray, lmax: int, nthreads: int = 0) -> Coupling:

@@ -397,7 +397,9 @@ def _sky_fields(sky, systematics, template, evaluation, nthreads):
     if not np.isfinite(template).all():
         raise ValueError("leak_template contains NaN or infinite values")
     alm = (
-        harmonics.map2alm(template, sky.lmax, nthreads=nthreads) if evaluation == "exact" else None
+        harmonics.map2alm(template, sky.lmax, 0, "jacobi", nthreads=nthreads)
+        if evaluation == "exact"
+        else None
     )
     return SkyFields(sky, template, alm)
 

@@ -246,7 +246,9 @@ def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
     with residual.Transforms(background=True) as transforms:
         with timer(f"{exp.name}: mask and coupling"):
             mask = masks.survey_mask(exp.survey, nside)
-            local = transforms.submit(predict.local_cl, the_sky, mask, lmax, run.nthreads)
+            local = transforms.submit(
+                predict.local_cl, the_sky, mask, lmax, run.nthreads, False, run.analysis
+            )
             couplings = coupling.coupling_matrices(mask, lmax, run.nthreads)
         res = ExperimentResult(exp, masks.fsky(mask))
         key = "r" if exp.reference == "r" else "a_lens"

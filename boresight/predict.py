@@ -674,7 +674,12 @@ BEAM_APODIZATION_DEG = 2.0  #: apodization of the mask for the beam terms' local
 
 
 def local_cl(
-    sky: Sky, mask: np.ndarray, lmax: int, nthreads: int = 0, beams: bool = False
+    sky: Sky,
+    mask: np.ndarray,
+    lmax: int,
+    nthreads: int = 0,
+    beams: bool = False,
+    analysis: str = "auto",
 ) -> FieldSpectra:
     """Beam-smoothed TT, EE + BB and EE of one sky inside a mask: pseudo-C_ell / <w^2>.
 
@@ -689,6 +694,8 @@ def local_cl(
     nthreads : int
     beams : bool
         Also TT, EE, BB, TE through the apodized mask, for beam systematics (one more analysis).
+    analysis : str
+        :func:`boresight.harmonics.map2alm`'s analysis, as the simulated maps'.
 
     Returns
     -------
@@ -698,13 +705,14 @@ def local_cl(
     from .spectra import pseudo_spectra
 
     mask = np.asarray(mask, dtype=np.float64)
-    pseudo = pseudo_spectra(sky.maps, mask, lmax, nthreads)
+    pseudo = pseudo_spectra(sky.maps, mask, lmax, nthreads, analysis)
     cl = pseudo / np.mean(mask**2)
     masked = pseudo[[1, 2, 4]]
     if not beams:
         return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked)
     smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_APODIZATION_DEG)
-    apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads)[:4] / np.mean(smooth**2)
+    apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads, analysis)[:4]
+    apodized /= np.mean(smooth**2)
     return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, apodized)
 
 
@@ -1079,6 +1087,7 @@ def residual_pseudo_bb(
     expected: bool = False,
     interpolated: bool = False,
     sky: Sky | None = None,
+    analysis: str = "auto",
 ) -> np.ndarray:
     """Predicted masked residual C_BB(sys) - C_BB(no sys) (paper eq. 10).
 
@@ -1102,6 +1111,8 @@ def residual_pseudo_bb(
     sky : boresight.sky.Sky, optional
         The simulated sky: the beams' h_0 field is then made on the sphere and masked
         (:func:`beam_h0_bb`), so its leaked power is this realisation's.
+    analysis : str
+        How that masked field becomes pseudo-alm (:func:`boresight.harmonics.map2alm`).
 
     Returns
     -------
@@ -1141,7 +1152,11 @@ def residual_pseudo_bb(
         cl_ee, cl_bb = cl_ee + white, cl_bb + white
         if masked is not None:
             scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
-            masked = masked[:, : lmax + 1] * spread.pair[: lmax + 1] + [
+            if sky is not None:  # the maps as the hits read them, masked: window, then mask
+                masked = _windowed_masked(sky, np.sqrt(spread.pair), mask, lmax, analysis)
+            else:
+                masked = masked[:, : lmax + 1] * spread.pair[: lmax + 1]
+            masked = masked + [
                 scatter,
                 scatter,
                 np.zeros_like(scatter),
@@ -1154,8 +1169,21 @@ def residual_pseudo_bb(
         g0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, 0)[0]
         beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
         spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings)
-        signal = signal + beam_h0_bb(coupling, g0, beam_cl, leaked, spread, sky, mask)
+        h0 = beam_h0_bb(coupling, g0, beam_cl, leaked, spread, sky, mask, analysis)
+        signal = signal + h0
     return coupling.pseudo_bb(cl_sys[1], cl_sys[0]) + signal
+
+
+def _windowed_masked(sky, window, mask, lmax, analysis):
+    """EE, BB, EB pseudo-C_ell (3, lmax + 1) of the sky's Q, U smoothed by ``window`` (per ell),
+    then masked: the mask's E-to-B leakage of the maps the hits read."""
+    from .spectra import masked_pol_alm
+
+    n = min(window.size, sky.lmax + 1)
+    alm = harmonics.almxfl(sky.alm[1:], np.pad(window[:n], (0, sky.lmax + 1 - n)))
+    qu = harmonics.alm2map(alm, sky.nside, spin=2)
+    e, b = masked_pol_alm(qu, mask, lmax, analysis=analysis)
+    return np.array([harmonics.alm2cl(e), harmonics.alm2cl(b), harmonics.alm2cl(e, b)])
 
 
 def beam_h0_bb(
@@ -1166,6 +1194,7 @@ def beam_h0_bb(
     spread: _HitSpread | None = None,
     sky: Sky | None = None,
     mask: np.ndarray | None = None,
+    analysis: str = "auto",
 ) -> np.ndarray:
     """Pseudo-C_BB of the beams' h_0 term, which no rotation changes.
 
@@ -1189,6 +1218,8 @@ def beam_h0_bb(
         The simulated sky and the mask: G_0 is then made on the sphere and its leaked power is
         its own masked pseudo-C_ell (windowed by the hits' spread, plus their scatter), this
         realisation's E-to-B leakage included, rather than the coupling's average.
+    analysis : str
+        How the masked field becomes pseudo-alm (:func:`boresight.harmonics.map2alm`).
 
     Returns
     -------
@@ -1206,7 +1237,8 @@ def beam_h0_bb(
     white = 0.5 * (noise_b + noise_e)  # the scatter's phase is random: half in each of E, B
     if sky is not None:
         field = _beam_field(sky, g0, 2, 0)
-        e_alm, b_alm = masked_pol_alm(np.array([field.real, field.imag]), mask, lmax)
+        qu = np.array([field.real, field.imag])
+        e_alm, b_alm = masked_pol_alm(qu, mask, lmax, analysis=analysis)
         window = spread.pair[: lmax + 1] if spread is not None and spread.on else 1.0
         scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
         out = harmonics.alm2cl(b_alm) * window + scatter

@@ -333,8 +333,8 @@ def n_max_for(systematics: Systematics) -> int:
     return predict.BEAM_N_MAX if systematics.has_beams else N_MAX
 
 
-def _masked_b(qu, mask, lmax, nthreads):
-    return spectra.masked_pol_alm(qu, mask, lmax, nthreads)[1]
+def _masked_b(qu, mask, lmax, run):
+    return spectra.masked_pol_alm(qu, mask, lmax, run.nthreads, run.analysis)[1]
 
 
 def reference(
@@ -392,21 +392,22 @@ def reference_from_maps(
     """
     transforms = Transforms() if transforms is None else transforms
     qu = maps.qu
-    return Reference(qu, transforms.submit(_masked_b, qu, mask, lmax, run.nthreads))
+    return Reference(qu, transforms.submit(_masked_b, qu, mask, lmax, run))
 
 
-def _parts(d_qu, ref, mask, lmax, nthreads):
+def _parts(d_qu, ref, mask, lmax, run):
     """(cross, auto) from the difference map; the cross part is 0 against a zero reference."""
     if ref.qu is None:
-        auto = spectra.harmonics.alm2cl(_masked_b(d_qu, mask, lmax, nthreads))
+        auto = spectra.harmonics.alm2cl(_masked_b(d_qu, mask, lmax, run))
         return np.zeros_like(auto), auto
-    return spectra.difference_bb_parts(d_qu, ref.b_alm.result(), mask, lmax, nthreads)
+    b_ref = ref.b_alm.result()
+    return spectra.difference_bb_parts(d_qu, b_ref, mask, lmax, run.nthreads, run.analysis)
 
 
-def _difference_parts(sim_qu, ref, mask, lmax, nthreads):
+def _difference_parts(sim_qu, ref, mask, lmax, run):
     if ref.qu is not None:
         sim_qu -= ref.qu  # in place: the job owns its maps
-    return _parts(sim_qu, ref, mask, lmax, nthreads)
+    return _parts(sim_qu, ref, mask, lmax, run)
 
 
 def residual(
@@ -470,7 +471,7 @@ def residual(
             sky, scan, mask, lmax, instrument, run, transforms, progress
         )
     sim = simulate(sky, scan, instrument, systematics, obs, run, leak_template, progress)
-    parts = transforms.submit(_difference_parts, sim.qu, reference_, mask, lmax, run.nthreads)
+    parts = transforms.submit(_difference_parts, sim.qu, reference_, mask, lmax, run)
     stages["simulate"] = time.perf_counter() - t0
     result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)
     if prediction is None:
@@ -499,6 +500,7 @@ def residual(
             in_pixel=getattr(scan, "in_pixel", "random"),
             interpolated=run.evaluation == "interp",
             sky=sky if prediction.field_cl is not None else None,
+            analysis=run.analysis,
         )
     if predict_map:
         dp = predict.delta_p(
@@ -506,7 +508,7 @@ def residual(
         )
         dp *= obs
         result.predicted_map_parts = transforms.submit(
-            _parts, np.array([dp.real, dp.imag]), reference_, mask, lmax, run.nthreads
+            _parts, np.array([dp.real, dp.imag]), reference_, mask, lmax, run
         )
     stages["predict"] = time.perf_counter() - t0
     return result
@@ -579,7 +581,9 @@ def study_prediction(
     lmax, nthreads = study.output.lmax, study.run.nthreads
     if couplings is None:
         couplings = coupling.coupling_matrices(mask, lmax, nthreads)
-    field_cl = predict.local_cl(the_sky, mask, lmax, nthreads, study.systematics.has_beams)
+    field_cl = predict.local_cl(
+        the_sky, mask, lmax, nthreads, study.systematics.has_beams, study.run.analysis
+    )
     return Prediction(load_spectra(), couplings, study.sky.fwhm_arcmin, field_cl)
 
 

@@ -1,7 +1,8 @@
 """Pseudo-C_ell spectra of masked maps, residual B-mode spectra and binning.
 
-Spectra are anafast-equivalent (ducc0 transforms with 3 Jacobi iterations, beam not deconvolved),
-C_ell in muK^2 from ell = 0, in healpy's order TT, EE, BB, TE, EB, TB.
+Pseudo-alm are the masked maps' analysis by :func:`boresight.harmonics.map2alm` (``analysis``:
+by default one pass with ring weights at lmax <= 2 Nside), beam not deconvolved; C_ell in muK^2
+from ell = 0, in healpy's order TT, EE, BB, TE, EB, TB.
 """
 
 from __future__ import annotations
@@ -13,8 +14,10 @@ from . import harmonics
 ORDER = ("tt", "ee", "bb", "te", "eb", "tb")
 
 
-def masked_alm(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
-    """T, E, B alm of masked I, Q, U maps (anafast-equivalent: 3 Jacobi iterations).
+def masked_alm(
+    maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+) -> np.ndarray:
+    """T, E, B alm of masked I, Q, U maps.
 
     Parameters
     ----------
@@ -23,6 +26,9 @@ def masked_alm(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0)
     mask : numpy.ndarray, shape (npix,)
     lmax : int
     nthreads : int
+    analysis : str
+        :func:`boresight.harmonics.map2alm`'s analysis (one of
+        :data:`boresight.harmonics.ANALYSES`).
 
     Returns
     -------
@@ -31,18 +37,20 @@ def masked_alm(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0)
     maps = np.asarray(maps, dtype=np.float64)
     _check(maps, mask)
     alm = np.empty((3, harmonics.n_alm(lmax)), dtype=np.complex128)
-    alm[0] = harmonics.map2alm(maps[0] * mask, lmax, nthreads=nthreads)
-    alm[1:] = harmonics.map2alm(maps[1:] * mask, lmax, spin=2, nthreads=nthreads)
+    alm[0] = harmonics.map2alm(maps[0] * mask, lmax, 0, analysis, nthreads=nthreads)
+    alm[1:] = harmonics.map2alm(maps[1:] * mask, lmax, 2, analysis, nthreads=nthreads)
     return alm
 
 
-def masked_pol_alm(qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
+def masked_pol_alm(
+    qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+) -> np.ndarray:
     """E, B alm (2, nalm) of masked Q, U maps ``qu`` (2, npix) [muK], finite inside the mask; the
     other parameters as :func:`masked_alm`.
     """
     qu = np.asarray(qu, dtype=np.float64)
     _check(qu, mask)
-    return harmonics.map2alm(qu * mask, lmax, spin=2, nthreads=nthreads)
+    return harmonics.map2alm(qu * mask, lmax, 2, analysis, nthreads=nthreads)
 
 
 def _check(maps, mask):
@@ -56,7 +64,9 @@ def _check(maps, mask):
         raise ValueError("maps contain NaN or UNSEEN values inside the mask")
 
 
-def pseudo_spectra(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
+def pseudo_spectra(
+    maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+) -> np.ndarray:
     """Pseudo-C_ell of masked maps, beam not deconvolved.
 
     Parameters
@@ -66,13 +76,15 @@ def pseudo_spectra(maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int 
     mask : numpy.ndarray, shape (npix,)
     lmax : int
     nthreads : int
+    analysis : str
+        As :func:`masked_alm`.
 
     Returns
     -------
     numpy.ndarray, shape (6, lmax + 1)
         TT, EE, BB, TE, EB, TB [muK^2] from ell = 0 (healpy's order, :data:`ORDER`).
     """
-    t, e, b = masked_alm(maps, mask, lmax, nthreads)
+    t, e, b = masked_alm(maps, mask, lmax, nthreads, analysis)
     return np.array(
         [harmonics.alm2cl(x, y) for x, y in ((t, t), (e, e), (b, b), (t, e), (e, b), (t, b))]
     )
@@ -85,6 +97,7 @@ def residual_bb_parts(
     lmax: int,
     nthreads: int = 0,
     b_ref: np.ndarray | None = None,
+    analysis: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
     """The two parts of C_BB(sys) - C_BB(ref) of masked maps.
 
@@ -101,6 +114,8 @@ def residual_bb_parts(
     nthreads : int
     b_ref : numpy.ndarray, shape (nalm,), optional
         The B alm of the masked reference, when already computed.
+    analysis : str
+        As :func:`masked_alm`.
 
     Returns
     -------
@@ -110,12 +125,18 @@ def residual_bb_parts(
         <dB, dB> [muK^2].
     """
     if b_ref is None:
-        b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads)[1]
-    return difference_bb_parts(np.subtract(qu_sys, qu_ref), b_ref, mask, lmax, nthreads)
+        b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads, analysis)[1]
+    d_qu = np.subtract(qu_sys, qu_ref)
+    return difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads, analysis)
 
 
 def difference_bb_parts(
-    d_qu: np.ndarray, b_ref: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0
+    d_qu: np.ndarray,
+    b_ref: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    nthreads: int = 0,
+    analysis: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`residual_bb_parts` from the difference map and the reference's B alm.
 
@@ -127,12 +148,14 @@ def difference_bb_parts(
     mask : numpy.ndarray, shape (npix,)
     lmax : int
     nthreads : int
+    analysis : str
+        As :func:`masked_alm`.
 
     Returns
     -------
     cross, auto : numpy.ndarray, shape (lmax + 1,)
     """
-    d_b = masked_pol_alm(d_qu, mask, lmax, nthreads)[1]
+    d_b = masked_pol_alm(d_qu, mask, lmax, nthreads, analysis)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 

@@ -162,7 +162,8 @@ def simulate(
     with timer("spectra"):
         columns = job.columns()
         i_map = np.where(sim.valid, the_sky.maps[0], 0.0)
-        pseudo = spectra.pseudo_spectra(np.array([i_map, *sim.qu]), mask, lmax, nthreads)
+        maps = np.array([i_map, *sim.qu])
+        pseudo = spectra.pseudo_spectra(maps, mask, lmax, nthreads, study.run.analysis)
     require_finite("the residual spectrum", job.total)
     require_finite("the pseudo-spectra", pseudo)
     columns.update({f"pseudo_{n}": pseudo[i] for i, n in enumerate(spectra.ORDER)})

@@ -89,6 +89,7 @@ def _write(tmp_path, config):
         ("mask", "file", "nowhere.fits", "file not found"),
         ("telescope", "x", 1, "unknown section [telescope]"),
         ("run", "evaluation", "magic", "run.evaluation"),
+        ("run", "analysis", "fast", "run.analysis"),
     ],
 )
 def test_bad_config_exits_2_and_writes_nothing(tmp_path, capsys, section, key, value, message):

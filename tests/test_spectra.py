@@ -6,10 +6,14 @@ from conftest import rel_max
 from boresight import coupling, harmonics, masks, spectra
 
 
-def test_pseudo_spectra_match_anafast(small_sky):
+@pytest.mark.parametrize(
+    "analysis, lmax, anafast",
+    [("jacobi", 150, dict(iter=3)), ("ring_weights", 128, dict(iter=0, use_weights=True))],
+)
+def test_pseudo_spectra_match_anafast(small_sky, analysis, lmax, anafast):
     mask = masks.survey_mask("wide", 64)
-    got = spectra.pseudo_spectra(small_sky.maps, mask, 150)
-    want = hp.anafast(small_sky.maps * mask, lmax=150, iter=3)
+    got = spectra.pseudo_spectra(small_sky.maps, mask, lmax, analysis=analysis)
+    want = hp.anafast(small_sky.maps * mask, lmax=lmax, **anafast)
     for g, w in zip(got, want):
         assert np.max(np.abs(g - w)[2:]) <= 1e-8 * np.max(np.abs(w[2:]))
 
@@ -129,25 +133,18 @@ def test_coupling_matches_namaster_when_installed():
     assert rel_max(couplings.odd[2:, 2:], m22[2:, 0, 2:, 3]) < 1e-4
 
 
-def test_masked_spectra_match_exact_gauss_legendre_quadrature():
-    """An independent route for the pseudo-C_ell: a band-limited field times a band-limited mask
-    is integrated exactly on a Gauss-Legendre grid (ducc0 analysis_2d). Sampled on HEALPix pixel
-    centres, the anafast-equivalent route (3 Jacobi iterations) gives the same EE and BB bands to
-    5.9e-7 at Nside 64, lmax 2 Nside (measured); 1e-5 leaves a margin while a route without
-    iterations (off by ~1e-3) fails it."""
+def _gauss_legendre_case(nside, lmax, mask_of, order=4):
+    """A band-limited spin-2 field times a mask that is a polynomial of degree 2 ``order`` in
+    cos(theta): its exact pseudo-alm (a Gauss-Legendre quadrature, ducc0 analysis_2d), its
+    HEALPix samples and the worst relative error of a route's EE and BB bands."""
     import ducc0
 
-    nside, lmax, order = 64, 128, 4
     band_limit = lmax - 2 * order
     ell = harmonics.ell_of_alm(band_limit)
     rng = np.random.default_rng(3)
     amp = np.sqrt(np.where(ell >= 2, 1.0 / (ell + 10.0) ** 2, 0.0) / 2)
     alm = (rng.standard_normal((2, ell.size)) + 1j * rng.standard_normal((2, ell.size))) * amp
     alm[:, : band_limit + 1] = alm[:, : band_limit + 1].real * np.sqrt(2)
-
-    def mask_of(theta):  # band limit `order`: a polynomial in cos(theta)
-        return ((1 + np.cos(theta)) / 2) ** order
-
     ntheta = lmax + 2
     grid = ducc0.sht.synthesis_2d(
         alm=alm, lmax=band_limit, spin=2, ntheta=ntheta, nphi=2 * lmax + 4, geometry="GL"
@@ -158,7 +155,8 @@ def test_masked_spectra_match_exact_gauss_legendre_quadrature():
     qu = harmonics.alm2map(alm, nside, spin=2) * mask_of(theta)
     edges = spectra.log_bins(20, lmax, 14)
 
-    def worst(route):
+    def worst(analysis):
+        route = harmonics.map2alm(qu, lmax, 2, analysis)
         return max(
             np.max(
                 np.abs(
@@ -170,5 +168,57 @@ def test_masked_spectra_match_exact_gauss_legendre_quadrature():
             for i in (0, 1)
         )
 
-    assert worst(harmonics.map2alm(qu, lmax, spin=2)) < 1e-5
-    assert worst(harmonics.map2alm(qu, lmax, spin=2, iterations=0)) > 1e-4
+    return qu, worst
+
+
+def _north_cap(theta):
+    return ((1 + np.cos(theta)) / 2) ** 4
+
+
+def _band(theta):
+    return np.sin(theta) ** 8
+
+
+def test_masked_spectra_match_exact_gauss_legendre_quadrature():
+    """An independent route for the pseudo-C_ell: a band-limited field times a band-limited mask
+    is integrated exactly on a Gauss-Legendre grid. At Nside 64, lmax 2 Nside (measured):
+    - a mask that reaches the north pole: Jacobi iterations 5.9e-7, one pass with ring weights
+      5.9e-4 (the polar rings are too short), iterations=0 without weights ~1e-3; "auto" sees the
+      pole and iterates;
+    - a band away from the poles: ring weights 2.6e-6, and "auto" takes them;
+    - lmax 3 Nside - 1, above what the ring weights integrate: LSQR 2.6e-5, Jacobi 8.6e-5."""
+    qu, worst = _gauss_legendre_case(64, 128, _north_cap)
+    assert harmonics.resolve_analysis("auto", qu, 128) == "jacobi"
+    assert worst("auto") < 1e-5
+    assert worst("ring_weights") > 1e-4
+    assert worst("jacobi") < 1e-5
+    qu, worst = _gauss_legendre_case(64, 128, _band)
+    assert harmonics.resolve_analysis("ring_weights", qu, 128) == "ring_weights"
+    assert worst("ring_weights") < 1e-5
+    qu, worst = _gauss_legendre_case(64, 191, _band)
+    assert harmonics.resolve_analysis("auto", qu, 191) == "lsqr"
+    assert worst("auto") < 5e-5 < worst("jacobi")
+
+
+def test_ring_weights_are_healpys():
+    """One pass with ring weights is healpy.map2alm(use_weights=True, iter=0) (its own reading of
+    the same weight files), spin 0 and 2."""
+    nside, lmax = 32, 64
+    rng = np.random.default_rng(5)
+    maps = rng.standard_normal((3, 12 * nside**2))
+    want = hp.map2alm(maps, lmax=lmax, iter=0, use_weights=True, pol=True)
+    got_t = harmonics.map2alm(maps[0], lmax, 0, "ring_weights")
+    got_eb = harmonics.map2alm(maps[1:], lmax, 2, "ring_weights")
+    np.testing.assert_allclose(got_t, want[0], rtol=0, atol=1e-12 * np.abs(want[0]).max())
+    np.testing.assert_allclose(got_eb, want[1:], rtol=0, atol=1e-12 * np.abs(want[1:]).max())
+
+
+def test_auto_analysis_of_the_survey_masks_is_one_pass():
+    """The paper's masks stay clear of the poles, so their spectra take one transform at
+    lmax <= 2 Nside, and LSQR above; a bad name is refused."""
+    for survey in ("deep", "wide"):
+        mask = masks.survey_mask(survey, 64)
+        assert harmonics.resolve_analysis("auto", mask, 128) == "ring_weights"
+        assert harmonics.resolve_analysis("auto", mask, 129) == "lsqr"
+    with pytest.raises(ValueError, match="analysis"):
+        harmonics.resolve_analysis("fast", mask, 128)
