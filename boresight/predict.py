@@ -661,13 +661,15 @@ class FieldSpectra(NamedTuple):
     term) and EE, (lmax + 1,) each, as full-sky equivalents (pseudo-C_ell / <w^2>); the maps'
     own pseudo-C_ell EE, BB, EB through the mask, (3, lmax + 1) (the h_0 term,
     :func:`signal_bb`); and, for the beam terms (:func:`beam_spectra`), TT, EE, BB, TE through
-    the apodized mask, (4, lmax + 1)."""
+    the apodized mask, (4, lmax + 1). ``read`` keeps, per window, the EE, BB, EB of the sky as the
+    hits read it (windowed, then masked), made on first use by :func:`residual_pseudo_bb`."""
 
     tt: np.ndarray
     pol: np.ndarray
     ee: np.ndarray
     masked: np.ndarray | None = None
     apodized: np.ndarray | None = None
+    read: dict | None = None
 
 
 BEAM_APODIZATION_DEG = 2.0  #: apodization of the mask for the beam terms' local spectra
@@ -709,11 +711,11 @@ def local_cl(
     cl = pseudo / np.mean(mask**2)
     masked = pseudo[[1, 2, 4]]
     if not beams:
-        return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked)
+        return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, read={})
     smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_APODIZATION_DEG)
     apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads, analysis)[:4]
     apodized /= np.mean(smooth**2)
-    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, apodized)
+    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, apodized, read={})
 
 
 def systematic_cl(
@@ -866,6 +868,9 @@ def hit_spread_window(nside: int, band: int) -> np.ndarray:
     return _legendre_means(x, np.ones_like(x), band)
 
 
+LEGENDRE_BLOCKS = 64  #: fixed blocks of the Legendre sums, added in order: no thread dependence
+
+
 def _legendre_means(x, weight, band):
     """sum(weight P_l(x)) / n for l = 0..band, n the size of x's last axis (Legendre recurrence).
 
@@ -879,13 +884,32 @@ def _legendre_means(x, weight, band):
     -------
     numpy.ndarray, shape (band + 1,)
     """
-    out = np.empty(band + 1)
-    p_prev, p = np.ones_like(x), x.copy()
-    out[0] = np.sum(weight) / x.shape[-1]
-    for ell in range(1, band + 1):
-        out[ell] = np.sum(weight * p) / x.shape[-1]
-        p_prev, p = p, ((2 * ell + 1) * x * p - ell * p_prev) / (ell + 1)
-    return out
+    flat_x = np.ascontiguousarray(x, dtype=np.float64).ravel()
+    flat_w = np.ascontiguousarray(weight, dtype=np.float64).ravel()
+    partial = np.zeros((LEGENDRE_BLOCKS, band + 1))
+    _legendre_sums(flat_x, flat_w, partial)
+    return partial.sum(axis=0) / x.shape[-1]
+
+
+@numba.njit(parallel=True, cache=True)
+def _legendre_sums(x, weight, out):
+    """out[k, l] = sum of weight P_l(x) over block k of x (the blocks fixed by out's rows); the
+    recurrence runs over ell for a whole block at once, so the inner loop is SIMD."""
+    blocks, band = out.shape[0], out.shape[1] - 1
+    for k in numba.prange(blocks):
+        lo, hi = k * x.size // blocks, (k + 1) * x.size // blocks
+        xs, ws = x[lo:hi], weight[lo:hi]
+        p_prev, p = np.ones(hi - lo), xs.copy()
+        out[k, 0] = ws.sum()
+        for ell in range(1, band + 1):
+            a, b = (2 * ell + 1) / (ell + 1), ell / (ell + 1)
+            acc = 0.0
+            for i in range(hi - lo):
+                acc += ws[i] * p[i]
+                nxt = a * xs[i] * p[i] - b * p_prev[i]
+                p_prev[i] = p[i]
+                p[i] = nxt
+            out[k, ell] = acc
 
 
 def beam_spectra(
@@ -1153,7 +1177,11 @@ def residual_pseudo_bb(
         if masked is not None:
             scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
             if sky is not None:  # the maps as the hits read them, masked: window, then mask
-                masked = _windowed_masked(sky, np.sqrt(spread.pair), mask, lmax, analysis)
+                read = {} if field_cl.read is None else field_cl.read
+                key = (interpolated, lmax, analysis)
+                if key not in read:
+                    read[key] = _windowed_masked(sky, np.sqrt(spread.pair), mask, lmax, analysis)
+                masked = read[key]
             else:
                 masked = masked[:, : lmax + 1] * spread.pair[: lmax + 1]
             masked = masked + [
