@@ -263,11 +263,14 @@ def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
             ref, _ = residual.reference(
                 the_sky, paper_scan(exp.survey, seed=seed), mask, lmax, **job
             )
+        with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
+            n_max = residual.n_max_for(exp.systematics)
+            mom = residual.moments(paper_scan(exp.survey, seed=seed), nside, mask > 0, run, n_max)
         for angle in (None,) + exp.angles_deg:
             label = "no rotation" if angle is None else f"rotation {angle:g} deg"
             scan = paper_scan(exp.survey, angle, seed=seed)
             ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
-            predicted = dict(prediction=prediction, predict_map=ideal)
+            predicted = dict(prediction=prediction, predict_map=ideal, moments_=mom)
             with timer(f"{exp.name}: {label}"):
                 res.residuals[angle] = residual.residual(
                     the_sky, scan, exp.systematics, mask, lmax, reference_=ref, **predicted, **job

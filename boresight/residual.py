@@ -422,6 +422,7 @@ def residual(
     reference_: Reference | None = None,
     prediction: Prediction | None = None,
     predict_map: bool = False,
+    moments_: Moments | None = None,
     leak_template: np.ndarray | None = None,
     transforms: Transforms | None = None,
     keep_maps: bool = False,
@@ -449,6 +450,9 @@ def residual(
         the instrument and its repeats.
     predict_map : bool
         Also transform the predicted spurious map (the map-level check).
+    moments_ : Moments, optional
+        The moments of a synthetic ``scan``'s one repeat (:func:`moments`), when several jobs
+        share them (the same scan at other rotations); ``scan``'s rotations replace theirs.
     leak_template : numpy.ndarray, optional
         Template map of the additive leak (default: the sky's I).
     transforms : Transforms, optional
@@ -477,7 +481,13 @@ def residual(
     if prediction is None:
         return result
     t0 = time.perf_counter()
-    mom = moments(scan, sky.nside, obs, run, n_max_for(systematics))
+    n_max = n_max_for(systematics)
+    if moments_ is None or isinstance(scan, ground.Schedule):
+        mom = moments(scan, sky.nside, obs, run, n_max)
+    elif moments_.h.shape[0] <= n_max:
+        raise ValueError(f"moments_ hold h_n to {moments_.h.shape[0] - 1}; these need {n_max}")
+    else:
+        mom = moments_._replace(rotations_deg=tuple(scan.rotations_deg))
     result.h_power = {
         n: float(np.mean(np.abs(mom.rotated(n)[obs]) ** 2)) for n in range(1, N_MAX + 1)
     }

@@ -136,6 +136,8 @@ def run(
         ref, _ = residual.reference(
             the_sky, paper_scan(survey), mask, lmax, run=run_options, transforms=transforms
         )
+        # one repeat's moments, the same under every schedule, to the beams' h_6
+        mom = residual.moments(paper_scan(survey), nside, mask > 0, run_options, predict.BEAM_N_MAX)
         for entry in CATALOGUE:
             for i, angle in enumerate(ANGLES):
                 scan = paper_scan(survey, angle)
@@ -149,6 +151,7 @@ def run(
                     run=run_options,
                     reference_=ref,
                     prediction=prediction,
+                    moments_=mom,
                     transforms=transforms,
                     progress=progress,
                 )

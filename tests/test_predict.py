@@ -247,3 +247,32 @@ def test_legendre_means_match_numpy_and_ignore_threads():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.max(np.abs(want)))
     with numba_threads(1):
         assert np.array_equal(predict._legendre_means(x, w, 200), got)
+
+
+def test_shared_moments_give_the_same_prediction(small_sky, theory):
+    """One repeat's moments, shared across rotations (as the reproduction does), predict what
+    each job's own moments predict; moments too short for the systematic are refused."""
+    from boresight import residual
+
+    mask = masks.survey_mask("deep", 64)
+    prediction = residual.Prediction(theory, coupling.coupling_matrices(mask, 128), 60.0)
+    shared = residual.moments(paper_scan("deep"), 64, mask > 0)
+    for angle in (None, 90.0):
+        scan = paper_scan("deep", angle)
+        own, reused = (
+            residual.residual(
+                small_sky, scan, PAPER_GAIN, mask, 128, prediction=prediction, moments_=m
+            )
+            for m in (None, shared)
+        )
+        assert np.array_equal(own.predicted_cl, reused.predicted_cl)
+    with pytest.raises(ValueError, match="h_n to 4"):
+        residual.residual(
+            small_sky,
+            scan,
+            Systematics(ellipticity_b=0.01),
+            mask,
+            128,
+            prediction=prediction,
+            moments_=shared,
+        )
