@@ -68,7 +68,7 @@ def test_coupling_matches_direct_wigner_sum():
 
     mask = masks.survey_mask("deep", 16)
     lmax = 24
-    couplings = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.coupling_matrices(mask, lmax, tt=True)
     w = coupling.mask_spectrum(mask, 2 * lmax)
     for l1, l2 in [(2, 2), (5, 9), (17, 3), (24, 24)]:
         for s, mats in ((0, (couplings.tt,)), (2, (couplings.even, couplings.odd))):
@@ -94,7 +94,7 @@ def test_coupling_predicts_monte_carlo_pseudo_cl():
     """
     nside, lmax = 32, 64
     mask = masks.survey_mask("wide", nside)
-    couplings = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.coupling_matrices(mask, lmax, tt=True)
     ell = np.arange(lmax + 1)
     cl = np.where(ell >= 2, 1.0 / (ell + 10.0) ** 2, 0.0)
     zero = np.zeros_like(cl)
@@ -120,7 +120,7 @@ def test_coupling_matches_namaster_when_installed():
     nmt = pytest.importorskip("pymaster")
     nside, lmax = 32, 60
     mask = masks.survey_mask("wide", nside)
-    couplings = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.coupling_matrices(mask, lmax, tt=True)
     b = nmt.NmtBin.from_lmax_linear(lmax, 1)
     f0 = nmt.NmtField(mask, None, spin=0, lmax=lmax)
     f2 = nmt.NmtField(mask, None, spin=2, lmax=lmax)
