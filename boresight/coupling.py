@@ -71,7 +71,7 @@ def coupling_matrices(mask: np.ndarray, lmax: int, nthreads: int = 0, tt: bool =
     lmax : int
     nthreads : int
     tt : bool
-        Also M^{TT,TT} (a fifth of the time more).
+        Also M^{TT,TT} (7-18 % more time).
 
     Returns
     -------

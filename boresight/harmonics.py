@@ -50,8 +50,9 @@ def ring_weights(nside: int) -> np.ndarray:
     """HEALPix ring weights 1 + w_ring (healpy's ``weight_ring_n*.fits``, shipped in its wheel),
     one per ring, north to south (cached, read-only).
 
-    With them the sum over a ring of a map times 4 pi / npix is a quadrature exact for
-    band-limited integrands well beyond lmax = 2 Nside, which is what a pseudo-alm is.
+    With them the sum over each ring of a map times 4 pi / npix is the quadrature of a
+    pseudo-alm: at lmax <= 2 Nside and away from the poles it matches the exact integral to a few
+    1e-6 in the spectra (tests/test_spectra.py).
 
     Parameters
     ----------
