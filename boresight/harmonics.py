@@ -134,7 +134,9 @@ def alm_lmax(nalm: int) -> int:
     return int((np.sqrt(8 * nalm + 1) - 3) / 2)
 
 
-def alm2map(alm: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0) -> np.ndarray:
+def alm2map(
+    alm: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0, out: np.ndarray | None = None
+) -> np.ndarray:
     """Synthesis: alm -> RING map.
 
     Parameters
@@ -144,6 +146,9 @@ def alm2map(alm: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0) -> np
     nside : int
     spin : int
     nthreads : int
+    out : numpy.ndarray, float64, optional
+        Where to write the map, of the returned shape; any strides (a view into an interleaved
+        stack is written in place).
 
     Returns
     -------
@@ -151,14 +156,15 @@ def alm2map(alm: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0) -> np
         (npix,) for spin 0; (2, npix) (Q, U, COSMO) otherwise.
     """
     alm = np.atleast_2d(alm)
-    out = ducc0.sht.synthesis(
+    maps = ducc0.sht.synthesis(
         alm=alm,
         lmax=alm_lmax(alm.shape[-1]),
         spin=spin,
         nthreads=nthreads,
+        map=None if out is None else out[None] if out.ndim == 1 else out,
         **healpix_geometry(nside),
     )
-    return out[0] if spin == 0 else out
+    return maps[0] if spin == 0 else maps
 
 
 def alm2map_gradient(alm: np.ndarray, nside: int, nthreads: int = 0) -> np.ndarray:
@@ -222,8 +228,13 @@ def map2alm(
     analysis = resolve_analysis(analysis, maps, lmax)
     common = dict(lmax=lmax, spin=spin, nthreads=nthreads, **geom)
     if analysis == "ring_weights":
+        # one pass over the rings that hold data: the others add exactly nothing (a survey mask's
+        # rings: the wide one 46 %, the deep one 27 %; time and scratch memory scale with them)
+        keep = np.logical_or.reduceat(np.any(maps, axis=0), geom["ringstart"].astype(np.int64))
+        keep[0] = True  # ducc0 needs a ring: zero maps give zero alm
+        common.update({key: value[keep] for key, value in geom.items()})
         alm = ducc0.sht.adjoint_synthesis(
-            map=maps, ringfactor=scale * ring_weights(nside), **common
+            map=maps, ringfactor=scale * ring_weights(nside)[keep], **common
         )
     elif analysis == "lsqr":
         alm = ducc0.sht.pseudo_analysis(

@@ -46,10 +46,22 @@ class Maps:
     @property
     def qu(self):
         """(2, npix) array of Q, U with invalid pixels set to 0 (for transforms under a mask)."""
-        qu = np.empty((2, self.q.size))
-        np.copyto(qu[0], self.q)
-        np.copyto(qu[1], self.u)
-        np.copyto(qu, 0.0, where=~self.valid)
+        return self.qu_at(slice(None))
+
+    def qu_at(self, pixels):
+        """Q, U at some pixels, invalid ones set to 0.
+
+        Parameters
+        ----------
+        pixels : numpy.ndarray of int, shape (n,), or slice
+            RING indices.
+
+        Returns
+        -------
+        numpy.ndarray, shape (2, n)
+        """
+        qu = np.array([self.q[pixels], self.u[pixels]])
+        np.copyto(qu, 0.0, where=qu[0] == hp.UNSEEN)
         return qu
 
 

@@ -218,29 +218,13 @@ def run_study(
     theory = load_spectra()
     with timer("sky"):
         the_sky = sky.make_sky(study.sky, theory, study.run.nthreads)
-        unpolarised = sky.Sky(
-            alm=_temperature_only(the_sky.alm),
-            maps=_temperature_only(the_sky.maps),
-            nside=the_sky.nside,
-            lmax=the_sky.lmax,
-            fwhm_arcmin=the_sky.fwhm_arcmin,
-        )
     results = {}
     for exp in experiments:
-        results[exp.name] = _run_experiment(
-            exp, study, the_sky, unpolarised, theory, timer, progress
-        )
+        results[exp.name] = _run_experiment(exp, study, the_sky, theory, timer, progress)
     return results, timer.stages
 
 
-def _temperature_only(stack):
-    """(T, 0, 0) copy of a (3, n) stack; the zero rows stay untouched pages until used."""
-    out = np.zeros_like(stack)
-    out[0] = stack[0]
-    return out
-
-
-def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
+def _run_experiment(exp, study, the_sky, theory, timer, progress):
     lmax, run, seed = study.output.lmax, study.run, study.scan.seed
     fwhm, nside = study.sky.fwhm_arcmin, study.sky.nside
     with residual.Transforms(background=True) as transforms:
@@ -258,28 +242,45 @@ def _run_experiment(exp, study, the_sky, unpolarised, theory, timer, progress):
             )
         prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
         job = dict(run=run, transforms=transforms, progress=progress)
-        zero = residual.Reference.zero()
         with timer(f"{exp.name}: reference (no systematic)"):
-            ref, _ = residual.reference(
-                the_sky, paper_scan(exp.survey, seed=seed), mask, lmax, **job
-            )
+            scan = paper_scan(exp.survey, seed=seed)
+            ref = residual.reference(the_sky, scan, mask, lmax, **job)[0]
+        # the map-level checks need only no and the ideal rotation; Q = U = 0 runs before the
+        # moments exist, so its own copy of the sky never adds to their memory
+        label = {
+            angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
+            for angle in (None,) + exp.angles_deg
+        }
+        unpolarised = the_sky.without_polarisation()
+        for angle in (None, exp.ideal_deg):
+            with timer(f"{exp.name}: Q = U = 0, {label[angle]}"):
+                res.zero_qu_residuals[angle] = residual.residual(
+                    unpolarised,
+                    paper_scan(exp.survey, angle, seed=seed),
+                    exp.systematics,
+                    mask,
+                    lmax,
+                    reference_=residual.Reference.zero(),
+                    **job,
+                )
+        del unpolarised
         with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
             n_max = residual.n_max_for(exp.systematics)
-            mom = residual.moments(paper_scan(exp.survey, seed=seed), nside, mask > 0, run, n_max)
+            mom = residual.moments(scan, nside, mask > 0, run, n_max)
         for angle in (None,) + exp.angles_deg:
-            label = "no rotation" if angle is None else f"rotation {angle:g} deg"
-            scan = paper_scan(exp.survey, angle, seed=seed)
-            ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
-            predicted = dict(prediction=prediction, predict_map=ideal, moments_=mom)
-            with timer(f"{exp.name}: {label}"):
+            predicted = dict(prediction=prediction, predict_map=angle in (None, exp.ideal_deg))
+            with timer(f"{exp.name}: {label[angle]}"):
                 res.residuals[angle] = residual.residual(
-                    the_sky, scan, exp.systematics, mask, lmax, reference_=ref, **predicted, **job
+                    the_sky,
+                    paper_scan(exp.survey, angle, seed=seed),
+                    exp.systematics,
+                    mask,
+                    lmax,
+                    reference_=ref,
+                    moments_=mom,
+                    **predicted,
+                    **job,
                 )
-            if ideal:
-                with timer(f"{exp.name}: Q = U = 0, {label}"):
-                    res.zero_qu_residuals[angle] = residual.residual(
-                        unpolarised, scan, exp.systematics, mask, lmax, reference_=zero, **job
-                    )
         with timer(f"{exp.name}: transforms still running"):
             transforms.wait()
     return res

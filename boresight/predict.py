@@ -399,6 +399,7 @@ def delta_p(
     template: np.ndarray | None = None,
     nthreads: int = 0,
     rotations_deg: Sequence[float] = (0.0,),
+    pixels: np.ndarray | None = None,
 ) -> np.ndarray:
     """Predicted spurious polarisation P = Q + i U from h_n and the sky, map-maker included.
 
@@ -419,10 +420,12 @@ def delta_p(
     nthreads : int
     rotations_deg : sequence of float
         The repeats' boresight rotations [deg].
+    pixels : numpy.ndarray of int, shape (n,), optional
+        RING indices to predict at (default: every pixel).
 
     Returns
     -------
-    numpy.ndarray, complex128, shape (npix,)
+    numpy.ndarray, complex128, shape (npix,) or (n,)
         [muK].
     """
     if h.shape[0] < 5 or h.shape[1] != sky.maps.shape[1]:
@@ -437,9 +440,13 @@ def delta_p(
     beam = np.empty(0, dtype=np.complex128)
     if systematics.has_beams:
         beam = _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads)
-    out = np.empty(t.size, dtype=np.complex128)
+    every = pixels is None
+    pixels = np.empty(0, dtype=np.int64) if every else np.asarray(pixels, dtype=np.int64)
+    out = np.empty(t.size if every else pixels.size, dtype=np.complex128)
     with numba_threads(nthreads):
         _delta_p(
+            every,
+            pixels,
             h,
             t,
             sky.maps[1],
@@ -485,10 +492,12 @@ def _beam_field(sky, filt, spin, nthreads):
 
 
 @numba.njit(parallel=True, cache=True)
-def _delta_p(h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
-    """dP of every pixel: the leak term if s is not empty, pointing if grad is not empty, the
-    beams' part of Y if beam is not empty; c holds (t2, s2, g1, g3, p0, p4, m4)."""
-    for i in numba.prange(t.size):
+def _delta_p(every, pixels, h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
+    """dP at ``pixels`` (or every pixel) into ``out``: the leak term if s is not empty,
+    pointing if grad is not empty, the beams' part of Y if beam is not empty; c holds (t2, s2, g1,
+    g3, p0, p4, m4)."""
+    for k in numba.prange(out.size):
+        i = np.int64(k) if every else pixels[k]
         p = complex(q[i], u[i])
         y = c[0] * h[2, i] * t[i] + c[4] * p + c[5] * h[4, i] * p.conjugate()
         if beam.size:
@@ -501,11 +510,11 @@ def _delta_p(h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
         h4 = c[6] * h[4, i]
         det = 1.0 - (h4.real**2 + h4.imag**2)
         if h4 == 0:
-            out[i] = y
+            out[k] = y
         elif det > 1e-12:
-            out[i] = (y - h4 * y.conjugate()) / det
+            out[k] = (y - h4 * y.conjugate()) / det
         else:  # one angle only: the simulation flags the pixel invalid
-            out[i] = 0.0
+            out[k] = 0.0
 
 
 class PixelBlocks:

@@ -103,8 +103,9 @@ class Reference:
 
     Parameters
     ----------
-    qu : numpy.ndarray, shape (2, npix), optional
-        Q, U [muK] of the reference maps, 0 where invalid; None for the zero reference.
+    qu : numpy.ndarray, shape (2, nobs), optional
+        Q, U [muK] of the reference maps on the mask's observed pixels (``flatnonzero(mask)``),
+        0 where invalid; None for the zero reference.
     b_alm : concurrent.futures.Future, optional
         Of the B alm (nalm,) of the masked reference maps.
 
@@ -280,9 +281,9 @@ class Moments(NamedTuple):
     crossings: np.ndarray
     rotations_deg: tuple
 
-    def rotated(self, n):
-        """h_n of all the repeats together, (npix,)."""
-        return self.h[n] * np.mean(np.exp(1j * n * np.radians(self.rotations_deg)))
+    def rotated(self, n, pixels=slice(None)):
+        """h_n of all the repeats together, (npix,), or (k,) at RING ``pixels`` (k,)."""
+        return self.h[n, pixels] * np.mean(np.exp(1j * n * np.radians(self.rotations_deg)))
 
 
 def moments(
@@ -333,8 +334,21 @@ def n_max_for(systematics: Systematics) -> int:
     return predict.BEAM_N_MAX if systematics.has_beams else N_MAX
 
 
+def _on_sky(values, mask):
+    """Full-sky (2, npix) maps of (2, nobs) ``values`` on the mask's observed pixels, 0 elsewhere.
+
+    The transform queue holds observed-pixel values and makes each full-sky map only when its job
+    runs: at Nside 2048 a queued wide-survey job then holds 0.3 GB, not 0.8 GB.
+    """
+    out = np.zeros((2, mask.size))
+    out[:, np.flatnonzero(mask)] = values
+    return out
+
+
 def _masked_b(qu, mask, lmax, run):
-    return spectra.masked_pol_alm(qu, mask, lmax, run.nthreads, run.analysis)[1]
+    """B alm of (2, nobs) Q, U on the mask's observed pixels."""
+    qu = _on_sky(qu, mask)
+    return spectra.masked_pol_alm(qu, mask, lmax, run.nthreads, run.analysis, overwrite=True)[1]
 
 
 def reference(
@@ -388,20 +402,24 @@ def reference_from_maps(
     Returns
     -------
     Reference
-        Their Q, U and a Future of the B alm of the masked maps.
+        Their Q, U on the observed pixels and a Future of the B alm of the masked maps.
     """
     transforms = Transforms() if transforms is None else transforms
-    qu = maps.qu
+    qu = maps.qu_at(np.flatnonzero(mask))
     return Reference(qu, transforms.submit(_masked_b, qu, mask, lmax, run))
 
 
 def _parts(d_qu, ref, mask, lmax, run):
-    """(cross, auto) from the difference map; the cross part is 0 against a zero reference."""
+    """(cross, auto) from the difference map (2, nobs) on the observed pixels; the cross part is 0
+    against a zero reference."""
     if ref.qu is None:
         auto = spectra.harmonics.alm2cl(_masked_b(d_qu, mask, lmax, run))
         return np.zeros_like(auto), auto
     b_ref = ref.b_alm.result()
-    return spectra.difference_bb_parts(d_qu, b_ref, mask, lmax, run.nthreads, run.analysis)
+    d_qu = _on_sky(d_qu, mask)
+    return spectra.difference_bb_parts(
+        d_qu, b_ref, mask, lmax, run.nthreads, run.analysis, overwrite=True
+    )
 
 
 def _difference_parts(sim_qu, ref, mask, lmax, run):
@@ -469,15 +487,17 @@ def residual(
     transforms = Transforms() if transforms is None else transforms
     stages, t0 = {}, time.perf_counter()
     obs = mask > 0
+    pixels = np.flatnonzero(obs)
     ref_maps = None
     if reference_ is None:
         reference_, ref_maps = reference(
             sky, scan, mask, lmax, instrument, run, transforms, progress
         )
     sim = simulate(sky, scan, instrument, systematics, obs, run, leak_template, progress)
-    parts = transforms.submit(_difference_parts, sim.qu, reference_, mask, lmax, run)
+    parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference_, mask, lmax, run)
     stages["simulate"] = time.perf_counter() - t0
     result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)
+    del sim  # kept in the result only when asked for
     if prediction is None:
         return result
     t0 = time.perf_counter()
@@ -489,7 +509,7 @@ def residual(
     else:
         mom = moments_._replace(rotations_deg=tuple(scan.rotations_deg))
     result.h_power = {
-        n: float(np.mean(np.abs(mom.rotated(n)[obs]) ** 2)) for n in range(1, N_MAX + 1)
+        n: float(np.mean(np.abs(mom.rotated(n, pixels)) ** 2)) for n in range(1, N_MAX + 1)
     }
     if predict.supports(instrument, mom.rotations_deg):
         field_cl = prediction.field_cl
@@ -514,9 +534,15 @@ def residual(
         )
     if predict_map:
         dp = predict.delta_p(
-            sky, mom.h, systematics, instrument, leak_template, run.nthreads, mom.rotations_deg
+            sky,
+            mom.h,
+            systematics,
+            instrument,
+            leak_template,
+            run.nthreads,
+            mom.rotations_deg,
+            pixels,
         )
-        dp *= obs
         result.predicted_map_parts = transforms.submit(
             _parts, np.array([dp.real, dp.imag]), reference_, mask, lmax, run
         )

@@ -7,7 +7,7 @@ on a HEALPix RING grid with ducc0. The alm are kept for exact evaluation at arbi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import TYPE_CHECKING
 
@@ -83,7 +83,8 @@ class Sky:
     alm : numpy.ndarray, complex128, shape (3, nalm)
         T, E, B [muK], healpy ordering.
     maps : numpy.ndarray, float64, shape (3, npix)
-        I, Q, U [muK], RING, COSMO.
+        I, Q, U [muK], RING, COSMO. :func:`make_sky` and :meth:`from_maps` make it a view of an
+        interleaved (npix, 3) array, so that :attr:`interleaved` costs no copy.
     nside : int
     lmax : int
     fwhm_arcmin : float
@@ -98,8 +99,25 @@ class Sky:
     @cached_property
     def interleaved(self):
         """I, Q, U per pixel, shape (npix, 3): the layout the interpolation kernels read (a pixel's
-        fields share a cache line). Built from ``maps`` on first use and kept."""
+        fields share a cache line). ``maps`` itself where it is a view of one (no copy), else
+        built on first use and kept."""
         return np.ascontiguousarray(self.maps.T)
+
+    def without_polarisation(self):
+        """This sky with Q = U = 0 and E = B = 0: the paper's check that a systematic's residual
+        comes from the polarised sky.
+
+        Returns
+        -------
+        Sky
+            A new sky in the same layout (the caller frees it after use: at Nside 2048 it holds
+            1.2 GB).
+        """
+        maps = np.zeros_like(self.maps)
+        maps[0] = self.maps[0]
+        alm = np.zeros_like(self.alm)
+        alm[0] = self.alm[0]
+        return replace(self, alm=alm, maps=maps)
 
     @classmethod
     def from_maps(cls, maps, lmax=None, fwhm_arcmin=0.0, nthreads=0):
@@ -119,7 +137,7 @@ class Sky:
         -------
         Sky
         """
-        maps = np.ascontiguousarray(maps, dtype=np.float64)
+        maps = interleaved_maps(maps)
         if maps.ndim != 2 or maps.shape[0] != 3:
             raise ValueError(f"maps must have shape (3, npix), got {maps.shape}")
         if not np.isfinite(maps).all():
@@ -131,6 +149,22 @@ class Sky:
         alm[0] = harmonics.map2alm(maps[0], lmax, 0, "jacobi", nthreads=nthreads)
         alm[1:] = harmonics.map2alm(maps[1:], lmax, 2, "jacobi", nthreads=nthreads)
         return cls(alm=alm, maps=maps, nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin)
+
+
+def interleaved_maps(maps: np.ndarray) -> np.ndarray:
+    """A float64 copy of ``maps`` stored interleaved (pixel-major).
+
+    Parameters
+    ----------
+    maps : array_like, shape (F, npix)
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (F, npix)
+        The transpose of a C-contiguous (npix, F) array.
+    """
+    maps = np.asarray(maps, dtype=np.float64)
+    return np.ascontiguousarray(maps.T).T if maps.ndim == 2 else maps
 
 
 def gaussian_alm(cls: Sequence[np.ndarray], lmax: int, seed: int) -> np.ndarray:
@@ -193,9 +227,9 @@ def make_sky(
     alm[2] = harmonics.almxfl(alm[2], beam[:, 2])
     if not config.polarised:
         alm[1:] = 0
-    maps = np.empty((3, 12 * config.nside**2))
-    maps[0] = harmonics.alm2map(alm[0], config.nside, nthreads=nthreads)
-    maps[1:] = harmonics.alm2map(alm[1:], config.nside, spin=2, nthreads=nthreads)
+    maps = np.empty((12 * config.nside**2, 3)).T  # interleaved: Sky.interleaved is this array
+    harmonics.alm2map(alm[0], config.nside, nthreads=nthreads, out=maps[0])
+    harmonics.alm2map(alm[1:], config.nside, spin=2, nthreads=nthreads, out=maps[1:])
     return Sky(
         alm=alm, maps=maps, nside=config.nside, lmax=config.lmax, fwhm_arcmin=config.fwhm_arcmin
     )

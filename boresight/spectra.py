@@ -43,14 +43,21 @@ def masked_alm(
 
 
 def masked_pol_alm(
-    qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+    qu: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    nthreads: int = 0,
+    analysis: str = "auto",
+    overwrite: bool = False,
 ) -> np.ndarray:
     """E, B alm (2, nalm) of masked Q, U maps ``qu`` (2, npix) [muK], finite inside the mask; the
-    other parameters as :func:`masked_alm`.
+    other parameters as :func:`masked_alm`. ``overwrite``: mask a float64 ``qu`` in place (no
+    full-sky copy; the caller gives ``qu`` up).
     """
     qu = np.asarray(qu, dtype=np.float64)
     _check(qu, mask)
-    return harmonics.map2alm(qu * mask, lmax, 2, analysis, nthreads=nthreads)
+    masked = np.multiply(qu, mask, out=qu if overwrite else None)
+    return harmonics.map2alm(masked, lmax, 2, analysis, nthreads=nthreads)
 
 
 def _check(maps, mask):
@@ -137,6 +144,7 @@ def difference_bb_parts(
     lmax: int,
     nthreads: int = 0,
     analysis: str = "auto",
+    overwrite: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`residual_bb_parts` from the difference map and the reference's B alm.
 
@@ -150,12 +158,14 @@ def difference_bb_parts(
     nthreads : int
     analysis : str
         As :func:`masked_alm`.
+    overwrite : bool
+        As :func:`masked_pol_alm`.
 
     Returns
     -------
     cross, auto : numpy.ndarray, shape (lmax + 1,)
     """
-    d_b = masked_pol_alm(d_qu, mask, lmax, nthreads, analysis)[1]
+    d_b = masked_pol_alm(d_qu, mask, lmax, nthreads, analysis, overwrite)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 

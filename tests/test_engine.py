@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import rel_max
 
-from boresight import engine, harmonics, predict
+from boresight import engine, harmonics, masks, predict
 from boresight.constants import ARCMIN, DEG
 from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan
@@ -42,6 +42,21 @@ def test_gain_equals_analytic_map(small_sky, small_sky_unpolarised):
         dp = (m.q - ref.q) + 1j * (m.u - ref.u)
         pred = predict.delta_p(sky, h, sysm)
         assert rel_max(dp, pred) < 1e-11  # rounding only
+
+
+def test_prediction_and_maps_at_observed_pixels(small_sky):
+    """delta_p at some pixels and Maps.qu_at are the full-sky ones restricted to them: the
+    residual jobs hold only observed-pixel values."""
+    scan = SyntheticScan(**CENTRED)
+    sysm = Systematics(dg=(0.01, -0.02), rho_arcmin=(0.5, 0.3))
+    h, _ = engine.scan_moments(scan, small_sky.nside)
+    pixels = np.flatnonzero(masks.survey_mask("deep", small_sky.nside))
+    full = predict.delta_p(small_sky, h, sysm)
+    np.testing.assert_array_equal(predict.delta_p(small_sky, h, sysm, pixels=pixels), full[pixels])
+    pix = np.arange(0, 12 * 64**2, 7)
+    m = engine.simulate(small_sky, scan, pixels=pix[::2])  # the others: unobserved, invalid
+    assert (~m.valid).any() and m.valid.any()
+    np.testing.assert_array_equal(m.qu_at(pix), m.qu[:, pix])
 
 
 def test_gain_cancels_with_90_degree_rotation(small_sky_unpolarised):

@@ -57,7 +57,7 @@ def test_stages_cover_the_waiting_for_transforms(study):
 
 
 def test_a_failing_transform_is_raised_not_lost(monkeypatch):
-    def broken(*args):
+    def broken(*args, **kwargs):
         raise RuntimeError("transform failed")
 
     monkeypatch.setattr(spectra, "difference_bb_parts", broken)

@@ -91,6 +91,20 @@ def test_interleaved_fields_are_built_once(small_sky):
     np.testing.assert_array_equal(stack, np.vstack([small_sky.maps, template]).T)
 
 
+def test_one_copy_of_the_maps(small_sky):
+    """make_sky and from_maps store the maps interleaved: the kernels' layout is the maps
+    themselves, not a second copy (1.2 GB at Nside 2048); the unpolarised copy keeps I alone."""
+    for the_sky in (small_sky, sky.Sky.from_maps(small_sky.maps, lmax=small_sky.lmax)):
+        assert np.shares_memory(the_sky.interleaved, the_sky.maps)
+        assert the_sky.interleaved.flags.c_contiguous
+    bare = small_sky.without_polarisation()
+    assert np.shares_memory(bare.interleaved, bare.maps)
+    np.testing.assert_array_equal(bare.maps[0], small_sky.maps[0])
+    np.testing.assert_array_equal(bare.alm[0], small_sky.alm[0])
+    assert not bare.maps[1:].any() and not bare.alm[1:].any()
+    assert small_sky.maps[1:].any()  # the original is untouched
+
+
 def test_tensor_spectra_reach_the_spectra_lmax():
     """No cliff: CAMB's tensors used to stop at its default max_l_tensor = 600 (the r curves of
     fig2 and fig4 fell to 0 there). The shipped C_BB^tensor is positive and smooth to lmax, and a
