@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import healpy as hp
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -49,13 +48,15 @@ def _pixel_list(pixels, npix):
     if pixels.dtype == bool:
         if pixels.size != npix:
             raise ValueError(f"pixel mask has {pixels.size} entries, the sky has {npix}")
-        return np.flatnonzero(pixels).astype(np.int64)
+        return np.flatnonzero(pixels).astype(np.int64, copy=False)
     if not np.issubdtype(pixels.dtype, np.integer):
         raise ValueError(
             f"pixels must be integer RING indices or a boolean map, got dtype {pixels.dtype} "
             "(for a 0/1 mask pass mask > 0)"
         )
-    pixels = np.unique(pixels.astype(np.int64))
+    pixels = pixels.astype(np.int64, copy=False)
+    if pixels.size > 1 and not np.all(pixels[1:] > pixels[:-1]):
+        pixels = np.unique(pixels)  # else already sorted and unique: no copy
     if pixels.size and (pixels[0] < 0 or pixels[-1] >= npix):
         raise ValueError(f"pixel indices must lie in [0, {npix})")
     return pixels
@@ -165,7 +166,7 @@ def simulate(
     Returns
     -------
     boresight.mapmaking.Maps
-        Full-sky q, u [muK] (UNSEEN where invalid), hits (int) and rcond, each (npix,).
+        On ``pixels``: q, u [muK] (UNSEEN where invalid), hits (int) and rcond.
     """
     binner = _Binner(
         sky,
@@ -181,17 +182,16 @@ def simulate(
     if chunk_pixels is None:
         chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
     pix = _pixel_list(pixels, npix)
-    q = np.full(npix, hp.UNSEEN)
-    u = np.full(npix, hp.UNSEEN)
-    rcond = np.zeros(npix)
-    ncross = np.zeros(npix, dtype=np.int64)
+    q, u, rcond = np.empty((3, pix.size))
+    ncross = np.empty(pix.size, dtype=np.int64)
     with numba_threads(nthreads):
-        for _, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
+        for s, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
             normal = binner.scan_normal(scan, nside, chunk)
-            q[chunk], u[chunk], rcond[chunk], ncross[chunk] = _maps_from(
+            at = slice(s, s + chunk.size)
+            q[at], u[at], rcond[at], ncross[at] = _maps_from(
                 kernels, normal, instrument.n_pairs, rcond_min
             )
-    return Maps(q=q, u=u, hits=ncross, rcond=rcond)
+    return Maps(nside, pix, q, u, ncross, rcond)
 
 
 def _maps_from(kernels, normal, n_pairs, rcond_min):
@@ -381,7 +381,8 @@ def simulate_samples(
             pix = ang2pix_array(sky.nside, theta, phi)
             binner.scatter(pix, theta, phi, psi, normal)
     q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
-    return Maps(q=q, u=u, hits=hits, rcond=rcond)
+    seen = np.flatnonzero(hits)
+    return Maps(sky.nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
 
 
 def _sky_fields(sky, systematics, template, evaluation, nthreads):

@@ -227,15 +227,14 @@ def map2alm(
     scale = 4 * np.pi / maps.shape[-1]
     analysis = resolve_analysis(analysis, maps, lmax)
     common = dict(lmax=lmax, spin=spin, nthreads=nthreads, **geom)
-    if analysis == "ring_weights":
+    if analysis == "ring_weights" or (analysis == "jacobi" and iterations == 0):
         # one pass over the rings that hold data: the others add exactly nothing (a survey mask's
         # rings: the wide one 46 %, the deep one 27 %; time and scratch memory scale with them)
         keep = np.logical_or.reduceat(np.any(maps, axis=0), geom["ringstart"].astype(np.int64))
         keep[0] = True  # ducc0 needs a ring: zero maps give zero alm
         common.update({key: value[keep] for key, value in geom.items()})
-        alm = ducc0.sht.adjoint_synthesis(
-            map=maps, ringfactor=scale * ring_weights(nside)[keep], **common
-        )
+        weights = ring_weights(nside) if analysis == "ring_weights" else np.ones(keep.size)
+        alm = ducc0.sht.adjoint_synthesis(map=maps, ringfactor=scale * weights[keep], **common)
     elif analysis == "lsqr":
         alm = ducc0.sht.pseudo_analysis(
             map=maps, maxiter=LSQR_MAXITER, epsilon=LSQR_EPSILON, **common
@@ -293,9 +292,8 @@ def evaluate(
     return out[0] if spin == 0 else out
 
 
-@lru_cache(maxsize=4)
 def ell_of_alm(lmax: int) -> np.ndarray:
-    """ell of every healpy-ordered alm index (read-only; cached per lmax).
+    """ell of every healpy-ordered alm index.
 
     Parameters
     ----------
@@ -305,9 +303,27 @@ def ell_of_alm(lmax: int) -> np.ndarray:
     -------
     numpy.ndarray, int, shape (nalm,)
     """
-    ell = np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
-    ell.flags.writeable = False
-    return ell
+    return np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
+
+
+def m_runs(lmax: int):
+    """Each m's run of healpy-ordered alm (l = m..lmax): the loops of :func:`almxfl` and
+    :func:`alm2cl`, which need no (nalm,) index array (256 MB at lmax 8000).
+
+    Parameters
+    ----------
+    lmax : int
+
+    Yields
+    ------
+    m : int
+    run : slice
+        Its alm indices.
+    """
+    start = 0
+    for m in range(lmax + 1):
+        yield m, slice(start, start + lmax + 1 - m)
+        start += lmax + 1 - m
 
 
 def almxfl(alm: np.ndarray, fl: np.ndarray) -> np.ndarray:
@@ -322,7 +338,11 @@ def almxfl(alm: np.ndarray, fl: np.ndarray) -> np.ndarray:
     -------
     numpy.ndarray, complex128, shape (..., nalm)
     """
-    return alm * fl[ell_of_alm(alm_lmax(alm.shape[-1]))]
+    lmax = alm_lmax(alm.shape[-1])
+    out = np.empty(alm.shape, dtype=np.result_type(alm, fl))
+    for m, run in m_runs(lmax):
+        out[..., run] = alm[..., run] * fl[m : lmax + 1]
+    return out
 
 
 def alm2cl(alm1: np.ndarray, alm2: np.ndarray | None = None) -> np.ndarray:
@@ -340,9 +360,14 @@ def alm2cl(alm1: np.ndarray, alm2: np.ndarray | None = None) -> np.ndarray:
     """
     alm2 = alm1 if alm2 is None else alm2
     lmax = alm_lmax(alm1.shape[-1])
-    prod = (alm1 * np.conj(alm2)).real
-    cl = np.zeros(lmax + 1)
-    cl += prod[: lmax + 1]  # m = 0
-    ell = ell_of_alm(lmax)[lmax + 1 :]
-    cl += 2 * np.bincount(ell, weights=prod[lmax + 1 :], minlength=lmax + 1)
+    cl = np.zeros(lmax + 1)  # m = 0
+    m_sum = np.zeros(lmax + 1)  # m >= 1, summed in order of m
+    for m, run in m_runs(lmax):  # Re(a1 conj(a2)) one run at a time: no (nalm,) temporaries
+        a, b = alm1[run], alm2[run]
+        prod = a.real * b.real + a.imag * b.imag
+        if m:
+            m_sum[m:] += prod
+        else:
+            cl += prod
+    cl += 2 * m_sum
     return cl / (2 * np.arange(lmax + 1) + 1)

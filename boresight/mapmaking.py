@@ -17,50 +17,92 @@ RCOND_MIN = 1e-6  #: below this the 2x2 system is treated as singular (one polar
 
 @dataclass(frozen=True)
 class Maps:
-    """Reconstructed maps, RING, full sky.
+    """Reconstructed maps, RING, held on the observed pixels; full-sky maps on access.
 
     Parameters
     ----------
-    q, u : numpy.ndarray, float64, shape (npix,)
-        [muK], healpy.UNSEEN where invalid.
-    hits : numpy.ndarray, int64, shape (npix,)
-        Hits x rotations per pixel.
-    rcond : numpy.ndarray, float64, shape (npix,)
-        Reciprocal condition number of each pixel's 2x2 system, 0 where unobserved.
+    nside : int
+    pixels : numpy.ndarray, int64, shape (n,)
+        RING indices of the observed pixels, increasing.
+    q_obs, u_obs : numpy.ndarray, float64, shape (n,)
+        [muK] on those pixels, healpy.UNSEEN where invalid.
+    hits_obs : numpy.ndarray, int64, shape (n,)
+        Hits x rotations.
+    rcond_obs : numpy.ndarray, float64, shape (n,)
+        Reciprocal condition number of each pixel's 2x2 system.
+
+    Notes
+    -----
+    :attr:`q`, :attr:`u`, :attr:`hits`, :attr:`rcond` and :attr:`valid` are full-sky (npix,) maps
+    made on each access (UNSEEN, 0 or False off the observed pixels); the residual jobs use
+    :meth:`qu_at` on the observed pixels and never make them (0.4 GB each at Nside 2048).
     """
 
-    q: np.ndarray
-    u: np.ndarray
-    hits: np.ndarray
-    rcond: np.ndarray
+    nside: int
+    pixels: np.ndarray
+    q_obs: np.ndarray
+    u_obs: np.ndarray
+    hits_obs: np.ndarray
+    rcond_obs: np.ndarray
+
+    def _on_sky(self, values, fill):
+        out = np.full(12 * self.nside**2, fill, dtype=values.dtype)
+        out[self.pixels] = values
+        return out
 
     @property
-    def nside(self):
-        return hp.npix2nside(self.q.size)
+    def q(self):
+        """(npix,) [muK], UNSEEN where invalid."""
+        return self._on_sky(self.q_obs, hp.UNSEEN)
+
+    @property
+    def u(self):
+        """(npix,) [muK], UNSEEN where invalid."""
+        return self._on_sky(self.u_obs, hp.UNSEEN)
+
+    @property
+    def hits(self):
+        """(npix,) int64, hits x rotations per pixel."""
+        return self._on_sky(self.hits_obs, 0)
+
+    @property
+    def rcond(self):
+        """(npix,) reciprocal condition numbers, 0 where unobserved."""
+        return self._on_sky(self.rcond_obs, 0.0)
 
     @property
     def valid(self):
         """Boolean map of pixels with a well-conditioned solution."""
-        return self.q != hp.UNSEEN
+        return self._on_sky(self.q_obs != hp.UNSEEN, False)
 
     @property
     def qu(self):
         """(2, npix) array of Q, U with invalid pixels set to 0 (for transforms under a mask)."""
-        return self.qu_at(slice(None))
+        qu = np.zeros((2, 12 * self.nside**2))
+        qu[:, self.pixels] = self.qu_at(self.pixels)
+        return qu
 
     def qu_at(self, pixels):
-        """Q, U at some pixels, invalid ones set to 0.
+        """Q, U at some pixels, 0 where invalid or unobserved.
 
         Parameters
         ----------
-        pixels : numpy.ndarray of int, shape (n,), or slice
-            RING indices.
+        pixels : numpy.ndarray of int, shape (n,)
+            RING indices; the observed ones themselves cost no search.
 
         Returns
         -------
         numpy.ndarray, shape (2, n)
         """
-        qu = np.array([self.q[pixels], self.u[pixels]])
+        pixels = np.asarray(pixels)
+        if np.array_equal(pixels, self.pixels):
+            qu = np.array([self.q_obs, self.u_obs])
+        else:
+            qu = np.zeros((2, pixels.size))
+            if self.pixels.size:
+                at = np.minimum(np.searchsorted(self.pixels, pixels), self.pixels.size - 1)
+                seen = self.pixels[at] == pixels
+                qu[:, seen] = self.q_obs[at[seen]], self.u_obs[at[seen]]
         np.copyto(qu, 0.0, where=qu[0] == hp.UNSEEN)
         return qu
 

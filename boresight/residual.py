@@ -232,8 +232,9 @@ def simulate(
         A real schedule's sample stream covers its own pixels (``pixels`` is then unused).
     instrument : boresight.instrument.Instrument
     systematics : boresight.instrument.Systematics
-    pixels : numpy.ndarray, bool, shape (npix,)
-        Pixels a synthetic scan observes.
+    pixels : numpy.ndarray
+        Pixels a synthetic scan observes: a boolean map (npix,) or increasing RING indices (the
+        engine then keeps them without a copy).
     run : boresight.config.RunOptions
     leak_template : numpy.ndarray, optional
         (npix,) template of the additive leak [muK].
@@ -341,14 +342,15 @@ def _on_sky(values, mask):
     runs: at Nside 2048 a queued wide-survey job then holds 0.3 GB, not 0.8 GB.
     """
     out = np.zeros((2, mask.size))
-    out[:, np.flatnonzero(mask)] = values
+    out[:, mask != 0] = values
     return out
 
 
 def _masked_b(qu, mask, lmax, run):
     """B alm of (2, nobs) Q, U on the mask's observed pixels."""
     qu = _on_sky(qu, mask)
-    return spectra.masked_pol_alm(qu, mask, lmax, run.nthreads, run.analysis, overwrite=True)[1]
+    eb = spectra.masked_pol_alm(qu, mask, lmax, run.nthreads, run.analysis, overwrite=True)
+    return eb[1].copy()  # not a view that keeps E alive with the reference
 
 
 def reference(
@@ -493,7 +495,7 @@ def residual(
         reference_, ref_maps = reference(
             sky, scan, mask, lmax, instrument, run, transforms, progress
         )
-    sim = simulate(sky, scan, instrument, systematics, obs, run, leak_template, progress)
+    sim = simulate(sky, scan, instrument, systematics, pixels, run, leak_template, progress)
     parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference_, mask, lmax, run)
     stages["simulate"] = time.perf_counter() - t0
     result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)

@@ -185,7 +185,6 @@ def gaussian_alm(cls: Sequence[np.ndarray], lmax: int, seed: int) -> np.ndarray:
     tt, ee, bb, te = (np.asarray(c[: lmax + 1], dtype=np.float64) for c in cls)
     rng = np.random.Generator(np.random.Philox(key=seed))
     nalm = harmonics.n_alm(lmax)
-    ell = harmonics.ell_of_alm(lmax)
     real = np.arange(nalm) <= lmax  # m = 0: real coefficients of unit variance
     g = rng.standard_normal((3, nalm)) + 1j * rng.standard_normal((3, nalm))
     g[:, real] = g[:, real].real * np.sqrt(2.0)
@@ -195,9 +194,9 @@ def gaussian_alm(cls: Sequence[np.ndarray], lmax: int, seed: int) -> np.ndarray:
     e_corr = np.where(tt > 0, te / np.sqrt(safe_tt), 0.0)
     e_amp = np.sqrt(np.maximum(ee - e_corr**2, 0.0))
     alm = np.empty((3, nalm), dtype=np.complex128)
-    alm[0] = t_amp[ell] * g[0]
-    alm[1] = e_corr[ell] * g[0] + e_amp[ell] * g[1]
-    alm[2] = np.sqrt(np.maximum(bb, 0.0))[ell] * g[2]
+    alm[0] = harmonics.almxfl(g[0], t_amp)
+    alm[1] = harmonics.almxfl(g[0], e_corr) + harmonics.almxfl(g[1], e_amp)
+    alm[2] = harmonics.almxfl(g[2], np.sqrt(np.maximum(bb, 0.0)))
     return alm
 
 

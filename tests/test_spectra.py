@@ -228,3 +228,23 @@ def test_auto_analysis_of_the_survey_masks_is_one_pass():
         assert harmonics.resolve_analysis("auto", mask, 129) == "lsqr"
     with pytest.raises(ValueError, match="analysis"):
         harmonics.resolve_analysis("fast", mask, 128)
+
+
+def test_alm2cl_and_almxfl_are_healpys():
+    """The per-m loops (no (nalm,) index array) give healpy's alm2cl to rounding and its almxfl
+    exactly."""
+    lmax = 300
+    rng = np.random.default_rng(11)
+    re, im = rng.standard_normal((2, 2, harmonics.n_alm(lmax)))
+    a, b = re + 1j * im
+    a[: lmax + 1], b[: lmax + 1] = a[: lmax + 1].real, b[: lmax + 1].real
+    for got, want in (
+        (harmonics.alm2cl(a, b), hp.alm2cl(a, b)),
+        (harmonics.alm2cl(a), hp.alm2cl(a)),
+    ):
+        # rounding of sums of terms of either sign: relative to the spectrum's scale
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-14 * np.abs(want).max())
+    fl = rng.random(lmax + 1)
+    np.testing.assert_array_equal(harmonics.almxfl(a, fl), hp.almxfl(a, fl))
+    stacked = harmonics.almxfl(np.array([a, b]), fl)
+    np.testing.assert_array_equal(stacked[1], hp.almxfl(b, fl))
