@@ -251,35 +251,31 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress):
             angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
             for angle in (None,) + exp.angles_deg
         }
+
+        def job_at(sky_, angle, **options):
+            scan_ = paper_scan(exp.survey, angle, seed=seed)
+            return residual.residual(sky_, scan_, exp.systematics, mask, lmax, **job, **options)
+
         unpolarised = the_sky.without_polarisation()
         for angle in (None, exp.ideal_deg):
             with timer(f"{exp.name}: Q = U = 0, {label[angle]}"):
-                res.zero_qu_residuals[angle] = residual.residual(
-                    unpolarised,
-                    paper_scan(exp.survey, angle, seed=seed),
-                    exp.systematics,
-                    mask,
-                    lmax,
-                    reference_=residual.Reference.zero(),
-                    **job,
+                res.zero_qu_residuals[angle] = job_at(
+                    unpolarised, angle, reference_=residual.Reference.zero()
                 )
         del unpolarised
         with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
             n_max = residual.n_max_for(exp.systematics)
             mom = residual.moments(scan, nside, mask > 0, run, n_max)
         for angle in (None,) + exp.angles_deg:
-            predicted = dict(prediction=prediction, predict_map=angle in (None, exp.ideal_deg))
+            ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
             with timer(f"{exp.name}: {label[angle]}"):
-                res.residuals[angle] = residual.residual(
+                res.residuals[angle] = job_at(
                     the_sky,
-                    paper_scan(exp.survey, angle, seed=seed),
-                    exp.systematics,
-                    mask,
-                    lmax,
+                    angle,
                     reference_=ref,
                     moments_=mom,
-                    **predicted,
-                    **job,
+                    prediction=prediction,
+                    predict_map=ideal,
                 )
         with timer(f"{exp.name}: transforms still running"):
             transforms.wait()

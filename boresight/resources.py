@@ -15,10 +15,11 @@ import numpy as np
 
 GIB = 2.0**30
 #: peak bytes per HEALPix pixel of each job, from measured peaks (simulate: 4.8 GiB at Nside 2048
-#: for the engine alone, x2 for the reference run and spectra; reproduce: 17.4 GiB at Nside 2048)
+#: for the engine alone, x2 for the reference run and spectra; reproduce: 8.2 GiB at Nside 2048 and
+#: 2.4 GiB at 1024 on 2026-11-23, 16.3 GiB before the maps were held on the observed pixels)
 BYTES_PER_PIXEL = {
     "simulate": 200.0,
-    "reproduce": 380.0,
+    "reproduce": 200.0,
     "predict": 160.0,
     "scan-stats": 160.0,
     "compare-scans": 320.0,
