@@ -292,20 +292,6 @@ def evaluate(
     return out[0] if spin == 0 else out
 
 
-def ell_of_alm(lmax: int) -> np.ndarray:
-    """ell of every healpy-ordered alm index.
-
-    Parameters
-    ----------
-    lmax : int
-
-    Returns
-    -------
-    numpy.ndarray, int, shape (nalm,)
-    """
-    return np.concatenate([np.arange(m, lmax + 1) for m in range(lmax + 1)])
-
-
 def m_runs(lmax: int):
     """Each m's run of healpy-ordered alm (l = m..lmax): the loops of :func:`almxfl` and
     :func:`alm2cl`, which need no (nalm,) index array (256 MB at lmax 8000).

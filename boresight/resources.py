@@ -16,7 +16,8 @@ import numpy as np
 GIB = 2.0**30
 #: peak bytes per HEALPix pixel of each job, from measured peaks (simulate: 4.8 GiB at Nside 2048
 #: for the engine alone, x2 for the reference run and spectra; reproduce: 8.2 GiB at Nside 2048 and
-#: 2.4 GiB at 1024 on 2026-11-23, 16.3 GiB before the maps were held on the observed pixels)
+#: 2.3 GiB at 1024 / lmax 2047 on 2026-11-23; 16.3 and 4.3 GiB before the maps were held on the
+#: observed pixels)
 BYTES_PER_PIXEL = {
     "simulate": 200.0,
     "reproduce": 200.0,

@@ -137,9 +137,10 @@ class Sky:
         -------
         Sky
         """
-        maps = interleaved_maps(maps)
+        maps = np.asarray(maps, dtype=np.float64)
         if maps.ndim != 2 or maps.shape[0] != 3:
             raise ValueError(f"maps must have shape (3, npix), got {maps.shape}")
+        maps = np.ascontiguousarray(maps.T).T  # interleaved, as make_sky's
         if not np.isfinite(maps).all():
             raise ValueError("maps contain NaN or infinite values")
         nside = hp.npix2nside(maps.shape[1])
@@ -149,22 +150,6 @@ class Sky:
         alm[0] = harmonics.map2alm(maps[0], lmax, 0, "jacobi", nthreads=nthreads)
         alm[1:] = harmonics.map2alm(maps[1:], lmax, 2, "jacobi", nthreads=nthreads)
         return cls(alm=alm, maps=maps, nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin)
-
-
-def interleaved_maps(maps: np.ndarray) -> np.ndarray:
-    """A float64 copy of ``maps`` stored interleaved (pixel-major).
-
-    Parameters
-    ----------
-    maps : array_like, shape (F, npix)
-
-    Returns
-    -------
-    numpy.ndarray, float64, shape (F, npix)
-        The transpose of a C-contiguous (npix, F) array.
-    """
-    maps = np.asarray(maps, dtype=np.float64)
-    return np.ascontiguousarray(maps.T).T if maps.ndim == 2 else maps
 
 
 def gaussian_alm(cls: Sequence[np.ndarray], lmax: int, seed: int) -> np.ndarray:

@@ -49,7 +49,7 @@ def smooth_field():
     lmax = 64
     rng = np.random.default_rng(3)
     n = harmonics.n_alm(lmax)
-    ell = harmonics.ell_of_alm(lmax)
+    ell = hp.Alm.getlm(lmax)[0]
     alm = rng.normal(size=n) + 1j * rng.normal(size=n)
     alm[: lmax + 1] = alm[: lmax + 1].real
     alm[(ell > 30) | (ell < 2)] = 0

@@ -140,7 +140,7 @@ def _gauss_legendre_case(nside, lmax, mask_of, order=4):
     import ducc0
 
     band_limit = lmax - 2 * order
-    ell = harmonics.ell_of_alm(band_limit)
+    ell = hp.Alm.getlm(band_limit)[0]
     rng = np.random.default_rng(3)
     amp = np.sqrt(np.where(ell >= 2, 1.0 / (ell + 10.0) ** 2, 0.0) / 2)
     alm = (rng.standard_normal((2, ell.size)) + 1j * rng.standard_normal((2, ell.size))) * amp
