@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import coupling, masks, predict, provenance, residual, sky
+from . import coupling, masks, predict, provenance, residual, sky, spectra
 from .config import (
     ConfigError,
     OutputOptions,
@@ -242,9 +242,10 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress):
             )
         prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
         job = dict(run=run, transforms=transforms, progress=progress)
+        footprint = spectra.Footprint(mask)  # the observed pixels, shared by every job
         with timer(f"{exp.name}: reference (no systematic)"):
             scan = paper_scan(exp.survey, seed=seed)
-            ref = residual.reference(the_sky, scan, mask, lmax, **job)[0]
+            ref = residual.reference(the_sky, scan, footprint, lmax, **job)[0]
         # the map-level checks need only no and the ideal rotation; Q = U = 0 runs before the
         # moments exist, so its own copy of the sky never adds to their memory
         label = {
@@ -254,7 +255,9 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress):
 
         def job_at(sky_, angle, **options):
             scan_ = paper_scan(exp.survey, angle, seed=seed)
-            return residual.residual(sky_, scan_, exp.systematics, mask, lmax, **job, **options)
+            return residual.residual(
+                sky_, scan_, exp.systematics, footprint, lmax, **job, **options
+            )
 
         unpolarised = the_sky.without_polarisation()
         for angle in (None, exp.ideal_deg):
@@ -265,7 +268,7 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress):
         del unpolarised
         with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
             n_max = residual.n_max_for(exp.systematics)
-            mom = residual.moments(scan, nside, mask > 0, run, n_max)
+            mom = residual.moments(scan, nside, footprint.pixels, run, n_max)
         for angle in (None,) + exp.angles_deg:
             ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
             with timer(f"{exp.name}: {label[angle]}"):

@@ -300,8 +300,8 @@ def moments(
     ----------
     scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
     nside : int
-    pixels : numpy.ndarray, bool, shape (npix,)
-        Pixels of a synthetic scan.
+    pixels : numpy.ndarray
+        Pixels of a synthetic scan: a boolean map (npix,) or increasing RING indices.
     run : boresight.config.RunOptions
     n_max : int
         The highest moment of a synthetic scan (:func:`n_max_for`); a real schedule's are
@@ -335,28 +335,17 @@ def n_max_for(systematics: Systematics) -> int:
     return predict.BEAM_N_MAX if systematics.has_beams else N_MAX
 
 
-def _on_sky(values, mask):
-    """Full-sky (2, npix) maps of (2, nobs) ``values`` on the mask's observed pixels, 0 elsewhere.
-
-    The transform queue holds observed-pixel values and makes each full-sky map only when its job
-    runs: at Nside 2048 a queued wide-survey job then holds 0.3 GB, not 0.8 GB.
-    """
-    out = np.zeros((2, mask.size))
-    out[:, mask != 0] = values
-    return out
-
-
-def _masked_b(qu, mask, lmax, run):
-    """B alm of (2, nobs) Q, U on the mask's observed pixels."""
-    qu = _on_sky(qu, mask)
-    eb = spectra.masked_pol_alm(qu, mask, lmax, run.nthreads, run.analysis, overwrite=True)
+def _masked_b(qu, footprint, lmax, run, overwrite=True):
+    """B alm of (2, nobs) Q, U on the footprint's pixels, masked in place unless ``overwrite`` is
+    False (the reference's maps, which later jobs read)."""
+    eb = footprint.alm(qu, lmax, 2, run.nthreads, run.analysis, overwrite)
     return eb[1].copy()  # not a view that keeps E alive with the reference
 
 
 def reference(
     sky: Sky,
     scan: SyntheticScan | Schedule,
-    mask: np.ndarray,
+    mask: np.ndarray | spectra.Footprint,
     lmax: int,
     instrument: Instrument = Instrument(),
     run: RunOptions = RunOptions(),
@@ -369,7 +358,7 @@ def reference(
     ----------
     sky, scan, instrument, run, progress
         As in :func:`residual`.
-    mask : numpy.ndarray, shape (npix,)
+    mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
         Weights in [0, 1]; pixels with weight > 0 are simulated.
     lmax : int
     transforms : Transforms, optional
@@ -380,13 +369,14 @@ def reference(
     reference : Reference
     maps : boresight.mapmaking.Maps
     """
-    maps = simulate(sky, scan, instrument, Systematics(), mask > 0, run, progress=progress)
-    return reference_from_maps(maps, mask, lmax, run, transforms), maps
+    footprint = spectra.as_footprint(mask)
+    maps = simulate(sky, scan, instrument, Systematics(), footprint.pixels, run, progress=progress)
+    return reference_from_maps(maps, footprint, lmax, run, transforms), maps
 
 
 def reference_from_maps(
     maps: Maps,
-    mask: np.ndarray,
+    mask: np.ndarray | spectra.Footprint,
     lmax: int,
     run: RunOptions = RunOptions(),
     transforms: Transforms | None = None,
@@ -396,7 +386,8 @@ def reference_from_maps(
     Parameters
     ----------
     maps : boresight.mapmaking.Maps
-    mask : numpy.ndarray, shape (npix,)
+    mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
+        The mask, or its footprint when already built.
     lmax : int
     run : boresight.config.RunOptions
     transforms : Transforms, optional
@@ -407,34 +398,34 @@ def reference_from_maps(
         Their Q, U on the observed pixels and a Future of the B alm of the masked maps.
     """
     transforms = Transforms() if transforms is None else transforms
-    qu = maps.qu_at(np.flatnonzero(mask))
-    return Reference(qu, transforms.submit(_masked_b, qu, mask, lmax, run))
+    footprint = spectra.as_footprint(mask)
+    qu = maps.qu_at(footprint.pixels)
+    return Reference(qu, transforms.submit(_masked_b, qu, footprint, lmax, run, False))
 
 
-def _parts(d_qu, ref, mask, lmax, run):
-    """(cross, auto) from the difference map (2, nobs) on the observed pixels; the cross part is 0
-    against a zero reference."""
+def _parts(d_qu, ref, footprint, lmax, run):
+    """(cross, auto) from the difference map (2, nobs) on the footprint's pixels, which the job
+    owns; the cross part is 0 against a zero reference."""
     if ref.qu is None:
-        auto = spectra.harmonics.alm2cl(_masked_b(d_qu, mask, lmax, run))
+        auto = spectra.harmonics.alm2cl(_masked_b(d_qu, footprint, lmax, run))
         return np.zeros_like(auto), auto
     b_ref = ref.b_alm.result()
-    d_qu = _on_sky(d_qu, mask)
     return spectra.difference_bb_parts(
-        d_qu, b_ref, mask, lmax, run.nthreads, run.analysis, overwrite=True
+        d_qu, b_ref, footprint, lmax, run.nthreads, run.analysis, overwrite=True
     )
 
 
-def _difference_parts(sim_qu, ref, mask, lmax, run):
+def _difference_parts(sim_qu, ref, footprint, lmax, run):
     if ref.qu is not None:
         sim_qu -= ref.qu  # in place: the job owns its maps
-    return _parts(sim_qu, ref, mask, lmax, run)
+    return _parts(sim_qu, ref, footprint, lmax, run)
 
 
 def residual(
     sky: Sky,
     scan: SyntheticScan | Schedule,
     systematics: Systematics,
-    mask: np.ndarray,
+    mask: np.ndarray | spectra.Footprint,
     lmax: int,
     *,
     instrument: Instrument = Instrument(),
@@ -455,8 +446,9 @@ def residual(
     sky : boresight.sky.Sky
     scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
     systematics : boresight.instrument.Systematics
-    mask : numpy.ndarray, shape (npix,)
-        Weights in [0, 1] (RING); pixels with weight > 0 are simulated.
+    mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
+        Weights in [0, 1] (RING); pixels with weight > 0 are simulated. Jobs on one mask share
+        its footprint when given one (:func:`boresight.spectra.as_footprint`).
     lmax : int
         Band limit of the spectra.
     instrument : boresight.instrument.Instrument
@@ -488,15 +480,17 @@ def residual(
     """
     transforms = Transforms() if transforms is None else transforms
     stages, t0 = {}, time.perf_counter()
-    obs = mask > 0
-    pixels = np.flatnonzero(obs)
+    footprint = spectra.as_footprint(mask)
+    pixels = footprint.pixels
     ref_maps = None
     if reference_ is None:
         reference_, ref_maps = reference(
-            sky, scan, mask, lmax, instrument, run, transforms, progress
+            sky, scan, footprint, lmax, instrument, run, transforms, progress
         )
     sim = simulate(sky, scan, instrument, systematics, pixels, run, leak_template, progress)
-    parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference_, mask, lmax, run)
+    parts = transforms.submit(
+        _difference_parts, sim.qu_at(pixels), reference_, footprint, lmax, run
+    )
     stages["simulate"] = time.perf_counter() - t0
     result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)
     del sim  # kept in the result only when asked for
@@ -505,7 +499,7 @@ def residual(
     t0 = time.perf_counter()
     n_max = n_max_for(systematics)
     if moments_ is None or isinstance(scan, ground.Schedule):
-        mom = moments(scan, sky.nside, obs, run, n_max)
+        mom = moments(scan, sky.nside, pixels, run, n_max)
     elif moments_.h.shape[0] <= n_max:
         raise ValueError(f"moments_ hold h_n to {moments_.h.shape[0] - 1}; these need {n_max}")
     else:
@@ -518,7 +512,7 @@ def residual(
         field_cl = field_cl.result() if isinstance(field_cl, Future) else field_cl
         result.predicted_cl = predict.residual_pseudo_bb(
             mom.h,
-            mask,
+            footprint,
             prediction.couplings,
             systematics,
             prediction.theory,
@@ -546,7 +540,7 @@ def residual(
             pixels,
         )
         result.predicted_map_parts = transforms.submit(
-            _parts, np.array([dp.real, dp.imag]), reference_, mask, lmax, run
+            _parts, np.array([dp.real, dp.imag]), reference_, footprint, lmax, run
         )
     stages["predict"] = time.perf_counter() - t0
     return result

@@ -14,6 +14,77 @@ from . import harmonics
 ORDER = ("tt", "ee", "bb", "te", "eb", "tb")
 
 
+class Footprint:
+    """A mask's observed pixels and their weights, built once per mask: the transforms of masked
+    maps given on those pixels (:meth:`pol_alm`) never make a full-sky map.
+
+    Parameters
+    ----------
+    mask : array_like, shape (npix,)
+        Weights (RING); the pixels with weight != 0 are observed.
+
+    Attributes
+    ----------
+    mask : numpy.ndarray, float64, shape (npix,)
+        The mask itself (not a copy when it is float64).
+    nside : int
+    pixels : numpy.ndarray, int64, shape (nobs,)
+        The observed pixels, increasing.
+    weights : numpy.ndarray, shape (nobs,)
+        The mask there.
+    """
+
+    def __init__(self, mask):
+        self.mask = np.asarray(mask, dtype=np.float64)
+        self.nside = int(round(np.sqrt(self.mask.size / 12)))
+        self.pixels = np.flatnonzero(self.mask)
+        self.weights = self.mask[self.pixels]
+
+    def alm(self, values, lmax, spin=0, nthreads=0, analysis="auto", overwrite=False):
+        """alm of the masked map that is ``values`` on the observed pixels.
+
+        Parameters
+        ----------
+        values : array_like
+            (nobs,) for spin 0; (2, nobs) Q, U for spin 2 [muK], finite.
+        lmax, spin, nthreads : int
+        analysis : str
+            :func:`boresight.harmonics.map2alm`'s analysis (one of
+            :data:`boresight.harmonics.ANALYSES`).
+        overwrite : bool
+            Mask a float64 ``values`` in place (the caller gives it up).
+
+        Returns
+        -------
+        numpy.ndarray, complex128
+            (nalm,) for spin 0; (2, nalm) (E, B) otherwise.
+        """
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape[-1] != self.pixels.size:
+            raise ValueError(f"{values.shape[-1]} values for {self.pixels.size} observed pixels")
+        # NaN propagates through min and max and fails both comparisons
+        if values.size and not (-1e29 <= values.min() and values.max() <= 1e29):
+            raise ValueError("maps contain NaN or UNSEEN values inside the mask")
+        masked = np.multiply(values, self.weights, out=values if overwrite else None)
+        return harmonics.map2alm_pixels(
+            masked, self.pixels, self.nside, lmax, spin, analysis, nthreads
+        )
+
+
+def as_footprint(mask: np.ndarray | Footprint) -> Footprint:
+    """A mask's :class:`Footprint`: itself when it is one (built once and shared by many jobs).
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, shape (npix,), or Footprint
+
+    Returns
+    -------
+    Footprint
+    """
+    return mask if isinstance(mask, Footprint) else Footprint(mask)
+
+
 def masked_alm(
     maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
 ) -> np.ndarray:
@@ -27,48 +98,38 @@ def masked_alm(
     lmax : int
     nthreads : int
     analysis : str
-        :func:`boresight.harmonics.map2alm`'s analysis (one of
-        :data:`boresight.harmonics.ANALYSES`).
+        As :meth:`Footprint.alm`.
 
     Returns
     -------
     numpy.ndarray, complex128, shape (3, nalm)
     """
-    maps = np.asarray(maps, dtype=np.float64)
-    _check(maps, mask)
+    footprint, maps = _observed(maps, mask)
     alm = np.empty((3, harmonics.n_alm(lmax)), dtype=np.complex128)
-    alm[0] = harmonics.map2alm(maps[0] * mask, lmax, 0, analysis, nthreads=nthreads)
-    alm[1:] = harmonics.map2alm(maps[1:] * mask, lmax, 2, analysis, nthreads=nthreads)
+    alm[0] = footprint.alm(maps[0], lmax, 0, nthreads, analysis)
+    alm[1:] = footprint.alm(maps[1:], lmax, 2, nthreads, analysis)
     return alm
 
 
 def masked_pol_alm(
-    qu: np.ndarray,
-    mask: np.ndarray,
-    lmax: int,
-    nthreads: int = 0,
-    analysis: str = "auto",
-    overwrite: bool = False,
+    qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
 ) -> np.ndarray:
     """E, B alm (2, nalm) of masked Q, U maps ``qu`` (2, npix) [muK], finite inside the mask; the
-    other parameters as :func:`masked_alm`. ``overwrite``: mask a float64 ``qu`` in place (no
-    full-sky copy; the caller gives ``qu`` up).
+    other parameters as :func:`masked_alm`.
     """
-    qu = np.asarray(qu, dtype=np.float64)
-    _check(qu, mask)
-    masked = np.multiply(qu, mask, out=qu if overwrite else None)
-    return harmonics.map2alm(masked, lmax, 2, analysis, nthreads=nthreads)
+    footprint, qu = _observed(qu, mask)
+    return footprint.alm(qu, lmax, 2, nthreads, analysis, overwrite=True)
 
 
-def _check(maps, mask):
-    if maps.shape[-1] != np.shape(mask)[-1]:
-        raise ValueError(f"maps have {maps.shape[-1]} pixels but the mask has {np.shape(mask)[-1]}")
-    observed = np.asarray(mask) != 0
-    # one pass each, no copies; NaN propagates through min and max and fails both comparisons
-    lo = np.min(maps, where=observed, initial=np.inf)
-    hi = np.max(maps, where=observed, initial=-np.inf)
-    if not (-1e29 <= lo and hi <= 1e29) and observed.any():
-        raise ValueError("maps contain NaN or UNSEEN values inside the mask")
+def _observed(maps, mask):
+    """The mask's :class:`Footprint` and the maps (..., npix) on its pixels (a copy)."""
+    maps = np.asarray(maps)
+    footprint = as_footprint(mask)
+    if maps.shape[-1] != footprint.mask.size:
+        raise ValueError(
+            f"maps have {maps.shape[-1]} pixels but the mask has {footprint.mask.size}"
+        )
+    return footprint, maps[..., footprint.pixels].astype(np.float64, copy=False)
 
 
 def pseudo_spectra(
@@ -103,7 +164,6 @@ def residual_bb_parts(
     mask: np.ndarray,
     lmax: int,
     nthreads: int = 0,
-    b_ref: np.ndarray | None = None,
     analysis: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
     """The two parts of C_BB(sys) - C_BB(ref) of masked maps.
@@ -119,8 +179,6 @@ def residual_bb_parts(
     mask : numpy.ndarray, shape (npix,)
     lmax : int
     nthreads : int
-    b_ref : numpy.ndarray, shape (nalm,), optional
-        The B alm of the masked reference, when already computed.
     analysis : str
         As :func:`masked_alm`.
 
@@ -131,16 +189,16 @@ def residual_bb_parts(
     auto : numpy.ndarray, shape (lmax + 1,)
         <dB, dB> [muK^2].
     """
-    if b_ref is None:
-        b_ref = masked_pol_alm(qu_ref, mask, lmax, nthreads, analysis)[1]
-    d_qu = np.subtract(qu_sys, qu_ref)
-    return difference_bb_parts(d_qu, b_ref, mask, lmax, nthreads, analysis)
+    footprint, qu_ref = _observed(qu_ref, mask)
+    b_ref = footprint.alm(qu_ref, lmax, 2, nthreads, analysis)[1]
+    d_qu = np.subtract(np.asarray(qu_sys)[:, footprint.pixels], qu_ref)
+    return difference_bb_parts(d_qu, b_ref, footprint, lmax, nthreads, analysis, overwrite=True)
 
 
 def difference_bb_parts(
     d_qu: np.ndarray,
     b_ref: np.ndarray,
-    mask: np.ndarray,
+    footprint: Footprint,
     lmax: int,
     nthreads: int = 0,
     analysis: str = "auto",
@@ -150,22 +208,22 @@ def difference_bb_parts(
 
     Parameters
     ----------
-    d_qu : array_like, shape (2, npix)
-        sys - ref [muK].
+    d_qu : array_like, shape (2, nobs)
+        sys - ref [muK] on the footprint's pixels.
     b_ref : numpy.ndarray, complex128, shape (nalm,)
-    mask : numpy.ndarray, shape (npix,)
+    footprint : Footprint
     lmax : int
     nthreads : int
     analysis : str
         As :func:`masked_alm`.
     overwrite : bool
-        As :func:`masked_pol_alm`.
+        As :meth:`Footprint.alm`.
 
     Returns
     -------
     cross, auto : numpy.ndarray, shape (lmax + 1,)
     """
-    d_b = masked_pol_alm(d_qu, mask, lmax, nthreads, analysis, overwrite)[1]
+    d_b = footprint.alm(d_qu, lmax, 2, nthreads, analysis, overwrite)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 

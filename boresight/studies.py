@@ -463,15 +463,15 @@ def compare_scans(
     mask = obs.copy()
     for ref in refs.values():
         mask &= ref.valid
-    mask = mask.astype(float)
+    footprint = spectra.Footprint(mask.astype(float))
     lmax = 2 * nside
     edges = spectra.log_bins(10, lmax, 12)
     curves = {}
     for name, scan in cases.items():
         with timer(f"residual {name.replace('_', ' ')}"):
-            reference = residual.reference_from_maps(refs[name], mask, lmax)
+            reference = residual.reference_from_maps(refs[name], footprint, lmax)
             curves[f"residual_{name}_bb"] = residual.residual(
-                the_sky, scan, systematics, mask, lmax, reference_=reference
+                the_sky, scan, systematics, footprint, lmax, reference_=reference
             ).total
     rows = residual.band_rows(edges, curves)
     require_finite("the residual spectra", list(curves.values()))

@@ -248,3 +248,60 @@ def test_alm2cl_and_almxfl_are_healpys():
     np.testing.assert_array_equal(harmonics.almxfl(a, fl), hp.almxfl(a, fl))
     stacked = harmonics.almxfl(np.array([a, b]), fl)
     np.testing.assert_array_equal(stacked[1], hp.almxfl(b, fl))
+
+
+@pytest.mark.parametrize("case", ["deep", "north cap", "above 2 nside", "zeros"])
+def test_transform_on_observed_pixels_is_the_full_sky_ones(case):
+    """map2alm_pixels (the rings that hold data packed into one array, no full-sky map) gives
+    map2alm's alm of the full-sky map to the last bit: one pass on the deep mask, with a pixel
+    that holds 0; the Jacobi iterations "auto" takes for a cap at the pole; LSQR above 2 Nside;
+    and maps that are zero on every observed pixel."""
+    nside = 32
+    lmax = 95 if case == "above 2 nside" else 64
+    theta, _ = hp.pix2ang(nside, np.arange(12 * nside**2))
+    mask = (theta < 0.6).astype(float) if case == "north cap" else masks.survey_mask("deep", nside)
+    pixels = np.flatnonzero(mask)
+    rng = np.random.default_rng(9)
+    values = rng.standard_normal((2, pixels.size)) * mask[pixels] * (case != "zeros")
+    values[:, pixels.size // 2] = 0.0
+    maps = np.zeros((2, mask.size))
+    maps[:, pixels] = values
+    analysis = {"north cap": "jacobi", "above 2 nside": "lsqr"}.get(case, "ring_weights")
+    assert harmonics.resolve_analysis("auto", maps, lmax) == analysis
+    want = harmonics.map2alm(maps, lmax, 2)
+    got = harmonics.map2alm_pixels(values, pixels, nside, lmax, 2)
+    np.testing.assert_array_equal(got, want)
+    got_t = harmonics.map2alm_pixels(values[0], pixels, nside, lmax)
+    np.testing.assert_array_equal(got_t, harmonics.map2alm(maps[0], lmax))
+    assert np.any(want) == (case != "zeros")
+
+
+def test_synthesis_on_observed_pixels_is_the_full_sky_maps():
+    """alm2map_pixels synthesises only the rings that hold the pixels, packed; each value is the
+    full-sky map's to rounding, 2e-14 of the map's largest value (measured), spin 0 and 2, a
+    mask's pixels and a scattered few. ducc0 sums a ring whose mirror ring is also synthesised in
+    another order."""
+    nside, lmax = 32, 80
+    rng = np.random.default_rng(4)
+    alm = rng.standard_normal((2, harmonics.n_alm(lmax))) + 0j
+    few = np.unique(rng.integers(0, 12 * nside**2, 40))
+    for pixels in (np.flatnonzero(masks.survey_mask("wide", nside)), few):
+        for spin, coefficients in ((2, alm), (0, alm[0])):
+            got = harmonics.alm2map_pixels(coefficients, pixels, nside, spin)
+            want = harmonics.alm2map(coefficients, nside, spin)[..., pixels]
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.abs(want).max())
+
+
+def test_footprint_refuses_values_it_cannot_mask():
+    """Values of another length than the observed pixels, or NaN among them, are errors; NaN off
+    the mask is never read."""
+    mask = masks.survey_mask("deep", 16)
+    footprint = spectra.Footprint(mask)
+    with pytest.raises(ValueError, match="observed pixels"):
+        footprint.alm(np.zeros((2, footprint.pixels.size + 1)), 32, 2)
+    bad = np.zeros((2, footprint.pixels.size))
+    bad[1, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        footprint.alm(bad, 32, 2)
+    qu = np.where(mask > 0, 1.0, np.nan) * np.ones((2, 1))
+    assert np.all(np.isfinite(spectra.masked_pol_alm(qu, mask, 32)))
