@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
 from typing import NamedTuple
 
 import ducc0
@@ -126,8 +127,10 @@ def _grid(sigma_min, lmax, kmax_guess):
     return ducc0.misc.GL_thetas(ntheta), 2 * np.pi * np.arange(nphi) / nphi
 
 
+@lru_cache(maxsize=16)
 def beam_alm(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> np.ndarray:
-    """Harmonic coefficients of an elliptical Gaussian polarised beam pointing at the north pole.
+    """Harmonic coefficients of an elliptical Gaussian polarised beam pointing at the north pole
+    (cached and read-only: a schedule search predicts the same beams many times).
 
     Parameters
     ----------
@@ -156,7 +159,9 @@ def beam_alm(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> np.ndarray:
     out[1:] = ducc0.sht.analysis_2d(
         map=np.stack([pol.real, pol.imag]), spin=2, lmax=lmax, mmax=kmax, geometry="GL"
     )
-    return out / (out[0, 0].real * np.sqrt(4 * np.pi))
+    out /= out[0, 0].real * np.sqrt(4 * np.pi)
+    out.flags.writeable = False
+    return out
 
 
 def _moment(blm, lmax, k):
