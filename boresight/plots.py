@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 
 #: axis labels in Unicode, not mathtext (its parser costs a tenth of a figure's drawing time):
-#: |Delta C~^BB(ell)| and muK^2
+#: ``|Delta C~^BB(ell)|`` and ``[muK^2]``
 RESIDUAL = "|\u0394C\u0303\u1d2e\u1d2e(\u2113)|"
 MUK2 = "[\u03bcK\u00b2]"
 ANGLE_COLOURS = {None: "tab:orange", 0: "tab:blue", 1: "tab:green", 2: "tab:red"}
