@@ -78,7 +78,7 @@ def cl_table(nside=512):
         scan = paper_scan(survey)
         ref = engine.simulate(the_sky, scan, pixels=obs)
         h, crossings = engine.scan_moments(scan.one_repeat(), nside, predict.BEAM_N_MAX, pixels=obs)
-        couplings = coupling.coupling_matrices(mask, lmax)
+        couplings = coupling.mask_coupling(mask, lmax)
         local = predict.local_cl(the_sky, mask, lmax, beams=True)
         for name, sysm in cases.items():
             sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)

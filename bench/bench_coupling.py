@@ -1,5 +1,6 @@
-"""Coupling-matrix time: boresight (ducc0; spin 2, what predictions use, and with TT as
-NaMaster's two workspaces) against NaMaster on the same mask and lmax.
+"""Coupling time: what a prediction pays (the mask's spectrum to 2 lmax, then one pseudo-C_BB in
+real space), the spin-2 matrices and TT (ducc0, as NaMaster's two workspaces), and NaMaster on the
+same mask and lmax.
 
 NaMaster runs only where pymaster is importable (it ships no wheels). Usage:
 python bench/bench_coupling.py [NSIDE LMAX ...pairs]
@@ -7,6 +8,8 @@ python bench/bench_coupling.py [NSIDE LMAX ...pairs]
 
 import sys
 import time
+
+import numpy as np
 
 from boresight import coupling, masks
 
@@ -16,14 +19,20 @@ def main(pairs):
         import pymaster as nmt
     except ImportError:
         nmt = None
-    print(f"{'Nside':>6} {'lmax':>5} {'boresight s':>12} {'with TT s':>10} {'NaMaster s':>11}")
+    head = ("Nside", "lmax", "W_L s", "pseudo_bb s", "spin-2 matrices s", "TT s", "NaMaster s")
+    print(" ".join(f"{h:>{max(len(h), 6)}}" for h in head))
     for nside, lmax in pairs:
         mask = masks.survey_mask("wide", nside)
-        t_ours = []
-        for tt in (False, True):
-            t0 = time.perf_counter()
-            coupling.coupling_matrices(mask, lmax, tt=tt)
-            t_ours.append(time.perf_counter() - t0)
+        t_ours = [time.perf_counter()]
+        mixing = coupling.mask_coupling(mask, lmax)
+        t_ours.append(time.perf_counter())
+        mixing.pseudo_bb(np.ones(lmax + 1), np.ones(lmax + 1))
+        t_ours.append(time.perf_counter())
+        mixing.even
+        t_ours.append(time.perf_counter())
+        mixing.tt
+        t_ours.append(time.perf_counter())
+        t_ours = np.diff(t_ours)
         t_nmt = float("nan")
         if nmt is not None:
             t0 = time.perf_counter()
@@ -33,7 +42,8 @@ def main(pairs):
             nmt.NmtWorkspace.from_fields(f0, f0, b)
             nmt.NmtWorkspace.from_fields(f2, f2, b)
             t_nmt = time.perf_counter() - t0
-        row = f"{nside:>6} {lmax:>5} {t_ours[0]:>12.2f} {t_ours[1]:>10.2f} {t_nmt:>11.2f}"
+        times = [f"{t:>{max(len(h), 6)}.3f}" for h, t in zip(head[2:], [*t_ours, t_nmt])]
+        row = f"{nside:>6} {lmax:>6} " + " ".join(times)
         print(row, flush=True)
     if nmt is None:
         print("(pymaster not installed: NaMaster column is nan)")

@@ -36,7 +36,7 @@ def main(nside):
     print("|---|---|---|---|---|---|")
     for survey in ("deep", "wide"):
         mask = masks.survey_mask(survey, nside)
-        couplings = coupling.coupling_matrices(mask, lmax)
+        couplings = coupling.mask_coupling(mask, lmax)
         local = predict.local_cl(the_sky, mask, lmax, beams=True)
         prediction = residual.Prediction(theory, couplings, cfg.fwhm_arcmin, local, leaked=True)
         sims = {entry.name: [] for entry in suppression.CATALOGUE}

@@ -372,7 +372,7 @@ def objective(
     """
     nside = moments.nside
     lmax = 2 * nside
-    couplings = coupling.coupling_matrices(moments.mask, lmax, nthreads)
+    couplings = coupling.mask_coupling(moments.mask, lmax, nthreads)
     template = predict.tensor_template(couplings, spectra, fwhm_arcmin, nside)
 
     def bias(cl_e, cl_b):

@@ -1138,7 +1138,7 @@ def residual_pseudo_bb(
     h, mask, systematics, spectra, fwhm_arcmin, instrument, template_cl, field_cl
         As in :func:`systematic_cl`; ``mask`` may be its :class:`boresight.spectra.Footprint`.
     coupling : boresight.coupling.Coupling
-        The mask's coupling matrices; their lmax is the prediction's.
+        The mask's coupling; its lmax is the prediction's.
     rotations_deg, crossings, in_pixel, expected, interpolated
         As in :func:`systematic_cl`.
     leaked : bool
@@ -1358,7 +1358,7 @@ def reference_bb(
     beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)[:, 2]
     pixwin = pixel_window(nside, lmax)
     cl = spectra.bb(r=r, a_lens=a_lens)[: lmax + 1] * (beam * pixwin) ** 2
-    return coupling.even @ cl
+    return coupling.pseudo_bb(cl, np.zeros_like(cl))
 
 
 # The bias on the tensor-to-scalar ratio r that a residual B-mode spectrum implies.

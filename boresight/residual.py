@@ -132,7 +132,7 @@ class Prediction:
     theory : boresight.cosmology.Spectra
         Lensed LCDM and tensor spectra [muK^2].
     couplings : boresight.coupling.Coupling
-        Coupling matrices of the mask at the job's lmax.
+        The mask's coupling at the job's lmax.
     fwhm_arcmin : float
         The sky's Gaussian beam [arcmin].
     field_cl : boresight.predict.FieldSpectra or Future, optional
@@ -600,7 +600,7 @@ def study_prediction(
     the_sky : boresight.sky.Sky
     mask : numpy.ndarray, shape (npix,)
     couplings : boresight.coupling.Coupling, optional
-        Reuse these coupling matrices (default: computed here).
+        Reuse this coupling of the mask (default: computed here).
 
     Returns
     -------
@@ -612,7 +612,7 @@ def study_prediction(
 
     lmax, nthreads = study.output.lmax, study.run.nthreads
     if couplings is None:
-        couplings = coupling.coupling_matrices(mask, lmax, nthreads)
+        couplings = coupling.mask_coupling(mask, lmax, nthreads)
     field_cl = predict.local_cl(
         the_sky, mask, lmax, nthreads, study.systematics.has_beams, study.run.analysis
     )
@@ -634,7 +634,7 @@ def from_study(
     mask : numpy.ndarray, shape (npix,), optional
         The study's mask, when already made.
     couplings : boresight.coupling.Coupling, optional
-        Its coupling matrices at output.lmax, when already made.
+        Its coupling at output.lmax, when already made.
     keep_maps : bool
         Keep (reference, with systematic) maps in the result.
     progress : bool

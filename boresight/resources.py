@@ -62,8 +62,7 @@ def estimate_bytes(
 ) -> float:
     """Estimated peak memory of a job.
 
-    Full-sky arrays (per pixel), the sky's alm (3 x nalm complex), the coupling matrices
-    (3 x (lmax + 1)^2 float64) and one chunk of a synthetic scan's hits: per hit its position and
+    Full-sky arrays (per pixel), the sky's alm (3 x nalm complex) and one chunk of a synthetic scan's hits: per hit its position and
     angle, and the sky fields at detector A and at detector B of every pair and rotation.
 
     Parameters
@@ -86,7 +85,7 @@ def estimate_bytes(
     nalm = (lmax + 1.0) * (lmax + 2.0) / 2.0
     hits = float(chunk_pixels) * float(n_phi_max)
     per_hit = 8.0 * (6.0 + 3.0 * n_rotations * n_pairs)
-    return BYTES_PER_PIXEL[job] * npix + 48.0 * nalm + 24.0 * (lmax + 1.0) ** 2 + hits * per_hit
+    return BYTES_PER_PIXEL[job] * npix + 48.0 * nalm + hits * per_hit
 
 
 def require(job: str, estimate: float, check: bool = True) -> None:

@@ -37,7 +37,7 @@ def study(paper_sky):
             ref=ref,
             sim=sim,
             h=h,
-            couplings=coupling.coupling_matrices(mask, LMAX),
+            couplings=coupling.mask_coupling(mask, LMAX),
         )
     return out
 
@@ -84,7 +84,7 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         sky.SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2, polarised=False), theory
     )
     mask = masks.survey_mask("deep", nside)
-    couplings = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.mask_coupling(mask, lmax)
     zero = np.zeros((2, 12 * nside**2))
     for survey, sysm, angle, floor in (
         ("deep", PAPER_GAIN, 90, 1e-25),
@@ -219,7 +219,7 @@ def test_cl_prediction_with_the_interpolation_window_to_2_nside(survey, sysm, th
     sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
     auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1]
     common = dict(field_cl=predict.local_cl(the_sky, mask, lmax), crossings=crossings, leaked=True)
-    couplings = coupling.coupling_matrices(mask, lmax)
+    couplings = coupling.mask_coupling(mask, lmax)
     edges = spectra.linear_bins(40, lmax, 32)
     sim_bands = spectra.bin_spectrum(auto, edges)[1]
     ratio = {}
@@ -255,7 +255,7 @@ def test_shared_moments_give_the_same_prediction(small_sky, theory):
     from boresight import residual
 
     mask = masks.survey_mask("deep", 64)
-    prediction = residual.Prediction(theory, coupling.coupling_matrices(mask, 128), 60.0)
+    prediction = residual.Prediction(theory, coupling.mask_coupling(mask, 128), 60.0)
     shared = residual.moments(paper_scan("deep"), 64, mask > 0)
     for angle in (None, 90.0):
         scan = paper_scan("deep", angle)

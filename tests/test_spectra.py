@@ -68,7 +68,7 @@ def test_coupling_matches_direct_wigner_sum():
 
     mask = masks.survey_mask("deep", 16)
     lmax = 24
-    couplings = coupling.coupling_matrices(mask, lmax, tt=True)
+    couplings = coupling.mask_coupling(mask, lmax)
     w = coupling.mask_spectrum(mask, 2 * lmax)
     for l1, l2 in [(2, 2), (5, 9), (17, 3), (24, 24)]:
         for s, mats in ((0, (couplings.tt,)), (2, (couplings.even, couplings.odd))):
@@ -87,14 +87,33 @@ def test_coupling_matches_direct_wigner_sum():
                 assert np.isclose(m[l1, l2], want, rtol=1e-12, atol=1e-18)
 
 
+@pytest.mark.parametrize("survey", ["deep", "wide"])
+def test_real_space_coupling_is_the_wigner_3j_matrices(survey):
+    """pseudo_bb (a product of correlation functions, Gauss-Legendre quadrature) against the
+    matrices of ducc0's Wigner-3j routine: E only (the E-to-B part), B only, and both.
+
+    Measured: <= 4e-11 relative at every l, <= 1.3e-14 of the spectrum's peak."""
+    lmax = 128
+    couplings = coupling.mask_coupling(masks.survey_mask(survey, 64), lmax)
+    ell = np.arange(lmax + 1)
+    wiggle = np.random.default_rng(1).uniform(0.5, 1.5, lmax + 1)
+    cl_ee, cl_bb, zero = wiggle / (ell + 5.0) ** 2, 0.3 / (ell + 3.0) ** 2.5, np.zeros(lmax + 1)
+    for bb, ee in ((zero, cl_ee), (cl_bb, zero), (cl_bb, cl_ee)):
+        got, want = couplings.pseudo_bb(bb, ee), couplings.even @ bb + couplings.odd @ ee
+        assert np.all(got[:2] == 0.0)
+        assert np.max(np.abs(got[2:] / want[2:] - 1)) < 1e-10
+        assert np.max(np.abs(got - want)) < 5e-14 * np.max(want)
+
+
 def test_coupling_predicts_monte_carlo_pseudo_cl():
-    """<pseudo C_l> over 200 Gaussian skies of known C_l equals M C_l (E-only input: EE and BB).
+    """<pseudo C_l> over 200 Gaussian skies of known C_l equals M C_l (E-only input: EE and BB,
+    through the real-space coupling; TT through its matrix).
 
     Each band mean has a Monte-Carlo error of ~1/sqrt(200 x modes): bounds are ~4 sigma.
     """
     nside, lmax = 32, 64
     mask = masks.survey_mask("wide", nside)
-    couplings = coupling.coupling_matrices(mask, lmax, tt=True)
+    couplings = coupling.mask_coupling(mask, lmax)
     ell = np.arange(lmax + 1)
     cl = np.where(ell >= 2, 1.0 / (ell + 10.0) ** 2, 0.0)
     zero = np.zeros_like(cl)
@@ -108,8 +127,8 @@ def test_coupling_predicts_monte_carlo_pseudo_cl():
     edges = spectra.linear_bins(4, lmax - 4, 10)
     for got, want in (
         (acc[0], couplings.tt @ cl),
-        (acc[1], couplings.even @ cl),
-        (acc[2], couplings.odd @ cl),
+        (acc[1], couplings.pseudo_bb(cl, zero)),  # pseudo-C_EE, by the E <-> B symmetry
+        (acc[2], couplings.pseudo_bb(zero, cl)),
     ):
         _, g = spectra.bin_spectrum(got, edges)
         _, w = spectra.bin_spectrum(want, edges)
@@ -120,7 +139,7 @@ def test_coupling_matches_namaster_when_installed():
     nmt = pytest.importorskip("pymaster")
     nside, lmax = 32, 60
     mask = masks.survey_mask("wide", nside)
-    couplings = coupling.coupling_matrices(mask, lmax, tt=True)
+    couplings = coupling.mask_coupling(mask, lmax)
     b = nmt.NmtBin.from_lmax_linear(lmax, 1)
     f0 = nmt.NmtField(mask, None, spin=0, lmax=lmax)
     f2 = nmt.NmtField(mask, None, spin=2, lmax=lmax)
