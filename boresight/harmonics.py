@@ -174,28 +174,29 @@ def alm2map(
     return maps[0] if spin == 0 else maps
 
 
-def alm2map_gradient(alm: np.ndarray, nside: int, nthreads: int = 0) -> np.ndarray:
-    """Gradient of a spin-0 field.
+def alm2map_gradient(
+    alm: np.ndarray, nside: int, nthreads: int = 0, pixels: np.ndarray | None = None
+) -> np.ndarray:
+    """Gradient of a spin-0 field, on every pixel or, as :func:`alm2map_pixels`, on some.
 
     Parameters
     ----------
     alm : numpy.ndarray, complex128, shape (nalm,)
     nside : int
     nthreads : int
+    pixels : numpy.ndarray of int, shape (n,), optional
+        RING indices, increasing (default: every pixel).
 
     Returns
     -------
-    numpy.ndarray, shape (2, npix)
+    numpy.ndarray, shape (2, npix) or (2, n)
         dT/dtheta and dT/dphi / sin(theta).
     """
-    return ducc0.sht.synthesis(
-        alm=np.atleast_2d(alm),
-        lmax=alm_lmax(alm.shape[-1]),
-        spin=1,
-        mode="DERIV1",
-        nthreads=nthreads,
-        **healpix_geometry(nside),
-    )
+    alm = np.atleast_2d(alm)
+    options = dict(alm=alm, lmax=alm_lmax(alm.shape[-1]), spin=1, mode="DERIV1", nthreads=nthreads)
+    if pixels is None:
+        return ducc0.sht.synthesis(**options, **healpix_geometry(nside))
+    return _synthesis_on_pixels(options, pixels, nside)
 
 
 def map2alm(
@@ -401,17 +402,18 @@ def alm2map_pixels(
         (n,) for spin 0; (2, n) (Q, U, COSMO) otherwise.
     """
     alm = np.atleast_2d(alm)
-    rings = _PackedRings(nside, np.asarray(pixels, dtype=np.int64))
-    packed = ducc0.sht.synthesis(
-        alm=alm,
-        lmax=alm_lmax(alm.shape[-1]),
-        spin=spin,
-        nthreads=nthreads,
-        map=np.empty((alm.shape[0], rings.size)),
-        **{key: value[rings.keep] for key, value in rings.geometry.items()},
-    )
-    values = rings.unpack(packed)
+    options = dict(alm=alm, lmax=alm_lmax(alm.shape[-1]), spin=spin, nthreads=nthreads)
+    values = _synthesis_on_pixels(options, pixels, nside)
     return values[0] if spin == 0 else values
+
+
+def _synthesis_on_pixels(options, pixels, nside):
+    """ducc0's synthesis with ``options`` on the rings that hold ``pixels``, packed, then read at
+    the pixels: (ncomp, n)."""
+    rings = _PackedRings(nside, np.asarray(pixels, dtype=np.int64))
+    geometry = {key: value[rings.keep] for key, value in rings.geometry.items()}
+    packed = np.empty((1 if options["spin"] == 0 else 2, rings.size))
+    return rings.unpack(ducc0.sht.synthesis(**options, map=packed, **geometry))
 
 
 def evaluate(

@@ -48,14 +48,24 @@ def footprint(ra_deg: tuple, dec_deg: tuple, galactic_cut_deg: float, nside: int
     numpy.ndarray, float64, shape (npix,)
         0 or 1, RING.
     """
-    theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
+    # the rings that reach the Dec range (a superset), then the test at each pixel centre
+    colatitudes = np.clip(np.radians(90.0 - np.array(dec_deg[::-1], dtype=float)), 0.0, np.pi)
+    strip = hp.query_strip(nside, *colatitudes, inclusive=True)
+    theta, phi = hp.pix2ang(nside, strip)
     dec = 90.0 - theta / DEG
     ra = (phi / DEG + 180.0) % 360.0 - 180.0
-    mask = (ra >= ra_deg[0]) & (ra <= ra_deg[1]) & (dec >= dec_deg[0]) & (dec <= dec_deg[1])
-    if galactic_cut_deg > 0:
-        theta_g, _ = hp.Rotator(coord=["C", "G"])(theta, phi)
-        mask &= np.abs(90.0 - theta_g / DEG) > galactic_cut_deg
-    return mask.astype(np.float64)
+    inside = (ra >= ra_deg[0]) & (ra <= ra_deg[1]) & (dec >= dec_deg[0]) & (dec <= dec_deg[1])
+    if galactic_cut_deg > 0:  # |b| of the box's pixels: their z along the Galactic pole
+        box = np.flatnonzero(inside)
+        pole = hp.Rotator(coord=["C", "G"]).mat[2]
+        sin_theta = np.sin(theta[box])
+        z = pole[0] * sin_theta * np.cos(phi[box])
+        z += pole[1] * sin_theta * np.sin(phi[box])
+        z += pole[2] * np.cos(theta[box])
+        inside[box] = np.abs(z) > np.sin(galactic_cut_deg * DEG)
+    mask = np.zeros(12 * nside**2)
+    mask[strip[inside]] = 1.0
+    return mask
 
 
 #: the names a study's [mask] survey may take; "none" is the full sky

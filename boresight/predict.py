@@ -437,7 +437,7 @@ def delta_p(
     if systematics.has_leak:
         s = t if template is None else np.asarray(template, dtype=np.float64)
     if systematics.has_pointing:
-        grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads)
+        grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
     beam = np.empty(0, dtype=np.complex128)
     if systematics.has_beams:
         beam = _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads)
@@ -495,8 +495,8 @@ def _beam_field(sky, filt, spin, nthreads):
 @numba.njit(parallel=True, cache=True)
 def _delta_p(every, pixels, h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
     """dP at ``pixels`` (or every pixel) into ``out``: the leak term if s is not empty,
-    pointing if grad is not empty, the beams' part of Y if beam is not empty; c holds (t2, s2, g1,
-    g3, p0, p4, m4)."""
+    pointing if grad (given where out is) is not empty, the beams' part of Y if beam is not
+    empty; c holds (t2, s2, g1, g3, p0, p4, m4)."""
     for k in numba.prange(out.size):
         i = np.int64(k) if every else pixels[k]
         p = complex(q[i], u[i])
@@ -506,7 +506,7 @@ def _delta_p(every, pixels, h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
         if s.size:
             y += c[1] * h[2, i] * s[i]
         if grad_theta.size:
-            g = complex(grad_theta[i], grad_phi[i])
+            g = complex(grad_theta[k], grad_phi[k])
             y += c[2] * h[1, i] * g + c[3] * h[3, i] * g.conjugate()
         h4 = c[6] * h[4, i]
         det = 1.0 - (h4.real**2 + h4.imag**2)
@@ -534,7 +534,7 @@ class PixelBlocks:
         footprint = as_footprint(mask)
         nside = footprint.nside
         self.obs, self.weight = footprint.pixels, footprint.weights
-        self.parent = hp.ring2nest(nside, self.obs) // (block * block) if nside >= block else None
+        self.parent = footprint.parents(block) if nside >= block else None
         if self.parent is not None:
             self.block_weight = np.bincount(self.parent, weights=self.weight)
             self.used = self.block_weight > 0
@@ -803,17 +803,19 @@ def systematic_cl(
     omega_pix = 4 * np.pi / h.shape[1]
     ell = np.arange(band + 1)
     out = np.zeros((2, lmax + 1))
-    blocks = PixelBlocks(mask)
+    footprint = as_footprint(mask)
+    blocks = PixelBlocks(footprint)
     beam = beam_cl = None
     if systematics.has_beams:  # the patch's spectra through the apodized mask: beam_spectra
         n_max = min(BEAM_N_MAX, h.shape[0] - 1)
         beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max)
         beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
-    exact = _HitSpread(in_pixel, nside, band, blocks, crossings)
-    value = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated)
+    inverse_hits = _inverse_hits(in_pixel, footprint, crossings)
+    exact = _HitSpread(in_pixel, nside, band, inverse_hits)
+    value = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
     slope = value  # replaced for the pointing terms below
     if systematics.has_pointing:
-        slope = _HitSpread(in_pixel, nside, band, blocks, crossings, interpolated, gradient=True)
+        slope = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated, gradient=True)
     terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_cl, t2_mean)
     for n, c, cl_e, cl_b, read_exactly in terms:
         if c == 0:
@@ -1019,6 +1021,15 @@ def interpolation_window(
     return out["pair"], out["point"]
 
 
+def _inverse_hits(in_pixel, footprint, crossings):
+    """<1 / N_hits> over the observed pixels, weighted by the mask squared, where hits spread
+    over their pixels (``in_pixel`` "random" with ``crossings`` (npix,)); else None."""
+    if in_pixel != "random" or crossings is None:
+        return None
+    w2 = footprint.weights**2
+    return np.sum(w2 / crossings[footprint.pixels]) / np.sum(w2)
+
+
 class _HitSpread:
     """What hits spread at random over their pixels do to a field F's term: its coherent part is
     F averaged over the pixel's hits (C^FF times the pair window), and each hit's departure from
@@ -1027,21 +1038,17 @@ class _HitSpread:
     pair = w_l^2 (:func:`hit_spread_window`); one interpolated from pixel centres has
     :func:`interpolation_window`. Nothing for pixel-centre hits."""
 
-    def __init__(
-        self, in_pixel, nside, band, blocks, crossings, interpolated=False, gradient=False
-    ):
+    def __init__(self, in_pixel, nside, band, inverse_hits, interpolated=False, gradient=False):
         if in_pixel not in ("centre", "random"):
             raise ValueError(f"in_pixel must be 'centre' or 'random', got {in_pixel!r}")
         self.on = in_pixel == "random"
         if self.on:
-            if crossings is None:
+            if inverse_hits is None:
                 raise ValueError("hits spread over their pixels need the crossings per pixel")
             if interpolated:
                 self.pair, self.point = interpolation_window(nside, band, gradient)
             else:
                 self.pair, self.point = hit_spread_window(nside, band), 1.0
-            w2 = blocks.weight**2
-            inverse_hits = np.sum(w2 / crossings[blocks.obs]) / np.sum(w2)
             self.noise = 4 * np.pi / (12 * nside**2) * inverse_hits
             self.ell = np.arange(band + 1)
 
@@ -1157,6 +1164,7 @@ def residual_pseudo_bb(
     """
     lmax = coupling.lmax
     mask = as_footprint(mask)  # the observed pixels, once for every use below
+    inverse_hits = _inverse_hits(in_pixel, mask, crossings)
     cl_sys = systematic_cl(
         h,
         mask,
@@ -1183,7 +1191,7 @@ def residual_pseudo_bb(
     if masked is not None and masked.shape[1] < lmax + 1:
         raise ValueError(f"field_cl holds the maps' spectra to {masked.shape[1] - 1} < lmax {lmax}")
     if in_pixel == "random":  # the maps' P as the hits read it: windowed, plus in-pixel scatter
-        spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings, interpolated)
+        spread = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
         (cl_ee, noise_e), (cl_bb, noise_b) = spread(cl_ee), spread(cl_bb)
         white = 0.5 * (noise_e + noise_b)
         cl_ee, cl_bb = cl_ee + white, cl_bb + white
@@ -1209,7 +1217,7 @@ def residual_pseudo_bb(
     if systematics.has_beams:
         g0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, 0)[0]
         beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
-        spread = _HitSpread(in_pixel, nside, band, PixelBlocks(mask), crossings)
+        spread = _HitSpread(in_pixel, nside, band, inverse_hits)
         h0 = beam_h0_bb(coupling, g0, beam_cl, leaked, spread, sky, mask, analysis)
         signal = signal + h0
     return coupling.pseudo_bb(cl_sys[1], cl_sys[0]) + signal

@@ -7,6 +7,7 @@ from ell = 0, in healpy's order TT, EE, BB, TE, EB, TB.
 
 from __future__ import annotations
 
+import healpy as hp
 import numpy as np
 
 from . import harmonics
@@ -39,6 +40,23 @@ class Footprint:
         self.nside = int(round(np.sqrt(self.mask.size / 12)))
         self.pixels = np.flatnonzero(self.mask)
         self.weights = self.mask[self.pixels]
+        self._parents = {}
+
+    def parents(self, block: int) -> np.ndarray:
+        """Each observed pixel's NEST parent at Nside / block, made once per block size.
+
+        Parameters
+        ----------
+        block : int
+            A power of 2, <= Nside.
+
+        Returns
+        -------
+        numpy.ndarray, int64, shape (nobs,)
+        """
+        if block not in self._parents:
+            self._parents[block] = hp.ring2nest(self.nside, self.pixels) // (block * block)
+        return self._parents[block]
 
     def alm(self, values, lmax, spin=0, nthreads=0, analysis="auto", overwrite=False):
         """alm of the masked map that is ``values`` on the observed pixels.

@@ -20,6 +20,33 @@ def test_wide_mask_avoids_galactic_plane():
     assert np.all(np.abs(90 - np.degrees(tg)) > 20)
 
 
+def _footprint_on_every_pixel(ra_deg, dec_deg, galactic_cut_deg, nside):
+    """The footprint by brute force: every pixel centre, healpy's Rotator for |b|."""
+    theta, phi = hp.pix2ang(nside, np.arange(12 * nside**2))
+    dec, ra = 90 - np.degrees(theta), (np.degrees(phi) + 180) % 360 - 180
+    keep = (ra >= ra_deg[0]) & (ra <= ra_deg[1]) & (dec >= dec_deg[0]) & (dec <= dec_deg[1])
+    theta_g, _ = hp.Rotator(coord=["C", "G"])(theta, phi)
+    return keep & (np.abs(90 - np.degrees(theta_g)) > galactic_cut_deg)
+
+
+@pytest.mark.parametrize(
+    "box",
+    [
+        masks.FOOTPRINTS["deep"],
+        masks.FOOTPRINTS["wide"],
+        dict(ra_deg=(-180, 180), dec_deg=(-90, 90), galactic_cut_deg=45),
+        dict(ra_deg=(-10, 10), dec_deg=(89.9, 90), galactic_cut_deg=0),
+        dict(ra_deg=(0, 30), dec_deg=(-90, -89.99), galactic_cut_deg=5),
+    ],
+)
+def test_footprint_is_the_test_at_every_pixel_centre(box):
+    """The footprint reads only the rings of its Dec range and |b| from a dot product with the
+    Galactic pole: the same pixels as the test at every centre with healpy's Rotator."""
+    for nside in (1, 4, 64, 256):
+        want = _footprint_on_every_pixel(nside=nside, **box)
+        assert np.array_equal(masks.footprint(nside=nside, **box), want.astype(float))
+
+
 def test_apodize_and_read(tmp_path):
     mask = masks.survey_mask("deep", 32)
     apo = masks.apodize(mask, 5.0)
