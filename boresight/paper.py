@@ -219,69 +219,68 @@ def run_study(
     with timer("sky"):
         the_sky = sky.make_sky(study.sky, theory, study.run.nthreads)
     results = {}
-    for exp in experiments:
-        results[exp.name] = _run_experiment(exp, study, the_sky, theory, timer, progress)
+    # one queue for every experiment: the next one starts while the last transforms run
+    with residual.Transforms(background=True) as transforms:
+        for exp in experiments:
+            results[exp.name] = _run_experiment(
+                exp, study, the_sky, theory, timer, progress, transforms
+            )
+        with timer("transforms still running"):
+            transforms.wait()
     return results, timer.stages
 
 
-def _run_experiment(exp, study, the_sky, theory, timer, progress):
+def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
     lmax, run, seed = study.output.lmax, study.run, study.scan.seed
     fwhm, nside = study.sky.fwhm_arcmin, study.sky.nside
-    with residual.Transforms(background=True) as transforms:
-        with timer(f"{exp.name}: mask and coupling"):
-            mask = masks.survey_mask(exp.survey, nside)
-            local = transforms.submit(
-                predict.local_cl, the_sky, mask, lmax, run.nthreads, False, run.analysis
-            )
-            couplings = coupling.mask_coupling(mask, lmax, run.nthreads)
-        res = ExperimentResult(exp, masks.fsky(mask))
-        key = "r" if exp.reference == "r" else "a_lens"
-        for value in exp.reference_values:
-            res.references[value] = predict.reference_bb(
-                couplings, theory, fwhm, nside, **{key: value}
-            )
-        prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
-        job = dict(run=run, transforms=transforms, progress=progress)
-        footprint = spectra.Footprint(mask)  # the observed pixels, shared by every job
-        with timer(f"{exp.name}: reference (no systematic)"):
-            scan = paper_scan(exp.survey, seed=seed)
-            ref = residual.reference(the_sky, scan, footprint, lmax, **job)[0]
-        # the map-level checks need only no and the ideal rotation; Q = U = 0 runs before the
-        # moments exist, so its own copy of the sky never adds to their memory
-        label = {
-            angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
-            for angle in (None,) + exp.angles_deg
-        }
+    with timer(f"{exp.name}: mask and coupling"):
+        mask = masks.survey_mask(exp.survey, nside)
+        local = transforms.submit(
+            predict.local_cl, the_sky, mask, lmax, run.nthreads, False, run.analysis
+        )
+        couplings = coupling.mask_coupling(mask, lmax, run.nthreads)
+    res = ExperimentResult(exp, masks.fsky(mask))
+    key = "r" if exp.reference == "r" else "a_lens"
+    for value in exp.reference_values:
+        res.references[value] = predict.reference_bb(couplings, theory, fwhm, nside, **{key: value})
+    prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
+    job = dict(run=run, transforms=transforms, progress=progress)
+    footprint = spectra.Footprint(mask)  # the observed pixels, shared by every job
+    with timer(f"{exp.name}: reference (no systematic)"):
+        scan = paper_scan(exp.survey, seed=seed)
+        ref = residual.reference(the_sky, scan, footprint, lmax, **job)[0]
+    # the map-level checks need only no and the ideal rotation; Q = U = 0 runs before the
+    # moments exist, so its own copy of the sky never adds to their memory
+    label = {
+        angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
+        for angle in (None,) + exp.angles_deg
+    }
 
-        def job_at(sky_, angle, **options):
-            scan_ = paper_scan(exp.survey, angle, seed=seed)
-            return residual.residual(
-                sky_, scan_, exp.systematics, footprint, lmax, **job, **options
-            )
+    def job_at(sky_, angle, **options):
+        scan_ = paper_scan(exp.survey, angle, seed=seed)
+        return residual.residual(sky_, scan_, exp.systematics, footprint, lmax, **job, **options)
 
-        unpolarised = the_sky.without_polarisation()
-        for angle in (None, exp.ideal_deg):
-            with timer(f"{exp.name}: Q = U = 0, {label[angle]}"):
-                res.zero_qu_residuals[angle] = job_at(
-                    unpolarised, angle, reference_=residual.Reference.zero()
-                )
-        del unpolarised
-        with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
-            n_max = residual.n_max_for(exp.systematics)
-            mom = residual.moments(scan, nside, footprint.pixels, run, n_max)
-        for angle in (None,) + exp.angles_deg:
-            ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
-            with timer(f"{exp.name}: {label[angle]}"):
-                res.residuals[angle] = job_at(
-                    the_sky,
-                    angle,
-                    reference_=ref,
-                    moments_=mom,
-                    prediction=prediction,
-                    predict_map=ideal,
-                )
-        with timer(f"{exp.name}: transforms still running"):
-            transforms.wait()
+    unpolarised = the_sky.without_polarisation()
+    for angle in (None, exp.ideal_deg):
+        with timer(f"{exp.name}: Q = U = 0, {label[angle]}"):
+            res.zero_qu_residuals[angle] = job_at(
+                unpolarised, angle, reference_=residual.Reference.zero()
+            )
+    del unpolarised
+    with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
+        n_max = residual.n_max_for(exp.systematics)
+        mom = residual.moments(scan, nside, footprint.pixels, run, n_max)
+    for angle in (None,) + exp.angles_deg:
+        ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
+        with timer(f"{exp.name}: {label[angle]}"):
+            res.residuals[angle] = job_at(
+                the_sky,
+                angle,
+                reference_=ref,
+                moments_=mom,
+                prediction=prediction,
+                predict_map=ideal,
+            )
     return res
 
 

@@ -276,15 +276,20 @@ class Moments(NamedTuple):
         Crossings per pixel in one repeat.
     rotations_deg : tuple of float
         Boresight rotation of each repeat [deg]; (0,) for a real schedule.
+    power : numpy.ndarray, shape (N_MAX + 1,)
+        ``<|h_n|^2>`` of ``h`` over the pixels it was made on.
     """
 
     h: np.ndarray
     crossings: np.ndarray
     rotations_deg: tuple
+    power: np.ndarray
 
-    def rotated(self, n, pixels=slice(None)):
-        """h_n of all the repeats together, (npix,), or (k,) at RING ``pixels`` (k,)."""
-        return self.h[n, pixels] * np.mean(np.exp(1j * n * np.radians(self.rotations_deg)))
+    def rotated_power(self, n):
+        """``<|h_n|^2>`` of all the repeats together: each repeat's h_n is the first's times
+        e^{i n alpha}, so their mean is h_n <e^{i n alpha}>."""
+        turn = np.mean(np.exp(1j * n * np.radians(self.rotations_deg)))
+        return self.power[n] * abs(turn) ** 2
 
 
 def moments(
@@ -313,11 +318,20 @@ def moments(
     """
     if isinstance(scan, ground.Schedule):
         stats = scanstats.characterise_schedule(scan, nside)
-        return Moments(stats.h, stats.hits, (0.0,))
+        return Moments(stats.h, stats.hits, (0.0,), _mean_power(stats.h, pixels))
     h, crossings = engine.scan_moments(
         scan.one_repeat(), nside, n_max, pixels=pixels, nthreads=run.nthreads, backend=run.backend
     )
-    return Moments(h, crossings, scan.rotations_deg)
+    return Moments(h, crossings, scan.rotations_deg, _mean_power(h, pixels))
+
+
+def _mean_power(h, pixels):
+    """``<|h_n|^2>`` over ``pixels`` (a boolean map or RING indices) for each n of h."""
+    out = np.empty(h.shape[0])
+    for n, hn in enumerate(h):
+        values = hn[pixels].view(np.float64)  # (re, im) pairs: |h|^2 summed is one dot product
+        out[n] = np.dot(values, values) / (values.size // 2)
+    return out
 
 
 def n_max_for(systematics: Systematics) -> int:
@@ -504,9 +518,7 @@ def residual(
         raise ValueError(f"moments_ hold h_n to {moments_.h.shape[0] - 1}; these need {n_max}")
     else:
         mom = moments_._replace(rotations_deg=tuple(scan.rotations_deg))
-    result.h_power = {
-        n: float(np.mean(np.abs(mom.rotated(n, pixels)) ** 2)) for n in range(1, N_MAX + 1)
-    }
+    result.h_power = {n: float(mom.rotated_power(n)) for n in range(1, N_MAX + 1)}
     if predict.supports(instrument, mom.rotations_deg):
         field_cl = prediction.field_cl
         field_cl = field_cl.result() if isinstance(field_cl, Future) else field_cl

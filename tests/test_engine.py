@@ -169,6 +169,22 @@ def test_moments_rotation_closed_form():
             )
 
 
+def test_rotated_power_is_that_of_the_rotated_scan():
+    """Moments.rotated_power (one repeat's <|h_n|^2> times |<e^{i n alpha}>|^2) against the h_n
+    of the whole rotated scan, moments made of all its repeats."""
+    from boresight import residual
+
+    nside = 16
+    pixels = np.flatnonzero(masks.survey_mask("wide", nside))
+    for angles in ((0.0, 70.0), (0.0, 45.0, 160.0)):
+        scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=angles)
+        mom = residual.moments(scan, nside, pixels, n_max=4)
+        whole, _ = engine.scan_moments(scan, nside, 4, pixels=pixels)
+        for n in range(1, 5):
+            want = np.mean(np.abs(whole[n, pixels]) ** 2)
+            assert mom.rotated_power(n) == pytest.approx(want, rel=1e-12), (angles, n)
+
+
 def test_gradient_matches_finite_difference(small_sky_unpolarised):
     """G = (dT/dtheta, dT/dphi / sin theta) of ducc0 against central differences of exact T."""
     s = small_sky_unpolarised
