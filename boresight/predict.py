@@ -401,6 +401,7 @@ def delta_p(
     nthreads: int = 0,
     rotations_deg: Sequence[float] = (0.0,),
     pixels: np.ndarray | None = None,
+    gradient: np.ndarray | None = None,
 ) -> np.ndarray:
     """Predicted spurious polarisation P = Q + i U from h_n and the sky, map-maker included.
 
@@ -423,6 +424,10 @@ def delta_p(
         The repeats' boresight rotations [deg].
     pixels : numpy.ndarray of int, shape (n,), optional
         RING indices to predict at (default: every pixel).
+    gradient : numpy.ndarray, shape (2, npix) or (2, n), optional
+        The sky's T gradient where the prediction is made
+        (:func:`boresight.harmonics.alm2map_gradient`), when already made; computed here by
+        default.
 
     Returns
     -------
@@ -437,13 +442,17 @@ def delta_p(
     if systematics.has_leak:
         s = t if template is None else np.asarray(template, dtype=np.float64)
     if systematics.has_pointing:
-        grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
+        grad = gradient
+        if grad is None:
+            grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
     beam = np.empty(0, dtype=np.complex128)
     if systematics.has_beams:
         beam = _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads)
     every = pixels is None
     pixels = np.empty(0, dtype=np.int64) if every else np.asarray(pixels, dtype=np.int64)
     out = np.empty(t.size if every else pixels.size, dtype=np.complex128)
+    if grad.shape[1] not in (0, out.size):
+        raise ValueError(f"gradient of shape {grad.shape} for {out.size} pixels")
     with numba_threads(nthreads):
         _delta_p(
             every,

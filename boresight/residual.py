@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import numpy as np
 
-from . import engine, ground, predict, scanstats, spectra
+from . import engine, ground, harmonics, predict, scanstats, spectra
 from .config import RunOptions
 from .instrument import Instrument, Systematics
 from .mapmaking import Maps
@@ -147,6 +147,17 @@ class Prediction:
     fwhm_arcmin: float
     field_cl: object = None
     leaked: bool = False
+    _held: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def gradient(self, sky: Sky, pixels: np.ndarray, nthreads: int = 0) -> np.ndarray:
+        """The sky's dT/dtheta, dT/dphi / sin(theta) at ``pixels``, (2, n), kept for the next
+        job's map-level prediction on the same sky and pixels (the jobs of one mask share both).
+        """
+        held = self._held.get("gradient")
+        if held is None or held[0] is not sky or held[1] is not pixels:
+            grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
+            held = self._held["gradient"] = (sky, pixels, grad)
+        return held[2]
 
 
 @dataclass
@@ -541,6 +552,9 @@ def residual(
             analysis=run.analysis,
         )
     if predict_map:
+        gradient = (
+            prediction.gradient(sky, pixels, run.nthreads) if systematics.has_pointing else None
+        )
         dp = predict.delta_p(
             sky,
             mom.h,
@@ -550,6 +564,7 @@ def residual(
             run.nthreads,
             mom.rotations_deg,
             pixels,
+            gradient,
         )
         result.predicted_map_parts = transforms.submit(
             _parts, np.array([dp.real, dp.imag]), reference_, footprint, lmax, run

@@ -61,6 +61,31 @@ def test_prediction_and_maps_at_observed_pixels(small_sky):
     np.testing.assert_array_equal(m.qu_at(pix), m.qu[:, pix])
 
 
+def test_a_prediction_makes_the_gradient_once_per_sky_and_pixels(small_sky, monkeypatch):
+    """The map-level prediction of several jobs on one mask synthesises the sky's gradient once;
+    another sky or other pixels make their own, and delta_p gives the same map with it."""
+    from boresight import residual
+
+    calls, original = [], harmonics.alm2map_gradient
+    monkeypatch.setattr(
+        harmonics, "alm2map_gradient", lambda *a, **k: calls.append(1) or original(*a, **k)
+    )
+    pred = residual.Prediction(None, None, 60.0)
+    pixels = np.flatnonzero(masks.survey_mask("deep", small_sky.nside))
+    first = pred.gradient(small_sky, pixels)
+    assert pred.gradient(small_sky, pixels) is first and len(calls) == 1
+    pred.gradient(small_sky, pixels[:10])
+    pred.gradient(small_sky.without_polarisation(), pixels[:10])
+    assert len(calls) == 3
+    h, _ = engine.scan_moments(SyntheticScan(**CENTRED), small_sky.nside)
+    sysm = Systematics(rho_arcmin=(0.5, 0.3))
+    want = predict.delta_p(small_sky, h, sysm, pixels=pixels)
+    got = predict.delta_p(small_sky, h, sysm, pixels=pixels, gradient=first)
+    np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="gradient of shape"):
+        predict.delta_p(small_sky, h, sysm, pixels=pixels[:10], gradient=first)
+
+
 def test_gain_cancels_with_90_degree_rotation(small_sky_unpolarised):
     scan = SyntheticScan(**CENTRED, rotations_deg=(0, 90))
     m = engine.simulate(small_sky_unpolarised, scan, systematics=Systematics(dg=(0.01, 0.01)))
