@@ -281,6 +281,8 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
                 prediction=prediction,
                 predict_map=ideal,
             )
+        if angle == exp.ideal_deg:  # the last map-level check: the other angles need no gradient
+            prediction.release()
     return res
 
 

@@ -159,6 +159,11 @@ class Prediction:
             held = self._held["gradient"] = (sky, pixels, grad)
         return held[2]
 
+    def release(self):
+        """Drop what :meth:`gradient` keeps (0.3 GB on the wide mask at Nside 2048) once no
+        other job will check its map."""
+        self._held.clear()
+
 
 @dataclass
 class Residual:

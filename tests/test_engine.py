@@ -77,6 +77,11 @@ def test_a_prediction_makes_the_gradient_once_per_sky_and_pixels(small_sky, monk
     pred.gradient(small_sky, pixels[:10])
     pred.gradient(small_sky.without_polarisation(), pixels[:10])
     assert len(calls) == 3
+    pred.gradient(small_sky, pixels), pred.gradient(small_sky, pixels)
+    assert len(calls) == 4
+    pred.release()
+    pred.gradient(small_sky, pixels)
+    assert len(calls) == 5
     h, _ = engine.scan_moments(SyntheticScan(**CENTRED), small_sky.nside)
     sysm = Systematics(rho_arcmin=(0.5, 0.3))
     want = predict.delta_p(small_sky, h, sysm, pixels=pixels)
