@@ -49,9 +49,11 @@ def test_sigkill_at_random_moments_then_rerun_equals_an_uninterrupted_run(tmp_pa
     spectra, maps = _outputs(tmp_path / "whole")
     rng = random.Random(17)
     out = tmp_path / "killed"
-    for trial in range(4):
+    # one random moment in each third of the run: the imports, the simulation, the writing
+    thirds = np.linspace(0.3, RUN_SECONDS, 4)
+    for trial, (early, late) in enumerate(zip(thirds[:-1], thirds[1:])):
         proc = subprocess.Popen([*cmd, "--out", str(out)])
-        time.sleep(rng.uniform(0.3, RUN_SECONDS))  # from the imports to the final rename
+        time.sleep(rng.uniform(early, late))
         proc.kill()
         proc.wait()
         assert main(["-q", "simulate", str(config), "--out", str(out), "--force"]) == 0
