@@ -6,11 +6,11 @@ part is M^{EE,EE} = M^{BB,BB} and the odd part M^{EE,BB} = M^{BB,EE} (Brown, Cas
 
 A :class:`Coupling` applies M in real space, where it is a product: the pseudo-spectrum's
 correlation functions are the full-sky ones times the mask's,
-xi~_+-(theta) = xi_W(theta) xi_+-(theta), with xi_+ = sum_l (2l+1)/(4 pi) (C^EE + C^BB) d^l_22 and
-xi_- the same with C^EE - C^BB and d^l_2-2 (Chon et al. 2004). The integrand of the way back,
-xi_W xi_+- d^l_2+-2, is a polynomial in cos(theta) of degree <= 4 lmax, so Gauss-Legendre
-quadrature on 2 lmax + 1 rings is exact; ducc0's ``alm2leg`` and ``leg2alm`` do the Legendre sums
-(one m). That is O(lmax^2), against O(lmax^3) for the matrices, which ducc0's
+``xi~_+-(theta) = xi_W(theta) xi_+-(theta)``, with
+``xi_+ = sum_l (2l+1)/(4 pi) (C^EE + C^BB) d^l_22`` and ``xi_-`` the same with C^EE - C^BB and
+``d^l_2-2`` (Chon et al. 2004). The integrand of the way back, ``xi_W xi_+- d^l_2+-2``, is a
+polynomial in cos(theta) of degree <= 4 lmax, so Gauss-Legendre quadrature on 2 lmax + 1 rings is
+exact; ducc0's ``alm2leg`` and ``leg2alm`` do the Legendre sums (one m). That is O(lmax^2), against O(lmax^3) for the matrices, which ducc0's
 ``coupling_matrix_rect`` (the routine NaMaster 2 uses) builds on first access.
 """
 
