@@ -65,6 +65,8 @@ class Coupling:
         numpy.ndarray, shape (lmax + 1,)
             [muK^2]; zero at l < 2.
         """
+        if self.lmax < 2:
+            return np.zeros(self.lmax + 1)
         n, norm, theta, weighted_xi_w = self.lmax + 1, self._norm, *self._quadrature
         bb, ee = np.zeros((2, n))
         bb[2:], ee[2:] = cl_bb[2:n], cl_ee[2:n]

@@ -103,6 +103,8 @@ def test_real_space_coupling_is_the_wigner_3j_matrices(survey):
         assert np.all(got[:2] == 0.0)
         assert np.max(np.abs(got[2:] / want[2:] - 1)) < 1e-10
         assert np.max(np.abs(got - want)) < 5e-14 * np.max(want)
+    tiny = coupling.mask_coupling(masks.survey_mask(survey, 64), 1)  # no l >= 2 to couple
+    assert np.array_equal(tiny.pseudo_bb(np.ones(2), np.ones(2)), np.zeros(2))
 
 
 def test_coupling_predicts_monte_carlo_pseudo_cl():
