@@ -322,7 +322,8 @@ def moments(
     scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
     nside : int
     pixels : numpy.ndarray
-        Pixels of a synthetic scan: a boolean map (npix,) or increasing RING indices.
+        Pixels of a synthetic scan, and those :attr:`Moments.power` averages over: a boolean
+        map (npix,) or increasing RING indices.
     run : boresight.config.RunOptions
     n_max : int
         The highest moment of a synthetic scan (:func:`n_max_for`); a real schedule's are

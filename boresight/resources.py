@@ -62,8 +62,9 @@ def estimate_bytes(
 ) -> float:
     """Estimated peak memory of a job.
 
-    Full-sky arrays (per pixel), the sky's alm (3 x nalm complex) and one chunk of a synthetic scan's hits: per hit its position and
-    angle, and the sky fields at detector A and at detector B of every pair and rotation.
+    Full-sky arrays (per pixel), the sky's alm (3 x nalm complex) and one chunk of a synthetic
+    scan's hits: per hit its position and angle, and the sky fields at detector A and at detector
+    B of every pair and rotation.
 
     Parameters
     ----------

@@ -127,7 +127,7 @@ def test_sweep_cli_writes_table_and_continuum_figure(tmp_path):
     assert (out / "results.csv").exists() and (out / "suppression.png").stat().st_size > 1000
 
 
-def test_mask_coupling_are_reused_for_the_same_mask(monkeypatch):
+def test_mask_coupling_is_reused_for_the_same_mask(monkeypatch):
     calls, original = [], coupling.mask_coupling
 
     def counting(mask, lmax, nthreads):
