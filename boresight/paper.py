@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import coupling, masks, predict, provenance, residual, sky, spectra
+from . import coupling, masks, precompile, predict, provenance, residual, sky, spectra
 from .config import (
     ConfigError,
     OutputOptions,
@@ -215,6 +215,9 @@ def run_study(
         Main-thread seconds per stage.
     """
     timer = provenance.Timer(log)
+    pointing = any(exp.systematics.has_pointing for exp in experiments)
+    kernels = precompile.kernels_for(study.run.backend, pointing)
+    precompile.precompile(kernels, study.run.nthreads, timer)
     theory = load_spectra()
     with timer("sky"):
         the_sky = sky.make_sky(study.sky, theory, study.run.nthreads)

@@ -22,6 +22,7 @@ from . import (
     masks,
     paper,
     plots,
+    precompile,
     predict,
     provenance,
     report,
@@ -156,6 +157,8 @@ def simulate(
     check_memory("simulate", study, memory_check)
     timer = provenance.Timer(log)
     lmax, nthreads = study.output.lmax, study.run.nthreads
+    kernels = precompile.kernels_for(study.run.backend, study.systematics.has_pointing)
+    precompile.precompile(kernels, nthreads, timer)
     with timer("simulate and predict"):
         job, the_sky, mask = residual.from_study(study, keep_maps=True, progress=progress)
         ref, sim = job.maps

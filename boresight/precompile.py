@@ -1,0 +1,232 @@
+"""Compiling the numba kernels a run calls before it calls them, on several cores at once.
+
+With an empty numba cache (a new install, a new numba) each kernel compiles on its first call, one
+after another on one core: about 13 s of CPU time in a quick reproduction, while the other cores
+wait. :func:`precompile` shares the kernels that the cache lacks between this process and helper
+processes (``python -m boresight.precompile NAME ...``). Each helper writes its kernels to numba's
+cache, and this process then loads them from there. With a warm cache it only checks the cache, a
+few milliseconds per kernel.
+
+:data:`KERNELS` holds the argument types a study passes to each kernel. ``tests/test_precompile.py``
+runs the paper's study in a process whose kernels may compile no other types.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import importlib
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from numba import types as nt
+
+from .threads import max_threads
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from .provenance import Timer
+
+__all__ = ["Kernel", "KERNELS", "kernels_for", "missing", "precompile"]
+
+_F1, _I1, _C1 = nt.float64[::1], nt.int64[::1], nt.complex128[::1]
+_F2, _F3, _F4 = nt.float64[:, ::1], nt.float64[:, :, ::1], nt.float64[:, :, :, ::1]
+_STRIDED = nt.float64[:]  # a row of the sky's interleaved (npix, F) stack
+
+#: Seconds a helper process takes to start and import boresight, before it compiles anything.
+HELPER_START_SECONDS = 1.2
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """One cached numba kernel and the argument types a study calls it with.
+
+    Attributes
+    ----------
+    module, name : str
+        It is ``boresight.<module>.<name>``.
+    signature : tuple of numba types
+    seconds : float
+        Its compile time on the 2-core machine (2026-11-24); it only balances the processes.
+    """
+
+    module: str
+    name: str
+    signature: tuple
+    seconds: float
+
+    @property
+    def dispatcher(self):
+        """The numba dispatcher (imports its module)."""
+        return getattr(importlib.import_module(f"boresight.{self.module}"), self.name)
+
+
+#: Every kernel a study on the CPU backend calls, by name; the longest to compile first.
+KERNELS = {
+    k.name: k
+    for k in (
+        Kernel(
+            "tod_cpu", "accumulate", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, _I1), 3.2
+        ),
+        Kernel("pixels", "interpolate_interleaved", (_F2, nt.int64, _F1, _F1), 3.1),
+        Kernel("tod_cpu", "generate_hits", (nt.int64, nt.int64, _I1, _I1, _F1, _F1, nt.bool_), 2.4),
+        Kernel("tod_cpu", "moments", (_I1, _F1, _F1, nt.int64), 1.9),
+        Kernel("predict", "_legendre_sums", (_F1, _F1, _F2), 1.4),
+        Kernel(
+            "predict",
+            "_delta_p",
+            (nt.bool_, _I1, nt.complex128[:, ::1], *[_STRIDED] * 3, *[_F1] * 3, *[_C1] * 3),
+            1.3,
+        ),
+        Kernel("tod_cpu", "offset_points", (_F1,) * 7, 0.7),
+        Kernel("instrument", "_response", (_F1,) * 6, 0.4),
+    )
+}
+
+_ENGINE = ("accumulate", "interpolate_interleaved", "generate_hits", "moments")
+_EVERY_BACKEND = ("_legendre_sums", "_delta_p", "_response")
+
+
+def kernels_for(backend: str, pointing: bool) -> list[str]:
+    """The kernels a study calls.
+
+    Parameters
+    ----------
+    backend : {"cpu", "gpu"}
+        The engine's backend: the GPU runs its own kernels.
+    pointing : bool
+        Whether any pair has a pointing offset (detector B's pointing is a kernel of its own).
+
+    Returns
+    -------
+    list of str
+        Names in :data:`KERNELS`.
+    """
+    names = list(_EVERY_BACKEND)
+    if backend == "cpu":
+        names += _ENGINE + (("offset_points",) if pointing else ())
+    return names
+
+
+def missing(names: Sequence[str]) -> list[str]:
+    """The kernels that neither this process nor numba's cache holds at their signature.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Names in :data:`KERNELS`.
+
+    Returns
+    -------
+    list of str
+    """
+    out = []
+    for name in names:
+        kernel = KERNELS[name]
+        dispatcher = kernel.dispatcher
+        if kernel.signature in dispatcher.overloads:
+            continue
+        # numba has no public "is it cached" query; its dispatcher asks the cache this way
+        if dispatcher._cache.load_overload(kernel.signature, dispatcher.targetctx) is None:
+            out.append(name)
+    return out
+
+
+def precompile(names: Sequence[str], nthreads: int = 0, timer: Timer | None = None) -> list[str]:
+    """Have every kernel of ``names`` ready in this process, compiling those that the cache lacks
+    on up to ``nthreads`` processes at once.
+
+    This process compiles a share itself; each helper process compiles its share into numba's
+    cache, from which this process loads it once the helpers are done. The kernels that the cache
+    holds are loaded from it.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Names in :data:`KERNELS`, e.g. from :func:`kernels_for`.
+    nthreads : int
+        Processes at most, 0 for all cores.
+    timer : boresight.provenance.Timer, optional
+        Times the compilation as a stage of its own, when there is any.
+
+    Returns
+    -------
+    list of str
+        The kernels that were compiled (none with a warm cache).
+
+    Raises
+    ------
+    RuntimeError
+        A helper process failed (its error output is in the message).
+    """
+    todo = missing(names)
+    for name in names:
+        if name not in todo:
+            _compile(name)  # loads it from the cache
+    if not todo:
+        return []
+    workers = min(nthreads if nthreads > 0 else max_threads(), len(todo))
+    shares = _balance(todo, workers if sys.executable else 1)
+    label = f"compile {len(todo)} numba kernels on {len(shares)} cores (first run only)"
+    with timer(label) if timer else contextlib.nullcontext():
+        helpers = [_start_helper(share) for share in shares[1:]]
+        try:
+            for name in shares[0]:
+                _compile(name)
+        except BaseException:
+            for helper in helpers:
+                helper.kill()
+            raise
+        for helper, share in zip(helpers, shares[1:]):
+            _, err = helper.communicate()
+            if helper.returncode:
+                raise RuntimeError(f"compiling {', '.join(share)} failed:\n{err}")
+        for share in shares[1:]:  # loaded from the cache the helpers wrote
+            for name in share:
+                _compile(name)
+    return todo
+
+
+def _balance(names, workers):
+    """Shares of ``names`` for this process and ``workers - 1`` helpers: each kernel, longest
+    first, to the process that would finish soonest. Empty shares are dropped."""
+    starts = [0.0] + [HELPER_START_SECONDS] * (workers - 1)
+    heap = [(start, i) for i, start in enumerate(starts)]
+    shares = [[] for _ in starts]
+    for name in sorted(names, key=lambda n: -KERNELS[n].seconds):
+        load, i = heapq.heappop(heap)
+        shares[i].append(name)
+        heapq.heappush(heap, (load + KERNELS[name].seconds, i))
+    return [shares[0]] + [s for s in shares[1:] if s]
+
+
+def _start_helper(share):
+    """A process that compiles ``share`` into numba's cache, importing this boresight."""
+    package_root = str(Path(__file__).resolve().parent.parent)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [package_root, env.get("PYTHONPATH")]))
+    return subprocess.Popen(
+        [sys.executable, "-m", "boresight.precompile", *share],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _compile(name):
+    """Compile (or load from the cache) one kernel at its signature, unless this process has it."""
+    kernel = KERNELS[name]
+    dispatcher = kernel.dispatcher
+    if kernel.signature not in dispatcher.overloads:
+        dispatcher.compile(kernel.signature)
+
+
+if __name__ == "__main__":
+    for arg in sys.argv[1:]:
+        _compile(arg)
