@@ -83,16 +83,15 @@ def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
 
 
 @numba.njit(inline="always")
-def _offset_point(theta, phi, sin_theta, beta, rho):
-    """Where detector B looks: theta + rho cos(beta), phi + rho sin(beta) / sin(theta) [rad],
-    with beta = psi + rotation + pair angle + chi; points past a pole are folded back."""
-    t = theta + rho * np.cos(beta)
-    f = phi + rho * np.sin(beta) / sin_theta
+def _fold(t, f):
+    """(theta, phi) [rad] of a point moved past a pole folded back, phi in [0, 2 pi)."""
     if t < 0.0:
         t, f = -t, f + np.pi
     elif t > np.pi:
         t, f = 2.0 * np.pi - t, f + np.pi
-    return t, f % _TWOPI
+    if f < 0.0 or f >= _TWOPI:  # f % 2 pi is f itself there, and costs a division
+        f = f % _TWOPI
+    return t, f
 
 
 @numba.njit(parallel=True, cache=True)
@@ -100,16 +99,28 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     """Where detector B of each pair looks, for every (hit, rotation, pair).
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.offset_points`.
+
+    B looks at theta + rho cos(beta), phi + rho sin(beta) / sin(theta), with beta = psi +
+    rotation + pair angle + chi: (cos, sin) of beta come from those of psi (per hit) and of the
+    rest (per rotation and pair) by the angle-addition formulas, one sin/cos pair per hit.
     """
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = np.empty((nh, nk, nm))
     pb = np.empty((nh, nk, nm))
+    rho_cos = np.empty((nk, nm))
+    rho_sin = np.empty((nk, nm))
+    for k in range(nk):
+        for m in range(nm):
+            rho_cos[k, m] = rho[m] * np.cos(rotations[k] + pair_angles[m] + chi[m])
+            rho_sin[k, m] = rho[m] * np.sin(rotations[k] + pair_angles[m] + chi[m])
     for h in numba.prange(nh):
-        sin_t = np.sin(theta[h])
+        cos_psi, sin_psi = np.cos(psi[h]), np.sin(psi[h])
+        inv_sin_t = 1.0 / np.sin(theta[h])
         for k in range(nk):
             for m in range(nm):
-                beta = psi[h] + rotations[k] + pair_angles[m] + chi[m]
-                tb[h, k, m], pb[h, k, m] = _offset_point(theta[h], phi[h], sin_t, beta, rho[m])
+                d_theta = cos_psi * rho_cos[k, m] - sin_psi * rho_sin[k, m]
+                d_phi = (sin_psi * rho_cos[k, m] + cos_psi * rho_sin[k, m]) * inv_sin_t
+                tb[h, k, m], pb[h, k, m] = _fold(theta[h] + d_theta, phi[h] + d_phi)
     return tb, pb
 
 
