@@ -67,14 +67,18 @@ def test_balance_gives_the_longest_kernels_first_to_the_process_free_soonest():
     assert len(precompile._balance(["_response"], 4)) == 1  # no helper for an empty share
 
 
-def test_a_failing_helper_is_raised(monkeypatch):
+def test_a_failing_helper_is_raised_with_its_error_output(monkeypatch):
     monkeypatch.setattr(precompile, "missing", lambda names: list(names))
-    monkeypatch.setitem(
-        precompile.KERNELS,
-        "no_such_kernel",
-        precompile.Kernel("tod_cpu", "no_such_kernel", (), 0.1),
-    )
-    # this process takes moments, the longer one; the helper knows no such kernel and fails
-    assert precompile._balance(["moments", "no_such_kernel"], 2)[1] == ["no_such_kernel"]
-    with pytest.raises(RuntimeError, match="compiling no_such_kernel failed"):
-        precompile.precompile(["moments", "no_such_kernel"], nthreads=2)
+    monkeypatch.setattr(precompile, "_compile", lambda name: None)
+
+    def failing_helper(share):
+        code = "import sys; sys.exit('no kernel ' + ' '.join(sys.argv[1:]))"
+        return subprocess.Popen(
+            [sys.executable, "-c", code, *share], stderr=subprocess.PIPE, text=True
+        )
+
+    monkeypatch.setattr(precompile, "_start_helper", failing_helper)
+    # this process takes moments, the longer one; the helper gets _response and fails
+    assert precompile._balance(["moments", "_response"], 2)[1] == ["_response"]
+    with pytest.raises(RuntimeError, match="compiling _response failed:\nno kernel _response"):
+        precompile.precompile(["moments", "_response"], nthreads=2)
