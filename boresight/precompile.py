@@ -46,7 +46,7 @@ HELPER_START_SECONDS = 1.2
 class Kernel:
     """One cached numba kernel and the argument types a study calls it with.
 
-    Attributes
+    Parameters
     ----------
     module, name : str
         It is ``boresight.<module>.<name>``.
