@@ -24,7 +24,6 @@ spin-4 field of ~ sigma_X^2 e eth-bar^2 P and eth^2 P.
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import NamedTuple
@@ -36,6 +35,7 @@ import numpy as np
 from . import harmonics
 from .constants import ARCMIN
 from .instrument import MAX_ELLIPTICITY, PairParameters
+from .threads import default_threads
 
 FWHM_PER_SIGMA = np.sqrt(8.0 * np.log(2.0))
 BEAM_TOLERANCE = 1e-7  #: b_lk of higher k than kmax are below this times the largest
@@ -276,7 +276,7 @@ class BeamConvolver:
             raise ValueError("beam systematics need a sky beam: set [sky] fwhm_arcmin > 0")
         self.lmax = harmonics.alm_lmax(alm.shape[1])
         self.nominal = Beam(float(nominal_fwhm))
-        self.nthreads = nthreads if nthreads > 0 else os.cpu_count() or 1
+        self.nthreads = nthreads if nthreads > 0 else default_threads()
         self._sky = unsmoothed_alm(alm, nominal_fwhm)
         self._nominal_alm = beam_alm(self.nominal, self.lmax)
         self._cubes = {}

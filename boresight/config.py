@@ -102,7 +102,7 @@ class RunOptions:
     chunk_pixels : int, optional
         Pixels per chunk (default: the backend's).
     nthreads : int
-        CPU threads, 0 for all cores.
+        CPU threads, 0 for all the cores this process may use (its CPU affinity).
     analysis : str
         How masked maps become pseudo-alm (:func:`boresight.harmonics.map2alm`): "auto" (one
         pass with ring weights at lmax <= 2 nside, LSQR above), "ring_weights", "jacobi"
@@ -112,7 +112,7 @@ class RunOptions:
     evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
     backend: str = option("cpu", "kernels: numba (cpu) or CuPy (gpu)", choices=BACKENDS)
     chunk_pixels: int = option(None, "pixels per chunk, >= 1 (default: the backend's)", (int,))
-    nthreads: int = option(0, "CPU threads, 0 for all cores")
+    nthreads: int = option(0, "CPU threads, 0 for all the cores this process may use")
     analysis: str = option("auto", "masked maps -> pseudo-alm", choices=ANALYSES)
 
     def __post_init__(self):

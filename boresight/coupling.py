@@ -17,7 +17,6 @@ NaMaster 2 uses) builds on first access.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -27,6 +26,7 @@ from ducc0.misc.experimental import coupling_matrix_rect
 from ducc0.sht.experimental import alm2leg, leg2alm
 
 from . import harmonics
+from .threads import default_threads
 
 _M0, _M2 = np.zeros(1, dtype=np.uintp), np.full(1, 2, dtype=np.uintp)  #: ducc0's m = 0 and m = 2
 
@@ -87,7 +87,7 @@ class Coupling:
     @property
     def _threads(self):
         """Threads for ducc0, which reads 0 as 1 in these routines."""
-        return self.nthreads if self.nthreads > 0 else os.cpu_count()
+        return self.nthreads if self.nthreads > 0 else default_threads()
 
     @cached_property
     def _legendre(self):

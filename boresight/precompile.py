@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 from numba import types as nt
 
-from .threads import max_threads
+from .threads import default_threads
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -170,7 +170,7 @@ def precompile(names: Sequence[str], nthreads: int = 0, timer: Timer | None = No
             _compile(name)  # loads it from the cache
     if not todo:
         return []
-    workers = min(nthreads if nthreads > 0 else max_threads(), len(todo))
+    workers = min(nthreads if nthreads > 0 else default_threads(), len(todo))
     shares = _balance(todo, workers if sys.executable else 1)
     label = f"compile {len(todo)} numba kernels on {len(shares)} cores (first run only)"
     with timer(label) if timer else contextlib.nullcontext():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from typing import TYPE_CHECKING
 
 import numba
@@ -20,6 +21,24 @@ def max_threads() -> int:
         numba's NUMBA_NUM_THREADS.
     """
     return numba.config.NUMBA_NUM_THREADS
+
+
+def default_threads() -> int:
+    """The threads that ``nthreads = 0`` ("all cores") stands for.
+
+    They are the cores this process may run on, which ``taskset``, a batch system or a container
+    may limit to fewer than the machine has (the count that numba and ducc0 start from too), and
+    at most :func:`max_threads`.
+
+    Returns
+    -------
+    int
+    """
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # no CPU affinity on macOS and Windows
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, max_threads()))
 
 
 def check_threads(name: str, nthreads: int) -> None:
@@ -45,10 +64,10 @@ def numba_threads(nthreads: int) -> Iterator[None]:
     Parameters
     ----------
     nthreads : int
-        0 for all cores.
+        0 for all cores (:func:`default_threads`).
     """
     old = numba.get_num_threads()
-    numba.set_num_threads(nthreads if nthreads > 0 else max_threads())
+    numba.set_num_threads(nthreads if nthreads > 0 else default_threads())
     try:
         yield
     finally:
