@@ -51,3 +51,12 @@ def small_sky_unpolarised(theory):
 def rel_max(a, b):
     """Largest |a - b| relative to the largest |b|."""
     return float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / np.max(np.abs(b)))
+
+
+def pytest_configure(config):
+    """Under xdist, compile the study kernels that numba's cache lacks once, on all cores, before
+    the workers start (boresight.precompile), rather than in each worker at once."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None and getattr(config.option, "numprocesses", 0):
+        from boresight import precompile
+
+        precompile.precompile(list(precompile.KERNELS))
