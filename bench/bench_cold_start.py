@@ -1,7 +1,9 @@
-"""The quick reproduction as a new user meets it: cold (an empty numba cache, so every kernel it
-runs compiles first) and warm (the same cache again), each a fresh process.
+"""Commands as a new user meets them: cold (an empty numba cache, so every kernel the command runs
+compiles first) and warm (the same cache again), each a fresh process with a cache of its own:
+the quick reproduction, and ``design`` and ``scan-stats`` on the deep example schedule.
 
-Usage: python bench/bench_cold_start.py [NSIDE]   (default 512, the --quick run)
+Usage: python bench/bench_cold_start.py [NSIDE]   (default 512, the --quick run; run from the
+repository root)
 """
 
 import os
@@ -10,28 +12,36 @@ import sys
 import tempfile
 import time
 
+DEEP = ["examples/budget_deep_sat.toml", "examples/schedule_deep_sat.toml"]
 
-def run(cache, out, nside):
+
+def commands(nside):
+    quick = ["reproduce", "--quick"] + (["--nside", str(nside)] if nside != 512 else [])
+    return {
+        f"reproduce --quick (Nside {nside})": quick,
+        "design (deep example, with its TOD check)": ["design", *DEEP],
+        "scan-stats (deep example)": ["scan-stats", DEEP[1]],
+    }
+
+
+def run(cmd, cache, out):
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-    cmd = ["boresight", "-q", "reproduce", "--quick", "--force", "--out", out]
-    if nside != 512:
-        cmd += ["--nside", str(nside)]
     t0 = time.perf_counter()
-    subprocess.run(cmd, env=env, check=True)
+    subprocess.run(["boresight", "-q", *cmd, "--force", "--out", out], env=env, check=True)
     return time.perf_counter() - t0
 
 
 def main(nside):
-    with tempfile.TemporaryDirectory() as tmp:
-        cache = os.path.join(tmp, "numba-cache")
-        cold = run(cache, os.path.join(tmp, "cold"), nside)
-        warm = run(cache, os.path.join(tmp, "warm"), nside)
-    print(f"boresight reproduce --quick, Nside {nside}, {os.cpu_count()} cores")
-    print("| run | wall [s] |")
-    print("|---|---|")
-    print(f"| cold (empty numba cache) | {cold:.1f} |")
-    print(f"| warm | {warm:.1f} |")
-    print(f"| compilation (cold - warm) | {cold - warm:.1f} |")
+    rows = []
+    for name, cmd in commands(nside).items():
+        with tempfile.TemporaryDirectory() as tmp:
+            cache, out = os.path.join(tmp, "numba-cache"), os.path.join(tmp, "out")
+            rows.append((name, run(cmd, cache, out), run(cmd, cache, out)))
+    print(f"{os.cpu_count()} cores")
+    print("| command | cold (empty numba cache) [s] | warm [s] | compilation (cold - warm) [s] |")
+    print("|---|---|---|---|")
+    for name, cold, warm in rows:
+        print(f"| {name} | {cold:.1f} | {warm:.1f} | {cold - warm:.1f} |")
 
 
 if __name__ == "__main__":

@@ -216,7 +216,7 @@ def run_study(
     """
     timer = provenance.Timer(log)
     pointing = any(exp.systematics.has_pointing for exp in experiments)
-    kernels = precompile.kernels_for(study.run.backend, pointing)
+    kernels = precompile.kernels_for("study", study.run.backend, pointing)
     precompile.precompile(kernels, study.run.nthreads, timer)
     theory = load_spectra()
     with timer("sky"):

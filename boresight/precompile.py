@@ -1,14 +1,16 @@
 """Compiling the numba kernels a run calls before it calls them, on several cores at once.
 
 With an empty numba cache (a new install, a new numba) each kernel compiles on its first call, one
-after another on one core: about 13 s of CPU time in a quick reproduction, while the other cores
+after another on one core: about 13 s of CPU time in a quick reproduction and 10 s in ``design``, while the other cores
 wait. :func:`precompile` shares the kernels that the cache lacks between this process and helper
 processes (``python -m boresight.precompile NAME ...``). Each helper writes its kernels to numba's
 cache, and this process then loads them from there. With a warm cache it only checks the cache, a
 few milliseconds per kernel.
 
-:data:`KERNELS` holds the argument types a study passes to each kernel. ``tests/test_precompile.py``
-runs the paper's study in a process whose kernels may compile no other types.
+:data:`KERNELS` holds the argument types a job passes to each kernel; :func:`kernels_for` names the
+kernels of each job: a study (``reproduce``, ``simulate``), ``design`` with its TOD validation,
+and ``scan-stats`` of a schedule. ``tests/test_precompile.py`` runs each job in a process whose
+kernels may compile no other types.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ if TYPE_CHECKING:
 __all__ = ["Kernel", "KERNELS", "kernels_for", "missing", "precompile"]
 
 _F1, _I1, _C1 = nt.float64[::1], nt.int64[::1], nt.complex128[::1]
+_C2 = nt.complex128[:, ::1]
 _F2, _F3, _F4 = nt.float64[:, ::1], nt.float64[:, :, ::1], nt.float64[:, :, :, ::1]
 _STRIDED = nt.float64[:]  # a row of the sky's interleaved (npix, F) stack
 
@@ -66,7 +69,10 @@ class Kernel:
         return getattr(importlib.import_module(f"boresight.{self.module}"), self.name)
 
 
-#: Every kernel a study on the CPU backend calls, by name; the longest to compile first.
+_SCALARS = (nt.int64,) * 3 + (nt.float64,) * 10  # a CES chunk: chunk_arguments' tuple
+_U2 = nt.uint64[:, ::1]
+
+#: Every kernel a job calls, by name, with the argument types it is called with.
 KERNELS = {
     k.name: k
     for k in (
@@ -80,23 +86,44 @@ KERNELS = {
         Kernel(
             "predict",
             "_delta_p",
-            (nt.bool_, _I1, nt.complex128[:, ::1], *[_STRIDED] * 3, *[_F1] * 3, *[_C1] * 3),
+            (nt.bool_, _I1, _C2, *[_STRIDED] * 3, *[_F1] * 3, *[_C1] * 3),
             1.3,
         ),
         Kernel("tod_cpu", "offset_points", (_F1,) * 7, 0.7),
         Kernel("instrument", "_response", (_F1,) * 6, 0.4),
+        Kernel("scanstats", "ces_hits", (*_SCALARS, nt.int64, nt.int64), 2.2),
+        Kernel("design", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
+        Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
+        Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
+        Kernel("ground", "_ces_pointing", _SCALARS, 2.4),
+        Kernel("pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
+        Kernel("tod_cpu", "accumulate_scatter", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F2), 1.6),
     )
 }
 
-_ENGINE = ("accumulate", "interpolate_interleaved", "generate_hits", "moments")
-_EVERY_BACKEND = ("_legendre_sums", "_delta_p", "_response")
+#: Per job: (the kernels it calls on every backend, those of the CPU engine only).
+_JOBS = {
+    "study": (
+        ("_legendre_sums", "_delta_p", "_response"),
+        ("accumulate", "interpolate_interleaved", "generate_hits", "moments"),
+    ),
+    "design": (("ces_hits", "_rotate_and_sum"), ()),
+    "validation": (
+        ("_ces_pointing", "ang2pix_array", "_response"),
+        ("interpolate_interleaved", "accumulate_scatter"),
+    ),
+    "schedule-stats": (("ces_hits", "_bin", "_runs"), ()),
+}
 
 
-def kernels_for(backend: str, pointing: bool) -> list[str]:
-    """The kernels a study calls.
+def kernels_for(job: str, backend: str = "cpu", pointing: bool = False) -> list[str]:
+    """The kernels a job calls.
 
     Parameters
     ----------
+    job : {"study", "design", "validation", "schedule-stats"}
+        A study's simulation and prediction (``simulate``, ``reproduce``); ``design``'s search;
+        its TOD simulation of a schedule's own samples; ``scan-stats`` of a schedule.
     backend : {"cpu", "gpu"}
         The engine's backend: the GPU runs its own kernels.
     pointing : bool
@@ -107,9 +134,10 @@ def kernels_for(backend: str, pointing: bool) -> list[str]:
     list of str
         Names in :data:`KERNELS`.
     """
-    names = list(_EVERY_BACKEND)
-    if backend == "cpu":
-        names += _ENGINE + (("offset_points",) if pointing else ())
+    every_backend, cpu_engine = _JOBS[job]
+    names = list(every_backend)
+    if backend == "cpu" and cpu_engine:
+        names += cpu_engine + (("offset_points",) if pointing else ())
     return names
 
 

@@ -157,7 +157,7 @@ def simulate(
     check_memory("simulate", study, memory_check)
     timer = provenance.Timer(log)
     lmax, nthreads = study.output.lmax, study.run.nthreads
-    kernels = precompile.kernels_for(study.run.backend, study.systematics.has_pointing)
+    kernels = precompile.kernels_for("study", study.run.backend, study.systematics.has_pointing)
     precompile.precompile(kernels, nthreads, timer)
     with timer("simulate and predict"):
         job, the_sky, mask = residual.from_study(study, keep_maps=True, progress=progress)
@@ -334,7 +334,9 @@ def schedule_stats(
         ),
         memory_check,
     )
-    with provenance.Timer(log)("characterise the schedule"):
+    timer = provenance.Timer(log)
+    precompile.precompile(precompile.kernels_for("schedule-stats"), timer=timer)
+    with timer("characterise the schedule"):
         stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
     return _write_scan_stats(
         out_dir,
@@ -566,6 +568,10 @@ def design_schedule(
     inputs = [budget_path, schedule_path]
     io.check_output_dir(out_dir, force, inputs)
     timer = provenance.Timer(log)
+    kernels = precompile.kernels_for("design")
+    if validate:
+        kernels += precompile.kernels_for("validation", pointing=budget.systematics.has_pointing)
+    precompile.precompile(kernels, timer=timer)
     spectra_ = load_spectra()
     with timer("per-unit spin moments"):
         moments = design.unit_moments(schedule, opts.nside, opts.group)

@@ -9,21 +9,50 @@ import pytest
 
 from boresight import precompile
 
-PAPER_STUDY_ON_REGISTERED_KERNELS = """
-from boresight import paper, precompile
-names = precompile.kernels_for("cpu", pointing=True)
-assert sorted(names) == sorted(precompile.KERNELS)
-precompile.precompile(names)
+JOBS = ("study", "design", "validation", "schedule-stats")
+
+EVERY_JOB_ON_REGISTERED_KERNELS = r"""
+import sys
+from pathlib import Path
+from boresight import ground, paper, precompile, studies
+tmp = Path(sys.argv[1])
+asked = set()  # the kernels the jobs precompile
+real = precompile.precompile
+precompile.precompile = lambda names, *args, **kw: asked.update(names) or real(names, *args, **kw)
 paper.run_study(paper.preset(nside=16, lmax=47, seed=3))
-for name in names:  # a call with other argument types would have added a signature
-    assert precompile.KERNELS[name].dispatcher.signatures == [precompile.KERNELS[name].signature]
+# two 2-minute CESs of the deep example at 1 Hz, and a gain + pointing budget at Nside 16
+base = ground.load_schedule("examples/schedule_deep_sat.toml")
+ces = tuple(ground.CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:2])
+ground.write_schedule(ground.Schedule(ces, base.site, 1.0), tmp / "s.toml", "toml")
+(tmp / "b.toml").write_text(
+    "[systematics]\ndg = [0.01, -0.01]\nrho_arcmin = 0.5\n"
+    "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 60.0\n"
+    "[design]\nnside = 16\nsweeps = 1\nangles_deg = [0.0, 90.0]\n"
+)
+quiet = lambda *args: None
+studies.design_schedule(str(tmp / "b.toml"), str(tmp / "s.toml"), str(tmp / "d"), log=quiet)
+studies.schedule_stats(str(tmp / "s.toml"), str(tmp / "h"), nside=16, log=quiet)
+for kernel in precompile.KERNELS.values():  # another argument type would add a signature
+    assert kernel.dispatcher.signatures in ([], [kernel.signature]), kernel.name
+    assert kernel.name in asked or not kernel.dispatcher.signatures, kernel.name  # called late
+assert asked == set(precompile.KERNELS)
 """
 
 
-def test_the_paper_study_calls_every_kernel_at_its_registered_signature():
-    # a fresh process: its dispatchers hold only what precompile gave them
+def test_the_jobs_name_every_registered_kernel():
+    named = {n for job in JOBS for n in precompile.kernels_for(job, "cpu", pointing=True)}
+    assert named == set(precompile.KERNELS)
+    assert "offset_points" not in precompile.kernels_for("validation", "cpu", pointing=False)
+    assert "accumulate" not in precompile.kernels_for("study", "gpu", pointing=True)
+
+
+def test_every_job_calls_its_kernels_at_their_registered_signatures(tmp_path):
+    # a fresh process, in which each job precompiles its kernels: a kernel called with other
+    # argument types would compile a second signature
     proc = subprocess.run(
-        [sys.executable, "-c", PAPER_STUDY_ON_REGISTERED_KERNELS], capture_output=True, text=True
+        [sys.executable, "-c", EVERY_JOB_ON_REGISTERED_KERNELS, str(tmp_path)],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 0, proc.stderr
 
