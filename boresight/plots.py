@@ -187,12 +187,20 @@ def map_figure(
     unit : str
         Colour-bar label.
     """
-    fig = plt.figure(figsize=(5 * len(maps), 3.2))
+    width, dpi = 5, 100  # inches per panel, and the PNG's dots per inch
+    fig = plt.figure(figsize=(width * len(maps), 3.2))
     with warnings.catch_warnings():  # healpy warns when it draws panels into an existing figure
         warnings.simplefilter("ignore", UserWarning)
         for i, (m, name) in enumerate(zip(maps, names)):
-            hp.mollview(m, fig=fig.number, sub=(1, len(maps), i + 1), title=name, unit=unit)
-    fig.savefig(path, dpi=100)
+            hp.mollview(
+                m,
+                fig=fig.number,
+                sub=(1, len(maps), i + 1),
+                title=name,
+                unit=unit,
+                xsize=width * dpi,  # a panel's width in the PNG: a finer projection would not show
+            )
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
