@@ -4,8 +4,8 @@ Polarisation follows healpy: spin-2 transforms take (E, B) alm and give (Q, U) i
 (COSMO) convention. ``map2alm`` offers three analyses (:data:`ANALYSES`): one pass with HEALPix
 ring weights (the quadrature a band-limited integrand needs, exact enough at lmax <= 2 Nside), the
 Jacobi iterations of healpy.map2alm (``iter``, no weights: healpy.anafast's spectra), and ducc0's
-least-squares ``pseudo_analysis``; ``"auto"`` takes the first at lmax <= 2 Nside (away from the poles)
-and the last above.
+least-squares ``pseudo_analysis``; ``"auto"`` takes the first at lmax <= 2 Nside (away from the
+poles) and the last above.
 """
 
 from __future__ import annotations

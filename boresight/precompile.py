@@ -1,11 +1,11 @@
 """Compiling the numba kernels a run calls before it calls them, on several cores at once.
 
 With an empty numba cache (a new install, a new numba) each kernel compiles on its first call, one
-after another on one core: about 13 s of CPU time in a quick reproduction and 10 s in ``design``, while the other cores
-wait. :func:`precompile` shares the kernels that the cache lacks between this process and helper
-processes (``python -m boresight.precompile NAME ...``). Each helper writes its kernels to numba's
-cache, and this process then loads them from there. With a warm cache it only checks the cache, a
-few milliseconds per kernel.
+after another on one core: about 13 s of CPU time in a quick reproduction and 10 s in ``design``,
+while the other cores wait. :func:`precompile` shares the kernels that the cache lacks between this
+process and helper processes (``python -m boresight.precompile NAME ...``). Each helper writes its
+kernels to numba's cache, and this process then loads them from there. With a warm cache it only
+checks the cache, a few milliseconds per kernel.
 
 :data:`KERNELS` holds the argument types a job passes to each kernel; :func:`kernels_for` names the
 kernels of each job: a study (``reproduce``, ``simulate``), ``design`` with its TOD validation,
@@ -134,6 +134,8 @@ def kernels_for(job: str, backend: str = "cpu", pointing: bool = False) -> list[
     list of str
         Names in :data:`KERNELS`.
     """
+    if job not in _JOBS:
+        raise ValueError(f"job {job!r}; allowed: {', '.join(_JOBS)}")
     every_backend, cpu_engine = _JOBS[job]
     names = list(every_backend)
     if backend == "cpu" and cpu_engine:

@@ -32,11 +32,11 @@ Power spectra: each term c h_n F contributes C^EE = C^BB = ``|c|^2`` / 2 * [coh_
 pixels (what Wallis et al. 2017 write as ``<|h_n|^2>`` C^FF) and a white part from the
 pixel-to-pixel scatter of h_n. A beam pair h_n G_n + h_{-n} G_{-n} splits its coherent part
 unequally: B takes ``|g_n - (-1)^n conj(g_-n)|^2`` and E the sum (docs/conventions.md). The
-h_0 term rotates and rescales the sky's own polarisation, u P with u = 1 + p_0. Gain jitter of rms sigma adds white noise of variance
-``<sigma^2>`` T^2 / N_samples per pixel. Masked pseudo-C_ell follow through M^{BB,BB} and
-M^{BB,EE} (paper eq. 10). The C_ell level needs m_4 = 0 (pairs whose 4 x angles cancel, e.g.
-(0, 45) deg or any "uniform" focal plane of 2 or more pairs, or a repeat that cancels h_4); the
-map level has no such limit.
+h_0 term rotates and rescales the sky's own polarisation, u P with u = 1 + p_0. Gain jitter of
+rms sigma adds white noise of variance ``<sigma^2>`` T^2 / N_samples per pixel. Masked
+pseudo-C_ell follow through M^{BB,BB} and M^{BB,EE} (paper eq. 10). The C_ell level needs m_4 = 0
+(pairs whose 4 x angles cancel, e.g. (0, 45) deg or any "uniform" focal plane of 2 or more pairs,
+or a repeat that cancels h_4); the map level has no such limit.
 """
 
 from __future__ import annotations
@@ -595,10 +595,10 @@ def field_spectra(spectra, lmax, fwhm_arcmin):
 
 
 class Term(NamedTuple):
-    """One term c h_n F of the spurious P (with, for a pair of beam terms, its partner c' h_{-n} F'):
-    its moment n (h_{-n} = conj h_n), coefficient c, the spectra [muK^2] whose halves its E and
-    B modes take (equal but for such a pair), and whether the engine reads its field exactly at
-    the hits (the beams' fields) rather than by interpolation of the sky's maps."""
+    """One term c h_n F of the spurious P (with, for a pair of beam terms, its partner
+    c' h_{-n} F'): its moment n (h_{-n} = conj h_n), coefficient c, the spectra [muK^2] whose
+    halves its E and B modes take (equal but for such a pair), and whether the engine reads its
+    field exactly at the hits (the beams' fields) rather than by interpolation of the sky's maps."""
 
     n: int
     c: complex

@@ -1,10 +1,10 @@
-"""The suppression map: which pair-differencing systematics boresight rotation cures, and by how much.
+"""The suppression map: which pair-differencing systematics boresight rotation cures, and how much.
 
 Each systematic of :data:`CATALOGUE` runs alone, at a stated amplitude, through the rotation
 schedules of :data:`ANGLES` on one synthetic survey. For every (systematic, schedule) the
 simulated and the predicted leaked power of the residual pseudo-C_BB (<dB, dB>, without the
-cross term with the sky's own B, which is one realisation's scatter) are binned in three multipole bands, divided by the
-unrotated residual (the suppression), and turned into the bias on r they fake
+cross term with the sky's own B, which is one realisation's scatter) are binned in three multipole
+bands, divided by the unrotated residual (the suppression), and turned into the bias on r they fake
 (:func:`boresight.predict.delta_r`). Rotation cures a term coupled to h_n with n > 0 by
 ``|<exp(i n alpha_k)>|^2``; terms of h_0 (a polarisation-angle error, a non-orthogonality) and the
 white gain jitter (which only averages down with more samples) it cannot touch.

@@ -54,8 +54,8 @@ def rel_max(a, b):
 
 
 def pytest_configure(config):
-    """Under xdist, compile the study kernels that numba's cache lacks once, on all cores, before
-    the workers start (boresight.precompile), rather than in each worker at once."""
+    """Under xdist, compile the registered kernels (boresight.precompile.KERNELS) that numba's
+    cache lacks once, on all cores, before the workers start, rather than in each worker at once."""
     if os.environ.get("PYTEST_XDIST_WORKER") is None and getattr(config.option, "numprocesses", 0):
         from boresight import precompile
 

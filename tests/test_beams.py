@@ -201,8 +201,8 @@ def _predicted(sky_, scan, systematics, n_max=predict.BEAM_N_MAX):
 def test_engine_beams_equal_the_analytic_map(small_sky, systematics):
     """Pixel-centre hits, polarised sky: with h_n to n = 8 the map-level prediction's beam terms
     (every moment of beams.moment_filters to k = 10, T and P) are the engine's maps to 5e-6
-    (widths: 1e-9; the rest is the k > 10 moments, ~ e^5); the default BEAM_N_MAX = 6 (all terms of first order in e) leaves 1.5e-4 at
-    e = 0.05 and the old T-only terms (h_4 and below) 1 %."""
+    (widths: 1e-9; the rest is the k > 10 moments, ~ e^5); the default BEAM_N_MAX = 6 (all terms
+    of first order in e) leaves 1.5e-4 at e = 0.05 and the old T-only terms (h_4 and below) 1 %."""
     dp = _residual(small_sky, CENTRED, systematics)
     error = {n: np.linalg.norm(dp - _predicted(small_sky, CENTRED, systematics, n)) for n in (4, 8)}
     assert error[8] < 5e-6 * np.linalg.norm(dp)

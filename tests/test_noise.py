@@ -1,4 +1,5 @@
-"""The survey's noise: depth from NET, N_ell, and sigma(r) against a closed form and a simulation."""
+"""The survey's noise: depth from NET, N_ell, and sigma(r) against a closed form and a
+simulation."""
 
 import healpy as hp
 import numpy as np

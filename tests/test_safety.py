@@ -1,6 +1,6 @@
 """Nothing lost, nothing silent (issue 17): one test per numbered defect, each of which failed
-before the fix. Bad input ends in exit 2 with one line naming the key or file, before any work; output
-directories that boresight did not create are never removed."""
+before the fix. Bad input ends in exit 2 with one line naming the key or file, before any work;
+output directories that boresight did not create are never removed."""
 
 import json
 import os

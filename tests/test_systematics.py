@@ -189,8 +189,8 @@ def test_random_focal_plane_residual_falls_as_one_over_n_pairs(small_sky):
     falls as N^-1. Each N averages 48 focal-plane draws (scatter ~ 1 / sqrt(48) per point); the
     fitted slope is good to ~0.05. The powers are those of the map-level closed form, which the
     first two draws of every N check against the engine to 1e-9 (simulating all 192 focal planes
-    would cost the suite ~30 s for the same numbers). The 0/45 deg repeat makes one pair's 2x2 system as well
-    conditioned as many pairs' (m_4 = 0), so N = 1 is on the same law."""
+    would cost the suite ~30 s for the same numbers). The 0/45 deg repeat makes one pair's 2x2
+    system as well conditioned as many pairs' (m_4 = 0), so N = 1 is on the same law."""
     scan = SyntheticScan(**CENTRED, rotations_deg=(0.0, 45.0))
     h = engine.scan_moments(scan.one_repeat(), small_sky.nside)[0]  # the same for every draw
     powers = []
