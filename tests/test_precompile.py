@@ -44,6 +44,8 @@ def test_the_jobs_name_every_registered_kernel():
     assert named == set(precompile.KERNELS)
     assert "offset_points" not in precompile.kernels_for("validation", "cpu", pointing=False)
     assert "accumulate" not in precompile.kernels_for("study", "gpu", pointing=True)
+    with pytest.raises(ValueError, match="allowed: study, design, validation, schedule-stats"):
+        precompile.kernels_for("sweep")
 
 
 def test_every_job_calls_its_kernels_at_their_registered_signatures(tmp_path):
