@@ -47,7 +47,7 @@ HELPER_START_SECONDS = 1.2
 
 @dataclass(frozen=True)
 class Kernel:
-    """One cached numba kernel and the argument types a study calls it with.
+    """One cached numba kernel and the argument types a job calls it with.
 
     Parameters
     ----------
