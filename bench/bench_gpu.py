@@ -17,7 +17,6 @@ import cupy as cp
 import numpy as np
 
 from boresight import engine, instrument, sky, tod_gpu
-from boresight.evaluation import SkyFields
 from boresight.scan import SyntheticScan
 
 CASES = {
@@ -33,11 +32,12 @@ CASES = {
 
 
 def core(the_sky, scan, systematics):
-    """Seconds of bin_scan over the full sky (inputs already on the GPU) and its sample count."""
+    """Seconds of bin_scan over the full sky (inputs already on the GPU) and its sample count.
+
+    The kernel gets the arguments the engine gives it (its binner's per-pair parameters)."""
     nside, npix = the_sky.nside, 12 * the_sky.nside**2
-    stack = tod_gpu.to_device(SkyFields(the_sky).stack)
-    dg, rho, chi, leak = systematics.per_pair(2)
-    ang = instrument.Instrument().pair_angles_rad
+    inst = instrument.Instrument()
+    b = engine._Binner(the_sky, inst, systematics, scan.rotations_rad, "interp", None, 0, "gpu")
     n_phi, rng, centre = scan.per_pixel(np.arange(npix), npix)
     args = [cp.arange(npix, dtype=cp.int64), cp.asarray(n_phi), cp.asarray(rng), cp.asarray(centre)]
     start, stop = cp.cuda.Event(), cp.cuda.Event()
@@ -46,19 +46,20 @@ def core(the_sky, scan, systematics):
         scan.seed,
         nside,
         *args,
-        False,
-        stack,
-        scan.rotations_rad,
-        ang,
-        dg,
-        rho,
-        chi,
-        leak,
-        systematics.has_pointing,
+        scan.in_pixel == "centre",
+        b.stack,
+        b.rot,
+        b.ang,
+        b.response,
+        b.rho,
+        b.chi,
+        b.leak,
+        b.jitter,
+        b.pointing,
     )
     stop.record()
     stop.synchronize()
-    samples = int(n_phi.sum()) * len(scan.rotations_deg) * 2 * 2
+    samples = int(n_phi.sum()) * len(scan.rotations_deg) * inst.n_pairs * 2
     return cp.cuda.get_elapsed_time(start, stop) / 1e3, samples
 
 

@@ -126,9 +126,13 @@ __device__ __forceinline__ void draw_hit(u64 key, i64 j, i64 nside, i64 ix, i64 
     if (!centred) { u = uniform_from_key(key, (u64)j, 1); v = uniform_from_key(key, (u64)j, 2); }
     xyf2ang((ix + u) / nside, (iy + v) / nside, face, theta, phi);
 }
-__device__ __forceinline__ void offset_point(double theta, double phi, double sin_t, double beta,
-        double rho, double *tb, double *pb) {
-    double t = theta + rho * cos(beta), f = phi + rho * sin(beta) / sin_t;
+// Where detector B looks: theta + rho cos(beta), phi + rho sin(beta) / sin(theta), beta = psi +
+// rotation + pair angle + chi, by angle addition from (cos, sin) psi of the hit and rho (cos, sin)
+// of the rest, (rc, rs) per (rotation, pair), as tod_cpu.offset_points
+__device__ __forceinline__ void offset_point(double theta, double phi, double inv_sin_t,
+        double cos_psi, double sin_psi, double rc, double rs, double *tb, double *pb) {
+    double t = theta + (cos_psi * rc - sin_psi * rs);
+    double f = phi + (sin_psi * rc + cos_psi * rs) * inv_sin_t;
     if (t < 0.0) { t = -t; f += PI; } else if (t > PI) { t = TWOPI - t; f += PI; }
     double r = fmod(f, TWOPI);
     *tb = t; *pb = r < 0 ? r + TWOPI : r;
@@ -190,15 +194,16 @@ extern "C" __global__ void generate_hits(const i64 *pixels, const i64 *offsets, 
 }
 
 extern "C" __global__ void offset_points(const double *theta, const double *phi,
-        const double *psi, i64 nh, const double *rot, int nk, const double *ang, int nm,
-        const double *rho, const double *chi, double *tb, double *pb) {
+        const double *psi, i64 nh, int nk, int nm, const double *rho_c, const double *rho_s,
+        double *tb, double *pb) {
     i64 h = blockIdx.x * (i64)blockDim.x + threadIdx.x;
     if (h >= nh) return;
-    double sin_t = sin(theta[h]);
+    double inv_sin_t = 1.0 / sin(theta[h]), cos_psi, sin_psi;
+    sincos(psi[h], &sin_psi, &cos_psi);
     for (int k = 0; k < nk; ++k) for (int m = 0; m < nm; ++m) {
         i64 idx = (h * nk + k) * nm + m;
-        offset_point(theta[h], phi[h], sin_t, psi[h] + rot[k] + ang[m] + chi[m], rho[m], &tb[idx],
-                     &pb[idx]);
+        offset_point(theta[h], phi[h], inv_sin_t, cos_psi, sin_psi, rho_c[k * nm + m],
+                     rho_s[k * nm + m], &tb[idx], &pb[idx]);
     }
 }
 
@@ -241,9 +246,9 @@ extern "C" __global__ void accumulate(const i64 *offsets, const double *psi, i64
 
 extern "C" __global__ void bin_scan(const i64 *pixels, const i64 *n_phi, const double *range,
         const double *centre, i64 n, u64 seed, i64 nside, int centred, const double *stack,
-        int nf, const double *rot, const double *ang, int nk, int nm, const double *turn_c,
-        const double *turn_s, const double *dg, const double *rho, const double *chi,
-        const double *leak, int pointing, double *out) {
+        int nf, int nk, int nm, const double *turn_c, const double *turn_s, const double *dg,
+        const double *rho_c, const double *rho_s, const double *leak, int pointing,
+        double *out) {
     i64 k = blockIdx.x * (i64)blockDim.x + threadIdx.x;
     if (k >= n) return;
     i64 ix, iy, face;
@@ -254,11 +259,13 @@ extern "C" __global__ void bin_scan(const i64 *pixels, const i64 *n_phi, const d
         double theta, phi, psi, fa[4];
         draw_hit(key, j, nside, ix, iy, face, range[k], centre[k], centred, &theta, &phi, &psi);
         interp_point(stack, nf, nside, theta, phi, fa);
-        double sin_t = pointing ? sin(theta) : 0.0;
+        double inv_sin_t = 0.0, cos_psi = 0.0, sin_psi = 0.0;
+        if (pointing) { inv_sin_t = 1.0 / sin(theta); sincos(psi, &sin_psi, &cos_psi); }
         add_sums(acc, hit_sums(psi, fa, [&](int r, int m, double *fb) {
             if (!pointing) { for (int f = 0; f < 4; ++f) fb[f] = fa[f]; return; }
             double tb, pb;
-            offset_point(theta, phi, sin_t, psi + rot[r] + ang[m] + chi[m], rho[m], &tb, &pb);
+            offset_point(theta, phi, inv_sin_t, cos_psi, sin_psi, rho_c[r * nm + m],
+                         rho_s[r * nm + m], &tb, &pb);
             interp_point(stack, nf, nside, tb, pb, fb);
         }, nk, nm, turn_c, turn_s, dg, leak));
     }

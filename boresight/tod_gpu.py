@@ -128,25 +128,18 @@ def offset_points(
     nh, nk, nm = theta.size, rotations.size, pair_angles.size
     tb = cp.empty((nh, nk, nm))
     pb = cp.empty((nh, nk, nm))
-    _launch(
-        "offset_points",
-        nh,
-        (
-            _d(theta),
-            _d(phi),
-            _d(psi),
-            np.int64(nh),
-            _d(rotations),
-            np.int32(nk),
-            _d(pair_angles),
-            np.int32(nm),
-            _d(rho),
-            _d(chi),
-            tb,
-            pb,
-        ),
-    )
+    args = (_d(theta), _d(phi), _d(psi), np.int64(nh), np.int32(nk), np.int32(nm))
+    _launch("offset_points", nh, args + _offsets(rotations, pair_angles, rho, chi) + (tb, pb))
     return tb, pb
+
+
+def _offsets(rotations, pair_angles, rho, chi):
+    """Device arrays (K, M) of rho cos and rho sin of rotation + pair angle + chi [rad]: detector
+    B's offset before the hit's crossing angle turns it (angle addition, as in
+    tod_cpu.offset_points)."""
+    beta = np.asarray(rotations)[:, None] + np.asarray(pair_angles)[None, :] + np.asarray(chi)
+    rho = np.asarray(rho)
+    return _d(rho * np.cos(beta)), _d(rho * np.sin(beta))
 
 
 def interpolate(stack: object, nside: int, theta: np.ndarray, phi: np.ndarray) -> cp.ndarray:
@@ -301,14 +294,10 @@ def bin_scan(
         "bin_scan",
         pixels.size,
         _scan_args(seed, nside, pixels, n_phi, range_rad, centre_rad, centred)
-        + (
-            stack,
-            np.int32(stack.shape[1]),
-            _d(rotations),
-            _d(pair_angles),
-        )
-        + physics[:4]
-        + (physics[4], _d(rho), _d(chi), physics[5], np.int32(bool(pointing)), out),
+        + (stack, np.int32(stack.shape[1]))
+        + physics[:5]
+        + _offsets(rotations, pair_angles, rho, chi)
+        + (physics[5], np.int32(bool(pointing)), out),
     )
     return out
 

@@ -48,6 +48,19 @@ def small_sky_unpolarised(theory):
     )
 
 
+@pytest.fixture(scope="session")
+def offset_inputs():
+    """Hits for detector B's pointing (theta, phi, psi [rad]; rotations, pair angles, rho, chi
+    [rad]) with 1-2 arcmin offsets, four of them so near a pole that B's point folds over it."""
+    rng = np.random.default_rng(4)
+    n = 2000
+    theta = np.concatenate([np.arccos(rng.uniform(-1, 1, n - 4)), [1e-4, 2e-4, np.pi - 1e-4, 3.0]])
+    phi, psi = rng.uniform(0, 2 * np.pi, n), rng.uniform(-np.pi, np.pi, n)
+    rot, ang = np.radians([0.0, 90.0, 180.0]), np.radians([0.0, 45.0])
+    rho, chi = np.array([3e-4, 5e-4]), np.radians([10.0, -30.0])
+    return theta, phi, psi, rot, ang, rho, chi
+
+
 def rel_max(a, b):
     """Largest |a - b| relative to the largest |b|."""
     return float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / np.max(np.abs(b)))

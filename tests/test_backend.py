@@ -2,8 +2,11 @@
 parameters the engine passes, checked without a GPU (the CuPy module is read, not imported)."""
 
 import ast
+import importlib.util
 import inspect
 import re
+import sys
+import types
 from importlib import resources
 
 import numpy as np
@@ -50,6 +53,86 @@ def test_gpu_backend_implements_the_contract_without_a_gpu():
         assert f"void {kernel}(" in cuda, kernel
 
 
+def _cuda_parameters(source, kernel):
+    """(type, is_pointer) of each parameter of a __global__ kernel in the CUDA source."""
+    params = re.search(rf"void {kernel}\((.*?)\)\s*{{", source, re.S).group(1).split(",")
+    return [
+        (p.split()[-2] if "*" not in p else p.split()[-2].rstrip("*"), "*" in p) for p in params
+    ]
+
+
+def _fake_cupy():
+    """A stand-in CuPy module: numpy arrays, and RawModule functions that record each launch."""
+    fake = types.ModuleType("cupy")
+    fake.__getattr__ = lambda name: getattr(np, name)
+    fake.ndarray, fake.asnumpy, fake.launches = np.ndarray, np.asarray, []
+
+    class RawModule:
+        def __init__(self, code, options):
+            pass
+
+        def get_function(self, name):
+            return lambda grid, block, args: fake.launches.append((name, args))
+
+    fake.RawModule = RawModule
+    fake.cuda = types.SimpleNamespace(runtime=types.SimpleNamespace(getDeviceCount=lambda: 1))
+    return fake
+
+
+@pytest.fixture
+def gpu_without_cupy(monkeypatch):
+    """boresight.tod_gpu loaded over the stand-in CuPy, and that stand-in."""
+    fake = _fake_cupy()
+    monkeypatch.setitem(sys.modules, "cupy", fake)
+    path = resources.files("boresight") / "tod_gpu.py"
+    spec = importlib.util.spec_from_file_location("tod_gpu_without_cupy", path)
+    gpu = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gpu)
+    return gpu, fake
+
+
+def test_gpu_kernel_launches_match_the_cuda_parameters_without_a_gpu(
+    gpu_without_cupy, offset_inputs
+):
+    """Every launch passes as many arguments as its CUDA kernel has, each of the type the kernel
+    reads (int64, uint64, int32 scalars; float64 or int64 arrays, or a null pointer): a launch
+    that does not is undefined behaviour on the GPU, not an error."""
+    gpu, fake = gpu_without_cupy
+    theta, phi, psi, rot, ang, rho, chi = offset_inputs
+    nside, pixels = 8, np.arange(0, 768, 7)
+    sysm = Systematics(dg=0.01)
+    resp = response(rot, ang, sysm.per_pair(2), sysm.per_repeat(rot.size))
+    leak, none = np.zeros(2), np.zeros((2, 0, rot.size, 2))
+    offsets = np.arange(pixels.size + 1) * 2
+    stack = np.ones((768, 3))
+    scan_args = (3, nside, pixels, offsets, np.full(pixels.size, 0.3), np.zeros(pixels.size), 0)
+    gpu.generate_hits(*scan_args)
+    gpu.offset_points(*offset_inputs)
+    gpu.interpolate(stack, nside, theta, phi)
+    values = np.ones((3, offsets[-1])), np.ones((3, offsets[-1], rot.size, 2))
+    gpu.accumulate(offsets, psi[: offsets[-1]], *values, none, resp, leak, None, 3, pixels)
+    out = np.zeros((768, 5))
+    hit_pixels = np.repeat(pixels, 2)
+    gpu.accumulate_scatter(hit_pixels, psi[: offsets[-1]], *values, none, resp, leak, out)
+    jitter = np.zeros(2)
+    gpu.bin_scan(*scan_args, stack, rot, ang, resp, rho, chi, leak, jitter, True)
+    gpu.moments(offsets, psi[: offsets[-1]], rot, 4)
+    launched = {name for name, _ in fake.launches}
+    assert launched == set(re.findall(r"__global__ void (\w+)\(", gpu.SOURCE))
+    scalar = {"i64": np.int64, "u64": np.uint64, "int": np.int32}
+    array = {"i64": (np.int64,), "double": (np.float64, np.complex128)}
+    for name, args in fake.launches:
+        params = _cuda_parameters(gpu.SOURCE, name)
+        assert len(args) == len(params), name
+        for (ctype, pointer), arg in zip(params, args):
+            if not pointer:
+                assert type(arg) is scalar[ctype], (name, ctype, arg)
+            elif not isinstance(arg, np.ndarray):
+                assert type(arg) is np.uint64 and arg == 0, (name, ctype, arg)  # null
+            else:
+                assert arg.dtype in array[ctype] and arg.flags.c_contiguous, (name, ctype)
+
+
 def test_cpu_bin_scan_equals_its_stages(small_sky):
     """bin_scan is generate_hits -> interpolate -> offset_points -> accumulate, to the bit."""
     pixels = np.arange(0, 12 * 64**2, 97, dtype=np.int64)
@@ -75,17 +158,12 @@ def test_cpu_bin_scan_equals_its_stages(small_sky):
     np.testing.assert_array_equal(fused, staged)
 
 
-def test_cpu_offset_points_equal_the_direct_formula_past_the_poles_too():
+def test_cpu_offset_points_equal_the_direct_formula_past_the_poles_too(offset_inputs):
     """B at theta + rho cos(beta), phi + rho sin(beta) / sin(theta), beta = psi + rotation + pair
     angle + chi, folded back past a pole: the kernel's angle-addition route against numpy's
     cos(beta) and sin(beta) of the whole angle."""
-    rng = np.random.default_rng(4)
-    n = 2000
-    theta = np.concatenate([np.arccos(rng.uniform(-1, 1, n - 4)), [1e-4, 2e-4, np.pi - 1e-4, 3.0]])
-    phi, psi = rng.uniform(0, 2 * np.pi, n), rng.uniform(-np.pi, np.pi, n)
-    rot, ang = np.radians([0.0, 90.0, 180.0]), np.radians([0.0, 45.0])
-    rho, chi = np.array([3e-4, 5e-4]), np.radians([10.0, -30.0])  # 1-2 arcmin: the poles' hits fold
-    tb, pb = tod_cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
+    theta, phi, psi, rot, ang, rho, chi = offset_inputs
+    tb, pb = tod_cpu.offset_points(*offset_inputs)
     beta = psi[:, None, None] + rot[None, :, None] + (ang + chi)[None, None, :]
     t = theta[:, None, None] + rho * np.cos(beta)
     f = phi[:, None, None] + rho * np.sin(beta) / np.sin(theta)[:, None, None]

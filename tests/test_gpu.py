@@ -70,6 +70,23 @@ def test_gpu_matches_cpu(small_sky, scan, sysm, evaluation):
 
 @gpu
 @pytest.mark.gpu
+def test_gpu_offset_points_match_cpu_past_the_poles_too(offset_inputs):
+    """The same angle-addition route as tod_cpu: B's points agree to a few ulp (CUDA may fuse
+    the multiply-adds), folded past the poles alike."""
+    from boresight import tod_cpu, tod_gpu
+
+    theta = offset_inputs[0]
+    tb_cpu, pb_cpu = tod_cpu.offset_points(*offset_inputs)
+    tb_gpu, pb_gpu = (tod_gpu.to_host(x) for x in tod_gpu.offset_points(*offset_inputs))
+    assert tb_gpu.shape == tb_cpu.shape == (theta.size, 3, 2)
+    np.testing.assert_allclose(tb_gpu, tb_cpu, rtol=0, atol=4e-15)
+    dphi = np.angle(np.exp(1j * (pb_gpu - pb_cpu)))  # phi wraps at 2 pi
+    assert np.max(np.abs(dphi * np.sin(tb_cpu))) < 4e-15
+    assert ((pb_gpu >= 0) & (pb_gpu < 2 * np.pi)).all()
+
+
+@gpu
+@pytest.mark.gpu
 def test_gpu_moments_match_cpu():
     scan = SyntheticScan(n_phi=4, range_rad=0.719, rotations_deg=(0, 89), seed=9)
     h_cpu, n_cpu = engine.scan_moments(scan, 128)
