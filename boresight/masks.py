@@ -17,6 +17,7 @@ import os
 from typing import TYPE_CHECKING
 
 import healpy as hp
+import numba
 import numpy as np
 
 from . import io, validation
@@ -52,20 +53,32 @@ def footprint(ra_deg: tuple, dec_deg: tuple, galactic_cut_deg: float, nside: int
     colatitudes = np.clip(np.radians(90.0 - np.array(dec_deg[::-1], dtype=float)), 0.0, np.pi)
     strip = hp.query_strip(nside, *colatitudes, inclusive=True)
     theta, phi = hp.pix2ang(nside, strip)
-    dec = 90.0 - theta / DEG
-    ra = (phi / DEG + 180.0) % 360.0 - 180.0
-    inside = (ra >= ra_deg[0]) & (ra <= ra_deg[1]) & (dec >= dec_deg[0]) & (dec <= dec_deg[1])
-    if galactic_cut_deg > 0:  # |b| of the box's pixels: their z along the Galactic pole
-        box = np.flatnonzero(inside)
-        pole = hp.Rotator(coord=["C", "G"]).mat[2]
-        sin_theta = np.sin(theta[box])
-        z = pole[0] * sin_theta * np.cos(phi[box])
-        z += pole[1] * sin_theta * np.sin(phi[box])
-        z += pole[2] * np.cos(theta[box])
-        inside[box] = np.abs(z) > np.sin(galactic_cut_deg * DEG)
+    cut = np.sin(galactic_cut_deg * DEG) if galactic_cut_deg > 0 else -1.0
+    box = np.array([*ra_deg, *dec_deg], dtype=np.float64)
+    inside = _inside(theta, phi, box, hp.Rotator(coord=["C", "G"]).mat[2], cut)
     mask = np.zeros(12 * nside**2)
     mask[strip[inside]] = 1.0
     return mask
+
+
+@numba.njit(parallel=True, cache=True)
+def _inside(theta, phi, box, pole, sin_cut):
+    """Whether each point (theta, phi [rad], equatorial) lies in the RA/Dec box (RA low, high, Dec
+    low, high [deg]) with ``|z|`` along the Galactic pole (a unit vector) above ``sin_cut`` (-1:
+    no cut)."""
+    out = np.empty(theta.size, dtype=np.bool_)
+    for i in numba.prange(theta.size):
+        dec = 90.0 - theta[i] / DEG
+        ra = (phi[i] / DEG + 180.0) % 360.0 - 180.0
+        ok = box[0] <= ra <= box[1] and box[2] <= dec <= box[3]
+        if ok and sin_cut >= 0.0:  # |b| > cut: the point's z along the Galactic pole
+            sin_theta = np.sin(theta[i])
+            z = pole[0] * sin_theta * np.cos(phi[i])
+            z += pole[1] * sin_theta * np.sin(phi[i])
+            z += pole[2] * np.cos(theta[i])
+            ok = abs(z) > sin_cut
+        out[i] = ok
+    return out
 
 
 #: the names a study's [mask] survey may take; "none" is the full sky

@@ -91,6 +91,8 @@ KERNELS = {
         ),
         Kernel("tod_cpu", "offset_points", (_F1,) * 7, 0.7),
         Kernel("instrument", "_response", (_F1,) * 6, 0.4),
+        Kernel("masks", "_inside", (_F1,) * 4 + (nt.float64,), 1.3),
+        Kernel("predict", "_block_sums", (_C1, _I1, _F1, _I1, nt.int64), 0.9),
         Kernel("scanstats", "ces_hits", (*_SCALARS, nt.int64, nt.int64), 2.2),
         Kernel("design", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
         Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
@@ -104,7 +106,7 @@ KERNELS = {
 #: Per job: (the kernels it calls on every backend, those of the CPU engine only).
 _JOBS = {
     "study": (
-        ("_legendre_sums", "_delta_p", "_response"),
+        ("_legendre_sums", "_delta_p", "_response", "_inside", "_block_sums"),
         ("accumulate", "interpolate_interleaved", "generate_hits", "moments"),
     ),
     "design": (("ces_hits", "_rotate_and_sum"), ()),

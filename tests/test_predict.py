@@ -145,6 +145,37 @@ def test_cl_prediction_needs_cancelling_4x_angles(small_sky, theory):
         predict.systematic_cl(h, mask, PAPER_GAIN, theory, 60, 7.0, inst)
 
 
+def test_coherent_power_is_numpys_bincount_of_the_weighted_h_for_any_thread_count():
+    """The one-pass kernel against the plain numpy route (|h|^2 w summed, w h summed per block by
+    bincount), with apodized weights and Nside below the block size (no blocks)."""
+    from boresight.threads import numba_threads
+
+    rng = np.random.default_rng(8)
+    for nside, apodize in ((128, True), (4, False)):
+        mask = masks.survey_mask("deep", nside)
+        mask = masks.apodize(mask, 5.0) if apodize else mask
+        h = rng.standard_normal(mask.size) + 1j * rng.standard_normal(mask.size)
+        blocks = predict.PixelBlocks(mask)
+        obs = np.flatnonzero(mask)
+        w, ho = mask[obs], h[obs]
+        total = np.sum(w * np.abs(ho) ** 2) / w.sum()
+        coherent = total
+        if blocks.parent is not None:
+            sums = np.bincount(blocks.parent, w * ho.real) + 1j * np.bincount(
+                blocks.parent, w * ho.imag
+            )
+            weight = np.bincount(blocks.parent, w)
+            used = weight > 0
+            coherent = np.sum(np.abs(sums[used]) ** 2 / weight[used]) / w.sum()
+        got = []
+        for threads in (1, 2):
+            with numba_threads(threads):
+                got.append(blocks.coherent_power(h))
+        assert got[0] == got[1]  # to the bit
+        assert got[0] == pytest.approx((total, coherent), rel=1e-14)
+        assert blocks.parent is None or coherent < 0.5 * total  # white h: blocks average it out
+
+
 def test_coherent_power_of_constant_and_white_h():
     """A constant h_n is all coherent; white h_n keeps 1 / block^2 of its power after averaging
     in blocks of block^2 pixels (the mask's edge blocks hold fewer pixels, so a little more)."""
