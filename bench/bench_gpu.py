@@ -56,6 +56,7 @@ def core(the_sky, scan, systematics):
         b.leak,
         b.jitter,
         b.pointing,
+        False,
     )
     stop.record()
     stop.synchronize()

@@ -139,6 +139,7 @@ class KernelBackend(Protocol):
         leak,
         jitter,
         pointing,
+        zero_qu,
     ):
         """Normal-equation sums of a synthetic scan with an interpolated sky.
 
@@ -160,10 +161,13 @@ class KernelBackend(Protocol):
             As in :meth:`offset_points`.
         pointing : bool
             Whether detector B looks elsewhere.
+        zero_qu : bool
+            Also the sums of the same hits over the sky with Q = U = 0 (its I and the leak's
+            template kept): the paper's zero-polarisation check, without a second pass.
 
         Returns
         -------
-        float64 array, shape (P, 5)
+        float64 array, shape (P, 5), or (2, P, 5) with ``zero_qu``: the sky's, then Q = U = 0's
         """
 
     def moments(self, offsets, psi, rotations, n_max):

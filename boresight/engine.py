@@ -17,7 +17,7 @@ from . import harmonics
 from .backend import get_backend
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
-from .evaluation import METHODS, SkyFields, pair_fields
+from .evaluation import METHODS, SkyFields, pair_fields, without_qu
 from .instrument import Instrument, Systematics, response
 from .mapmaking import RCOND_MIN, Maps, solve
 from .pixels import ang2pix_array
@@ -131,8 +131,9 @@ def simulate(
     nthreads: int = 0,
     backend: str = "cpu",
     rcond_min: float = RCOND_MIN,
+    zero_qu: bool = False,
     progress: bool = False,
-) -> Maps:
+) -> Maps | tuple[Maps, Maps]:
     """Simulate the pair-differenced TOD of a synthetic scan over a sky and make Q, U maps.
 
     Parameters
@@ -160,14 +161,28 @@ def simulate(
         Kernel backend (:mod:`boresight.backend`).
     rcond_min : float
         Pixels whose 2x2 system has a smaller reciprocal condition number are flagged invalid.
+    zero_qu : bool
+        Also the maps of the same hits over the sky with Q = U = 0 (the paper's check that a
+        residual comes from the polarised sky), in the same pass: the numbers of simulating
+        ``sky.without_polarisation()``. Not with detector beams.
     progress : bool
         Show a progress bar over chunks.
 
     Returns
     -------
-    boresight.mapmaking.Maps
+    boresight.mapmaking.Maps, or a pair of them with ``zero_qu`` (the sky's, Q = U = 0's)
         On ``pixels``: q, u [muK] (UNSEEN where invalid), hits (int) and rcond.
+
+    Raises
+    ------
+    ValueError
+        ``zero_qu`` with detector beams, whose signal is the polarised sky's.
     """
+    if zero_qu and systematics.has_beams:
+        raise ValueError(
+            "zero_qu does not apply to detector beams (their signal is the polarised sky's): "
+            "simulate sky.without_polarisation() instead"
+        )
     binner = _Binner(
         sky,
         instrument,
@@ -182,16 +197,19 @@ def simulate(
     if chunk_pixels is None:
         chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
     pix = _pixel_list(pixels, npix)
-    q, u, rcond = np.empty((3, pix.size))
-    ncross = np.empty(pix.size, dtype=np.int64)
+    outputs = [(np.empty((3, pix.size)), np.empty(pix.size, dtype=np.int64))]
+    if zero_qu:
+        outputs.append((np.empty((3, pix.size)), np.empty(pix.size, dtype=np.int64)))
     with numba_threads(nthreads):
         for s, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
-            normal = binner.scan_normal(scan, nside, chunk)
+            normals = binner.scan_normal(scan, nside, chunk, zero_qu)
             at = slice(s, s + chunk.size)
-            q[at], u[at], rcond[at], ncross[at] = _maps_from(
-                kernels, normal, instrument.n_pairs, rcond_min
-            )
-    return Maps(nside, pix, q, u, ncross, rcond)
+            for normal, ((q, u, rcond), ncross) in zip(normals if zero_qu else [normals], outputs):
+                q[at], u[at], rcond[at], ncross[at] = _maps_from(
+                    kernels, normal, instrument.n_pairs, rcond_min
+                )
+    maps = [Maps(nside, pix, q, u, ncross, rcond) for (q, u, rcond), ncross in outputs]
+    return tuple(maps) if zero_qu else maps[0]
 
 
 def _maps_from(kernels, normal, n_pairs, rcond_min):
@@ -288,10 +306,11 @@ class _Binner:
             self.pointing,
         )
 
-    def scan_normal(self, scan, nside, chunk):
+    def scan_normal(self, scan, nside, chunk, zero_qu=False):
         """(npix_chunk, 5) normal-equation sums of a synthetic scan over a chunk of pixels, on the
         backend's device: the backend's bin_scan for an interpolated sky and the sky's beam, else
-        hits -> sky (and beams) at both detectors -> accumulate."""
+        hits -> sky (and beams) at both detectors -> accumulate. With ``zero_qu``, (2, npix_chunk,
+        5): also those of the same hits with the sky's Q = U = 0."""
         if self.evaluation == "interp" and self.beams is None:
             n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
             return self.kernels.bin_scan(
@@ -311,21 +330,21 @@ class _Binner:
                 self.leak,
                 self.jitter,
                 self.pointing,
+                zero_qu,
             )
         offsets, theta, phi, psi = _hits(self.kernels, scan, nside, chunk)
         values_a, values_b = self._values(theta, phi, psi)
-        return self.kernels.accumulate(
-            offsets,
-            psi,
-            values_a,
-            values_b,
-            self._beam_terms(theta, phi, psi),
-            self.response,
-            self.leak,
-            self.jitter,
-            scan.seed,
-            chunk,
-        )
+        beams = self._beam_terms(theta, phi, psi)
+
+        def sums(a, b):
+            k = self.kernels
+            return k.accumulate(
+                offsets, psi, a, b, beams, self.response, self.leak, self.jitter, scan.seed, chunk
+            )
+
+        if not zero_qu:
+            return sums(values_a, values_b)
+        return [sums(values_a, values_b), sums(without_qu(values_a), without_qu(values_b))]
 
     def scatter(self, pixels, theta, phi, psi, normal):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal``."""

@@ -47,6 +47,26 @@ def pair_fields(
     return values_a, at(tb.ravel(), pb.ravel()).reshape((n_fields,) + tb.shape)
 
 
+def without_qu(values):
+    """Fields at points with Q and U zero: what the sky without polarisation
+    (:meth:`boresight.sky.Sky.without_polarisation`) gives there, for its I and the leak's
+    template are this sky's. The paper's Q = U = 0 check reads them from the same hits.
+
+    Parameters
+    ----------
+    values : array, shape (F, ...)
+        I, Q, U (and the template) at points, numpy or CuPy.
+
+    Returns
+    -------
+    array
+        A copy, rows 1 and 2 zero.
+    """
+    out = values.copy()
+    out[1:3] = 0.0
+    return out
+
+
 class SkyFields:
     """The fields a TOD samples: I, Q, U and optionally a leak template.
 

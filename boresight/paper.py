@@ -252,8 +252,6 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
     with timer(f"{exp.name}: reference (no systematic)"):
         scan = paper_scan(exp.survey, seed=seed)
         ref = residual.reference(the_sky, scan, footprint, lmax, **job)[0]
-    # the map-level checks need only no and the ideal rotation; Q = U = 0 runs before the
-    # moments exist, so its own copy of the sky never adds to their memory
     label = {
         angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
         for angle in (None,) + exp.angles_deg
@@ -263,18 +261,12 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
         scan_ = paper_scan(exp.survey, angle, seed=seed)
         return residual.residual(sky_, scan_, exp.systematics, footprint, lmax, **job, **options)
 
-    unpolarised = the_sky.without_polarisation()
-    for angle in (None, exp.ideal_deg):
-        with timer(f"{exp.name}: Q = U = 0, {label[angle]}"):
-            res.zero_qu_residuals[angle] = job_at(
-                unpolarised, angle, reference_=residual.Reference.zero()
-            )
-    del unpolarised
     with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
         n_max = residual.n_max_for(exp.systematics)
         mom = residual.moments(scan, nside, footprint.pixels, run, n_max)
     for angle in (None,) + exp.angles_deg:
-        ideal = angle in (None, exp.ideal_deg)  # the map-level checks need no other angle
+        # the map-level and Q = U = 0 checks need no other angle than none and the ideal one
+        ideal = angle in (None, exp.ideal_deg)
         with timer(f"{exp.name}: {label[angle]}"):
             res.residuals[angle] = job_at(
                 the_sky,
@@ -283,7 +275,10 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
                 moments_=mom,
                 prediction=prediction,
                 predict_map=ideal,
+                zero_qu=ideal,
             )
+        if ideal:
+            res.zero_qu_residuals[angle] = res.residuals[angle].zero_qu
         if angle == exp.ideal_deg:  # the last map-level check: the other angles need no gradient
             prediction.release()
     return res

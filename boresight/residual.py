@@ -184,6 +184,10 @@ class Residual:
         (reference, with systematic), when kept; the reference is None when it was shared.
     stages : dict
         Seconds spent simulating and predicting.
+    zero_qu : Residual, optional
+        The same hits over the sky with Q = U = 0, against no reference (the systematic's own
+        spectrum: the paper's check that the residual comes from the polarised sky), when asked
+        for.
     """
 
     parts: Future
@@ -192,6 +196,7 @@ class Residual:
     h_power: dict = field(default_factory=dict)
     maps: tuple = None
     stages: dict = field(default_factory=dict)
+    zero_qu: Residual = None
 
     @property
     def cross(self):
@@ -238,7 +243,8 @@ def simulate(
     run: RunOptions = RunOptions(),
     leak_template: np.ndarray | None = None,
     progress: bool = False,
-) -> Maps:
+    zero_qu: bool = False,
+) -> Maps | tuple[Maps, Maps]:
     """Maps of a synthetic or a real scan.
 
     Parameters
@@ -255,12 +261,17 @@ def simulate(
     leak_template : numpy.ndarray, optional
         (npix,) template of the additive leak [muK].
     progress : bool
+    zero_qu : bool
+        Also the maps with the sky's Q = U = 0, from the same hits (a synthetic scan's;
+        :func:`boresight.engine.simulate`).
 
     Returns
     -------
-    boresight.mapmaking.Maps
+    boresight.mapmaking.Maps, or (the sky's, Q = U = 0's) with ``zero_qu``
     """
     if isinstance(scan, ground.Schedule):
+        if zero_qu:
+            raise ValueError("zero_qu needs a synthetic scan; simulate sky.without_polarisation()")
         return engine.simulate_samples(
             sky,
             ground.pointing(scan),
@@ -278,6 +289,7 @@ def simulate(
         systematics,
         pixels=pixels,
         leak_template=leak_template,
+        zero_qu=zero_qu,
         progress=progress,
         **run.engine_kwargs(),
     )
@@ -468,6 +480,7 @@ def residual(
     leak_template: np.ndarray | None = None,
     transforms: Transforms | None = None,
     keep_maps: bool = False,
+    zero_qu: bool = False,
     progress: bool = False,
 ) -> Residual:
     """Simulate ``scan`` over ``sky`` with ``systematics`` and return its :class:`Residual`.
@@ -502,6 +515,10 @@ def residual(
         Where the transforms run (default: inline).
     keep_maps : bool
         Keep (reference, systematic) Maps in the result.
+    zero_qu : bool
+        Also :attr:`Residual.zero_qu`, from the same hits (a synthetic scan's, without detector
+        beams): the numbers of this job over ``sky.without_polarisation()`` against
+        ``Reference.zero()``, without a second simulation.
     progress : bool
         Show a progress bar.
 
@@ -518,13 +535,24 @@ def residual(
         reference_, ref_maps = reference(
             sky, scan, footprint, lmax, instrument, run, transforms, progress
         )
-    sim = simulate(sky, scan, instrument, systematics, pixels, run, leak_template, progress)
+    sims = simulate(
+        sky, scan, instrument, systematics, pixels, run, leak_template, progress, zero_qu
+    )
+    sim, sim_qu0 = sims if zero_qu else (sims, None)
+    del sims
     parts = transforms.submit(
         _difference_parts, sim.qu_at(pixels), reference_, footprint, lmax, run
     )
     stages["simulate"] = time.perf_counter() - t0
     result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)
     del sim  # kept in the result only when asked for
+    if zero_qu:
+        result.zero_qu = Residual(
+            transforms.submit(
+                _difference_parts, sim_qu0.qu_at(pixels), Reference.zero(), footprint, lmax, run
+            )
+        )
+        del sim_qu0
     if prediction is None:
         return result
     t0 = time.perf_counter()

@@ -148,22 +148,36 @@ __device__ __forceinline__ void interp_point(const double *stack, int nf, i64 ns
                + w[2] * stack[p[2] * nf + f] + w[3] * stack[p[3] * nf + f];
 }
 struct Sums { double a11 = 0, a12 = 0, a22 = 0, b1 = 0, b2 = 0; };
+// d = (d_A - d_B) / 2 of one pair at (c, s) = (cos, sin) 2 x A's angle (tod_cpu._pair_difference)
+__device__ __forceinline__ double pair_difference(const double *fa, const double *fb, double c,
+        double s, double dg, double leak) {
+    double da = fa[0] + fa[1] * c + fa[2] * s + 0.5 * leak * fa[3];
+    double db = (1.0 - dg) * (fb[0] - fb[1] * c - fb[2] * s) - 0.5 * leak * fb[3];
+    return 0.5 * (da - db);
+}
+__device__ __forceinline__ void add_terms(Sums &t, double c, double s, double d) {
+    t.a11 += c * c; t.a12 += c * s; t.a22 += s * s; t.b1 += c * d; t.b2 += s * d;
+}
 // Normal-equation terms of one hit over every rotation r and pair m (tod_cpu._hit_sums);
-// field_b(r, m, fb) fills what detector B sees.
+// field_b(r, m, fb) fills what detector B sees. With zero, also those of the fields with
+// Q = U = 0 (I and the template kept): the Q = U = 0 check from the same hits.
 template <class FieldB>
 __device__ __forceinline__ Sums hit_sums(double psi, const double *fa, FieldB field_b, int nk,
-        int nm, const double *turn_c, const double *turn_s, const double *dg, const double *leak) {
+        int nm, const double *turn_c, const double *turn_s, const double *dg, const double *leak,
+        Sums *zero) {
     Sums t;
+    if (zero) *zero = Sums{};
     double c0 = cos(2.0 * psi), s0 = sin(2.0 * psi);
     for (int r = 0; r < nk; ++r) for (int m = 0; m < nm; ++m) {
         double c = c0 * turn_c[r * nm + m] - s0 * turn_s[r * nm + m];
         double s = s0 * turn_c[r * nm + m] + c0 * turn_s[r * nm + m];
         double fb[4];
         field_b(r, m, fb);
-        double da = fa[0] + fa[1] * c + fa[2] * s + 0.5 * leak[m] * fa[3];
-        double db = (1.0 - dg[m]) * (fb[0] - fb[1] * c - fb[2] * s) - 0.5 * leak[m] * fb[3];
-        double d = 0.5 * (da - db);
-        t.a11 += c * c; t.a12 += c * s; t.a22 += s * s; t.b1 += c * d; t.b2 += s * d;
+        add_terms(t, c, s, pair_difference(fa, fb, c, s, dg[m], leak[m]));
+        if (zero) {
+            double fa0[4] = {fa[0], 0.0, 0.0, fa[3]}, fb0[4] = {fb[0], 0.0, 0.0, fb[3]};
+            add_terms(*zero, c, s, pair_difference(fa0, fb0, c, s, dg[m], leak[m]));
+        }
     }
     return t;
 }
@@ -225,7 +239,7 @@ __device__ __forceinline__ Sums stored_hit_sums(i64 h, const double *psi, const 
     return hit_sums(psi[h], fa, [&](int r, int m, double *fb) {
         if (vb) load_fields(vb, nf, nh * nk * nm, (h * nk + r) * nm + m, fb);
         else for (int f = 0; f < 4; ++f) fb[f] = fa[f];
-    }, nk, nm, turn_c, turn_s, dg, leak);
+    }, nk, nm, turn_c, turn_s, dg, leak, nullptr);
 }
 
 // Adds the sums of each pixel's hits (offsets) onto its row of out: row target[p], or p when
@@ -247,14 +261,14 @@ extern "C" __global__ void accumulate(const i64 *offsets, const double *psi, i64
 extern "C" __global__ void bin_scan(const i64 *pixels, const i64 *n_phi, const double *range,
         const double *centre, i64 n, u64 seed, i64 nside, int centred, const double *stack,
         int nf, int nk, int nm, const double *turn_c, const double *turn_s, const double *dg,
-        const double *rho_c, const double *rho_s, const double *leak, int pointing,
+        const double *rho_c, const double *rho_s, const double *leak, int pointing, int zero_qu,
         double *out) {
     i64 k = blockIdx.x * (i64)blockDim.x + threadIdx.x;
     if (k >= n) return;
     i64 ix, iy, face;
     u64 key = pixel_key(seed, (u64)pixels[k]);
     ring2xyf(nside, pixels[k], &ix, &iy, &face);
-    Sums acc;
+    Sums acc, acc0, zero;
     for (i64 j = 0; j < n_phi[k]; ++j) {
         double theta, phi, psi, fa[4];
         draw_hit(key, j, nside, ix, iy, face, range[k], centre[k], centred, &theta, &phi, &psi);
@@ -267,9 +281,11 @@ extern "C" __global__ void bin_scan(const i64 *pixels, const i64 *n_phi, const d
             offset_point(theta, phi, inv_sin_t, cos_psi, sin_psi, rho_c[r * nm + m],
                          rho_s[r * nm + m], &tb, &pb);
             interp_point(stack, nf, nside, tb, pb, fb);
-        }, nk, nm, turn_c, turn_s, dg, leak));
+        }, nk, nm, turn_c, turn_s, dg, leak, zero_qu ? &zero : nullptr));
+        if (zero_qu) add_sums(acc0, zero);
     }
     store_sums(out, k, acc);
+    if (zero_qu) store_sums(out + 5 * n, k, acc0);
 }
 
 extern "C" __global__ void moments(const i64 *offsets, const double *psi, i64 npix,

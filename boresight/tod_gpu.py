@@ -278,6 +278,7 @@ def bin_scan(
     leak: np.ndarray,
     jitter: np.ndarray,
     pointing: bool,
+    zero_qu: bool,
 ) -> cp.ndarray:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
 
@@ -288,7 +289,7 @@ def bin_scan(
 
     The same numbers as generate_hits -> interpolate (-> offset_points) -> accumulate.
     """
-    out = cp.empty((pixels.size, 5))
+    out = cp.empty((2, pixels.size, 5) if zero_qu else (pixels.size, 5))
     physics = _physics(response, leak, jitter)
     _launch(
         "bin_scan",
@@ -297,7 +298,7 @@ def bin_scan(
         + (stack, np.int32(stack.shape[1]))
         + physics[:5]
         + _offsets(rotations, pair_angles, rho, chi)
-        + (physics[5], np.int32(bool(pointing)), out),
+        + (physics[5], np.int32(bool(pointing)), np.int32(bool(zero_qu)), out),
     )
     return out
 

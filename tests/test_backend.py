@@ -115,7 +115,7 @@ def test_gpu_kernel_launches_match_the_cuda_parameters_without_a_gpu(
     hit_pixels = np.repeat(pixels, 2)
     gpu.accumulate_scatter(hit_pixels, psi[: offsets[-1]], *values, none, resp, leak, out)
     jitter = np.zeros(2)
-    gpu.bin_scan(*scan_args, stack, rot, ang, resp, rho, chi, leak, jitter, True)
+    gpu.bin_scan(*scan_args, stack, rot, ang, resp, rho, chi, leak, jitter, True, True)
     gpu.moments(offsets, psi[: offsets[-1]], rot, 4)
     launched = {name for name, _ in fake.launches}
     assert launched == set(re.findall(r"__global__ void (\w+)\(", gpu.SOURCE))
@@ -134,7 +134,8 @@ def test_gpu_kernel_launches_match_the_cuda_parameters_without_a_gpu(
 
 
 def test_cpu_bin_scan_equals_its_stages(small_sky):
-    """bin_scan is generate_hits -> interpolate -> offset_points -> accumulate, to the bit."""
+    """bin_scan is generate_hits -> interpolate -> offset_points -> accumulate, to the bit; its
+    Q = U = 0 sums are those stages over the sky without polarisation."""
     pixels = np.arange(0, 12 * 64**2, 97, dtype=np.int64)
     n_phi = np.full(pixels.size, 3)
     rng_rad, centre = np.full(pixels.size, 0.7), np.zeros(pixels.size)
@@ -143,19 +144,24 @@ def test_cpu_bin_scan_equals_its_stages(small_sky):
     par = systematics.per_pair(2)
     table = response(rot, ang, par, systematics.per_repeat(2))
     rho, chi, leak, jitter = par.rho, par.chi, par.leak, par.dg_jitter
-    stack = small_sky.interleaved
     args = (rot, ang, table, rho, chi, leak, jitter, True)
-    fused = tod_cpu.bin_scan(5, 64, pixels, n_phi, rng_rad, centre, False, stack, *args)
+    scan_args = (5, 64, pixels, n_phi, rng_rad, centre, False, small_sky.interleaved)
+    fused = tod_cpu.bin_scan(*scan_args, *args, False)
+    both = tod_cpu.bin_scan(*scan_args, *args, True)
     offsets = scan.hit_offsets(n_phi)
     theta, phi, psi = tod_cpu.generate_hits(5, 64, pixels, offsets, rng_rad, centre, False)
-    values_a = tod_cpu.interpolate(stack, 64, theta, phi)
     tb, pb = tod_cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
-    values_b = tod_cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
     no_beams = np.empty((2, 0) + tb.shape[1:])
-    staged = tod_cpu.accumulate(
-        offsets, psi, values_a, values_b, no_beams, table, leak, jitter, 5, pixels
-    )
-    np.testing.assert_array_equal(fused, staged)
+    unpolarised = small_sky.without_polarisation()
+    for the_sky, got in ((small_sky, fused), (small_sky, both[0]), (unpolarised, both[1])):
+        stack = the_sky.interleaved
+        values_a = tod_cpu.interpolate(stack, 64, theta, phi)
+        values_b = tod_cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
+        staged = tod_cpu.accumulate(
+            offsets, psi, values_a, values_b, no_beams, table, leak, jitter, 5, pixels
+        )
+        np.testing.assert_array_equal(got, staged)
+    assert not np.array_equal(both[0], both[1])
 
 
 def test_cpu_offset_points_equal_the_direct_formula_past_the_poles_too(offset_inputs):

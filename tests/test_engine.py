@@ -141,6 +141,34 @@ def test_pointing_first_order_cancels_with_180_rotation(small_sky_unpolarised):
     assert np.max(np.abs(pbr.q + 1j * pbr.u)) < 0.02 * np.max(np.abs(leak.q + 1j * leak.u))
 
 
+@pytest.mark.parametrize("evaluation", ["interp", "exact"])
+def test_zero_qu_maps_are_those_of_the_unpolarised_sky_to_the_bit(small_sky, evaluation):
+    """The Q = U = 0 maps from the same pass equal a scan of sky.without_polarisation(): gain,
+    pointing, leak (its template the sky's I), angle errors and gain jitter alike."""
+    unpolarised = small_sky.without_polarisation()
+    scan = SyntheticScan(n_phi=3, range_rad=0.5, rotations_deg=(0, 90), seed=5)
+    for sysm in (
+        Systematics(rho_arcmin=3.0, chi_deg=(10.0, -20.0)),
+        Systematics(dg=0.02, rho_arcmin=1.0, leak=(0.01, 0.0)),
+        Systematics(pol_angle_deg=0.5, dg_jitter=0.01),
+    ):
+        kw = dict(systematics=sysm, evaluation=evaluation, chunk_pixels=5000)
+        maps, zero = engine.simulate(small_sky, scan, zero_qu=True, **kw)
+        alone = engine.simulate(small_sky, scan, **kw)
+        separate = engine.simulate(unpolarised, scan, **kw)
+        for got, want in ((maps, alone), (zero, separate)):
+            for name in ("q", "u", "hits", "rcond"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+        assert not np.array_equal(zero.q, maps.q)  # the sky's Q, U are in the first only
+
+
+def test_zero_qu_refuses_detector_beams(small_sky):
+    with pytest.raises(ValueError, match="without_polarisation"):
+        engine.simulate(
+            small_sky, SyntheticScan(), systematics=Systematics(dfwhm_a_arcmin=0.5), zero_qu=True
+        )
+
+
 def test_chunking_and_threads_do_not_change_results(small_sky):
     scan = SyntheticScan(n_phi=3, range_rad=0.7, rotations_deg=(0, 90), seed=11)
     sysm = Systematics(dg=(0.01, -0.01), rho_arcmin=0.5)
@@ -234,3 +262,14 @@ def test_gradient_matches_finite_difference(small_sky_unpolarised):
     # on some pixels only (their rings, packed): the full-sky values to rounding
     on = harmonics.alm2map_gradient(s.alm[0], s.nside, pixels=pix)
     np.testing.assert_allclose(on, g[:, pix], rtol=0, atol=1e-13 * np.abs(g).max())
+
+
+def test_zero_qu_needs_a_synthetic_scan(small_sky):
+    from boresight import ground, residual
+
+    ces = ground.CES(
+        start_unix=1.79e9, duration_s=60, elevation_deg=50, az_centre_deg=134, az_throw_deg=40
+    )
+    schedule = ground.Schedule((ces,), sample_rate_hz=1.0)
+    with pytest.raises(ValueError, match="synthetic scan"):
+        residual.simulate(small_sky, schedule, Instrument(), Systematics(), None, zero_qu=True)
