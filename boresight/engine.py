@@ -197,19 +197,22 @@ def simulate(
     if chunk_pixels is None:
         chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
     pix = _pixel_list(pixels, npix)
-    outputs = [(np.empty((3, pix.size)), np.empty(pix.size, dtype=np.int64))]
-    if zero_qu:
-        outputs.append((np.empty((3, pix.size)), np.empty(pix.size, dtype=np.int64)))
+    q, u, rcond = np.empty((3, pix.size))
+    ncross = np.empty(pix.size, dtype=np.int64)
+    if zero_qu:  # Q = U = 0's q, u; its hits and rcond are the sky's (the same c, s sums)
+        q0, u0 = np.empty((2, pix.size))
     with numba_threads(nthreads):
         for s, chunk in _chunks(pix, chunk_pixels, progress, "simulate"):
-            normals = binner.scan_normal(scan, nside, chunk, zero_qu)
+            normal = binner.scan_normal(scan, nside, chunk, zero_qu)
             at = slice(s, s + chunk.size)
-            for normal, ((q, u, rcond), ncross) in zip(normals if zero_qu else [normals], outputs):
-                q[at], u[at], rcond[at], ncross[at] = _maps_from(
-                    kernels, normal, instrument.n_pairs, rcond_min
-                )
-    maps = [Maps(nside, pix, q, u, ncross, rcond) for (q, u, rcond), ncross in outputs]
-    return tuple(maps) if zero_qu else maps[0]
+            if zero_qu:
+                normal, normal0 = normal
+                q0[at], u0[at] = (kernels.to_host(x) for x in solve(normal0, rcond_min)[:2])
+            q[at], u[at], rcond[at], ncross[at] = _maps_from(
+                kernels, normal, instrument.n_pairs, rcond_min
+            )
+    maps = Maps(nside, pix, q, u, ncross, rcond)
+    return (maps, Maps(nside, pix, q0, u0, ncross, rcond)) if zero_qu else maps
 
 
 def _maps_from(kernels, normal, n_pairs, rcond_min):
