@@ -29,7 +29,7 @@ def main(nside, lmax, backend):
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(f"{'total':<48} {total:>8.1f}")
     print(
-        f"peak RSS {rss:.1f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} claims "
+        f"peak RSS {rss:.2f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} claims "
         "reproduced"
     )
 

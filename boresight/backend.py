@@ -167,7 +167,8 @@ class KernelBackend(Protocol):
 
         Returns
         -------
-        float64 array, shape (P, 5), or (2, P, 5) with ``zero_qu``: the sky's, then Q = U = 0's
+        float64 array, shape (P, 5), or with ``zero_qu`` a pair of them (a tuple or a (2, P, 5)
+        array): the sky's, then Q = U = 0's
         """
 
     def moments(self, offsets, psi, rotations, n_max):

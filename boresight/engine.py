@@ -17,7 +17,7 @@ from . import harmonics
 from .backend import get_backend
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
-from .evaluation import METHODS, SkyFields, pair_fields, without_qu
+from .evaluation import METHODS, SkyFields, pair_fields, sums_with_zero_qu
 from .instrument import Instrument, Systematics, response
 from .mapmaking import RCOND_MIN, Maps, solve
 from .pixels import ang2pix_array
@@ -312,8 +312,8 @@ class _Binner:
     def scan_normal(self, scan, nside, chunk, zero_qu=False):
         """(npix_chunk, 5) normal-equation sums of a synthetic scan over a chunk of pixels, on the
         backend's device: the backend's bin_scan for an interpolated sky and the sky's beam, else
-        hits -> sky (and beams) at both detectors -> accumulate. With ``zero_qu``, (2, npix_chunk,
-        5): also those of the same hits with the sky's Q = U = 0."""
+        hits -> sky (and beams) at both detectors -> accumulate. With ``zero_qu``, a pair of them:
+        also those of the same hits with the sky's Q = U = 0."""
         if self.evaluation == "interp" and self.beams is None:
             n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
             return self.kernels.bin_scan(
@@ -345,9 +345,7 @@ class _Binner:
                 offsets, psi, a, b, beams, self.response, self.leak, self.jitter, scan.seed, chunk
             )
 
-        if not zero_qu:
-            return sums(values_a, values_b)
-        return [sums(values_a, values_b), sums(without_qu(values_a), without_qu(values_b))]
+        return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
     def scatter(self, pixels, theta, phi, psi, normal):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal``."""

@@ -67,6 +67,27 @@ def without_qu(values):
     return out
 
 
+def sums_with_zero_qu(sums, values_a, values_b, zero_qu):
+    """``sums(values_a, values_b)``, and with ``zero_qu`` also those of the fields with Q = U = 0
+    (:func:`without_qu`) from the same hits.
+
+    Parameters
+    ----------
+    sums : callable
+        sums(values_a, values_b) -> normal-equation sums (P, 5), the backend's accumulate.
+    values_a, values_b : array
+        The fields at both detectors (:func:`pair_fields`).
+    zero_qu : bool
+
+    Returns
+    -------
+    array, shape (P, 5), or a pair of them with ``zero_qu`` (the sky's, Q = U = 0's)
+    """
+    if not zero_qu:
+        return sums(values_a, values_b)
+    return sums(values_a, values_b), sums(without_qu(values_a), without_qu(values_b))
+
+
 class SkyFields:
     """The fields a TOD samples: I, Q, U and optionally a leak template.
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .evaluation import pair_fields, without_qu
+from .evaluation import pair_fields, sums_with_zero_qu
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import (
     JITTER_SALT,
@@ -272,7 +272,7 @@ def bin_scan(
     jitter: np.ndarray,
     pointing: bool,
     zero_qu: bool,
-) -> np.ndarray:
+) -> np.ndarray | tuple:
     """Normal-equation sums of a synthetic scan with an interpolated sky.
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.bin_scan`.
@@ -306,9 +306,7 @@ def bin_scan(
     def sums(a, b):
         return accumulate(offsets, psi, a, b, no_beams, response, leak, jitter, seed, pixels)
 
-    if not zero_qu:
-        return sums(values_a, values_b)
-    return np.stack([sums(values_a, values_b), sums(without_qu(values_a), without_qu(values_b))])
+    return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
 
 @numba.njit(parallel=True, cache=True)
