@@ -37,9 +37,10 @@ DEFAULT_CHUNK_PIXELS = {"cpu": 1 << 16, "gpu": 1 << 22}
 
 
 def _pixel_list(pixels, npix):
-    """Sorted unique int64 RING indices from ``pixels``: None (all), a boolean map of npix
-    entries, or a 1-d array of integer indices in [0, npix). Anything else is a ValueError (a
-    float 0/1 mask would otherwise read as the pixel indices 0 and 1)."""
+    """Sorted unique int64 RING indices from ``pixels``, contiguous (the kernels' registered
+    type): None (all), a boolean map of npix entries, or a 1-d array of integer indices in
+    [0, npix). Anything else is a ValueError (a float 0/1 mask would otherwise read as the pixel
+    indices 0 and 1)."""
     if pixels is None:
         return np.arange(npix, dtype=np.int64)
     pixels = np.asarray(pixels)
@@ -54,7 +55,7 @@ def _pixel_list(pixels, npix):
             f"pixels must be integer RING indices or a boolean map, got dtype {pixels.dtype} "
             "(for a 0/1 mask pass mask > 0)"
         )
-    pixels = pixels.astype(np.int64, copy=False)
+    pixels = np.ascontiguousarray(pixels, dtype=np.int64)  # a strided view would compile anew
     if pixels.size > 1 and not np.all(pixels[1:] > pixels[:-1]):
         pixels = np.unique(pixels)  # else already sorted and unique: no copy
     if pixels.size and (pixels[0] < 0 or pixels[-1] >= npix):

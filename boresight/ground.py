@@ -613,31 +613,31 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
     Yields
     ------
     tuple
-        (first sample, samples, start [unix s], rate [Hz], azimuth centre, throw [rad], speed
+        (first sample, samples: int; start [unix s], rate [Hz], azimuth centre, throw [rad], speed
         [rad/s], turnaround [s], elevation [rad], UT1 Julian date offset, longitude, latitude [rad],
-        boresight angle [rad]).
+        boresight angle [rad]: float, also where the file gave an integer, since numba compiles a
+        kernel anew for each combination of types).
     """
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
     jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
     for repeat in schedule.repeat_boresight_deg:
         for c in schedule.ces:
             n = int(c.duration_s * schedule.sample_rate_hz)
+            scalars = (
+                c.start_unix,
+                schedule.sample_rate_hz,
+                c.az_centre_deg * DEG,
+                c.az_throw_deg * DEG,
+                c.speed_deg_s * DEG,
+                c.turnaround_s,
+                c.elevation_deg * DEG,
+                jd_offset,
+                lon,
+                lat,
+                (c.boresight_deg + repeat) * DEG,
+            )
             for s in range(0, n, chunk_samples):
-                yield (
-                    s,
-                    min(chunk_samples, n - s),
-                    c.start_unix,
-                    schedule.sample_rate_hz,
-                    c.az_centre_deg * DEG,
-                    c.az_throw_deg * DEG,
-                    c.speed_deg_s * DEG,
-                    c.turnaround_s,
-                    c.elevation_deg * DEG,
-                    jd_offset,
-                    lon,
-                    lat,
-                    (c.boresight_deg + repeat) * DEG,
-                )
+                yield (s, min(chunk_samples, n - s), *map(float, scalars))
 
 
 def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple]:

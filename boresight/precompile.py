@@ -69,7 +69,7 @@ class Kernel:
         return getattr(importlib.import_module(f"boresight.{self.module}"), self.name)
 
 
-_SCALARS = (nt.int64,) * 3 + (nt.float64,) * 10  # a CES chunk: chunk_arguments' tuple
+_SCALARS = (nt.int64,) * 2 + (nt.float64,) * 11  # a CES chunk: chunk_arguments' tuple
 _U2 = nt.uint64[:, ::1]
 
 #: Every kernel a job calls, by name, with the argument types it is called with.

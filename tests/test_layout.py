@@ -1,7 +1,10 @@
 """The maps of the code a newcomer reads stay complete: every module in the README's layout table,
-the API reference and the architecture; every benchmark in the README."""
+the API reference and the architecture; every benchmark in the README. The tests run this
+checkout."""
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -32,3 +35,18 @@ def test_the_readme_names_every_benchmark_and_the_module_count():
     benches = {p.name for p in (ROOT / "bench").glob("bench_*.py")}
     assert benches - set(re.findall(r"bench_\w+\.py", readme)) == set()
     assert f"one flat folder of {len(MODULES)} modules" in readme
+
+
+def test_the_tests_and_the_processes_they_start_import_this_checkout():
+    """``python -m boresight.cli`` started from the checkout (the CLI, kill and compile tests)
+    imports the checkout's boresight, and so must the tests (the README installs it with
+    ``pip install -e``). After a plain ``pip install .`` pytest imported the site-packages copy:
+    two copies, each compiling its own numba kernels (the suite took 37 s longer in CI)."""
+    import boresight
+
+    code = "import importlib.util as u; print(u.find_spec('boresight').origin)"
+    found = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    )
+    here = ROOT / "boresight" / "__init__.py"
+    assert Path(boresight.__file__).resolve() == Path(found.stdout.strip()).resolve() == here

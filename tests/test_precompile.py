@@ -48,6 +48,26 @@ def test_the_jobs_name_every_registered_kernel():
         precompile.kernels_for("sweep")
 
 
+def test_a_schedule_in_integers_or_floats_calls_the_ces_kernels_at_one_signature():
+    # a TOML schedule gives integer starts and durations, a TOAST one floats: numba would compile
+    # each combination of types anew (2.2-2.4 s per kernel with an empty cache)
+    from dataclasses import replace
+
+    import numba
+
+    from boresight import ground
+
+    base = ground.load_schedule("examples/schedule_deep_sat.toml")
+    as_int = [replace(c, start_unix=int(c.start_unix), turnaround_s=0) for c in base.ces[:2]]
+    as_float = [replace(c, start_unix=c.start_unix + 0.5, turnaround_s=2.5) for c in base.ces[:2]]
+    for ces, rate in ((as_int, 20), (as_float, 12.5)):
+        schedule = ground.Schedule(tuple(ces), base.site, rate)
+        for args in ground.chunk_arguments(schedule, chunk_samples=1 << 14):
+            types = tuple(numba.typeof(a) for a in args)
+            assert types == precompile.KERNELS["_ces_pointing"].signature
+            assert types + (numba.int64,) * 2 == precompile.KERNELS["ces_hits"].signature
+
+
 def test_every_job_calls_its_kernels_at_their_registered_signatures(tmp_path):
     # a fresh process, in which each job precompiles its kernels: a kernel called with other
     # argument types would compile a second signature
