@@ -4,6 +4,7 @@ output directories that boresight did not create are never removed."""
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -119,17 +120,32 @@ def test_force_replaces_boresight_own_output(tmp_path, study_file):
 # 2. Segmentation fault --------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "row",
-    ["nan,600,50,133.6,60,1\n", "1790028800,600,50,nan,60,1\n", "1790028800,600,50,1,60,inf\n"],
-)
-def test_nan_schedule_is_an_error_not_a_crash(tmp_path, capsys, row):
-    path = tmp_path / "s.csv"
-    path.write_text(CSV_HEADER + row)
-    cmd = [sys.executable, "-m", "boresight.cli", "compare-scans", str(path), "--nside", "16"]
-    proc = subprocess.run([*cmd, "--out", str(tmp_path / "o")], capture_output=True, text=True)
-    assert proc.returncode == 2, proc.stderr
-    assert "line 2" in proc.stderr and "Traceback" not in proc.stderr
+NAN_ROWS = ["nan,600,50,133.6,60,1\n", "1790028800,600,50,nan,60,1\n", "1790028800,600,50,1,60,inf\n"]
+
+#: compare-scans of each schedule file in turn, in one process, each exit code after its output
+EACH_SCHEDULE = """
+import sys
+from boresight.cli import main
+for path in sys.argv[1:]:
+    rc = main(["compare-scans", path, "--nside", "16", "--out", path + ".out"])
+    print(f"exit {rc}", file=sys.stderr, flush=True)
+"""
+
+
+def test_nan_schedule_is_an_error_not_a_crash(tmp_path):
+    # another process, which a crash (the segfault this guards against) would end: one for all
+    # the files, since starting one costs more than the three runs
+    paths = [tmp_path / f"s{i}.csv" for i in range(len(NAN_ROWS))]
+    for path, row in zip(paths, NAN_ROWS):
+        path.write_text(CSV_HEADER + row)
+    cmd = [sys.executable, "-c", EACH_SCHEDULE, *map(str, paths)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    parts = re.split(r"^exit (-?\d+)$", proc.stderr, flags=re.MULTILINE)
+    assert len(parts) == 2 * len(NAN_ROWS) + 1 and not parts[-1].strip(), proc.stderr
+    for row, err, rc in zip(NAN_ROWS, parts[0::2], parts[1::2]):
+        assert rc == "2", (row, err)
+        assert "line 2" in err and "Traceback" not in err, (row, err)
 
 
 def test_simulate_samples_rejects_bad_pointing(small_sky):
