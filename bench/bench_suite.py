@@ -1,38 +1,48 @@
 """The README's test command, ``pytest -q``, cold (an empty numba cache, as in CI on a fresh
 machine) and then warm (the same cache again, as on a developer's machine), each a fresh process.
+Beside the wall time, the CPU seconds of pytest and every process it waited for: the work itself,
+which a busy or slow machine stretches less than the wall time.
 
 Usage: python bench/bench_suite.py [WARM_REPEATS]   (default 2; run from the repository root)
 """
 
 import os
 import re
+import resource
 import subprocess
 import sys
 import tempfile
 import time
 
 
+def _children_cpu():
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def run(cache):
-    """Wall seconds of ``pytest -q`` and the seconds pytest reports for its session."""
+    """Wall seconds of ``pytest -q``, the seconds pytest reports for its session, its CPU
+    seconds (user + system, with its workers and their processes) and its summary."""
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _children_cpu()
     proc = subprocess.run(["pytest", "-q"], env=env, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - cpu0
     last = proc.stdout.strip().splitlines()[-1]
     if proc.returncode:
         sys.exit(f"the suite failed: {last}")
-    return wall, float(re.search(r" in ([0-9.]+)s", last).group(1)), last.split(" in ")[0]
+    session = float(re.search(r" in ([0-9.]+)s", last).group(1))
+    return wall, session, cpu, last.split(" in ")[0]
 
 
 def main(repeats):
     with tempfile.TemporaryDirectory() as tmp:
         rows = [("cold (empty numba cache)", *run(tmp))]
         rows += [(f"warm {i + 1}", *run(tmp)) for i in range(repeats)]
-    print(f"pytest -q, {os.cpu_count()} cores, {rows[0][3]}")
-    print("| run | wall [s] | pytest's session [s] |")
-    print("|---|---|---|")
-    for name, wall, session, _ in rows:
-        print(f"| {name} | {wall:.1f} | {session:.1f} |")
+    print(f"pytest -q, {os.cpu_count()} cores, {rows[0][4]}")
+    print("| run | wall [s] | pytest's session [s] | CPU [s] |")
+    print("|---|---|---|---|")
+    for name, wall, session, cpu, _ in rows:
+        print(f"| {name} | {wall:.1f} | {session:.1f} | {cpu:.0f} |")
 
 
 if __name__ == "__main__":
