@@ -79,6 +79,7 @@ def pytest_configure(config):
 MODULES_ON_ONE_WORKER = {"tests/test_predict.py", "tests/test_toast.py"}
 
 
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: unknown to pytest without xdist
 def pytest_xdist_make_scheduler(config, log):
     """Under ``--dist load`` (the default here), schedule test by test, except that each module of
     :data:`MODULES_ON_ONE_WORKER` goes whole to one worker. Split between the two, they built the
