@@ -50,3 +50,11 @@ def test_the_tests_and_the_processes_they_start_import_this_checkout():
     )
     here = ROOT / "boresight" / "__init__.py"
     assert Path(boresight.__file__).resolve() == Path(found.stdout.strip()).resolve() == here
+
+
+def test_the_modules_kept_on_one_xdist_worker_exist():
+    """conftest.MODULES_ON_ONE_WORKER names test files by path: a renamed one would silently be
+    split between the workers again, building its module fixtures twice."""
+    from conftest import MODULES_ON_ONE_WORKER
+
+    assert all((ROOT / path).is_file() for path in MODULES_ON_ONE_WORKER), MODULES_ON_ONE_WORKER
