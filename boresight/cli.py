@@ -16,6 +16,8 @@ from dataclasses import replace
 
 from . import paper, studies
 from .config import ConfigError, RunOptions, add_flags, load_study, read_toml
+from .frames import FRAMES
+from .ground import TURNAROUNDS
 from .ground import is_schedule as ground_schedule
 from .sky import SkyConfig
 from .studies import LAYOUTS
@@ -60,6 +62,7 @@ def _parser():
     )
     ss.add_argument("--prefix", default="hn", help="file name prefix of --format so")
     _motion_flags(ss)
+    _pointing_flags(ss)
     sw = sub.add_parser("sweep", help="a grid or list of studies, locally or on a Dask cluster")
     sw.add_argument("sweep_file")
     sw.add_argument("--out", required=True, help="output directory (re-running resumes it)")
@@ -80,6 +83,7 @@ def _parser():
     cs.add_argument("--fwhm-arcmin", type=float, default=30.0)
     cs.add_argument("--force", action="store_true")
     _motion_flags(cs)
+    _pointing_flags(cs)
     ex = sub.add_parser(
         "export-schedule",
         help="write a schedule for TOAST (text, or ECSV for *.ecsv) and print its SimGround",
@@ -99,6 +103,7 @@ def _parser():
         "--no-validate", action="store_true", help="skip the TOD simulation of the design"
     )
     _motion_flags(de)
+    _pointing_flags(de)
     su = sub.add_parser(
         "suppression",
         help="every systematic alone through 0/45/90/180 deg rotation: table and figure",
@@ -130,10 +135,31 @@ def _motion_flags(p):
     g.add_argument("--sample-rate", type=float, default=20.0, help="samples per second (20)")
 
 
+def _pointing_flags(p):
+    """Flags for how a schedule's samples become pointing: the sky frame and the turnarounds."""
+    g = p.add_argument_group("schedule pointing")
+    g.add_argument(
+        "--frame",
+        choices=FRAMES,
+        help="sky frame of the pointing and the maps (default: the schedule file's, else icrs)",
+    )
+    g.add_argument(
+        "--turnarounds",
+        choices=TURNAROUNDS,
+        help="keep the samples of the turnarounds, or leave them out as TOAST's map-making does "
+        "(default: the schedule file's, else include)",
+    )
+
+
 def _motion(args):
     from .toast_schedule import ScanMotion
 
     return ScanMotion(args.scan_rate, args.rate_on == "sky", args.scan_accel, args.sample_rate)
+
+
+def _pointing(args):
+    """The --frame and --turnarounds given (None: the schedule file's)."""
+    return dict(frame=args.frame, turnarounds=args.turnarounds)
 
 
 def _reproduce_study(args):
@@ -261,6 +287,7 @@ def _run(args, progress, memory_check):
             log=log.info,
             memory_check=memory_check,
             motion=_motion(args),
+            **_pointing(args),
         )
         return 0
     if args.command == "design":
@@ -273,6 +300,7 @@ def _run(args, progress, memory_check):
             not args.no_validate,
             log.info,
             progress,
+            **_pointing(args),
         )
         for row in result["strategies"]:
             log.info(
@@ -304,7 +332,7 @@ def _run(args, progress, memory_check):
         if ground_schedule(args.config):
             motion = _motion(args)
             rows = studies.schedule_stats(
-                args.config, args.out, args.nside, motion, args.force, **opts
+                args.config, args.out, args.nside, motion, args.force, **opts, **_pointing(args)
             )
         else:
             rows = studies.scan_stats(load_study(args.config), args.out, args.force, **opts)

@@ -231,11 +231,13 @@ def unit_moments(
         pix, cos, sin = [], [], []
         for i in idx:
             one = replace(schedule, ces=(replace(rows[i], boresight_deg=0.0),))
+            exclude = schedule.turnarounds == "exclude"
             for args in chunk_arguments(one.single(), chunk_samples):
-                p, c, s, _ = ces_hits(*args, nside, 1)
-                pix.append(p)
-                cos.append(c)
-                sin.append(s)
+                p, c, s, _ = ces_hits(*args, nside, 1, exclude)
+                kept = p >= 0
+                pix.append(p[kept])
+                cos.append(c[kept])
+                sin.append(s[kept])
         pix, e1 = np.concatenate(pix), np.concatenate(cos) + 1j * np.concatenate(sin)
         upix, inverse = np.unique(pix, return_inverse=True)
         power = np.ones_like(e1)

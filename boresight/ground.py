@@ -3,16 +3,17 @@
 Each CES sweeps the azimuth between centre - throw / 2 and centre + throw / 2 at constant speed,
 reversing at each end in ``turnaround_s`` at constant deceleration (overshooting by
 speed * turnaround / 4), at fixed elevation and boresight angle. The Earth turns between and
-during CESs. Pointing is a rotation from the horizon frame to equatorial coordinates of date
-(CIRS, from the Earth Rotation Angle with UT1 = UTC + dut1). It ignores polar motion, refraction
-and diurnal aberration (each below 0.5 arcsec). Coordinates of date differ from ICRS by
-precession-nutation, about 0.35 deg in 2026: irrelevant for crossing-angle statistics and noted in
-FITS outputs.
+during CESs. Each sample's direction is rotated from the horizon to the apparent equatorial frame
+of date (CIRS, from the Earth Rotation Angle with UT1 = UTC + dut1), then to the schedule's frame,
+ICRS by default (:mod:`boresight.frames`: aberration and precession-nutation, 0.15 deg in 2026).
+Refraction and polar motion are left out (below 0.5 arcsec). A schedule may leave out the
+samples of its turnarounds, as TOAST's map-making does by default; it keeps them by default.
 
 The crossing angle psi of a sample is the orientation on the sky of the focal plane's "up" axis
-(towards the zenith at zero boresight rotation), measured from e_theta towards e_phi like the
-synthetic scans' psi, plus the boresight angle: psi = pi - q + boresight, with q the parallactic
-angle (position angle of the zenith, east of north).
+(towards the zenith at zero boresight rotation), measured from e_theta towards e_phi of the
+schedule's frame like the synthetic scans' psi, plus the boresight angle: in CIRS,
+psi = pi - q + boresight, with q the parallactic angle (position angle of the zenith, east of
+north).
 """
 
 from __future__ import annotations
@@ -26,9 +27,10 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from . import validation
+from . import frames, validation
 from .config import ConfigError, tomllib
 from .constants import DEG
+from .frames import to_frame
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -36,7 +38,9 @@ if TYPE_CHECKING:
     from .toast_schedule import ScanMotion
 
 
-UNIX_EPOCH_JD = 2440587.5
+UNIX_EPOCH_JD = frames.UNIX_EPOCH_JD
+#: what a schedule does with the samples of its turnarounds
+TURNAROUNDS = ("include", "exclude")
 #: Simons Observatory site, Cerro Toco, Atacama (deg, deg, m)
 ATACAMA = (-22.958, -67.787, 5200.0)
 
@@ -151,6 +155,10 @@ class Schedule:
         UT1 - UTC [s], in [-1, 1].
     repeat_boresight_deg : tuple of float
         The CES set is observed once per angle [deg] (identical sky tracks).
+    frame : {"icrs", "galactic", "cirs"}
+        The sky frame of its pointing (:mod:`boresight.frames`).
+    turnarounds : {"include", "exclude"}
+        Keep or leave out the samples of the turnarounds (TOAST's map-making leaves them out).
     """
 
     ces: tuple
@@ -158,8 +166,13 @@ class Schedule:
     sample_rate_hz: float = 20.0
     dut1_s: float = 0.0  #: UT1 - UTC [s]
     repeat_boresight_deg: tuple = (0.0,)  #: the CES set is observed once per angle [deg]
+    frame: str = "icrs"
+    turnarounds: str = "include"
 
     def __post_init__(self):
+        frames.check_frame(self.frame)
+        if self.turnarounds not in TURNAROUNDS:
+            raise ValueError(f"turnarounds = {self.turnarounds!r}; allowed: {TURNAROUNDS}")
         if not self.ces or not all(isinstance(c, CES) for c in self.ces):
             raise ValueError("a schedule needs at least one CES")
         validation.number("sample_rate_hz", self.sample_rate_hz, 1e-3, 1e4)
@@ -203,7 +216,13 @@ class ScheduleError(ConfigError):
     """A schedule file that cannot be read, with the file, row and key in the message."""
 
 
-def load_schedule(path: str, motion: ScanMotion | None = None) -> Schedule:
+def load_schedule(
+    path: str,
+    motion: ScanMotion | None = None,
+    *,
+    frame: str | None = None,
+    turnarounds: str | None = None,
+) -> Schedule:
     """Read a schedule file: boresight's TOML or CSV, or any TOAST schedule.
 
     TOML: optional [site], sample_rate_hz, dut1_s, repeat_boresight_deg and [[ces]] tables of CES
@@ -217,6 +236,9 @@ def load_schedule(path: str, motion: ScanMotion | None = None) -> Schedule:
     motion : boresight.toast_schedule.ScanMotion, optional
         Scan rate, acceleration and sample rate of a TOAST schedule, which its file leaves out
         (default: ``SimGround``'s, at 20 Hz). boresight's own formats hold their own.
+    frame, turnarounds : str, optional
+        Replace the file's (:class:`Schedule`); a TOML schedule may give its own, the others
+        take the defaults.
 
     Returns
     -------
@@ -233,14 +255,18 @@ def load_schedule(path: str, motion: ScanMotion | None = None) -> Schedule:
     if not os.path.isfile(path):
         raise ScheduleError(f"schedule not found (or not a file): {path}")
     if toast_schedule.is_toast_schedule(path):
-        return toast_schedule.read(path, motion or toast_schedule.ScanMotion())
+        schedule = toast_schedule.read(path, motion or toast_schedule.ScanMotion())
+    else:
+        try:
+            schedule = Schedule(_csv_rows(path)) if path.endswith(".csv") else _toml_schedule(path)
+        except ScheduleError:
+            raise
+        except (ValueError, TypeError) as err:
+            raise ScheduleError(f"schedule {path}: {err}") from None
+    given = {k: v for k, v in (("frame", frame), ("turnarounds", turnarounds)) if v is not None}
     try:
-        if path.endswith(".csv"):
-            return Schedule(_csv_rows(path))
-        return _toml_schedule(path)
-    except ScheduleError:
-        raise
-    except (ValueError, TypeError) as err:
+        return replace(schedule, **given)
+    except ValueError as err:
         raise ScheduleError(f"schedule {path}: {err}") from None
 
 
@@ -305,7 +331,15 @@ def _csv_rows(path):
     return tuple(rows)
 
 
-SCHEDULE_KEYS = ("site", "ces", "sample_rate_hz", "dut1_s", "repeat_boresight_deg")
+SCHEDULE_KEYS = (
+    "site",
+    "ces",
+    "sample_rate_hz",
+    "dut1_s",
+    "repeat_boresight_deg",
+    "frame",
+    "turnarounds",
+)
 
 
 def _toml_schedule(path):
@@ -336,6 +370,8 @@ def _toml_schedule(path):
         raw.get("sample_rate_hz", 20.0),
         raw.get("dut1_s", 0.0),
         tuple(repeat),
+        raw.get("frame", "icrs"),
+        raw.get("turnarounds", "include"),
     )
 
 
@@ -380,6 +416,8 @@ def write_schedule(schedule: Schedule, path: str, fmt: str) -> None:
         f"sample_rate_hz = {schedule.sample_rate_hz!r}",
         f"dut1_s = {schedule.dut1_s!r}",
         f"repeat_boresight_deg = {list(schedule.repeat_boresight_deg)!r}",
+        f"frame = {value(schedule.frame)}",
+        f"turnarounds = {value(schedule.turnarounds)}",
         "",
         "[site]",
         *(f"{k} = {value(getattr(s, k))}" for k in ("lat_deg", "lon_deg", "alt_m", "name")),
@@ -433,90 +471,30 @@ def horizon_terms(az, se, ce, sl, cl):
 
 
 @numba.njit(inline="always")
-def parallactic_terms(sd, x, y, tl):
-    """The atan2 arguments of the parallactic angle.
-
-    Parameters
-    ----------
-    sd, x, y : float
-        From :func:`horizon_terms`.
-    tl : float
-        tan(latitude).
-
-    Returns
-    -------
-    y, X : float
-        q = atan2(y, X), X = cos(dec)^2 tan(lat) - sin(dec) x.
-    """
-    return y, tl * (x * x + y * y) - sd * x
-
-
-@numba.njit(inline="always")
-def _to_equatorial(az, se, ce, local_era, sl, cl, tl):
-    """One sample: (theta, phi, q) from azimuth, sin/cos elevation, local ERA and latitude.
-
-    sin H and cos H come from the hour angle's own atan2 arguments (their norm is cos(dec)).
-    """
-    sd, y, x = horizon_terms(az, se, ce, sl, cl)
-    ha = np.arctan2(y, x)
-    qy, qx = parallactic_terms(sd, x, y, tl)
-    q = np.arctan2(qy, qx) if x * x + y * y > 0 else 0.0
-    return np.arccos(sd), (local_era - ha) % (2 * np.pi), q
-
-
-@numba.njit(parallel=True, cache=True)
-def horizon_to_equatorial(az, el, local_era, lat):
-    """Horizon to equatorial coordinates of date, with the parallactic angle.
-
-    Parameters
-    ----------
-    az, el : numpy.ndarray, shape (n,)
-        Azimuth east of north and elevation [rad].
-    local_era : numpy.ndarray, shape (n,)
-        Local Earth rotation angle [rad].
-    lat : float
-        Latitude [rad].
-
-    Returns
-    -------
-    theta, phi, q : numpy.ndarray, shape (n,)
-        Colatitude, right ascension of date and parallactic angle (east of north) [rad].
-    """
-    n = az.size
-    theta = np.empty(n)
-    phi = np.empty(n)
-    q = np.empty(n)
-    sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
-    for k in numba.prange(n):
-        theta[k], phi[k], q[k] = _to_equatorial(
-            az[k], np.sin(el[k]), np.cos(el[k]), local_era[k], sl, cl, tl
-        )
-    return theta, phi, q
-
-
-@numba.njit(inline="always")
 def _scan_offset(t, throw, speed, turnaround):
-    """Azimuth offset from the CES centre [rad] at time t [s] (throw [rad], speed [rad/s])."""
+    """Azimuth offset from the CES centre [rad] at time t [s] (throw [rad], speed [rad/s]), and
+    whether the mount is turning around (outside the throw, as TOAST's turnaround intervals)."""
     leg = throw / speed
     u = t % (2 * (leg + turnaround))
     if u < leg:
-        return -0.5 * throw + speed * u
+        return -0.5 * throw + speed * u, False
     u -= leg
     if u < turnaround:
-        return 0.5 * throw + speed * u - speed * u * u / turnaround
+        return 0.5 * throw + speed * u - speed * u * u / turnaround, True
     u -= turnaround
     if u < leg:
-        return 0.5 * throw - speed * u
+        return 0.5 * throw - speed * u, False
     u -= leg
-    return -0.5 * throw - speed * u + speed * u * u / turnaround
+    return -0.5 * throw - speed * u + speed * u * u / turnaround, True
 
 
 @numba.njit(cache=True)
 def _scan_offsets(t, throw, speed, turnaround):
     out = np.empty(t.size)
+    turning = np.empty(t.size, dtype=np.bool_)
     for i in range(t.size):
-        out[i] = _scan_offset(t[i], throw, speed, turnaround)
-    return out
+        out[i], turning[i] = _scan_offset(t[i], throw, speed, turnaround)
+    return out, turning
 
 
 def ces_samples(ces, schedule, start=0, stop=None):
@@ -536,112 +514,131 @@ def ces_samples(ces, schedule, start=0, stop=None):
         [unix s].
     az, el : numpy.ndarray
         [rad].
+    turning : numpy.ndarray of bool
+        Whether the mount is turning around (TOAST's turnaround intervals).
     """
     n = int(ces.duration_s * schedule.sample_rate_hz)
     stop = n if stop is None else min(stop, n)
     t = np.arange(start, stop) / schedule.sample_rate_hz
-    az = ces.az_centre_deg * DEG + _scan_offsets(
+    offset, turning = _scan_offsets(
         t, max(ces.az_throw_deg, 1e-12) * DEG, ces.speed_deg_s * DEG, ces.turnaround_s
     )
-    return ces.start_unix + t, az, np.full(t.size, ces.elevation_deg * DEG)
+    az = ces.az_centre_deg * DEG + offset
+    return ces.start_unix + t, az, np.full(t.size, ces.elevation_deg * DEG), turning
 
 
 @numba.njit(inline="always")
-def azimuth_and_local_era(t, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon):
-    """Azimuth and local Earth rotation angle t seconds into a CES.
+def sample_pointing(k, chunk, terms):
+    """One sample of a CES in the frame of ``terms``.
 
     Parameters
     ----------
-    t, start_unix : float
-        [s].
-    az_centre, throw, speed : float
-        [rad], [rad], [rad/s].
-    turnaround : float
-        [s].
-    jd_offset : float
-        UT1 Julian date of the Unix epoch.
-    lon : float
-        East longitude [rad].
+    k : int
+        The sample's index in its CES.
+    chunk : numpy.ndarray, shape (N_CHUNK,)
+        The CES's scalars (:func:`chunk_arguments`).
+    terms : numpy.ndarray, shape (frames.N_TERMS,)
+        The frame's rotation and velocities (:func:`boresight.frames.frame_terms`).
 
     Returns
     -------
-    az, local_era : float
-        [rad].
+    z, r, phi : float
+        cos(theta), sin(theta) and longitude [rad] of the direction.
+    c, s : float
+        cos and sin of the crossing angle at boresight angle 0: the direction of the zenith,
+        measured from e_theta towards e_phi.
+    turning : bool
+        Whether the mount is turning around.
     """
-    az = az_centre + _scan_offset(t, max(throw, 1e-300), speed, turnaround)
-    return az, earth_rotation_angle((start_unix + t) / 86400.0 + jd_offset) + lon
+    t = k / chunk[1]
+    offset, turning = _scan_offset(t, max(chunk[3], 1e-300), chunk[4], chunk[5])
+    era = earth_rotation_angle((chunk[0] + t) / 86400.0 + chunk[7]) + chunk[8]
+    sl, cl = np.sin(chunk[9]), np.cos(chunk[9])
+    sd, y, x = horizon_terms(chunk[2] + offset, np.sin(chunk[6]), np.cos(chunk[6]), sl, cl)
+    c_era, s_era = np.cos(era), np.sin(era)
+    dx, dy = c_era * x + s_era * y, s_era * x - c_era * y  # CIRS: RA = local ERA - H
+    zx, zy, zz = cl * c_era, cl * s_era, sl  # the site's zenith
+    dot = zx * dx + zy * dy + zz * sd
+    z, r, phi, c, s = to_frame(
+        dx, dy, sd, zx - dot * dx, zy - dot * dy, zz - dot * sd, c_era, s_era, terms
+    )
+    return z, r, phi, c, s, turning
 
 
 @numba.njit(parallel=True, cache=True)
-def _ces_pointing(
-    k0,
-    n,
-    start_unix,
-    rate,
-    az_centre,
-    throw,
-    speed,
-    turnaround,
-    el,
-    jd_offset,
-    lon,
-    lat,
-    psi_offset,
-):
-    """Fused :func:`ces_samples`, :func:`earth_rotation_angle` and :func:`horizon_to_equatorial`.
-
-    Angles in rad (throw, speed in rad and rad/s); returns theta, phi, psi of samples k0..k0+n-1.
-    """
+def _ces_pointing(k0, n, chunk, terms):
+    """theta, phi, psi [rad] and the turnaround flag of samples k0..k0+n-1 of a CES
+    (:func:`sample_pointing`), psi with the CES's boresight angle."""
     theta = np.empty(n)
     phi = np.empty(n)
     psi = np.empty(n)
-    sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
-    se, ce = np.sin(el), np.cos(el)
+    turning = np.empty(n, dtype=np.bool_)
+    boresight = chunk[10]
     for i in numba.prange(n):
-        az, local_era = azimuth_and_local_era(
-            (k0 + i) / rate, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon
-        )
-        theta[i], phi[i], q = _to_equatorial(az, se, ce, local_era, sl, cl, tl)
-        psi[i] = np.pi - q + psi_offset
-    return theta, phi, psi
+        z, r, phi[i], c, s, turning[i] = sample_pointing(k0 + i, chunk, terms)
+        theta[i] = np.arctan2(r, z)
+        psi[i] = np.arctan2(s, c) + boresight
+    return theta, phi, psi, turning
+
+
+#: the scalars of a CES chunk: start [unix s], rate [Hz], azimuth centre, throw [rad], speed
+#: [rad/s], turnaround [s], elevation [rad], UT1 Julian date of the Unix epoch, longitude, latitude,
+#: boresight angle [rad]
+N_CHUNK = 11
 
 
 def chunk_arguments(schedule, chunk_samples=1 << 20):
     """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time order,
-    once per boresight repeat. Parameters as :func:`pointing`.
+    once per boresight repeat.
+
+    A chunk holds at most ``chunk_samples`` samples and spans at most
+    :data:`boresight.frames.CHUNK_SECONDS`, over which the frame's rotation is one.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    chunk_samples : int
 
     Yields
     ------
     tuple
-        (first sample, samples: int; start [unix s], rate [Hz], azimuth centre, throw [rad], speed
-        [rad/s], turnaround [s], elevation [rad], UT1 Julian date offset, longitude, latitude [rad],
-        boresight angle [rad]: float, also where the file gave an integer, since numba compiles a
-        kernel anew for each combination of types).
+        (first sample, samples: int; the CES's scalars, (:data:`N_CHUNK`,) float64; the frame's
+        terms at the chunk's middle, (frames.N_TERMS,) float64).
     """
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
     jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
+    rate = schedule.sample_rate_hz
+    step = max(1, min(chunk_samples, int(frames.CHUNK_SECONDS * rate)))
     for repeat in schedule.repeat_boresight_deg:
         for c in schedule.ces:
-            n = int(c.duration_s * schedule.sample_rate_hz)
-            scalars = (
-                c.start_unix,
-                schedule.sample_rate_hz,
-                c.az_centre_deg * DEG,
-                c.az_throw_deg * DEG,
-                c.speed_deg_s * DEG,
-                c.turnaround_s,
-                c.elevation_deg * DEG,
-                jd_offset,
-                lon,
-                lat,
-                (c.boresight_deg + repeat) * DEG,
+            n = int(c.duration_s * rate)
+            chunk = np.array(
+                [
+                    c.start_unix,
+                    rate,
+                    c.az_centre_deg * DEG,
+                    c.az_throw_deg * DEG,
+                    c.speed_deg_s * DEG,
+                    c.turnaround_s,
+                    c.elevation_deg * DEG,
+                    jd_offset,
+                    lon,
+                    lat,
+                    (c.boresight_deg + repeat) * DEG,
+                ],
+                dtype=np.float64,
             )
-            for s in range(0, n, chunk_samples):
-                yield (s, min(chunk_samples, n - s), *map(float, scalars))
+            starts = np.arange(0, n, step)
+            middles = c.start_unix + (starts + 0.5 * np.minimum(step, n - starts)) / rate
+            terms = frames.frame_terms(middles, schedule.site.lat_deg, schedule.frame)
+            for s, t in zip(starts, terms):
+                yield int(s), int(min(step, n - s)), chunk, t
 
 
 def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple]:
-    """The pointing of a whole schedule, chunk by chunk.
+    """The pointing of a whole schedule, chunk by chunk, in the schedule's frame.
+
+    Samples in the turnarounds are left out where the schedule says so.
 
     Parameters
     ----------
@@ -651,8 +648,12 @@ def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple
     Yields
     ------
     theta, phi, psi : numpy.ndarray, shape (<= chunk_samples,)
-        Colatitude, right ascension of date and crossing angle [rad]; the CES set in time order,
-        once per boresight repeat.
+        Colatitude, longitude and crossing angle [rad] in ``schedule.frame``; the CES set in time
+        order, once per boresight repeat.
     """
     for args in chunk_arguments(schedule, chunk_samples):
-        yield _ces_pointing(*args)
+        theta, phi, psi, turning = _ces_pointing(*args)
+        if schedule.turnarounds == "exclude":
+            keep = ~turning
+            theta, phi, psi = theta[keep], phi[keep], psi[keep]
+        yield theta, phi, psi

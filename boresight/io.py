@@ -27,9 +27,15 @@ if TYPE_CHECKING:
 #: header cards of every map file; units are per column (TUNITn), set by :func:`write_maps`
 FITS_HEADER = [
     ("POLCCONV", "COSMO", "Q/U polarisation convention (HEALPix)"),
-    ("COORDSYS", "C", "equatorial coordinates"),
     ("CREATOR", "boresight", ""),
 ]
+#: the cards of each sky frame (boresight.frames.FRAMES): HEALPix's COORDSYS and, for the
+#: equatorial frames, FITS's RADESYS
+FRAME_CARDS = {
+    "icrs": [("COORDSYS", "C", "equatorial coordinates"), ("RADESYS", "ICRS", "")],
+    "galactic": [("COORDSYS", "G", "Galactic coordinates")],
+    "cirs": [("COORDSYS", "C", "equatorial coordinates of date"), ("RADESYS", "CIRS", "")],
+}
 #: the file that marks a directory as boresight's own: only such a directory is ever replaced
 MARKER = ".boresight-output"
 
@@ -67,6 +73,7 @@ def write_maps(
     names: Sequence[str],
     units: Sequence[str],
     comments: Sequence[str] = (),
+    frame: str = "icrs",
 ) -> None:
     """Write RING maps as a FITS table healpy.read_map reads.
 
@@ -81,16 +88,20 @@ def write_maps(
         One unit per map ("" for counts and ratios: no TUNIT card).
     comments : list of str
         COMMENT cards.
+    frame : {"icrs", "galactic", "cirs"}
+        The maps' sky frame, in their COORDSYS (and RADESYS) cards.
     """
     if len(units) != len(names):
         raise ValueError(f"{len(names)} column names but {len(units)} units")
+    if frame not in FRAME_CARDS:
+        raise ValueError(f"frame = {frame!r}; allowed: {tuple(FRAME_CARDS)}")
     with atomic_path(path) as tmp:
         hp.write_map(
             tmp,
             np.asarray(maps, dtype=np.float64),
             column_names=list(names),
             column_units=list(units),
-            extra_header=FITS_HEADER + [("COMMENT", c) for c in comments],
+            extra_header=FITS_HEADER + FRAME_CARDS[frame] + [("COMMENT", c) for c in comments],
             overwrite=True,
             dtype=np.float64,
         )

@@ -69,7 +69,7 @@ class Kernel:
         return getattr(importlib.import_module(f"boresight.{self.module}"), self.name)
 
 
-_SCALARS = (nt.int64,) * 2 + (nt.float64,) * 11  # a CES chunk: chunk_arguments' tuple
+_CHUNK = (nt.int64, nt.int64, _F1, _F1)  # a CES chunk: chunk_arguments' tuple
 _U2 = nt.uint64[:, ::1]
 
 #: Every kernel a job calls, by name, with the argument types it is called with.
@@ -93,11 +93,11 @@ KERNELS = {
         Kernel("instrument", "_response", (_F1,) * 6, 0.4),
         Kernel("masks", "_inside", (_F1,) * 4 + (nt.float64,), 1.3),
         Kernel("predict", "_block_sums", (_C1, _I1, _F1, _I1, nt.int64), 0.9),
-        Kernel("scanstats", "ces_hits", (*_SCALARS, nt.int64, nt.int64), 2.2),
+        Kernel("scanstats", "ces_hits", (*_CHUNK, nt.int64, nt.int64, nt.bool_), 2.2),
         Kernel("design", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
         Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
         Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
-        Kernel("ground", "_ces_pointing", _SCALARS, 2.4),
+        Kernel("ground", "_ces_pointing", _CHUNK, 2.4),
         Kernel("pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel("tod_cpu", "accumulate_scatter", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F2), 1.6),
     )

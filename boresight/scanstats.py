@@ -17,12 +17,7 @@ import numba
 import numpy as np
 
 from .engine import check_samples
-from .ground import (
-    azimuth_and_local_era,
-    chunk_arguments,
-    horizon_terms,
-    parallactic_terms,
-)
+from .ground import chunk_arguments, sample_pointing
 from .pixels import ang2pix_array, zphi2pix
 from .scan import SyntheticScan
 
@@ -59,7 +54,8 @@ def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
     """Add samples to per-pixel sums of exp(i n psi) (n = 0..N_MAX), counts and angle bitmaps.
 
     Each thread owns a range of pixel indices and scans every sample, so no two threads write the
-    same pixel; exp(i n psi) follows from exp(i psi) by multiplication.
+    same pixel; exp(i n psi) follows from exp(i psi) by multiplication. Pixel -1 (a sample left
+    out) is skipped.
     """
     npix = hits.size
     for part in numba.prange(nparts):
@@ -80,45 +76,20 @@ def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
 
 
 @numba.njit(parallel=True, cache=True)
-def ces_hits(
-    k0,
-    n,
-    start_unix,
-    rate,
-    az_centre,
-    throw,
-    speed,
-    turnaround,
-    el,
-    jd_offset,
-    lon,
-    lat,
-    boresight,
-    nside,
-    nbins,
-):
-    """Pixel, cos psi, sin psi and angle bin of samples k0..k0+n-1 of a CES, without forming
-    theta or psi: cos(theta) = sin(dec) and exp(i psi) = -exp(-i q) exp(i boresight)."""
+def ces_hits(k0, n, chunk, terms, nside, nbins, exclude_turnarounds):
+    """Pixel, cos psi, sin psi and angle bin of samples k0..k0+n-1 of a CES
+    (:func:`boresight.ground.sample_pointing`), without forming theta or psi; pixel -1 for a
+    sample in a turnaround when they are excluded."""
     pix = np.empty(n, dtype=np.int64)
     cos_psi = np.empty(n)
     sin_psi = np.empty(n)
     angle_bin = np.empty(n, dtype=np.int32)
-    sl, cl, tl = np.sin(lat), np.cos(lat), np.tan(lat)
-    se, ce = np.sin(el), np.cos(el)
-    cb, sb = np.cos(boresight), np.sin(boresight)
+    cb, sb = np.cos(chunk[10]), np.sin(chunk[10])
     for i in numba.prange(n):
-        az, local_era = azimuth_and_local_era(
-            (k0 + i) / rate, start_unix, az_centre, throw, speed, turnaround, jd_offset, lon
-        )
-        sd, y, x = horizon_terms(az, se, ce, sl, cl)
-        cd = np.sqrt(x * x + y * y)
-        phi = (local_era - np.arctan2(y, x)) % (2 * np.pi)
-        pix[i] = zphi2pix(nside, sd, cd, phi)
-        qy, qx = parallactic_terms(sd, x, y, tl)
-        r = np.sqrt(qx * qx + qy * qy)
-        uc, us = (-qx / r, qy / r) if r > 0 else (-1.0, 0.0)  # -exp(-i q)
-        cos_psi[i] = uc * cb - us * sb
-        sin_psi[i] = uc * sb + us * cb
+        z, r, phi, c, s, turning = sample_pointing(k0 + i, chunk, terms)
+        pix[i] = -1 if exclude_turnarounds and turning else zphi2pix(nside, z, r, phi)
+        cos_psi[i] = c * cb - s * sb
+        sin_psi[i] = c * sb + s * cb
         angle_bin[i] = _angle_bin(cos_psi[i], sin_psi[i], nbins)
     return pix, cos_psi, sin_psi, angle_bin
 
@@ -315,8 +286,10 @@ def characterise_schedule(
     ScanStats
     """
 
+    exclude = schedule.turnarounds == "exclude"
+
     def binned(nbins):
         for args in chunk_arguments(schedule, chunk_samples):
-            yield ces_hits(*args, nside, nbins)
+            yield ces_hits(*args, nside, nbins, exclude)
 
     return _stats(nside, tolerance_deg, binned)

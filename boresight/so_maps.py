@@ -47,6 +47,8 @@ def write(
     h: np.ndarray,
     hits: np.ndarray,
     n_values: range = range(1, 5),
+    *,
+    frame: str = "icrs",
 ) -> list[Path]:
     """Write ``{prefix}_cos_{n}.fits``, ``{prefix}_sin_{n}.fits`` and ``{prefix}_hits.fits``.
 
@@ -61,6 +63,8 @@ def write(
         Samples per pixel; 0 marks unobserved pixels, where every map is 0.
     n_values : iterable of int
         The moments written.
+    frame : {"icrs", "galactic", "cirs"}
+        The maps' sky frame (their COORDSYS card).
 
     Returns
     -------
@@ -74,10 +78,10 @@ def write(
         h_so = np.where(seen, to_so(h[n], n), 0.0)
         for part, values in (("cos", h_so.real), ("sin", h_so.imag)):
             path = directory / f"{prefix}_{part}_{n}.fits"
-            write_maps(path, [values], [f"{part.upper()}_{n}"], [""], [CONVENTION])
+            write_maps(path, [values], [f"{part.upper()}_{n}"], [""], [CONVENTION], frame=frame)
             paths.append(path)
     path = directory / f"{prefix}_hits.fits"
-    write_maps(path, [np.where(seen, hits, 0)], ["HITS"], [""])
+    write_maps(path, [np.where(seen, hits, 0)], ["HITS"], [""], frame=frame)
     return paths + [path]
 
 

@@ -283,7 +283,8 @@ def scan_stats(
     h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run.nthreads)
     n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
     return _write_scan_stats(
-        out_dir, force, study.inputs, h, obs, ncross, n_phi, r, n_max, layout, prefix
+        out_dir, force, study.inputs, h, obs, ncross, n_phi, r, n_max, layout, prefix,
+        config=as_dict(study),
     )
 
 
@@ -298,6 +299,8 @@ def schedule_stats(
     memory_check: bool = True,
     layout: str = "boresight",
     prefix: str = "hn",
+    frame: str | None = None,
+    turnarounds: str | None = None,
 ) -> list[dict]:
     """:func:`scan_stats` of a CES schedule file (boresight's TOML or CSV, or TOAST's).
 
@@ -315,6 +318,9 @@ def schedule_stats(
     memory_check : bool
     layout, prefix
         As in :func:`scan_stats`.
+    frame, turnarounds : str, optional
+        The sky frame of the maps and what the turnarounds' samples do
+        (:class:`boresight.ground.Schedule`; default: the file's).
 
     Returns
     -------
@@ -324,7 +330,9 @@ def schedule_stats(
     from . import ground, scanstats
 
     _check_layout(layout, prefix)
-    schedule = ground.load_schedule(schedule_path, motion)
+    schedule = ground.load_schedule(
+        schedule_path, motion, frame=frame, turnarounds=turnarounds
+    )
     sky.SkyConfig(nside=nside, lmax=2 * nside)  # validates nside
     io.check_output_dir(out_dir, force, [schedule_path])
     resources.require(
@@ -350,6 +358,13 @@ def schedule_stats(
         scanstats.N_MAX,
         layout,
         prefix,
+        frame=schedule.frame,
+        config={
+            "schedule": schedule_path,
+            "nside": nside,
+            "turnarounds": schedule.turnarounds,
+            "tolerance_deg": tolerance_deg,
+        },
     )
 
 
@@ -363,23 +378,28 @@ def _check_layout(layout, prefix):
         raise ValueError(f"the prefix {prefix!r} must be letters, digits, '_', '-' or '.'")
 
 
-def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max, layout, prefix):
-    """The survey means, the h_n maps in the chosen layout, the scan maps and a figure."""
+def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max, layout, prefix,
+                      frame="icrs", config=None):
+    """The survey means, the h_n maps in the chosen layout, the scan maps, a figure and the
+    manifest. In the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi
+    convention (odd h_n change sign); the manifest's ``psi_convention`` says which."""
     from . import so_maps
 
+    convention = "toast" if layout == "so" else "boresight"
+    turn = so_maps.to_so if layout == "so" else (lambda hn, n: hn)
     rows = [
         dict(
             n=n,
             mean_abs_h2=float(np.mean(np.abs(h[n][obs]) ** 2)),
-            mean_re=float(np.mean(h[n][obs].real)),
-            mean_im=float(np.mean(h[n][obs].imag)),
+            mean_re=float(np.mean(turn(h[n][obs], n).real)),
+            mean_im=float(np.mean(turn(h[n][obs], n).imag)),
         )
         for n in range(1, n_max + 1)
     ]
     require_finite("the h_n summary", [list(row.values()) for row in rows])
     with io.staged_dir(out_dir, force, inputs) as stage:
         if layout == "so":
-            so_maps.write(stage, prefix, h, crossings, range(1, n_max + 1))
+            so_maps.write(stage, prefix, h, crossings, range(1, n_max + 1), frame=frame)
         else:
             parts = [("RE", np.real), ("IM", np.imag)]
             io.write_maps(
@@ -387,21 +407,34 @@ def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max
                 [np.where(obs, f(h[n]), hp.UNSEEN) for _, f in parts for n in range(1, n_max + 1)],
                 [f"{p}_H{n}" for p, _ in parts for n in range(1, n_max + 1)],
                 [""] * (2 * n_max),
+                [BORESIGHT_CONVENTION],
+                frame=frame,
             )
         io.write_maps(
             stage / "scan_maps.fits",
             [crossings, np.where(obs, n_phi, 0), np.where(obs, r, 0)],
             ["CROSSINGS", "N_PHI", "RANGE_RAD"],
             ["", "", "rad"],
+            frame=frame,
         )
-        io.write_csv(stage / "hn_summary.csv", rows, ["n", "mean_abs_h2", "mean_re", "mean_im"])
+        io.write_csv(stage / "hn_summary.csv", rows, list(rows[0]))
         plots.map_figure(
             [np.where(obs, np.abs(h[n]) ** 2, hp.UNSEEN) for n in (1, 2)],
             ["|h_1|^2", "|h_2|^2"],
             stage / "hn_maps.png",
             unit="",
         )
+        io.write_json(
+            stage / "manifest.json",
+            provenance.manifest(
+                {**(config or {}), "frame": frame, "psi_convention": convention}, {}, {}
+            ),
+        )
     return rows
+
+
+#: the header COMMENT of boresight-layout h_n maps
+BORESIGHT_CONVENTION = "h_n = RE + i IM of <exp(i n psi)>, psi in boresight's convention"
 
 
 def compare_scans(
@@ -416,12 +449,15 @@ def compare_scans(
     log: Callable = print,
     memory_check: bool = True,
     motion: ScanMotion | None = None,
+    frame: str | None = None,
+    turnarounds: str | None = None,
 ) -> list[dict]:
     """The residual B-mode of a real schedule beside its synthetic twin (paper section 3.1).
 
     Writes scan_maps.fits (crossings, N_phi, R, ``|h_1..4|^2``), scan_stats.csv (survey means of the
     real scan and the twin), compare.csv and compare.png/pdf. Returns the binned rows.
-    ``motion`` sets the scan rate, acceleration and sample rate of a TOAST schedule.
+    ``motion`` sets the scan rate, acceleration and sample rate of a TOAST schedule; ``frame`` and
+    ``turnarounds`` replace the schedule file's (:class:`boresight.ground.Schedule`).
     """
     from . import ground, scanstats
     from .instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
@@ -429,7 +465,9 @@ def compare_scans(
     systematics = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}.get(systematic)
     if systematics is None:
         raise ValueError(f"systematic must be 'gain' or 'pointing', got {systematic!r}")
-    schedule = ground.load_schedule(schedule_path, motion)
+    schedule = ground.load_schedule(
+        schedule_path, motion, frame=frame, turnarounds=turnarounds
+    )
     sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)  # validate
     io.check_output_dir(out_dir, force, [schedule_path])
     resources.require(
@@ -501,6 +539,7 @@ def compare_scans(
             cols,
             ["CROSSINGS", "N_PHI", "RANGE_RAD", "ABS_H1_SQ", "ABS_H2_SQ", "ABS_H3_SQ", "ABS_H4_SQ"],
             ["", "", "rad", "", "", "", ""],
+            frame=schedule.frame,
         )
         io.write_csv(stage / "scan_stats.csv", table, list(table[0]))
         io.write_csv(stage / "compare.csv", rows, list(rows[0]))
@@ -510,6 +549,8 @@ def compare_scans(
             provenance.manifest(
                 {
                     "schedule": schedule_path,
+                    "frame": schedule.frame,
+                    "turnarounds": schedule.turnarounds,
                     "nside": nside,
                     "systematic": systematic,
                     "fwhm_arcmin": fwhm_arcmin,
@@ -531,6 +572,8 @@ def design_schedule(
     validate: bool = True,
     log: Callable = print,
     progress: bool = False,
+    frame: str | None = None,
+    turnarounds: str | None = None,
 ) -> dict:
     """``boresight design``: choose a boresight angle per unit of a schedule against a budget.
 
@@ -552,6 +595,8 @@ def design_schedule(
         Run the TOD simulation.
     log : callable
     progress : bool
+    frame, turnarounds : str, optional
+        Replace the schedule file's (:class:`boresight.ground.Schedule`).
 
     Returns
     -------
@@ -563,7 +608,9 @@ def design_schedule(
 
     budget = design.load_budget(budget_path)
     opts = budget.design
-    schedule = ground.load_schedule(schedule_path, motion)
+    schedule = ground.load_schedule(
+        schedule_path, motion, frame=frame, turnarounds=turnarounds
+    )
     fmt = ground.schedule_format(schedule_path)
     inputs = [budget_path, schedule_path]
     io.check_output_dir(out_dir, force, inputs)
@@ -675,6 +722,8 @@ def design_schedule(
                 {
                     "budget": budget_path,
                     "schedule": schedule_path,
+                    "frame": schedule.frame,
+                    "turnarounds": schedule.turnarounds,
                     "design": dataclasses.asdict(budget.design),
                     "sigma_r": sigma_r,
                     "interrupted": found.interrupted,

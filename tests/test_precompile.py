@@ -65,7 +65,8 @@ def test_a_schedule_in_integers_or_floats_calls_the_ces_kernels_at_one_signature
         for args in ground.chunk_arguments(schedule, chunk_samples=1 << 14):
             types = tuple(numba.typeof(a) for a in args)
             assert types == precompile.KERNELS["_ces_pointing"].signature
-            assert types + (numba.int64,) * 2 == precompile.KERNELS["ces_hits"].signature
+            extra = (numba.int64, numba.int64, numba.bool_)
+            assert types + extra == precompile.KERNELS["ces_hits"].signature
 
 
 def test_every_job_calls_its_kernels_at_their_registered_signatures(tmp_path):

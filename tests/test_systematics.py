@@ -208,6 +208,20 @@ def test_random_focal_plane_residual_falls_as_one_over_n_pairs(small_sky):
     assert abs(slope + 1) < 0.15, (slope, powers)
 
 
+@pytest.mark.parametrize("n", [2, 3, 8, 64])
+def test_uniform_plane_cancels_h4_terms_not_the_gain(n):
+    """A "uniform" plane of n pairs at 90 i / n deg: <e^{4 i a}> = 0, so m_4 and a gain spread's
+    h_4 term vanish, but the gain's coherent h_2 coefficient is dg <e^{2 i a}> =
+    dg (2 / n) / (1 - e^{i pi / n}) (a geometric series) = dg (1 / n + i cot(pi / 2n) / n), which
+    tends to 2i dg / pi, not 0."""
+    inst = Instrument("uniform", n)
+    c = predict.coefficients(Systematics(dg=0.01), inst)
+    assert abs(c.m4) < 1e-15 and abs(c.p4) < 1e-15
+    assert abs(c.t2 - 0.01 * (2 / n) / (1 - np.exp(1j * np.pi / n))) < 1e-15
+    if n == 64:  # 2i / pi, up to the 1 / n of the series' end points
+        assert abs(c.t2 / 0.01 - 2j / np.pi) < 1.01 / n
+
+
 @pytest.mark.parametrize(
     "table, match",
     [
