@@ -10,22 +10,22 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
+import os
 import sys
 from dataclasses import replace
 
-from . import paper, studies
-from .config import ConfigError, RunOptions, add_flags, load_study, read_toml
-from .frames import FRAMES
-from .ground import TURNAROUNDS
-from .ground import is_schedule as ground_schedule
-from .sky import SkyConfig
-from .studies import LAYOUTS
+from . import interrupts
 
 log = logging.getLogger("boresight")
 
 
 def _parser():
+    from .config import RunOptions, add_flags
+    from .frames import FRAMES
+    from .ground import TURNAROUNDS
+    from .sky import SkyConfig
+    from .studies import LAYOUTS
+
     p = argparse.ArgumentParser(prog="boresight", description=__doc__.splitlines()[0])
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     p.add_argument("-v", "--verbose", action="store_true", help="debug output")
@@ -62,7 +62,7 @@ def _parser():
     )
     ss.add_argument("--prefix", default="hn", help="file name prefix of --format so")
     _motion_flags(ss)
-    _pointing_flags(ss)
+    _pointing_flags(ss, FRAMES, TURNAROUNDS)
     sw = sub.add_parser("sweep", help="a grid or list of studies, locally or on a Dask cluster")
     sw.add_argument("sweep_file")
     sw.add_argument("--out", required=True, help="output directory (re-running resumes it)")
@@ -83,7 +83,7 @@ def _parser():
     cs.add_argument("--fwhm-arcmin", type=float, default=30.0)
     cs.add_argument("--force", action="store_true")
     _motion_flags(cs)
-    _pointing_flags(cs)
+    _pointing_flags(cs, FRAMES, TURNAROUNDS)
     ex = sub.add_parser(
         "export-schedule",
         help="write a schedule for TOAST (text, or ECSV for *.ecsv) and print its SimGround",
@@ -103,7 +103,7 @@ def _parser():
         "--no-validate", action="store_true", help="skip the TOD simulation of the design"
     )
     _motion_flags(de)
-    _pointing_flags(de)
+    _pointing_flags(de, FRAMES, TURNAROUNDS)
     su = sub.add_parser(
         "suppression",
         help="every systematic alone through 0/45/90/180 deg rotation: table and figure",
@@ -135,17 +135,17 @@ def _motion_flags(p):
     g.add_argument("--sample-rate", type=float, default=20.0, help="samples per second (20)")
 
 
-def _pointing_flags(p):
+def _pointing_flags(p, frames, turnarounds):
     """Flags for how a schedule's samples become pointing: the sky frame and the turnarounds."""
     g = p.add_argument_group("schedule pointing")
     g.add_argument(
         "--frame",
-        choices=FRAMES,
+        choices=frames,
         help="sky frame of the pointing and the maps (default: the schedule file's, else icrs)",
     )
     g.add_argument(
         "--turnarounds",
-        choices=TURNAROUNDS,
+        choices=turnarounds,
         help="keep the samples of the turnarounds, or leave them out as TOAST's map-making does "
         "(default: the schedule file's, else include)",
     )
@@ -164,6 +164,9 @@ def _pointing(args):
 
 def _reproduce_study(args):
     """The paper's study (:func:`paper.preset` or a --config file) with the flags applied."""
+    from . import paper
+    from .config import ConfigError, RunOptions, read_toml
+
     raw = read_toml(args.config) if args.config else {}
     study = paper.from_raw(raw, args.quick)
     sky_cfg, run = study.sky, study.run
@@ -201,16 +204,11 @@ def configure_logging(quiet: bool = False, verbose: bool = False) -> None:
     log.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled like Ctrl-C: the job unwinds and removes what it was writing."""
-
-
-def _terminate(signum, frame):
-    raise Terminated
-
-
 def main(argv: list[str] | None = None) -> int:
     """The ``boresight`` command.
+
+    Ctrl-C and SIGTERM are noted from the first line on, before numba and the rest of boresight
+    are imported, and acted on between chunks of work (:mod:`boresight.interrupts`).
 
     Parameters
     ----------
@@ -222,32 +220,38 @@ def main(argv: list[str] | None = None) -> int:
     int
         The exit code: 0 success, 1 a claim not reproduced, 2 bad input, 130 Ctrl-C, 143 SIGTERM.
     """
-    args = _parser().parse_args(argv)
-    configure_logging(args.quiet, args.verbose)
-    progress = sys.stderr.isatty() and not args.quiet
-    memory_check = not args.no_memory_check
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    try:
-        return _run(args, progress, memory_check)
-    except (ConfigError, OSError, ValueError, TypeError) as err:
-        print(f"boresight: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as err:
-        kept = {
-            "sweep": f"finished points are kept in {args.out}; re-run to resume",
-            "design": f"the best schedule found so far is in {args.out}",
-        }.get(args.command, "nothing was written")
-        print(
-            f"boresight: {'terminated' if isinstance(err, Terminated) else 'interrupted'}; {kept}",
-            file=sys.stderr,
-        )
-        return 143 if isinstance(err, Terminated) else 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    # the command line draws files, never windows (a library leaves a notebook's backend alone)
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    with interrupts.handled():
+        args, done = None, False
+        try:
+            args = _parser().parse_args(argv)
+            configure_logging(args.quiet, args.verbose)
+            progress = sys.stderr.isatty() and not args.quiet
+            interrupts.check()
+            code = _run(args, progress, not args.no_memory_check)
+            done = True
+            interrupts.check()  # a signal after the job's last check
+            return code
+        except KeyboardInterrupt as err:  # Interrupted, or a library's own KeyboardInterrupt
+            stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
+            kept = stop.kept or (
+                "it came after the outputs were complete" if done else "nothing was written"
+            )
+            print(f"boresight: {stop.verb}; {kept}", file=sys.stderr)
+            return stop.exit_code
+        except (OSError, ValueError, TypeError) as err:
+            print(f"boresight: error: {err}", file=sys.stderr)
+            return 2
 
 
 def _run(args, progress, memory_check):
     """Run the parsed command; returns the exit code."""
+    from . import studies
+    from .config import load_study
+    from .ground import is_schedule as ground_schedule
+    from .sky import SkyConfig
+
     if args.command == "reproduce":
         claims = studies.reproduce(
             args.out, _reproduce_study(args), args.force, log.info, progress, memory_check

@@ -32,7 +32,7 @@ import healpy as hp
 import numba
 import numpy as np
 
-from . import coupling, predict, validation
+from . import coupling, interrupts, predict, validation
 from .constants import DEG
 from .ground import Schedule, chunk_arguments
 from .instrument import Instrument
@@ -233,6 +233,7 @@ def unit_moments(
             one = replace(schedule, ces=(replace(rows[i], boresight_deg=0.0),))
             exclude = schedule.turnarounds == "exclude"
             for args in chunk_arguments(one.single(), chunk_samples):
+                interrupts.check()
                 p, c, s, _ = ces_hits(*args, nside, 1, exclude)
                 kept = p >= 0
                 pix.append(p[kept])
@@ -445,14 +446,15 @@ class Design:
         Its objective.
     history : list of dict
         sweep, objective, moves (accepted in that sweep), after each sweep; sweep 0 is the start.
-    interrupted : bool
-        Stopped by Ctrl-C; ``angles_deg`` is the best found until then.
+    interrupted : boresight.interrupts.Interrupted, optional
+        What stopped the search (Ctrl-C or SIGTERM); ``angles_deg`` is then the best found until
+        then.
     """
 
     angles_deg: np.ndarray
     value: float
     history: list
-    interrupted: bool = False
+    interrupted: interrupts.Interrupted | None = None
 
 
 def optimise(
@@ -505,6 +507,7 @@ def optimise(
         for sweep in range(1, sweeps + 1):
             moves = 0
             for u in rng.permutation(m.n_units):
+                interrupts.check()
                 lo, hi = m.offsets[u], m.offsets[u + 1]
                 idx, inv_hits = m.index[lo:hi], 1.0 / m.hits[m.index[lo:hi]]
                 ublk, local = unit_blocks[u]
@@ -554,8 +557,9 @@ def optimise(
             history.append(dict(sweep=sweep, objective=value, moves=moves))
             if moves == 0:
                 break
-    except KeyboardInterrupt:
-        return Design(angles, obj(angles), history, interrupted=True)
+    except KeyboardInterrupt as err:  # the command line's Interrupted, or a notebook's Ctrl-C
+        stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
+        return Design(angles, obj(angles), history, interrupted=stop)
     return Design(angles, value, history)
 
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import harmonics
+from . import harmonics, interrupts
 from .backend import get_backend
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
@@ -107,6 +107,7 @@ def _chunks(pixels, chunk_pixels, progress, label):
         raise ValueError(f"chunk_pixels must be >= 1, got {chunk_pixels}")
     starts = range(0, pixels.size, chunk_pixels)
     for s in tqdm(starts, desc=label, unit="chunk", disable=not progress, leave=False):
+        interrupts.check()
         yield s, pixels[s : s + chunk_pixels]
 
 
@@ -398,6 +399,7 @@ def simulate_samples(
     normal = binner.kernels.zeros((12 * sky.nside**2, 5))
     with numba_threads(nthreads):
         for chunk in sample_chunks:
+            interrupts.check()
             theta, phi, psi = check_samples(*chunk)
             pix = ang2pix_array(sky.nside, theta, phi)
             binner.scatter(pix, theta, phi, psi, normal)

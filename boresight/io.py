@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING
 import healpy as hp
 import numpy as np
 
+from . import interrupts
+
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator, Sequence
 
@@ -412,6 +414,7 @@ def staged_dir(
     try:
         (stage / MARKER).touch()
         yield stage
+        interrupts.check()  # the last moment at which nothing has been replaced
         old = None
         if target.exists() and not is_own(target):
             os.rmdir(target)  # an empty directory of the user's; fails if it has gained files

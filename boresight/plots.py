@@ -7,14 +7,11 @@ import warnings
 from typing import TYPE_CHECKING
 
 import healpy as hp
-import matplotlib
+import matplotlib.pyplot as plt
 import matplotlib.ticker
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from . import predict  # noqa: E402
+from . import interrupts, predict
 
 if TYPE_CHECKING:
     import os
@@ -71,12 +68,16 @@ def _residual_axes(ax):
     ax.set_ylabel(f"{RESIDUAL} {MUK2} (open: negative)")
 
 
-def _save(fig, path_stem):
-    """Write a figure as PNG and PDF and close it."""
-    fig.tight_layout()
-    for ext in ("png", "pdf"):
-        fig.savefig(f"{path_stem}.{ext}", dpi=120)
-    plt.close(fig)
+def _save(fig, path_stem, formats=("png", "pdf"), dpi=120, tight=True):
+    """Write a figure in each format and close it; Ctrl-C is acted on between the files."""
+    try:
+        if tight:
+            fig.tight_layout()
+        for ext in formats:
+            interrupts.check()
+            fig.savefig(f"{path_stem}.{ext}", dpi=dpi)
+    finally:
+        plt.close(fig)
 
 
 def residual_figure(
@@ -169,9 +170,7 @@ def footprint_figure(mask: np.ndarray, title: str, path_stem: str | os.PathLike)
     )
     fig = plt.gcf()
     hp.graticule(dpar=30, dmer=60, alpha=0.4)  # logs its spacing at INFO to "healpy"
-    for ext in ("png", "pdf"):
-        fig.savefig(f"{path_stem}.{ext}", dpi=110)
-    plt.close(fig)
+    _save(fig, path_stem, dpi=110, tight=False)
 
 
 def map_figure(
@@ -200,8 +199,7 @@ def map_figure(
                 unit=unit,
                 xsize=width * dpi,  # a panel's width in the PNG: a finer projection would not show
             )
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    _save(fig, str(path).removesuffix(".png"), ("png",), dpi, tight=False)
 
 
 def spectrum_figure(bands: list[dict], path_stem: str | os.PathLike) -> None:
@@ -292,9 +290,7 @@ def continuum_figure(rows: list[dict], path_stem: str | os.PathLike) -> None:
     ax_r.set_xlabel("boresight rotation angle [deg]")
     ax_r.set_ylabel(f"|\u0394r| ({predict.R_RANGE[0]} \u2264 \u2113 \u2264 {predict.R_RANGE[1]})")
     ax_r.legend()
-    fig.tight_layout()
-    fig.savefig(f"{path_stem}.png", dpi=110)
-    plt.close(fig)
+    _save(fig, path_stem, ("png",), dpi=110)
 
 
 def design_figure(

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 from numba import types as nt
 
+from . import interrupts
 from .threads import default_threads
 
 if TYPE_CHECKING:
@@ -209,15 +210,17 @@ def precompile(names: Sequence[str], nthreads: int = 0, timer: Timer | None = No
         helpers = [_start_helper(share) for share in shares[1:]]
         try:
             for name in shares[0]:
+                interrupts.check()
                 _compile(name)
+            for helper, share in zip(helpers, shares[1:]):
+                err = _wait(helper)
+                if helper.returncode:
+                    raise RuntimeError(f"compiling {', '.join(share)} failed:\n{err}")
         except BaseException:
             for helper in helpers:
                 helper.kill()
+                helper.wait()
             raise
-        for helper, share in zip(helpers, shares[1:]):
-            _, err = helper.communicate()
-            if helper.returncode:
-                raise RuntimeError(f"compiling {', '.join(share)} failed:\n{err}")
         for share in shares[1:]:  # loaded from the cache the helpers wrote
             for name in share:
                 _compile(name)
@@ -249,6 +252,16 @@ def _start_helper(share):
         stderr=subprocess.PIPE,
         text=True,
     )
+
+
+def _wait(helper):
+    """A helper's error output once it has finished, checking for Ctrl-C while it runs."""
+    while True:
+        interrupts.check()
+        try:
+            return helper.communicate(timeout=interrupts.POLL_SECONDS)[1]
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def _compile(name):

@@ -14,6 +14,8 @@ from pathlib import Path
 import healpy as hp
 import numpy as np
 
+from . import interrupts
+
 
 class Timer:
     """Wall time of each named stage, for the manifest.
@@ -37,11 +39,14 @@ class Timer:
 
         class _Stage:
             def __enter__(self):
+                interrupts.check()
                 timer.log(f"{name} ...")
                 self.t0 = time.perf_counter()
 
             def __exit__(self, *exc):
                 timer.stages[name] = round(time.perf_counter() - self.t0, 3)
+                if exc[0] is None:
+                    interrupts.check()
 
         return _Stage()
 

@@ -40,6 +40,13 @@ class Claim:
     reproduced: bool
 
 
+
+def _median(values):
+    """The median of a band statistic, NaN (a claim not reproduced) where a resolution too low
+    for the claim leaves its multipole range empty."""
+    values = np.asarray(values)
+    return float(np.median(values)) if values.size else float("nan")
+
 def _column(part):
     return {"total": "residual_bb", "auto": "residual_auto_bb"}[part]
 
@@ -69,7 +76,7 @@ def pointing_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
     -------
     list of Claim
     """
-    med = np.median
+    med = _median
     out = []
     a1 = med(_ratio_to_reference(table, None, 1.0, lo=40))
     out.append(
@@ -141,7 +148,7 @@ def pointing_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
 
 def gain_claims(res: ExperimentResult, table: BandTable) -> list[Claim]:
     """The deep survey's gain claims; parameters and return value as :func:`pointing_claims`."""
-    med = np.median
+    med = _median
     out = []
     r_eq = med(_ratio_to_reference(table, None, 0.1, lo=30, hi=150)) * 0.1
     out.append(
@@ -226,7 +233,7 @@ def common_claims(res: ExperimentResult, table: BandTable, study: Study) -> list
     list of Claim
     """
     exp = res.experiment
-    med = np.median
+    med = _median
     out = []
     floor = 1e-20 if exp.name == "gain_deep" else 1e-2
     z = np.max(np.abs(res.zero_qu[exp.ideal_deg][2:])) / np.max(np.abs(res.zero_qu[None][2:]))

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import numpy as np
 
-from . import engine, ground, harmonics, predict, scanstats, spectra
+from . import engine, ground, harmonics, interrupts, predict, scanstats, spectra
 from .config import RunOptions
 from .instrument import Instrument, Systematics
 from .mapmaking import Maps
@@ -85,7 +85,7 @@ class Transforms:
             future.set_result(fn(*args))
             return future
         while len(self._queued) >= self.depth:
-            self._queued.popleft().result()
+            interrupts.result(self._queued.popleft())
         future = self._pool.submit(fn, *args)
         self._queued.append(future)
         self._all.append(future)
@@ -94,7 +94,7 @@ class Transforms:
     def wait(self):
         """Wait for every job; re-raises the first job's exception."""
         for future in self._all:
-            future.result()
+            interrupts.result(future)
 
 
 @dataclass(frozen=True)
@@ -200,11 +200,11 @@ class Residual:
 
     @property
     def cross(self):
-        return self.parts.result()[0]
+        return interrupts.result(self.parts)[0]
 
     @property
     def auto(self):
-        return self.parts.result()[1]
+        return interrupts.result(self.parts)[1]
 
     @property
     def total(self):
@@ -212,7 +212,8 @@ class Residual:
 
     @property
     def predicted_map(self):
-        return None if self.predicted_map_parts is None else sum(self.predicted_map_parts.result())
+        parts = self.predicted_map_parts
+        return None if parts is None else sum(interrupts.result(parts))
 
     #: the band-table columns (results.csv, bands.csv, sweep tables) and the spectrum each bins:
     #: a new column is one entry here
@@ -572,7 +573,7 @@ def residual(
     result.h_power = {n: float(mom.rotated_power(n)) for n in range(1, N_MAX + 1)}
     if predict.supports(instrument, mom.rotations_deg):
         field_cl = prediction.field_cl
-        field_cl = field_cl.result() if isinstance(field_cl, Future) else field_cl
+        field_cl = interrupts.result(field_cl) if isinstance(field_cl, Future) else field_cl
         result.predicted_cl = predict.residual_pseudo_bb(
             mom.h,
             footprint,

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from . import interrupts
 from .engine import check_samples
 from .ground import chunk_arguments, sample_pointing
 from .pixels import ang2pix_array, zphi2pix
@@ -228,6 +229,7 @@ def _stats(nside, tolerance_deg, binned_chunks):
     sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: one cache line
     hits = np.zeros(npix, dtype=np.int64)
     for chunk in binned_chunks(nbins):
+        interrupts.check()
         _bin(*chunk, sums, hits, occupancy, numba.get_num_threads())
     observed = np.flatnonzero(hits)
     h = np.zeros((N_MAX + 1, npix), dtype=np.complex128)

@@ -18,6 +18,7 @@ import numpy as np
 from . import (
     coupling,
     engine,
+    interrupts,
     io,
     masks,
     paper,
@@ -582,8 +583,10 @@ def design_schedule(
     and ``<|h_n|^2>``), the optimiser's history (``history.csv``), the residual spectra of each
     strategy with the noise and r references (``design.png``/``.pdf``), ``|h_n|^2`` maps before
     and after (``hn_before_after.png``), and with ``validate`` a TOD simulation of the budget on
-    the designed and the unrotated schedule (``validation.csv``). Ctrl-C during the search keeps
-    the best schedule found so far, and the outputs say so.
+    the designed and the unrotated schedule (``validation.csv``). Ctrl-C or SIGTERM during the
+    search keeps the best schedule found so far, during the validation the finished design without
+    it; the manifest says which, and the :class:`boresight.interrupts.Interrupted` raised after the
+    outputs are written says what was kept.
 
     Parameters
     ----------
@@ -670,11 +673,15 @@ def design_schedule(
             )
         )
     require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
-    validation = []
-    if validate and not found.interrupted:
-        with timer("TOD simulation of the designed and unrotated schedules"):
-            predicted = {row["strategy"]: row["delta_r"] for row in rows}
-            validation = _validate_design(budget, moments, obj, schedule, strategies, predicted)
+    validation, stopped, checked = [], found.interrupted, "skipped"
+    if validate and stopped is None:
+        try:
+            with timer("TOD simulation of the designed and unrotated schedules"):
+                predicted = {row["strategy"]: row["delta_r"] for row in rows}
+                validation = _validate_design(budget, moments, obj, schedule, strategies, predicted)
+            checked = "done"
+        except interrupts.Interrupted as err:  # the search is done: keep it, without validation
+            stopped, checked = err, "interrupted"
     mask = moments.mask
     curves = {
         name: predict.residual_pseudo_bb(
@@ -726,14 +733,20 @@ def design_schedule(
                     "turnarounds": schedule.turnarounds,
                     "design": dataclasses.asdict(budget.design),
                     "sigma_r": sigma_r,
-                    "interrupted": found.interrupted,
+                    "search_interrupted": found.interrupted is not None,
+                    "validation": checked,
                 },
                 {"design": opts.seed},
                 timer.stages,
             ),
         )
-    if found.interrupted:
-        raise KeyboardInterrupt
+    if stopped is not None:
+        stopped.kept = (
+            f"the best schedule found so far is in {out_dir}"
+            if found.interrupted is not None
+            else f"the finished design is in {out_dir}, without its TOD validation"
+        )
+        raise stopped
     return dict(
         sigma_r=sigma_r, strategies=rows, angles_deg=found.angles_deg, validation=validation
     )

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import __version__, coupling, io, masks, predict, residual
+from . import __version__, coupling, interrupts, io, masks, predict, residual
 from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
 
@@ -364,6 +364,10 @@ def run_sweep(
                 finish(p, key, run_point(base, base_dir, p))
         elif todo:
             _run_dask(todo, base, base_dir, scheduler, workers, finish)
+    except KeyboardInterrupt as err:  # the command line's Interrupted, or a notebook's Ctrl-C
+        stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
+        stop.kept = f"finished points are kept in {out_dir}; re-run to resume"
+        raise stop from None
     finally:  # also on Ctrl-C: the table holds every finished point, a re-run adds the rest
         bar.close()
         rows = write_tables(out, points, keys, bands)
@@ -397,8 +401,17 @@ def _run_dask(todo, base, base_dir, scheduler, workers, finish):
         futures = {
             client.submit(run_point, base, base_dir, p, pure=False): (p, key) for p, key in todo
         }
-        for fut in distributed.as_completed(futures):
-            finish(*futures[fut], fut.result())
+        running = set(futures)
+        while running:
+            interrupts.check()
+            try:
+                done, running = distributed.wait(
+                    running, timeout=interrupts.POLL_SECONDS, return_when="FIRST_COMPLETED"
+                )
+            except TimeoutError:  # distributed's own, a TimeoutError
+                continue
+            for fut in done:
+                finish(*futures[fut], fut.result())
     finally:
         client.close()
         if cluster is not None:

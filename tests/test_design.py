@@ -245,5 +245,38 @@ def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, mo
     out = tmp_path / "d"
     assert cli.main(["-q", "design", _budget(tmp_path), str(src), "--out", str(out)]) == 130
     assert ground.load_schedule(str(out / "schedule_designed.toml")).ces
-    assert json.loads((out / "manifest.json").read_text())["config"]["interrupted"] is True
+    config = json.loads((out / "manifest.json").read_text())["config"]
+    assert config["search_interrupted"] is True and config["validation"] == "skipped"
     assert not (out / "validation.csv").exists()
+
+
+def test_interrupt_during_the_validation_keeps_the_finished_design(
+    tmp_path, schedule, monkeypatch, capsys
+):
+    """After --force over an older design, Ctrl-C in the TOD validation writes the finished search
+    (not the older design, and not nothing), says so, and exits 130; SIGTERM exits 143."""
+    import json
+    import signal
+
+    from boresight import interrupts, studies
+
+    src = tmp_path / "s.toml"
+    ground.write_schedule(schedule, str(src), "toml")
+    out = tmp_path / "d"
+    budget = _budget(tmp_path)
+    assert cli.main(["-q", "design", budget, str(src), "--out", str(out), "--no-validate"]) == 0
+    (out / "strategies.csv").write_text("an older design\n")
+    for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
+
+        def stopped(*args, signum=signum):
+            raise interrupts.Interrupted(signum)
+
+        monkeypatch.setattr(studies, "_validate_design", stopped)
+        args = ["-q", "design", budget, str(src), "--out", str(out), "--force"]
+        assert cli.main(args) == code
+        err = capsys.readouterr().err
+        assert f"the finished design is in {out}, without its TOD validation" in err
+        config = json.loads((out / "manifest.json").read_text())["config"]
+        assert config["search_interrupted"] is False and config["validation"] == "interrupted"
+        assert "optimised" in (out / "strategies.csv").read_text()
+        assert not (out / "validation.csv").exists()
