@@ -428,10 +428,28 @@ def read_toml(path: str, what: str = "config") -> dict:
     if not os.path.isfile(path):
         raise ConfigError(f"{what} file not found (or not a file): {path}")
     try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
+        return toml_text(path)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ConfigError(f"{path} is not valid TOML: {err}") from None
+
+
+def toml_text(path: str) -> dict:
+    """The parsed TOML of a UTF-8 file, a byte-order mark (which tomllib refuses) dropped.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    OSError, UnicodeDecodeError, tomllib.TOMLDecodeError
+    """
+    with open(path, encoding="utf-8-sig") as f:
+        return tomllib.loads(f.read())
 
 
 def load_study(path: str) -> Study:

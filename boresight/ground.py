@@ -28,7 +28,7 @@ import numba
 import numpy as np
 
 from . import frames, validation
-from .config import ConfigError, tomllib
+from .config import ConfigError, toml_text, tomllib
 from .constants import DEG
 from .frames import to_frame
 
@@ -286,8 +286,7 @@ def is_schedule(path: str) -> bool:
     if toast_schedule.is_toast_schedule(path) or str(path).endswith(".csv"):
         return True
     try:
-        with open(path, "rb") as f:
-            return "ces" in tomllib.load(f)
+        return "ces" in toml_text(path)
     except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
         return False
 
@@ -343,11 +342,10 @@ SCHEDULE_KEYS = (
 
 
 def _toml_schedule(path):
-    with open(path, "rb") as f:
-        try:
-            raw = tomllib.load(f)
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-            raise ScheduleError(f"schedule {path} is not valid TOML: {err}") from None
+    try:
+        raw = toml_text(path)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ScheduleError(f"schedule {path} is not valid TOML: {err}") from None
     unknown = sorted(set(raw) - set(SCHEDULE_KEYS))
     if unknown:
         raise ScheduleError(

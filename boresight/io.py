@@ -46,9 +46,26 @@ class OutputError(ValueError):
     """An output path boresight must not or cannot write (found before any work)."""
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it, then setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _refuse_special(path: Path) -> None:
+    """OutputError for an existing path that is not a regular file (a FIFO, a device, a socket):
+    renaming a file onto it would replace it."""
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path} exists and is not a regular file (a FIFO or device?); not replacing it")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     """A temporary path beside ``path``, renamed onto it when the block succeeds, else deleted.
+
+    The file gets the permissions a new file would (0666 less the umask), not mkstemp's 0600.
+    A ``path`` that exists and is not a regular file is refused.
 
     Parameters
     ----------
@@ -59,10 +76,13 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     str
     """
     path = Path(path)
+    _refuse_special(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     os.close(fd)
     try:
         yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())
+        _refuse_special(path)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -261,6 +281,7 @@ def check_output_file(path: str | os.PathLike, force: bool, inputs: Iterable[str
     target = path.resolve()
     if path.is_symlink() or target.is_dir():
         raise OutputError(f"output file {path} is a symbolic link or a directory")
+    _refuse_special(target)
     if any(item is not None and target == Path(item).resolve() for item in inputs):
         raise OutputError(f"output file {path} is an input of the run")
     if target.exists() and not force:
@@ -412,6 +433,7 @@ def staged_dir(
     target.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=_stage_name(target, "staging"), dir=target.parent))
     try:
+        os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's is 0700: collaborators could not read
         (stage / MARKER).touch()
         yield stage
         interrupts.check()  # the last moment at which nothing has been replaced

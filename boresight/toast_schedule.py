@@ -40,6 +40,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from . import validation
+from .config import tomllib
 from .ground import CES, Schedule, ScheduleError, Site
 
 #: field count of a text row -> (version, whether dates and times are split into two fields)
@@ -99,8 +100,20 @@ class ScanMotion:
         return 2 * self.mount_speed(elevation_deg) / self.accel_deg_s2
 
 
+def _text(path):
+    """A text file's content, a UTF-8 byte-order mark dropped; None if it cannot be read."""
+    try:
+        with open(path, encoding="utf-8-sig") as f:
+            return f.read()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
 def is_toast_schedule(path: str | os.PathLike) -> bool:
-    """Whether a file looks like a TOAST schedule: ECSV, or a ``#`` header naming the site.
+    """Whether a file is a TOAST schedule, from its content: ECSV; or text that is not TOML (a
+    study or a boresight schedule, whose comments may say anything), is not named ``*.toml`` or
+    ``*.csv``, and starts with a comment line or a site line (site, telescope, three numbers). A
+    broken TOAST file is then read as one, so that its error names the line.
 
     Parameters
     ----------
@@ -110,12 +123,31 @@ def is_toast_schedule(path: str | os.PathLike) -> bool:
     -------
     bool
     """
-    try:
-        with open(path, encoding="utf-8") as f:
-            first = f.readline()
-    except (OSError, UnicodeDecodeError):
+    text = _text(path)
+    if text is None:
         return False
-    return first.startswith("# %ECSV") or (first.startswith("#") and "Site" in first)
+    if text.startswith("# %ECSV"):
+        return True
+    try:
+        tomllib.loads(text)
+        return False
+    except tomllib.TOMLDecodeError:
+        pass
+    if str(path).lower().endswith((".toml", ".csv")) or not text.strip():
+        return False
+    if text.startswith("#"):
+        return True
+    first = next(line for line in text.splitlines() if line.strip())
+    fields = _fields(first)
+    try:
+        return len(fields) == 5 and all(np.isfinite([float(x) for x in fields[2:]]))
+    except ValueError:
+        return False
+
+
+def _fields(line):
+    """A text line's fields as TOAST splits them: at ``|``, else at white space."""
+    return [x.strip() for x in line.split("|")] if "|" in line else line.split()
 
 
 def read(path: str | os.PathLike, motion: ScanMotion = ScanMotion()) -> Schedule:
@@ -141,9 +173,11 @@ def read(path: str | os.PathLike, motion: ScanMotion = ScanMotion()) -> Schedule
     path = str(path)
     if not os.path.isfile(path):
         raise ScheduleError(f"schedule not found (or not a file): {path}")
-    with open(path, encoding="utf-8") as f:
-        ecsv = f.readline().startswith("# %ECSV")
-    site, rows = _read_ecsv(path) if ecsv else _read_text(path)
+    text = _text(path)
+    if text is None:
+        raise ScheduleError(f"TOAST schedule {path} is not readable UTF-8 text")
+    ecsv = text.startswith("# %ECSV")
+    site, rows = _read_ecsv(path) if ecsv else _parse_text(text.splitlines(), path)
     if not rows:
         raise ScheduleError(f"TOAST schedule {path} has no CES rows")
     ces = []
@@ -155,30 +189,28 @@ def read(path: str | os.PathLike, motion: ScanMotion = ScanMotion()) -> Schedule
     return Schedule(tuple(ces), site, motion.sample_rate_hz)
 
 
-def _read_text(path):
-    """The site and ``(where, fields)`` of each row of a text schedule."""
+def _parse_text(lines, path):
+    """The site and ``(where, fields)`` of each row of a text schedule's lines, read as TOAST's
+    reader does (comments and lines holding "SPECIAL" skipped)."""
     site, rows, version = None, [], None
-    with open(path, encoding="utf-8") as f:
-        for number, line in enumerate(f, start=1):
-            if line.startswith("#") or not line.strip() or "SPECIAL" in line:
-                continue
-            where = f"TOAST schedule {path}, line {number}"
-            fields = [x.strip() for x in line.split("|")] if "|" in line else line.split()
-            if site is None:
-                site = _site(fields, where)
-                continue
-            if len(fields) not in TEXT_VERSIONS:
-                raise ScheduleError(
-                    f"{where}: {len(fields)} fields; TOAST rows have 9, 11, 22 or 24"
-                )
-            if version not in (None, TEXT_VERSIONS[len(fields)]):
-                raise ScheduleError(f"{where}: {len(fields)} fields, unlike the rows before it")
-            version = TEXT_VERSIONS[len(fields)]
-            if version[1]:  # dates and times as separate fields
-                fields = [f"{fields[0]} {fields[1]}", f"{fields[2]} {fields[3]}", *fields[4:]]
-            if version[0] <= 2:  # drop MJDs; keep rotation..el; pass and sub before the fraction
-                fields = [*fields[:2], *fields[4:9], fields[-3], fields[-2]]
-            rows.append((where, _row(fields, where)))
+    for number, line in enumerate(lines, start=1):
+        if line.startswith("#") or not line.strip() or "SPECIAL" in line:
+            continue
+        where = f"TOAST schedule {path}, line {number}"
+        fields = _fields(line)
+        if site is None:
+            site = _site(fields, where)
+            continue
+        if len(fields) not in TEXT_VERSIONS:
+            raise ScheduleError(f"{where}: {len(fields)} fields; TOAST rows have 9, 11, 22 or 24")
+        if version not in (None, TEXT_VERSIONS[len(fields)]):
+            raise ScheduleError(f"{where}: {len(fields)} fields, unlike the rows before it")
+        version = TEXT_VERSIONS[len(fields)]
+        if version[1]:  # dates and times as separate fields
+            fields = [f"{fields[0]} {fields[1]}", f"{fields[2]} {fields[3]}", *fields[4:]]
+        if version[0] <= 2:  # drop MJDs; keep rotation..el; pass and sub before the fraction
+            fields = [*fields[:2], *fields[4:9], fields[-3], fields[-2]]
+        rows.append((where, _row(fields, where)))
     if site is None:
         raise ScheduleError(f"TOAST schedule {path} has no site line")
     return site, rows
@@ -336,7 +368,13 @@ def text(schedule: Schedule) -> str:
     -------
     str
         The file's text; angles to 1e-8 deg, times to the microsecond.
+
+    Raises
+    ------
+    boresight.ground.ScheduleError
+        A name TOAST's readers would not read back (:func:`check_names`).
     """
+    check_names(schedule)
     s = schedule.site
     lines = [
         "# Site | Telescope | Latitude [deg] | Longitude [deg] | Elevation [m]",
@@ -351,6 +389,35 @@ def text(schedule: Schedule) -> str:
             f"{r['subscan_index']}"
         )
     return "\n".join(lines) + "\n"
+
+
+def check_names(schedule: Schedule) -> None:
+    """Refuse the names a TOAST text schedule cannot carry: TOAST's reader skips every line that
+    holds "SPECIAL" (a row, or the site line, after which it reads the first row as the site) and
+    strips the spaces around each field.
+
+    Parameters
+    ----------
+    schedule : boresight.ground.Schedule
+
+    Raises
+    ------
+    boresight.ground.ScheduleError
+        Naming the site, the telescope or the CES (by its row in observing order).
+    """
+    s = schedule.site
+    names = [("the site name", s.name), ("the telescope name", s.telescope)]
+    names += [(f"CES row {i + 1}'s name", c.name) for i, c in enumerate(schedule.expanded())]
+    for what, name in names:
+        if "SPECIAL" in name:
+            raise ScheduleError(
+                f"{what} {name!r} holds 'SPECIAL': TOAST's schedule readers skip every line "
+                "that does; rename it (or write ECSV, *.ecsv)"
+            )
+        if name != name.strip():
+            raise ScheduleError(
+                f"{what} {name!r} starts or ends with spaces, which TOAST's readers drop"
+            )
 
 
 def write(schedule: Schedule, path: str | os.PathLike) -> None:

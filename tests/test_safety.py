@@ -558,3 +558,116 @@ def test_writes_stay_inside_out(tmp_path, study_file):
     before = set(os.listdir(tmp_path))
     assert main(["-q", "simulate", str(study_file), "--out", str(tmp_path / "out")]) == 0
     assert set(os.listdir(tmp_path)) - before == {"out"}
+
+
+# Nothing lost: special files, permissions, TOAST rows, formats ----------------------------------
+
+
+def _toast_text(tmp_path, name="in.txt", site="atacama", patch="deep"):
+    from boresight import toast_schedule
+
+    def ces(patch):
+        return (ground.CES(1.79e9, 600.0, 50.0, 120.0, 20.0, 1.0, 0.0, 2.0, patch, 0, 0),)
+
+    schedule = ground.Schedule(ces(patch), ground.Site(-22.96, -67.79, 5200.0, site, "sat"), 5.0)
+    path = tmp_path / name  # a clean TOAST file to export from
+    path.write_text(toast_schedule.text(ground.Schedule(ces("deep"), ground.Site(), 5.0)))
+    return schedule, path
+
+
+def test_export_refuses_a_fifo_and_leaves_it_alone(tmp_path, capsys):
+    """--force onto a FIFO (or a device) would rename a regular file onto it."""
+    _, src = _toast_text(tmp_path)
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    assert main(["export-schedule", str(src), str(fifo), "--force"]) == 2
+    assert "not a regular file" in _error(capsys)
+    assert fifo.is_fifo()
+    with pytest.raises(io.OutputError, match="not a regular file"):
+        with io.atomic_path(fifo) as tmp:
+            open(tmp, "w").close()
+    assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == ["in.txt", "pipe"]
+
+
+@pytest.mark.parametrize("umask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o077, 0o600, 0o700)])
+def test_outputs_respect_the_umask(tmp_path, study_file, umask, file_mode, dir_mode):
+    """Files 0666 and directories 0777 less the umask, as any tool writes them: mkstemp's 0600
+    and mkdtemp's 0700 kept collaborators out; --force keeps them readable too."""
+    old = os.umask(umask)
+    try:
+        out = tmp_path / "out"
+        for force in ([], ["--force"]):
+            assert main(["-q", "simulate", str(study_file), "--out", str(out), *force]) == 0
+            assert out.stat().st_mode & 0o777 == dir_mode
+            modes = {p.name: p.stat().st_mode & 0o777 for p in out.iterdir() if p.is_file()}
+            assert set(modes.values()) == {file_mode}, modes
+        _, src = _toast_text(tmp_path)
+        target = tmp_path / "t.txt"
+        target.write_text("old")
+        os.chmod(target, 0o644 & ~umask)
+        assert main(["-q", "export-schedule", str(src), str(target), "--force"]) == 0
+        assert target.stat().st_mode & 0o777 == file_mode
+    finally:
+        os.umask(old)
+
+
+@pytest.mark.parametrize(
+    "site, patch, message",
+    [
+        ("atacama", "SPECIAL deep", "CES row 1's name 'SPECIAL deep' holds 'SPECIAL'"),
+        ("SPECIAL site", "deep", "the site name 'SPECIAL site' holds 'SPECIAL'"),
+        (" atacama", "deep", "starts or ends with spaces"),
+    ],
+)
+def test_export_refuses_names_toast_would_not_read_back(tmp_path, capsys, site, patch, message):
+    """TOAST's readers skip every line holding "SPECIAL" and strip the fields' spaces: such a
+    schedule exported 2 rows and read back 1 with exit 0. Now it is refused, and writes nothing."""
+    schedule, _ = _toast_text(tmp_path, site=site, patch=patch)
+    src = tmp_path / "s.toml"
+    ground.write_schedule(schedule.repeated([0.0, 90.0]), src, "toml")
+    assert main(["-q", "export-schedule", str(src), str(tmp_path / "out.txt")]) == 2
+    assert message in _error(capsys)
+    assert not (tmp_path / "out.txt").exists()
+
+
+def test_every_exported_schedule_reads_back_whole(tmp_path):
+    """Text and ECSV exports read back with every row, by boresight and by TOAST's own reader."""
+    from boresight import toast_schedule
+
+    schedule, _ = _toast_text(tmp_path, site="Cerro Toco", patch="deep field-2")
+    schedule = schedule.repeated([0.0, 45.0, 90.0])
+    for name in ("out.txt", "out.ecsv"):
+        toast_schedule.write(schedule, tmp_path / name)
+        back = ground.load_schedule(str(tmp_path / name))
+        assert len(back.ces) == 3 and back.site.name == "Cerro Toco"
+        assert [c.name for c in back.ces] == ["deep field-2"] * 3
+        try:
+            from toast.schedule import GroundSchedule
+        except ImportError:
+            continue
+        theirs = GroundSchedule()
+        theirs.read(str(tmp_path / name))
+        assert len(theirs.scans) == 3 and theirs.site_name == "Cerro Toco"
+
+
+def test_formats_are_told_apart_by_content_not_comments(tmp_path):
+    """A TOML study or schedule whose first comment mentions "Site" is TOML; a TOAST file with a
+    UTF-8 byte-order mark is TOAST's; a TOML file with one reads."""
+    from boresight.config import load_study
+
+    study = tmp_path / "study.toml"
+    study.write_text("# Site: Atacama, a study of the deep field\n" + STUDY)
+    assert not ground.is_schedule(str(study)) and load_study(str(study)).sky.nside == 16
+    schedule, toast_path = _toast_text(tmp_path)
+    toml_schedule = tmp_path / "schedule.toml"
+    ground.write_schedule(schedule, toml_schedule, "toml")
+    toml_schedule.write_text("# Site | Telescope | lat | lon | alt\n" + toml_schedule.read_text())
+    assert ground.schedule_format(str(toml_schedule)) == "toml"
+    assert ground.load_schedule(str(toml_schedule)).ces == schedule.ces
+    bom = tmp_path / "bom.txt"
+    bom.write_bytes(b"\xef\xbb\xbf" + toast_path.read_bytes())
+    assert ground.schedule_format(str(bom)) == "toast"
+    assert ground.load_schedule(str(bom)).ces == ground.load_schedule(str(toast_path)).ces
+    study_bom = tmp_path / "study_bom.toml"
+    study_bom.write_bytes(b"\xef\xbb\xbf" + STUDY.encode())
+    assert load_study(str(study_bom)).sky.nside == 16
