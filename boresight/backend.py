@@ -107,16 +107,21 @@ class KernelBackend(Protocol):
             sum c^2, sum c s, sum s^2, sum c d, sum s d with c, s = cos, sin 2a.
         """
 
-    def accumulate_scatter(self, pixels, psi, values_a, values_b, beams, response, leak, out):
-        """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order
-        (no jitter: such samples have no (pixel, hit) key).
+    def accumulate_scatter(
+        self, pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, out
+    ):
+        """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
         Parameters
         ----------
         pixels : int64 array, shape (H,)
             RING pixel of each hit.
-        psi, values_a, values_b, beams, response, leak
+        psi, values_a, values_b, beams, response, leak, jitter
             As in :meth:`accumulate`.
+        seed : int
+            Key of the jitter draws, with the sample's index in its stream.
+        first : int
+            The stream index of the first hit (the samples of earlier chunks).
         out : float64 array, shape (npix, 5)
             Running sums, updated in place.
         """

@@ -26,7 +26,7 @@ from .beams import pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS
 from .harmonics import ANALYSES
-from .instrument import Instrument, Systematics, response
+from .instrument import Instrument, Spread, Systematics, response
 from .masks import SURVEYS
 from .scan import SyntheticScan
 from .sky import SkyConfig
@@ -177,7 +177,17 @@ class OutputOptions:
         lmax = min(sky.lmax, 2 * sky.nside) if self.lmax is None else self.lmax
         validation.integer("lmax", lmax, 2, 3 * sky.nside - 1)
         validation.integer("n_bands", self.n_bands, 1)
-        validation.integer("lmin", self.lmin, 2, lmax - 1)
+        validation.integer("lmin", self.lmin, 2)
+        if self.lmin >= lmax:
+            origin = (
+                f"min(sky.lmax, 2 x sky.nside) for sky.nside = {sky.nside}"
+                if self.lmax is None
+                else "given"
+            )
+            raise ValueError(
+                f"lmin = {self.lmin} must be below lmax = {lmax} ({origin}); raise sky.nside or "
+                "lmax, or lower lmin"
+            )
         return replace(self, lmax=lmax)
 
     def edges(self):
@@ -346,6 +356,45 @@ def check_types(raw):
                 )
 
 
+def check_systematics(
+    systematics: Systematics,
+    instrument: Instrument,
+    rotations_deg: tuple,
+    fwhm_arcmin: float,
+) -> None:
+    """What the focal plane's drawn values must pass before any work, in a study, a budget or a
+    suppression map alike: lists as long as the pairs and the repeats, detector B's gain in
+    [0, 2] for every (pair, repeat), and beams that the sky's beam can carry.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+    instrument : boresight.instrument.Instrument
+    rotations_deg : sequence of float
+        The rotation repeats of the scan.
+    fwhm_arcmin : float
+        The sky's beam.
+
+    Raises
+    ------
+    ValueError
+    """
+    params = systematics.per_pair(instrument.n_pairs)
+    rotations = np.radians(np.asarray(rotations_deg, dtype=np.float64))
+    try:
+        response(
+            rotations, instrument.pair_angles_rad, params, systematics.per_repeat(rotations.size)
+        )
+    except ValueError as err:
+        drawn = [k for k in ("dg", "dg_repeat") if isinstance(getattr(systematics, k), Spread)]
+        if not drawn:
+            raise
+        spreads = ", ".join(f"{k} = {getattr(systematics, k)}" for k in drawn)
+        raise ValueError(f"{err}, drawn from {spreads}") from None
+    if systematics.has_beams:
+        pair_beams(params, fwhm_arcmin * ARCMIN)
+
+
 def _file(section, key, path, base):
     full = path if os.path.isabs(path) else os.path.join(base, path)
     if not os.path.isfile(full):
@@ -398,10 +447,13 @@ def build_section(section, cls, kwargs):
     ConfigError
         Naming section.key where the message starts with a field's name.
     """
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(kwargs) - names)
+    if unknown:
+        raise ConfigError(f"unknown key {section}.{unknown[0]}; allowed: {sorted(names)}")
     try:
         return cls(**kwargs)
     except (ValueError, TypeError) as err:
-        names = {f.name for f in dataclasses.fields(cls)}
         text = str(err)
         where = f"{section}." if text.split(" ")[0] in names else f"[{section}] "
         raise ConfigError(where + text) from None
@@ -522,16 +574,8 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
     systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
-    try:  # list lengths against pairs and repeats, B's gain in [0, 2], drawn beams in range
-        params = systematics.per_pair(instrument.n_pairs)
-        response(
-            scan.rotations_rad,
-            instrument.pair_angles_rad,
-            params,
-            systematics.per_repeat(len(scan.rotations_deg)),
-        )
-        if systematics.has_beams:
-            pair_beams(params, sky_cfg.fwhm_arcmin * ARCMIN)
+    try:
+        check_systematics(systematics, instrument, scan.rotations_deg, sky_cfg.fwhm_arcmin)
     except ValueError as err:
         raise ConfigError(f"[systematics] {err}") from None
     mask_raw = dict(raw.get("mask", {}))

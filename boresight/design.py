@@ -35,7 +35,7 @@ import numpy as np
 from . import coupling, interrupts, predict, validation
 from .constants import DEG
 from .ground import Schedule, chunk_arguments
-from .instrument import Instrument
+from .instrument import AMPLITUDES, Instrument, _nonzero
 from .scanstats import N_MAX, ces_hits
 from .validation import option
 
@@ -277,7 +277,7 @@ class Objective:
     leaked_const : float
         The angle-independent part's delta_r: a beam ellipticity's h_0 term, its leaked power
         plus its first-order cross term with the sky's E (through TE and the mask's E-to-B
-        leakage; it can be negative).
+        leakage; it can be negative), and the gain jitter's white leaked power.
     """
 
     moments: UnitMoments
@@ -411,6 +411,11 @@ def objective(
         beta[n] += weight * (bias(cl_e, cl_b) - white)
     signal = predict.signal_bb(couplings, coefs, cl_ee, cl_bb, expected=power)
     const = predict.delta_r(signal, template)
+    jitter_var = predict.jitter_variance(systematics, coefs, expected=power is not None)
+    if jitter_var > 0:  # leaked white power, whatever the angles: <sigma^2> T^2 / N per pixel
+        variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * cl_tt)
+        inverse_samples = np.mean(1.0 / (moments.hits * coefs.n_samples))
+        leaked_const += 0.5 * omega_pix * jitter_var * variance_t * inverse_samples * white_unit
     return Objective(
         moments, alpha, beta, float(const), change_cost, template, couplings, float(leaked_const)
     )
@@ -625,9 +630,7 @@ def load_budget(path: str) -> Budget:
     -------
     Budget
     """
-    from .beams import pair_beams
-    from .config import ConfigError, build_section, read_toml
-    from .constants import ARCMIN
+    from .config import ConfigError, build_section, check_systematics, read_toml
     from .instrument import Systematics
     from .noise import SurveyNoise
 
@@ -645,14 +648,25 @@ def load_budget(path: str) -> Budget:
             raise ConfigError(f"budget {path}: [{name}] must be a table")
         if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
             table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
-        tables[name] = build_section(name, cls, table)
+        try:
+            tables[name] = build_section(name, cls, table)
+        except ConfigError as err:
+            raise ConfigError(f"budget {path}: {err}") from None
     sysm, instrument = tables["systematics"], tables["instrument"]
-    if sysm == Systematics(seed=sysm.seed):
-        raise ConfigError(f"budget {path}: [systematics] has no non-zero amplitude")
+    if not sysm.has_amplitude:
+        raise ConfigError(
+            f"budget {path}: [systematics] has no non-zero amplitude (chi_deg and the "
+            "ellipticity angles only orient a pointing offset or a beam); give one of "
+            f"{', '.join(AMPLITUDES)}"
+        )
+    if _nonzero(sysm.dg_repeat):
+        raise ConfigError(
+            f"budget {path}: [systematics] dg_repeat is a gain drift between the rotation "
+            "repeats of a synthetic scan; a schedule's repeats are CESs of their own, each with "
+            "the angle the design gives it: remove dg_repeat"
+        )
     try:
-        params = sysm.per_pair(instrument.n_pairs)
-        if sysm.has_beams:
-            pair_beams(params, tables["noise"].fwhm_arcmin * ARCMIN)
+        check_systematics(sysm, instrument, (0.0,), tables["noise"].fwhm_arcmin)
         if not predict.supports(instrument):
             raise ValueError("its pairs' 4 x angles must cancel (m_4 = 0), e.g. 'uniform'")
     except ValueError as err:

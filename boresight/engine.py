@@ -349,12 +349,23 @@ class _Binner:
 
         return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
-    def scatter(self, pixels, theta, phi, psi, normal):
-        """Add the normal-equation sums of hits in any order into the full-sky ``normal``."""
+    def scatter(self, pixels, theta, phi, psi, normal, seed, first):
+        """Add the normal-equation sums of hits in any order into the full-sky ``normal``; the
+        jitter of hit h is keyed by (seed, first + h)."""
         values_a, values_b = self._values(theta, phi, psi)
         beams = self._beam_terms(theta, phi, psi)
         self.kernels.accumulate_scatter(
-            pixels, psi, values_a, values_b, beams, self.response, self.leak, normal
+            pixels,
+            psi,
+            values_a,
+            values_b,
+            beams,
+            self.response,
+            self.leak,
+            self.jitter,
+            seed,
+            first,
+            normal,
         )
 
 
@@ -388,21 +399,18 @@ def simulate_samples(
     -------
     boresight.mapmaking.Maps
     """
-    if systematics.has_jitter:
-        raise ValueError(
-            "dg_jitter is simulated for synthetic scans only: a real sample stream has no "
-            "(pixel, hit) key for its draws"
-        )
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
     normal = binner.kernels.zeros((12 * sky.nside**2, 5))
+    first = 0  # the stream index of each chunk's first sample: the key of its jitter draws
     with numba_threads(nthreads):
         for chunk in sample_chunks:
             interrupts.check()
             theta, phi, psi = check_samples(*chunk)
             pix = ang2pix_array(sky.nside, theta, phi)
-            binner.scatter(pix, theta, phi, psi, normal)
+            binner.scatter(pix, theta, phi, psi, normal, systematics.seed, first)
+            first += pix.size
     q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
     seen = np.flatnonzero(hits)
     return Maps(sky.nside, seen, q[seen], u[seen], hits[seen], rcond[seen])

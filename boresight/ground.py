@@ -589,8 +589,10 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
     """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time order,
     once per boresight repeat.
 
-    A chunk holds at most ``chunk_samples`` samples and spans at most
-    :data:`boresight.frames.CHUNK_SECONDS`, over which the frame's rotation is one.
+    A chunk holds at most ``chunk_samples`` samples and lies in one block of
+    :data:`boresight.frames.CHUNK_SECONDS` of its CES (counted from the CES's start), over which
+    the frame's rotation is one, evaluated at the block's middle: so the pointing does not depend
+    on ``chunk_samples``.
 
     Parameters
     ----------
@@ -606,7 +608,7 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
     lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
     jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
     rate = schedule.sample_rate_hz
-    step = max(1, min(chunk_samples, int(frames.CHUNK_SECONDS * rate)))
+    block = max(1, int(frames.CHUNK_SECONDS * rate))
     for repeat in schedule.repeat_boresight_deg:
         for c in schedule.ces:
             n = int(c.duration_s * rate)
@@ -626,11 +628,13 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
                 ],
                 dtype=np.float64,
             )
-            starts = np.arange(0, n, step)
-            middles = c.start_unix + (starts + 0.5 * np.minimum(step, n - starts)) / rate
+            starts = np.arange(0, n, block)
+            middles = c.start_unix + (starts + 0.5 * block) / rate
             terms = frames.frame_terms(middles, schedule.site.lat_deg, schedule.frame)
-            for s, t in zip(starts, terms):
-                yield int(s), int(min(step, n - s)), chunk, t
+            for b, t in zip(starts, terms):
+                end = min(b + block, n)
+                for s in range(int(b), end, chunk_samples):
+                    yield s, min(chunk_samples, end - s), chunk, t
 
 
 def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple]:

@@ -76,6 +76,9 @@ UNITS = {
     "ellipticity_angle_a_deg": DEG,
     "ellipticity_angle_b_deg": DEG,
 }
+#: the per-pair parameters that set an amplitude (the others, chi_deg and the ellipticities'
+#: angles, only orient one)
+AMPLITUDES = tuple(k for k in LIMITS if k != "chi_deg" and "angle_a" not in k and "angle_b" not in k)
 #: the beam keys of each detector: FWHM change, ellipticity, major-axis angle
 BEAM_KEYS = {
     "a": ("dfwhm_a_arcmin", "ellipticity_a", "ellipticity_angle_a_deg"),
@@ -151,6 +154,9 @@ class Spread:
 
     mean: float = 0.0
     rms: float = 0.0
+
+    def __str__(self):
+        return f"{{mean = {self.mean:g}, rms = {self.rms:g}}}"
 
 
 class PairParameters(NamedTuple):
@@ -350,6 +356,11 @@ class Systematics:
         )
 
     @property
+    def has_amplitude(self):
+        """Whether any systematic has a non-zero amplitude (a drift or a per-pair one)."""
+        return _nonzero(self.dg_repeat) or any(_nonzero(getattr(self, k)) for k in AMPLITUDES)
+
+    @property
     def has_pointing(self):
         return _nonzero(self.rho_arcmin)
 
@@ -418,8 +429,14 @@ def response(rotations, pair_angles, params, dg_repeat):
         params.dg,
         dg_repeat,
     )
-    if not ((table[..., 6] >= 0) & (table[..., 6] <= 2)).all():
-        raise ValueError("dg + dg_repeat must stay in [-1, 1]: detector B's gain left [0, 2]")
+    bad = np.argwhere(~((table[..., 6] >= 0) & (table[..., 6] <= 2)))
+    if bad.size:
+        k, m = bad[0]
+        raise ValueError(
+            f"dg + dg_repeat must stay in [-1, 1] (detector B's gain 1 - dg - dg_repeat in [0, 2]):"
+            f" pair {m + 1} has dg = {params.dg[m]:.4g} and repeat {k + 1} dg_repeat = "
+            f"{dg_repeat[k]:.4g}"
+        )
     return table
 
 

@@ -250,6 +250,7 @@ def check_output_path(path: str | os.PathLike, inputs: Iterable[str] = ()) -> Pa
             raise OutputError(f"output directory {path} holds the input {item}")
     if target.exists() and not target.is_dir():
         raise OutputError(f"output path {path} exists and is not a directory")
+    _check_name(target)
     _check_writable(target.parent)
     _remove_stale(target)
     return target
@@ -286,8 +287,23 @@ def check_output_file(path: str | os.PathLike, force: bool, inputs: Iterable[str
         raise OutputError(f"output file {path} is an input of the run")
     if target.exists() and not force:
         raise OutputError(f"output file {path} exists; --force replaces it")
+    if not target.parent.is_dir():
+        raise OutputError(f"the directory of the output file {path} does not exist; create it")
+    _check_name(target)
     _check_writable(target.parent)
     return target
+
+
+#: the longest output name: its staging name (".NAME.staging.PID.XXXXXXXX") must fit in 255 bytes
+MAX_NAME_BYTES = 200
+
+
+def _check_name(target):
+    if len(os.fsencode(target.name)) > MAX_NAME_BYTES:
+        raise OutputError(
+            f"the output name {target.name[:40]}... is {len(os.fsencode(target.name))} bytes; "
+            f"at most {MAX_NAME_BYTES} (file names hold 255, and its staging name is longer)"
+        )
 
 
 def is_own(path: str | os.PathLike) -> bool:

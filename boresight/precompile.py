@@ -100,7 +100,12 @@ KERNELS = {
         Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
         Kernel("ground", "_ces_pointing", _CHUNK, 2.4),
         Kernel("pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
-        Kernel("tod_cpu", "accumulate_scatter", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F2), 1.6),
+        Kernel(
+            "tod_cpu",
+            "accumulate_scatter",
+            (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, nt.int64, _F2),
+            1.6,
+        ),
     )
 }
 

@@ -176,6 +176,30 @@ class ExpectedPower(NamedTuple):
     re_im_p0: float
 
 
+def jitter_variance(systematics: Systematics, coefs: Coefficients, expected: bool) -> float:
+    """<sigma^2> of the gain jitter over the focal plane.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.Systematics
+    coefs : Coefficients
+        Of the drawn pairs.
+    expected : bool
+        The expectation over the draws of a {mean, rms} jitter, mean^2 + rms^2, rather than the
+        drawn pairs' mean of sigma^2.
+
+    Returns
+    -------
+    float
+    """
+    from .instrument import Spread
+
+    jitter = systematics.dg_jitter
+    if expected and isinstance(jitter, Spread):
+        return jitter.mean**2 + jitter.rms**2
+    return coefs.jitter_var
+
+
 def expected_coefficients(coefs: Coefficients, power: ExpectedPower) -> Coefficients:
     """Coefficients whose ``|c|^2`` are the expected powers (their phases are dropped): what the
     spectra of the terms c h_n F need, which see ``|c|^2`` only.
@@ -852,14 +876,17 @@ def systematic_cl(
         white = (total - coherent) * omega_pix * variance + (noise_e + noise_b) / 2
         for row, cl in enumerate((cl_e, cl_b)):
             out[row] += 0.5 * abs(c) ** 2 * (coherent * cl[: lmax + 1] + white)
-    if coefs.jitter_var > 0:
+    jitter_var = jitter_variance(systematics, coefs, expected)
+    if jitter_var > 0:
         if crossings is None:
-            raise ValueError("the gain jitter's prediction needs the crossings per pixel")
+            raise ValueError(
+                "the gain jitter's prediction needs the scan's crossings per pixel (crossings=)"
+            )
         w2 = blocks.weight**2
         inverse_samples = np.sum(w2 / (crossings[blocks.obs] * coefs.n_samples)) / np.sum(w2)
         point = value.point if value.on else 1.0  # T's variance where the hits read it
         variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * cl_tt * point)
-        out += 0.5 * omega_pix * coefs.jitter_var * variance_t * inverse_samples
+        out += 0.5 * omega_pix * jitter_var * variance_t * inverse_samples
     out[:, :2] = 0.0
     return out
 

@@ -8,6 +8,7 @@ an interrupted job leaves nothing behind, and an existing directory is kept unle
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -376,7 +377,13 @@ def _check_layout(layout, prefix):
     if layout not in LAYOUTS:
         raise ValueError(f"the h_n layout must be one of {LAYOUTS}, got {layout!r}")
     if not prefix or not all(c.isalnum() or c in "_-." for c in prefix):
-        raise ValueError(f"the prefix {prefix!r} must be letters, digits, '_', '-' or '.'")
+        raise ValueError(f"--prefix {prefix!r} must be letters, digits, '_', '-' or '.'")
+    longest = len(os.fsencode(f"{prefix}_cos_4.fits"))
+    if longest > io.MAX_NAME_BYTES:
+        raise ValueError(
+            f"--prefix is {len(prefix)} characters: its files' names would be {longest} bytes, "
+            f"at most {io.MAX_NAME_BYTES} are allowed"
+        )
 
 
 def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max, layout, prefix,
@@ -646,6 +653,11 @@ def design_schedule(
         else np.full(moments.n_units, opts.angles_deg[0])
     )
     log(f"{moments.n_units} units, {moments.pixels.size} pixels; sigma(r) = {sigma_r:.3g}")
+    if not obj.terms:
+        log(
+            "the budget's systematics do not depend on the boresight angles (h_0 and white "
+            "terms only): every schedule has the same predicted delta_r"
+        )
     bar = None
     if progress:
         from tqdm import tqdm
@@ -692,6 +704,7 @@ def design_schedule(
             spectra_,
             budget.noise.fwhm_arcmin,
             budget.instrument,
+            crossings=moments.full_sky(moments.hits),
             expected=design.drawn(budget.systematics),
         )
         for name, h in h_maps.items()
@@ -713,7 +726,8 @@ def design_schedule(
         if validation:
             io.write_csv(stage / "validation.csv", validation, list(validation[0]))
         plots.design_figure(curves, obj, budget.noise, sigma_r, spectra_, stage / "design")
-        dominant = max(obj.terms, key=lambda n: obj.alpha[n] + obj.beta[n])
+        # the moment of the largest angle-dependent term (h_2 where every term is h_0 or white)
+        dominant = max(obj.terms, key=lambda n: obj.alpha[n] + obj.beta[n], default=2)
         plots.map_figure(
             [
                 np.where(mask > 0, np.abs(moments.full_sky(h_maps[k][dominant])) ** 2, hp.UNSEEN)
@@ -816,9 +830,26 @@ def suppression_map(
         The table's rows.
     """
     from . import suppression
-    from .config import OutputOptions, Study
+    from .config import ConfigError, OutputOptions, Study, check_systematics
+    from .instrument import Instrument
 
-    study = Study(sky=sky_config, output=OutputOptions(lmax=2 * sky_config.nside))
+    if sky_config.nside < suppression.MIN_NSIDE:
+        raise ConfigError(
+            f"--nside = {sky_config.nside}: the suppression map's first band starts at ell = "
+            f"{suppression.bands(1 << 20)[0]}, beyond lmax = 2 Nside = {2 * sky_config.nside}; "
+            f"give a power of two >= {suppression.MIN_NSIDE}"
+        )
+    for entry in suppression.CATALOGUE:  # every entry, before the first is simulated
+        try:
+            check_systematics(
+                entry.systematics, Instrument(), (0.0, 90.0), sky_config.fwhm_arcmin
+            )
+        except ValueError as err:
+            raise ConfigError(
+                f"--fwhm-arcmin = {sky_config.fwhm_arcmin:g}: the {entry.name} entry "
+                f"({entry.amplitude}): {err}"
+            ) from None
+    study = Study(sky=sky_config, output=OutputOptions(lmax=2 * sky_config.nside, lmin=2))
     check_memory("suppression", study, memory_check)
     io.check_output_dir(out_dir, force)
     timer = provenance.Timer(log)

@@ -75,6 +75,9 @@ CATALOGUE = (
 ANGLES = (None, 45.0, 90.0, 180.0)  #: the second repeat of each schedule [deg], None: no rotation
 
 
+MIN_NSIDE = 16  #: the lowest Nside whose 2 Nside reaches past the first band's start, 30
+
+
 def bands(nside: int) -> np.ndarray:
     """The multipole bands [30, 100), [100, 300), [300, 2 nside] (edges), those below 2 nside."""
     return np.array([e for e in (30, 100, 300) if e < 2 * nside] + [2 * nside + 1])

@@ -41,7 +41,7 @@ import numpy as np
 
 from . import validation
 from .config import tomllib
-from .ground import CES, Schedule, ScheduleError, Site
+from .ground import CES, CES_LIMITS, Schedule, ScheduleError, Site
 
 #: field count of a text row -> (version, whether dates and times are split into two fields)
 TEXT_VERSIONS = {9: (4, False), 11: (3, True), 22: (2, False), 24: (1, True)}
@@ -242,11 +242,22 @@ def _row(fields, where):
             azmin=float(azmin),
             azmax=float(azmax),
             el=float(el),
-            scan_index=int(scan),
-            subscan_index=int(subscan),
+            scan_index=_index("pass", scan),
+            subscan_index=_index("sub-pass", subscan),
         )
     except ValueError as err:
         raise ScheduleError(f"{where}: {err}") from None
+
+
+def _index(what, value):
+    """A pass or sub-pass number: an integer, never a fraction cut short."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"the {what} {value} is not an integer") from None
+    if not number.is_integer() or number < 0:
+        raise ValueError(f"the {what} {value} is not an integer >= 0")
+    return int(number)
 
 
 def _utc(text):
@@ -269,22 +280,30 @@ def _read_ecsv(path):
     if missing:
         raise ScheduleError(f"TOAST schedule {path}: missing ECSV columns {missing}")
 
-    def deg(value, unit=u.deg):
-        return float(u.Quantity(value, unit).value)
+    def value(where, quantity, unit):
+        try:
+            return u.Quantity(quantity, unit).to_value(unit)
+        except (TypeError, ValueError) as err:  # UnitConversionError is a ValueError
+            raise ScheduleError(f"TOAST schedule {path}, {where}: {err}; it needs {unit}") from None
 
     meta = table.meta
+    position = {
+        key: float(value(f"metadata {key}", meta.get(key, 0.0), unit))
+        for key, unit in (("site_lat", u.deg), ("site_lon", u.deg), ("site_alt", u.m))
+    }
     try:
         site = Site(
-            deg(meta.get("site_lat", 0.0)),
-            deg(meta.get("site_lon", 0.0)),
-            deg(meta.get("site_alt", 0.0), u.m),
+            position["site_lat"],
+            position["site_lon"],
+            position["site_alt"],
             str(meta.get("site_name", "site")),
             str(meta.get("telescope_name", "telescope")),
         )
     except (ValueError, TypeError) as err:
         raise ScheduleError(f"TOAST schedule {path}, metadata: {err}") from None
     angles = {
-        c: table[c].quantity.to_value(u.deg) for c in ("boresight_angle", "azmin", "azmax", "el")
+        c: value(f"column {c}", table[c].quantity, u.deg)
+        for c in ("boresight_angle", "azmin", "azmax", "el")
     }
     rows = []
     for i, row in enumerate(table):
@@ -306,6 +325,19 @@ def _read_ecsv(path):
 
 def _ces(motion, start, stop, rotation, name, azmin, azmax, el, scan_index, subscan_index):
     """A CES from a TOAST row: the azimuth range wraps upwards past 360 deg as in TOAST."""
+    validation.number("el", el, 0.0, 90.0)
+    if not 0 < el < 90:
+        raise ValueError(f"el = {el} must lie in (0, 90) deg")
+    for key, value in (("azmin", azmin), ("azmax", azmax), ("rotation", rotation)):
+        validation.number(key, value)
+    speed, limit = motion.mount_speed(el), CES_LIMITS["speed_deg_s"][1]
+    if speed > limit:
+        how = "on the sky" if motion.rate_on_sky else "of the mount"
+        raise ValueError(
+            f"el = {el:g} deg: the scan rate {motion.rate_deg_s:g} deg/s {how} turns the mount at "
+            f"{speed:.4g} deg/s (rate / cos el), above {limit:g} deg/s; lower --scan-rate or give "
+            "it as the mount's (--rate-on mount)"
+        )
     if azmax < azmin:
         azmax += 360.0
     return CES(

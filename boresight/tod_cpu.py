@@ -237,18 +237,21 @@ def accumulate(offsets, psi, values_a, values_b, beams, response, leak, jitter, 
 
 
 @numba.njit(cache=True)
-def accumulate_scatter(pixels, psi, values_a, values_b, beams, response, leak, out):
+def accumulate_scatter(
+    pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, out
+):
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
 
-    Serial, so no two hits race for a pixel. No jitter: samples in any order have no
-    (pixel, hit) key.
+    Serial, so no two hits race for a pixel. The jitter of sample h is keyed by (seed, its index
+    in the stream, first + h), as a synthetic hit's by (seed, pixel, hit).
     """
     values_b, beams = _flat(values_b), _flat(beams)
-    no_jitter = np.zeros(response.shape[1])
+    draws = np.any(jitter != 0.0)
     for h in range(pixels.size):
-        t = _hit_sums(h, psi, values_a, values_b, beams, response, leak, no_jitter, np.uint64(0), 0)
+        key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
+        t = _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, key, 0)
         p = pixels[h]
         for j in range(5):
             out[p, j] += t[j]

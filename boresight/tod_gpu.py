@@ -242,6 +242,9 @@ def accumulate_scatter(
     beams: np.ndarray,
     response: np.ndarray,
     leak: np.ndarray,
+    jitter: np.ndarray,
+    seed: int,
+    first: int,
     out: cp.ndarray,
 ) -> None:
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
@@ -249,7 +252,8 @@ def accumulate_scatter(
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
 
     The hits are sorted by (pixel, position) on the GPU, so every pixel's sums are added
-    in hit order, as on the CPU: deterministic, and equal to the CPU to rounding.
+    in hit order, as on the CPU: deterministic, and equal to the CPU to rounding. Gain jitter is
+    refused (:func:`_physics`), so ``seed`` and ``first`` are unused.
     """
     pixels = _d(pixels, np.int64)
     order = cp.argsort(pixels * pixels.size + cp.arange(pixels.size))
@@ -257,7 +261,7 @@ def accumulate_scatter(
     offsets = cp.zeros(target.size + 1, dtype=cp.int64)
     cp.cumsum(counts, out=offsets[1:])
     values_b = _d(values_b)[:, order] if values_b.shape[1] > 0 else values_b
-    args = (_d(values_a)[:, order], values_b, _physics(response, leak, beams=beams), out)
+    args = (_d(values_a)[:, order], values_b, _physics(response, leak, jitter, beams), out)
     _accumulate(offsets, _d(psi)[order], target, *args)
 
 

@@ -113,8 +113,10 @@ def test_gpu_kernel_launches_match_the_cuda_parameters_without_a_gpu(
     gpu.accumulate(offsets, psi[: offsets[-1]], *values, none, resp, leak, None, 3, pixels)
     out = np.zeros((768, 5))
     hit_pixels = np.repeat(pixels, 2)
-    gpu.accumulate_scatter(hit_pixels, psi[: offsets[-1]], *values, none, resp, leak, out)
     jitter = np.zeros(2)
+    gpu.accumulate_scatter(
+        hit_pixels, psi[: offsets[-1]], *values, none, resp, leak, jitter, 3, 0, out
+    )
     gpu.bin_scan(*scan_args, stack, rot, ang, resp, rho, chi, leak, jitter, True, True)
     gpu.moments(offsets, psi[: offsets[-1]], rot, 4)
     launched = {name for name, _ in fake.launches}

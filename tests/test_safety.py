@@ -501,10 +501,12 @@ def test_sigterm_is_handled_like_ctrl_c(tmp_path, study_file):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "boresight.cli", "reproduce", "--quick", "--out", str(out)]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
-    first = proc.stderr.readline()  # the first stage's log line: the study has started
+    line = ""
+    while "sky ..." not in line:  # the sky's stage has started (after any compilation)
+        line = proc.stderr.readline()
+        assert line, "the run ended before its sky stage"
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
-    assert "sky" in first
     assert proc.returncode == 143 and "terminated; nothing was written" in err
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
@@ -671,3 +673,149 @@ def test_formats_are_told_apart_by_content_not_comments(tmp_path):
     study_bom = tmp_path / "study_bom.toml"
     study_bom.write_bytes(b"\xef\xbb\xbf" + STUDY.encode())
     assert load_study(str(study_bom)).sky.nside == 16
+
+
+# Messages that name the thing, before any work -------------------------------------------------
+
+BUDGET = """
+[systematics]
+{systematics}
+[noise]
+depth_uk_arcmin = 3.0
+fsky = 0.1
+fwhm_arcmin = 240.0
+[design]
+nside = 16
+sweeps = 2
+"""
+
+
+def _design(tmp_path, capsys, systematics, *extra):
+    budget = tmp_path / "budget.toml"
+    budget.write_text(BUDGET.format(systematics=systematics))
+    schedule = tmp_path / "schedule.toml"
+    base = ground.load_schedule("examples/schedule_deep_sat.toml")
+    ces = tuple(ground.CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:4])
+    ground.write_schedule(ground.Schedule(ces, base.site, 1.0, repeat_boresight_deg=(0.0, 90.0)),
+                          schedule, "toml")  # fmt: skip
+    out = tmp_path / "d"
+    code = main(["-q", "design", str(budget), str(schedule), "--out", str(out), *extra])
+    return code, out, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "systematics, message",
+    [
+        ("bogus = 1.0", "budget {b}: unknown key systematics.bogus; allowed:"),
+        ("dg = [0.01, -0.01]\ndg_repeat = [0.001, -0.001]", "dg_repeat is a gain drift between"),
+        ("chi_deg = 30.0", "[systematics] has no non-zero amplitude (chi_deg"),
+        ("ellipticity_angle_b_deg = 20.0", "[systematics] has no non-zero amplitude"),
+        ("dg = {mean = 0, rms = 2.0}", "dg = 2.101 and repeat 1 dg_repeat = 0, drawn from dg = "
+                                       "{mean = 0, rms = 2}"),  # fmt: skip
+    ],
+)
+def test_budget_errors_name_the_file_and_the_key(tmp_path, capsys, systematics, message):
+    """Each refused before any work, also with --no-validate (a budget whose drawn dg leaves
+    detector B's gain range wrote a design, rc 0; dg_repeat said "the scan has 1 rotation
+    repeats" of a schedule with 2; a pointing direction alone gave "max() arg is an empty
+    sequence")."""
+    code, out, err = _design(tmp_path, capsys, systematics, "--no-validate")
+    assert code == 2 and not out.exists()
+    assert message.replace("{b}", str(tmp_path / "budget.toml")) in err, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("systematics", ["dg_jitter = 0.01", "pol_angle_deg = 0.5"])
+def test_budgets_of_angle_independent_systematics_design_and_validate(tmp_path, capsys, systematics):
+    """A gain jitter (white) and an angle error (h_0) budget: every strategy has the same delta_r,
+    the log says so, and the jitter is simulated on the schedule's samples in the validation
+    ("the gain jitter's prediction needs the crossings per pixel" refused it)."""
+    import csv
+
+    code, out, err = _design(tmp_path, capsys, systematics)
+    assert code == 0, err
+    rows = list(csv.DictReader(open(out / "strategies.csv")))
+    assert len({row["delta_r"] for row in rows}) == 1 and float(rows[0]["delta_r"]) != 0
+    validation = list(csv.DictReader(open(out / "validation.csv")))
+    assert all(float(row["simulated_delta_r"]) != 0 for row in validation)
+
+
+def test_a_toast_row_at_an_impossible_elevation_says_why(tmp_path, capsys):
+    """el = inf gave "math domain error"; el = 89.5 a refusal of "speed 114.6", a value the file
+    does not hold (SimGround's 1 deg/s on the sky is 114.6 deg/s of the mount there)."""
+    from boresight import toast_schedule
+
+    _, good = _toast_text(tmp_path)
+    text = good.read_text().splitlines()
+    row = text[-1].split(" | ")
+    for el, message in (
+        ("inf", "el must be >= 0 and <= 90 (finite), got inf"),
+        ("89.5", "turns the mount at 114.6 deg/s (rate / cos el), above 100 deg/s"),
+    ):
+        row[6] = el
+        bad = tmp_path / f"el_{el}.txt"
+        bad.write_text("\n".join([*text[:-1], " | ".join(row)]) + "\n")
+        with pytest.raises(ground.ScheduleError, match=re.escape(message)) as info:
+            toast_schedule.read(bad)
+        assert f"{bad}, line {len(text)}" in str(info.value)
+
+
+def test_ecsv_units_and_passes_are_checked_by_column(tmp_path):
+    """A wrong unit named neither the file nor the column; a fractional pass was cut short."""
+    from boresight import toast_schedule
+
+    schedule, _ = _toast_text(tmp_path)
+    path = tmp_path / "s.ecsv"
+    toast_schedule.write(schedule, path)
+    text = path.read_text()
+    wrong_unit = tmp_path / "unit.ecsv"
+    wrong_unit.write_text(text.replace("{name: el, unit: deg", "{name: el, unit: m", 1))
+    with pytest.raises(ground.ScheduleError, match=rf"{wrong_unit}, column el: .*needs deg"):
+        toast_schedule.read(wrong_unit)
+    fraction = tmp_path / "pass.ecsv"
+    header = [line for line in text.splitlines() if line.startswith("#")]
+    body = [line for line in text.splitlines() if not line.startswith("#")]
+    fields = body[1].rsplit(" ", 2)
+    body[1] = " ".join([fields[0], "1.5", fields[2]])
+    header = [h.replace("{name: scan_index, datatype: int64}", "{name: scan_index, datatype: "
+                        "float64}") for h in header]  # fmt: skip
+    fraction.write_text("\n".join(header + body) + "\n")
+    with pytest.raises(ground.ScheduleError, match=r"row 1: the pass 1.5 is not an integer"):
+        toast_schedule.read(fraction)
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path, capsys):
+    """A missing directory of an output file and a 300-character prefix failed after the work,
+    naming a staging file; so did an output directory whose name is too long."""
+    _, src = _toast_text(tmp_path)
+    assert main(["-q", "export-schedule", str(src), str(tmp_path / "no" / "s.txt")]) == 2
+    assert "directory of the output file" in _error(capsys) and not (tmp_path / "no").exists()
+    args = ["-q", "scan-stats", str(src), "--nside", "16", "--format", "so"]
+    assert main([*args, "--out", str(tmp_path / "o"), "--prefix", "p" * 300]) == 2
+    assert "--prefix is 300 characters" in _error(capsys)
+    assert main([*args, "--out", str(tmp_path / ("o" * 230))]) == 2
+    assert "is 230 bytes; at most 200" in _error(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.txt"]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["suppression", "--nside", "8"], "--nside = 8: the suppression map's first band"),
+        (["suppression", "--nside", "16", "--fwhm-arcmin", "0"], "--fwhm-arcmin = 0: the beam"),
+    ],
+)
+def test_suppression_arguments_are_checked_before_any_simulation(tmp_path, capsys, args, message):
+    """--nside 8 said "lmin = 20 is out of range; allowed: an integer [2, 15]"; --fwhm-arcmin 0
+    with the catalogue's beams was refused after 7 of its 9 systematics had been simulated."""
+    import time
+
+    t0 = time.perf_counter()
+    assert main(["-q", *args, "--out", str(tmp_path / "s")]) == 2
+    assert message in _error(capsys) and time.perf_counter() - t0 < 1.0
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_study_too_coarse_for_its_bands_says_where_lmax_came_from(tmp_path):
+    with pytest.raises(ConfigError, match=r"lmin = 20 must be below lmax = 16 \(min\(sky.lmax, 2"):
+        parse_study({"sky": {"nside": 8, "lmax": 23}})

@@ -3,6 +3,7 @@ sample-by-sample pair differences against the analytic coefficients of boresight
 
 from dataclasses import replace
 
+import healpy as hp
 import numpy as np
 import pytest
 from conftest import rel_max
@@ -114,10 +115,39 @@ def test_jitter_does_not_depend_on_chunks_or_threads(small_sky):
     assert not np.allclose(a.q - ref.q, other.q - ref_other.q)
 
 
-def test_jitter_needs_a_synthetic_scan(small_sky):
-    chunk = (np.array([1.0]), np.array([0.5]), np.array([0.1]))
-    with pytest.raises(ValueError, match="synthetic scans only"):
-        engine.simulate_samples(small_sky, [chunk], systematics=Systematics(dg_jitter=0.01))
+def test_jitter_on_a_schedule_is_white_with_the_predicted_variance(small_sky_unpolarised):
+    """A schedule's samples draw their jitter keyed by (seed, index in the stream): |dP|^2 has
+    mean sigma^2 <T^2> / N_samples per pixel as for synthetic hits (T read where each sample
+    falls, averaged in its pixel), and the maps do not depend on the chunking."""
+    from boresight import ground
+
+    sigma = 0.02
+    sky_ = small_sky_unpolarised
+    ces = tuple(
+        ground.CES(1.79e9 + 3600 * i, 1800.0, 50.0, az, 40.0, 1.0, 45.0 * i)
+        for i, az in enumerate((130.0, 230.0, 135.0, 225.0))
+    )
+    schedule = ground.Schedule(ces, sample_rate_hz=2.0)
+    sysm = Systematics(dg_jitter=sigma, seed=4)
+
+    def maps(chunk, systematics):
+        stream = ground.pointing(schedule, chunk_samples=chunk)
+        return engine.simulate_samples(sky_, stream, systematics=systematics)
+
+    m, ref = maps(1 << 20, sysm), maps(1 << 20, Systematics())
+    assert np.array_equal(m.q, maps(977, sysm).q) and np.array_equal(m.u, maps(977, sysm).u)
+    ok = m.valid & ref.valid & (m.hits > 20)
+    dp = (m.q - ref.q)[ok] + 1j * (m.u - ref.u)[ok]
+    t2 = np.zeros(sky_.maps.shape[1])  # <T^2> over each pixel's samples
+    counts = np.zeros_like(t2)
+    for theta, phi, _ in ground.pointing(schedule):
+        pix = hp.ang2pix(sky_.nside, theta, phi)
+        t = hp.get_interp_val(sky_.maps[0], theta, phi)
+        t2 += np.bincount(pix, t**2, t2.size)
+        counts += np.bincount(pix, minlength=t2.size)
+    n_samples = (m.hits * 2)[ok]  # samples x 2 pairs
+    ratio = np.abs(dp) ** 2 * n_samples / (sigma**2 * (t2 / np.maximum(counts, 1))[ok])
+    assert ratio.size > 300 and abs(np.mean(ratio) - 1) < 4 / np.sqrt(ratio.size)
 
 
 def test_jitter_cl_prediction(theory):

@@ -355,7 +355,7 @@ def test_scan_motion_and_simground_settings():
         ),
         (
             "#Site\ns t -22 -67 5200\n2026-01-01 00:00:00|2026-01-01 00:10:00|0|p|1|2|95|0|0\n",
-            "elevation",
+            "el must be >= 0 and <= 90",
         ),
     ],
 )
