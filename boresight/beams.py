@@ -85,33 +85,66 @@ def pair_beams(params: PairParameters, nominal_fwhm: float) -> list[tuple[Beam, 
             f"beam systematics need a sky beam: set [sky] fwhm_arcmin > 0 (at least "
             f"{MIN_AXIS_FWHM / ARCMIN:.2f})"
         )
-    out = []
-    for i in range(params.dg.size):
-        pair = []
-        for name, dfwhm, e, angle in (
-            ("a", params.dfwhm_a, params.ellipticity_a, params.ellipticity_angle_a),
-            ("b", params.dfwhm_b, params.ellipticity_b, params.ellipticity_angle_b),
-        ):
-            fwhm = nominal_fwhm + dfwhm[i]
-            if not fwhm > 0:
+    detectors = []
+    for name, dfwhm, e, angle in (
+        ("a", params.dfwhm_a, params.ellipticity_a, params.ellipticity_angle_a),
+        ("b", params.dfwhm_b, params.ellipticity_b, params.ellipticity_angle_b),
+    ):
+        fwhm = nominal_fwhm + dfwhm
+        for bad, message in (
+            (~(fwhm > 0), "detector {X}'s beam FWHM is {fwhm:.4g} arcmin; dfwhm_{x}_arcmin must "
+                          "keep it above 0"),
+            (~((e >= 0) & (e <= MAX_ELLIPTICITY)), "ellipticity_{x} = {e:.4g} (drawn) is outside "
+                                                    f"[0, {MAX_ELLIPTICITY}]"),
+            (fwhm * (1 - e) < MIN_AXIS_FWHM, "detector {X}'s narrow axis, FWHM x (1 - e) = "
+                                             "{axis:.3g} arcmin, is below "
+                                             f"{MIN_AXIS_FWHM / ARCMIN:.2f} arcmin"),
+        ):  # fmt: skip
+            if bad.any():
+                i = int(np.argmax(bad))
                 raise ValueError(
-                    f"pair {i}: detector {name.upper()}'s beam FWHM is {fwhm / ARCMIN:.4g} arcmin; "
-                    f"dfwhm_{name}_arcmin must keep it above 0"
+                    f"pair {i}: "
+                    + message.format(
+                        X=name.upper(),
+                        x=name,
+                        fwhm=fwhm[i] / ARCMIN,
+                        e=e[i],
+                        axis=fwhm[i] * (1 - e[i]) / ARCMIN,
+                    )
                 )
-            if not 0 <= e[i] <= MAX_ELLIPTICITY:
-                raise ValueError(
-                    f"pair {i}: ellipticity_{name} = {e[i]:.4g} (drawn) is outside "
-                    f"[0, {MAX_ELLIPTICITY}]"
-                )
-            if fwhm * (1 - e[i]) < MIN_AXIS_FWHM:
-                raise ValueError(
-                    f"pair {i}: detector {name.upper()}'s narrow axis, FWHM x (1 - e) = "
-                    f"{fwhm * (1 - e[i]) / ARCMIN:.3g} arcmin, is below "
-                    f"{MIN_AXIS_FWHM / ARCMIN:.2f} arcmin"
-                )
-            pair.append(Beam(float(fwhm), float(e[i]), float(angle[i]) if e[i] > 0 else 0.0))
-        out.append(tuple(pair))
-    return out
+        # one Beam per distinct (FWHM, e, angle): a focal plane of 10^6 equal pairs makes two
+        rows = np.stack([fwhm, e, np.where(e > 0, angle, 0.0)], axis=1)
+        if (rows == rows[:1]).all():  # equal pairs (numbers, not draws): one beam
+            detectors.append([Beam(*map(float, rows[0]))] * rows.shape[0])
+            continue
+        unique, which = np.unique(rows, axis=0, return_inverse=True)
+        beams = [Beam(float(f), float(ell), float(a)) for f, ell, a in unique]
+        detectors.append([beams[j] for j in which.ravel()])
+    return list(zip(*detectors))
+
+
+def _axes(beam):
+    """sigma_maj, sigma_min [rad] of a beam."""
+    sigma = beam.fwhm / FWHM_PER_SIGMA
+    return sigma * (1 + beam.ellipticity), sigma * (1 - beam.ellipticity)
+
+
+def grid_points(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> int:
+    """Points of the Gauss-Legendre grid :func:`beam_alm` analyses the beam on (its memory).
+
+    Parameters
+    ----------
+    beam : Beam
+    lmax, kmax : int
+        As in :func:`beam_alm`.
+
+    Returns
+    -------
+    int
+    """
+    s_maj, s_min = _axes(beam)
+    nphi = 2 * (kmax + int(8 * s_maj / s_min) + 16) + 1
+    return (lmax + 1 + int(np.ceil(8.0 / s_min))) * nphi
 
 
 def _grid(sigma_min, lmax, kmax_guess):
@@ -144,9 +177,8 @@ def beam_alm(beam: Beam, lmax: int, kmax: int = KMAX_LIMIT) -> np.ndarray:
         T, E, B coefficients, healpy ordering with mmax = kmax, unit integral: convolving I, Q,
         U gives I + Q cos 2 psi + U sin 2 psi for a circular beam.
     """
-    sigma = beam.fwhm / FWHM_PER_SIGMA
-    e, alpha = beam.ellipticity, beam.angle
-    s_maj, s_min = sigma * (1 + e), sigma * (1 - e)
+    alpha = beam.angle
+    s_maj, s_min = _axes(beam)
     theta, phi = _grid(s_min, lmax, kmax + int(8 * s_maj / s_min))
     t, p = np.meshgrid(theta, phi, indexing="ij")
     b = np.exp(
@@ -193,6 +225,29 @@ def truncate(blm: np.ndarray, lmax: int, kmax: int, tolerance: float = BEAM_TOLE
     for k in range(keep + 1):
         out[:, hp.Alm.getidx(lmax, np.arange(k, lmax + 1), k)] = _moment(blm, lmax, k)
     return out, keep
+
+
+def cube_moments(beam: Beam, nominal_fwhm: float, lmax: int) -> int:
+    """The azimuthal moments of a beam's convolution cube: (beam - nominal beam)'s kmax above
+    :data:`BEAM_TOLERANCE` (its analysis is cached for the convolution).
+
+    Parameters
+    ----------
+    beam : Beam
+    nominal_fwhm : float
+        [rad].
+    lmax : int
+
+    Returns
+    -------
+    int
+    """
+    return _difference(beam, Beam(float(nominal_fwhm)), lmax)[1]
+
+
+def _difference(beam, nominal, lmax):
+    """(beam - nominal)'s coefficients truncated at its last moment, and that kmax."""
+    return truncate(beam_alm(beam, lmax) - beam_alm(nominal, lmax), lmax, KMAX_LIMIT)
 
 
 def moment_filters(beam: Beam, nominal_fwhm: float, lmax: int, kmax: int) -> np.ndarray:
@@ -278,7 +333,6 @@ class BeamConvolver:
         self.nominal = Beam(float(nominal_fwhm))
         self.nthreads = nthreads if nthreads > 0 else default_threads()
         self._sky = unsmoothed_alm(alm, nominal_fwhm)
-        self._nominal_alm = beam_alm(self.nominal, self.lmax)
         self._cubes = {}
 
     def _plan(self, kmax, nthreads):
@@ -294,7 +348,7 @@ class BeamConvolver:
         """(plan, cube) of one beam: the planes of (beam - nominal) x sky, prepared for psi."""
         if beam in self._cubes:
             return self._cubes[beam]
-        diff, kmax = truncate(beam_alm(beam, self.lmax) - self._nominal_alm, self.lmax, KMAX_LIMIT)
+        diff, kmax = _difference(beam, self.nominal, self.lmax)
         plan = self._plan(kmax, 1)
         cube = np.zeros((plan.Npsi(), plan.Ntheta(), plan.Nphi()))
 

@@ -27,16 +27,16 @@ def _parser():
     from .studies import LAYOUTS
 
     p = argparse.ArgumentParser(prog="boresight", description=__doc__.splitlines()[0])
-    p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
-    p.add_argument("-v", "--verbose", action="store_true", help="debug output")
-    p.add_argument(
-        "--no-memory-check",
-        action="store_true",
-        help="run even when the memory estimate exceeds this machine's memory",
-    )
+    _common_flags(p, default=False)
+    # the same flags after the subcommand: unset there, they leave the main parser's value
+    common = argparse.ArgumentParser(add_help=False)
+    _common_flags(common, default=argparse.SUPPRESS)
     sub = p.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("reproduce", help="the paper's study: figures, results.csv, report.md")
+    def command(name, **kwargs):
+        return sub.add_parser(name, parents=[common], **kwargs)
+
+    r = command("reproduce", help="the paper's study: figures, results.csv, report.md")
     r.add_argument("--quick", action="store_true", help="Nside 512 / lmax 1535 (minutes)")
     r.add_argument("--config", help="a study file whose [sky], [run], [output] tables apply")
     add_flags(r, SkyConfig, ("nside", "lmax", "fwhm_arcmin", "seed"), paper_defaults=True)
@@ -44,11 +44,11 @@ def _parser():
     r.add_argument("--out", default="boresight-paper", help="output directory")
     r.add_argument("--force", action="store_true", help="overwrite an existing output directory")
 
-    s = sub.add_parser("simulate", help="simulate a study from a TOML config")
+    s = command("simulate", help="simulate a study from a TOML config")
     s.add_argument("config")
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--force", action="store_true")
-    ss = sub.add_parser("scan-stats", help="h_n, hit, N_phi and R maps of a study or a schedule")
+    ss = command("scan-stats", help="h_n, hit, N_phi and R maps of a study or a schedule")
     ss.add_argument("config", help="a study config, or a schedule (TOML, CSV or TOAST)")
     ss.add_argument("--out", required=True, help="output directory")
     ss.add_argument("--force", action="store_true")
@@ -63,7 +63,7 @@ def _parser():
     ss.add_argument("--prefix", default="hn", help="file name prefix of --format so")
     _motion_flags(ss)
     _pointing_flags(ss, FRAMES, TURNAROUNDS)
-    sw = sub.add_parser("sweep", help="a grid or list of studies, locally or on a Dask cluster")
+    sw = command("sweep", help="a grid or list of studies, locally or on a Dask cluster")
     sw.add_argument("sweep_file")
     sw.add_argument("--out", required=True, help="output directory (re-running resumes it)")
     sw.add_argument(
@@ -75,7 +75,7 @@ def _parser():
     sw.add_argument(
         "--repair", action="store_true", help="recompute corrupt point files, keep the rest"
     )
-    cs = sub.add_parser("compare-scans", help="residual B-modes of a CES schedule and its twin")
+    cs = command("compare-scans", help="residual B-modes of a CES schedule and its twin")
     cs.add_argument("schedule", help="schedule file (TOML, CSV or TOAST)")
     cs.add_argument("--out", required=True, help="output directory")
     cs.add_argument("--nside", type=int, default=128)
@@ -84,7 +84,7 @@ def _parser():
     cs.add_argument("--force", action="store_true")
     _motion_flags(cs)
     _pointing_flags(cs, FRAMES, TURNAROUNDS)
-    ex = sub.add_parser(
+    ex = command(
         "export-schedule",
         help="write a schedule for TOAST (text, or ECSV for *.ecsv) and print its SimGround",
     )
@@ -92,7 +92,7 @@ def _parser():
     ex.add_argument("out", help="the TOAST schedule file to write")
     ex.add_argument("--force", action="store_true", help="replace an existing file")
     _motion_flags(ex)
-    de = sub.add_parser(
+    de = command(
         "design", help="choose the boresight angles of a schedule against a systematics budget"
     )
     de.add_argument("budget", help="TOML with [systematics], [noise] and [design] tables")
@@ -104,7 +104,7 @@ def _parser():
     )
     _motion_flags(de)
     _pointing_flags(de, FRAMES, TURNAROUNDS)
-    su = sub.add_parser(
+    su = command(
         "suppression",
         help="every systematic alone through 0/45/90/180 deg rotation: table and figure",
     )
@@ -114,11 +114,30 @@ def _parser():
     su.add_argument("--fwhm-arcmin", type=float, default=30.0, help="the sky's beam")
     su.add_argument("--seed", type=int, default=0, help="the sky's seed")
     su.add_argument("--force", action="store_true")
-    pr = sub.add_parser("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
+    pr = command("predict", help="analytic residual pseudo-C_BB of a config, no simulation")
     pr.add_argument("config")
     pr.add_argument("--out", help="write prediction.csv into this directory")
     pr.add_argument("--force", action="store_true")
     return p
+
+
+def _common_flags(p, default):
+    """-q, -v, --no-memory-check and --yes, before or after the subcommand."""
+    g = p.add_argument_group("every command")
+    g.add_argument("-q", "--quiet", action="store_true", default=default, help="only warnings")
+    g.add_argument("-v", "--verbose", action="store_true", default=default, help="debug output")
+    g.add_argument(
+        "--no-memory-check",
+        action="store_true",
+        default=default,
+        help="run even when the memory estimate exceeds this machine's memory",
+    )
+    g.add_argument(
+        "--yes",
+        action="store_true",
+        default=default,
+        help="run even when the run is estimated to take over an hour",
+    )
 
 
 def _motion_flags(p):
@@ -229,7 +248,10 @@ def main(argv: list[str] | None = None) -> int:
             configure_logging(args.quiet, args.verbose)
             progress = sys.stderr.isatty() and not args.quiet
             interrupts.check()
-            code = _run(args, progress, not args.no_memory_check)
+            from .resources import Checks
+
+            checks = Checks(memory=not args.no_memory_check, time=not args.yes)
+            code = _run(args, progress, checks)
             done = True
             interrupts.check()  # a signal after the job's last check
             return code
@@ -245,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
 
 
-def _run(args, progress, memory_check):
+def _run(args, progress, checks):
     """Run the parsed command; returns the exit code."""
     from . import studies
     from .config import load_study
@@ -254,7 +276,7 @@ def _run(args, progress, memory_check):
 
     if args.command == "reproduce":
         claims = studies.reproduce(
-            args.out, _reproduce_study(args), args.force, log.info, progress, memory_check
+            args.out, _reproduce_study(args), args.force, log.info, progress, checks
         )
         bad = [c for c in claims if not c.reproduced]
         log.info(
@@ -276,6 +298,7 @@ def _run(args, progress, memory_check):
             log.info,
             progress,
             args.repair,
+            checks,
         )
         plots.continuum_figure(rows, f"{args.out}/suppression")
         log.info("%d rows in %s/results.csv", len(rows), args.out)
@@ -289,7 +312,7 @@ def _run(args, progress, memory_check):
             args.fwhm_arcmin,
             force=args.force,
             log=log.info,
-            memory_check=memory_check,
+            checks=checks,
             motion=_motion(args),
             **_pointing(args),
         )
@@ -305,6 +328,7 @@ def _run(args, progress, memory_check):
             log.info,
             progress,
             **_pointing(args),
+            checks=checks,
         )
         for row in result["strategies"]:
             log.info(
@@ -319,7 +343,7 @@ def _run(args, progress, memory_check):
             nside=args.nside, lmax=3 * args.nside - 1, fwhm_arcmin=args.fwhm_arcmin, seed=args.seed
         )
         studies.suppression_map(
-            sky_cfg, args.survey, args.out, args.force, log.info, progress, memory_check
+            sky_cfg, args.survey, args.out, args.force, log.info, progress, checks
         )
         return 0
     if args.command == "export-schedule":
@@ -332,7 +356,7 @@ def _run(args, progress, memory_check):
         print(toast_schedule.simground_code(schedule, args.out))
         return 0
     if args.command == "scan-stats":
-        opts = dict(log=log.info, memory_check=memory_check, layout=args.format, prefix=args.prefix)
+        opts = dict(log=log.info, checks=checks, layout=args.format, prefix=args.prefix)
         if ground_schedule(args.config):
             motion = _motion(args)
             rows = studies.schedule_stats(
@@ -345,17 +369,10 @@ def _run(args, progress, memory_check):
         return 0
     study = load_study(args.config)
     if args.command == "simulate":
-        studies.simulate(study, args.out, args.force, log.info, progress, memory_check)
+        studies.simulate(study, args.out, args.force, log.info, progress, checks)
     else:
-        if args.out:
-            from . import io
-
-            io.check_output_dir(args.out, args.force, [args.config])
-        rows = studies.predict_study(study, log.info, memory_check)
-        if args.out:
-            with io.staged_dir(args.out, args.force, [args.config]) as stage:
-                io.write_csv(stage / "prediction.csv", rows, ["ell", "predicted_bb"])
-        else:
+        rows = studies.predict_study(study, args.out, args.force, log.info, checks)
+        if not args.out:
             print("ell,predicted_bb")
             for row in rows:
                 print(f"{row['ell']},{row['predicted_bb']:.6e}")

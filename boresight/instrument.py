@@ -87,8 +87,8 @@ BEAM_KEYS = {
 REPEAT_LIMITS = (-1.0, 1.0)  #: dg_repeat
 #: focal-plane presets: the polarisation angle of pair i of n [deg]
 PRESETS = {
-    "uniform": lambda i, n: 90.0 * i / n,
-    "0/45/90/135": lambda i, n: 45.0 * (i % 4),
+    "uniform": lambda n: 90.0 * np.arange(n) / n,
+    "0/45/90/135": lambda n: 45.0 * (np.arange(n) % 4),
 }
 
 
@@ -125,7 +125,7 @@ class Instrument:
                 )
             if n < 1:
                 raise ValueError(f"n_pairs must be >= 1 for the preset {angles!r}")
-            angles = [PRESETS[angles](i, n) for i in range(n)]
+            angles = PRESETS[angles](n)
         a = validation.numbers_array("pair_angles_deg", angles, -MAX_ANGLE_DEG, MAX_ANGLE_DEG)
         if a.ndim != 1 or a.size == 0:
             raise ValueError(

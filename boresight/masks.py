@@ -83,6 +83,8 @@ def _inside(theta, phi, box, pole, sin_cut):
 
 #: the names a study's [mask] survey may take; "none" is the full sky
 SURVEYS = (*FOOTPRINTS, "none")
+#: each survey's sky fraction (its footprint's, to 1e-3 from Nside 64 up; test_masks)
+SURVEY_FSKY = {"deep": 0.0996, "wide": 0.404, "none": 1.0}
 
 
 def survey_mask(name: str, nside: int) -> np.ndarray:

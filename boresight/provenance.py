@@ -81,7 +81,7 @@ def _git_revision():
         return "unknown"
 
 
-def manifest(config: dict, seeds: dict, stages: dict) -> dict:
+def manifest(config: dict, seeds: dict, stages: dict, estimate: dict | None = None) -> dict:
     """The manifest of a run.
 
     Parameters
@@ -91,11 +91,13 @@ def manifest(config: dict, seeds: dict, stages: dict) -> dict:
     seeds : dict
     stages : dict
         Seconds per stage.
+    estimate : dict, optional
+        The job's memory and time estimate (:meth:`boresight.resources.Estimate.as_dict`).
 
     Returns
     -------
     dict
-        config, versions, seeds, git_revision, machine, wall_time_s, created.
+        config, versions, seeds, git_revision, machine, wall_time_s, estimate, created.
     """
     return {
         "config": config,
@@ -104,5 +106,6 @@ def manifest(config: dict, seeds: dict, stages: dict) -> dict:
         "git_revision": _git_revision(),
         "machine": platform.platform(),
         "wall_time_s": stages,
+        "estimate": estimate,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }

@@ -43,34 +43,6 @@ if TYPE_CHECKING:
     from .toast_schedule import ScanMotion
 
 
-def check_memory(job, study, check=True):
-    """Refuse a study whose estimated memory exceeds the machine's.
-
-    Parameters
-    ----------
-    job : str
-        A key of :data:`boresight.resources.BYTES_PER_PIXEL`.
-    study : boresight.config.Study
-    check : bool
-        False skips the check (``--no-memory-check``).
-
-    Raises
-    ------
-    boresight.resources.MemoryLimitError
-    """
-    chunk = study.run.chunk_pixels or engine.DEFAULT_CHUNK_PIXELS[study.run.backend]
-    estimate = resources.estimate_bytes(
-        job,
-        study.sky.nside,
-        max(study.sky.lmax, study.output.lmax),
-        resources.n_phi_max(study.scan.n_phi),
-        len(study.scan.rotations_deg),
-        study.instrument.n_pairs,
-        chunk,
-    )
-    resources.require(job, estimate, check)
-
-
 def require_finite(what, values):
     """Refuse to report NaN or infinity as a result.
 
@@ -94,7 +66,7 @@ def reproduce(
     force: bool = False,
     log: Callable = print,
     progress: bool = False,
-    memory_check: bool = True,
+    checks: resources.Checks = resources.Checks(),
 ) -> list:
     """Run the paper's study and write figures, results.csv, report.md and manifest.json.
 
@@ -102,12 +74,9 @@ def reproduce(
     of :class:`boresight.report.Claim` with computed verdicts.
     """
     io.check_output_dir(out_dir, force, study.inputs)
-    nside, lmax = study.sky.nside, study.sky.lmax
-    resources.require(
-        "reproduce",
-        resources.estimate_bytes("reproduce", nside, lmax, 4, 2, 2, 1 << 16),
-        memory_check,
-    )
+    nside = study.sky.nside
+    estimate = resources.study_estimate("reproduce", study)
+    resources.require(estimate, checks, log)
     results, stages = paper.run_study(study, log=log, progress=progress)
     rows = paper.tidy_rows(results, study)
     claims = report.evaluate_claims(results, rows, study)
@@ -134,7 +103,10 @@ def reproduce(
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(
-                as_dict(study), {"sky": study.sky.seed, "scan": study.scan.seed}, stages
+                as_dict(study),
+                {"sky": study.sky.seed, "scan": study.scan.seed},
+                stages,
+                estimate.as_dict(),
             ),
         )
     return claims
@@ -146,7 +118,7 @@ def simulate(
     force: bool = False,
     log: Callable = print,
     progress: bool = False,
-    memory_check: bool = True,
+    checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """Simulate a study with and without its systematics and predict its residual.
 
@@ -156,7 +128,8 @@ def simulate(
     per-multipole rows.
     """
     io.check_output_dir(out_dir, force, study.inputs)
-    check_memory("simulate", study, memory_check)
+    estimate = resources.study_estimate("simulate", study)
+    resources.require(estimate, checks, log)
     timer = provenance.Timer(log)
     lmax, nthreads = study.output.lmax, study.run.nthreads
     kernels = precompile.kernels_for("study", study.run.backend, study.systematics.has_pointing)
@@ -201,21 +174,34 @@ def simulate(
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(
-                study.raw, {"sky": study.sky.seed, "scan": study.scan.seed}, timer.stages
+                study.raw,
+                {"sky": study.sky.seed, "scan": study.scan.seed},
+                timer.stages,
+                estimate.as_dict(),
             ),
         )
     return rows
 
 
-def predict_study(study: Study, log: Callable = print, memory_check: bool = True) -> list[dict]:
+def predict_study(
+    study: Study,
+    out_dir: str | None = None,
+    force: bool = False,
+    log: Callable = print,
+    checks: resources.Checks = resources.Checks(),
+) -> list[dict]:
     """The analytic prediction of a study's residual pseudo-C_BB, without a simulation.
 
     Parameters
     ----------
     study : boresight.config.Study
         Its sky must be the theory's (no sky.maps).
+    out_dir : str, optional
+        Write prediction.csv and manifest.json there.
+    force : bool
     log : callable
-    memory_check : bool
+    checks : boresight.resources.Checks
+        The memory and time checks to make.
 
     Returns
     -------
@@ -224,7 +210,10 @@ def predict_study(study: Study, log: Callable = print, memory_check: bool = True
     """
     if study.sky_maps is not None:
         raise ValueError("predict uses the theory spectra; remove sky.maps from the config")
-    check_memory("predict", study, memory_check)
+    if out_dir is not None:
+        io.check_output_dir(out_dir, force, study.inputs)
+    estimate = resources.study_estimate("predict", study)
+    resources.require(estimate, checks, log)
     nside, lmax = study.sky.nside, study.output.lmax
     mask = masks.from_config(study.mask, nside)
     n_max = residual.n_max_for(study.systematics)
@@ -242,7 +231,15 @@ def predict_study(study: Study, log: Callable = print, memory_check: bool = True
         crossings=mom.crossings,
     )
     require_finite("the predicted spectrum", pred)
-    return [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]
+    rows = [dict(ell=ell, predicted_bb=pred[ell]) for ell in range(lmax + 1)]
+    if out_dir is not None:
+        with io.staged_dir(out_dir, force, study.inputs) as stage:
+            io.write_csv(stage / "prediction.csv", rows, ["ell", "predicted_bb"])
+            io.write_json(
+                stage / "manifest.json",
+                provenance.manifest(study.raw, {"scan": study.scan.seed}, {}, estimate.as_dict()),
+            )
+    return rows
 
 
 def scan_stats(
@@ -251,7 +248,7 @@ def scan_stats(
     force: bool = False,
     n_max: int = 4,
     log: Callable = print,
-    memory_check: bool = True,
+    checks: resources.Checks = resources.Checks(),
     layout: str = "boresight",
     prefix: str = "hn",
 ) -> list[dict]:
@@ -265,7 +262,8 @@ def scan_stats(
     n_max : int
         Highest moment written.
     log : callable
-    memory_check : bool
+    checks : boresight.resources.Checks
+        The memory and time checks to make.
     layout : {"boresight", "so"}
         The h_n maps as one FITS table ``hn_maps.fits`` (RE_H1.., IM_H1..), or in the SO/SMARTIES
         layout of :mod:`boresight.so_maps`.
@@ -279,14 +277,15 @@ def scan_stats(
     """
     _check_layout(layout, prefix)
     io.check_output_dir(out_dir, force, study.inputs)
-    check_memory("scan-stats", study, memory_check)
+    estimate = resources.study_estimate("scan-stats", study)
+    resources.require(estimate, checks, log)
     nside = study.sky.nside
     obs = masks.from_config(study.mask, nside) > 0
     h, ncross = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run.nthreads)
     n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
     return _write_scan_stats(
         out_dir, force, study.inputs, h, obs, ncross, n_phi, r, n_max, layout, prefix,
-        config=as_dict(study),
+        config=as_dict(study), estimate=estimate,
     )
 
 
@@ -298,7 +297,7 @@ def schedule_stats(
     force: bool = False,
     tolerance_deg: float = 1.0,
     log: Callable = print,
-    memory_check: bool = True,
+    checks: resources.Checks = resources.Checks(),
     layout: str = "boresight",
     prefix: str = "hn",
     frame: str | None = None,
@@ -317,7 +316,8 @@ def schedule_stats(
     tolerance_deg : float
         Crossing angles closer than this count as one in N_phi.
     log : callable
-    memory_check : bool
+    checks : boresight.resources.Checks
+        The memory and time checks to make.
     layout, prefix
         As in :func:`scan_stats`.
     frame, turnarounds : str, optional
@@ -337,13 +337,8 @@ def schedule_stats(
     )
     sky.SkyConfig(nside=nside, lmax=2 * nside)  # validates nside
     io.check_output_dir(out_dir, force, [schedule_path])
-    resources.require(
-        "scan-stats",
-        resources.estimate_bytes(
-            "scan-stats", nside, 2 * nside, 1, 1, 1, min(schedule.n_samples, 1 << 20)
-        ),
-        memory_check,
-    )
+    estimate = resources.schedule_estimate("schedule-stats", schedule, nside)
+    resources.require(estimate, checks, log)
     timer = provenance.Timer(log)
     precompile.precompile(precompile.kernels_for("schedule-stats"), timer=timer)
     with timer("characterise the schedule"):
@@ -367,6 +362,7 @@ def schedule_stats(
             "turnarounds": schedule.turnarounds,
             "tolerance_deg": tolerance_deg,
         },
+        estimate=estimate,
     )
 
 
@@ -387,7 +383,7 @@ def _check_layout(layout, prefix):
 
 
 def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max, layout, prefix,
-                      frame="icrs", config=None):
+                      frame="icrs", config=None, estimate=None):
     """The survey means, the h_n maps in the chosen layout, the scan maps, a figure and the
     manifest. In the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi
     convention (odd h_n change sign); the manifest's ``psi_convention`` says which."""
@@ -435,7 +431,10 @@ def _write_scan_stats(out_dir, force, inputs, h, obs, crossings, n_phi, r, n_max
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(
-                {**(config or {}), "frame": frame, "psi_convention": convention}, {}, {}
+                {**(config or {}), "frame": frame, "psi_convention": convention},
+                {},
+                {},
+                estimate.as_dict() if estimate else None,
             ),
         )
     return rows
@@ -455,7 +454,7 @@ def compare_scans(
     tolerance_deg: float = 1.0,
     force: bool = False,
     log: Callable = print,
-    memory_check: bool = True,
+    checks: resources.Checks = resources.Checks(),
     motion: ScanMotion | None = None,
     frame: str | None = None,
     turnarounds: str | None = None,
@@ -478,13 +477,9 @@ def compare_scans(
     )
     sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)  # validate
     io.check_output_dir(out_dir, force, [schedule_path])
-    resources.require(
-        "compare-scans",
-        resources.estimate_bytes(
-            "compare-scans", nside, 2 * nside, 1, 1, 2, min(schedule.n_samples, 1 << 20)
-        ),
-        memory_check,
-    )
+    # the real scan once and with its repeats, each with and without the systematic
+    estimate = resources.schedule_estimate("compare-scans", schedule, nside, tod_runs=4)
+    resources.require(estimate, checks, log)
     timer = provenance.Timer(log)
     with timer("characterise the schedule"):
         stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
@@ -566,6 +561,7 @@ def compare_scans(
                 },
                 {"sky": seed, "twin": seed},
                 timer.stages,
+                estimate.as_dict(),
             ),
         )
     return rows
@@ -582,6 +578,7 @@ def design_schedule(
     progress: bool = False,
     frame: str | None = None,
     turnarounds: str | None = None,
+    checks: resources.Checks = resources.Checks(),
 ) -> dict:
     """``boresight design``: choose a boresight angle per unit of a schedule against a budget.
 
@@ -607,6 +604,8 @@ def design_schedule(
     progress : bool
     frame, turnarounds : str, optional
         Replace the schedule file's (:class:`boresight.ground.Schedule`).
+    checks : boresight.resources.Checks
+        The memory and time checks to make.
 
     Returns
     -------
@@ -624,6 +623,17 @@ def design_schedule(
     fmt = ground.schedule_format(schedule_path)
     inputs = [budget_path, schedule_path]
     io.check_output_dir(out_dir, force, inputs)
+    estimate = resources.schedule_estimate(
+        "design",
+        schedule,
+        opts.nside,
+        n_pairs=budget.instrument.n_pairs,
+        tod_runs=4 if validate else 0,  # the designed and the unrotated schedule, each twice
+        systematics=budget.systematics,
+        instrument=budget.instrument,
+        fwhm_arcmin=budget.noise.fwhm_arcmin,
+    )
+    resources.require(estimate, checks, log)
     timer = provenance.Timer(log)
     kernels = precompile.kernels_for("design")
     if validate:
@@ -752,6 +762,7 @@ def design_schedule(
                 },
                 {"design": opts.seed},
                 timer.stages,
+                estimate.as_dict(),
             ),
         )
     if stopped is not None:
@@ -805,7 +816,7 @@ def suppression_map(
     force: bool = False,
     log: Callable = print,
     progress: bool = False,
-    memory_check: bool = True,
+    checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """``boresight suppression``: every systematic of :data:`boresight.suppression.CATALOGUE`
     alone through 0, 0/45, 0/90 and 0/180 deg rotation.
@@ -822,7 +833,8 @@ def suppression_map(
     force : bool
     log : callable
     progress : bool
-    memory_check : bool
+    checks : boresight.resources.Checks
+        The memory and time checks to make.
 
     Returns
     -------
@@ -850,7 +862,8 @@ def suppression_map(
                 f"({entry.amplitude}): {err}"
             ) from None
     study = Study(sky=sky_config, output=OutputOptions(lmax=2 * sky_config.nside, lmin=2))
-    check_memory("suppression", study, memory_check)
+    estimate = suppression.estimate(study)
+    resources.require(estimate, checks, log)
     io.check_output_dir(out_dir, force)
     timer = provenance.Timer(log)
     with timer("sky"):
@@ -869,6 +882,7 @@ def suppression_map(
                 {"survey": survey, "sky": dataclasses.asdict(sky_config)},
                 {"sky": sky_config.seed},
                 timer.stages,
+                estimate.as_dict(),
             ),
         )
     return rows

@@ -17,13 +17,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import coupling, masks, predict, residual, spectra
+from . import coupling, masks, predict, residual, resources, spectra
 from .config import RunOptions
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 from .scan import paper_scan
 
 if TYPE_CHECKING:
     from collections.abc import Callable
+
+    from .config import Study
+    from .resources import Estimate
 
     from .sky import Sky
 
@@ -102,6 +105,38 @@ class Result:
     predicted: dict
     template: np.ndarray
     lensing: np.ndarray
+
+
+def estimate(study: Study) -> Estimate:
+    """The memory and time of :func:`run` on a study's sky: its arrays, the largest beam entry's
+    grid and cubes (one entry's simulation at a time), and every entry's samples.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+        The sky and the bands.
+
+    Returns
+    -------
+    boresight.resources.Estimate
+    """
+    from .instrument import Instrument
+
+    base = resources.study_estimate("suppression", study)
+    beams = max(
+        resources.beam_bytes(e.systematics, Instrument(), study.sky.fwhm_arcmin, study.sky.lmax)
+        for e in CATALOGUE
+    )
+    scan = paper_scan("deep")
+    pixels = 12.0 * study.sky.nside**2 * masks.SURVEY_FSKY["wide"]  # the larger survey
+    runs = len(CATALOGUE) * len(ANGLES) * 2  # each entry and schedule, with its reference
+    samples = runs * pixels * scan.n_phi * 2 * 2 * 2  # hits x repeats x pairs x detectors
+    return replace(
+        base,
+        parts={**base.parts, "beams": beams},
+        seconds=samples / resources.SAMPLE_RATES["synthetic"],
+        samples=samples,
+    )
 
 
 def run(

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import __version__, coupling, interrupts, io, masks, predict, residual
+from . import __version__, coupling, interrupts, io, masks, predict, residual, resources
 from .config import ConfigError, parse_study, read_toml
 from .cosmology import load_spectra
 
@@ -299,6 +299,7 @@ def run_sweep(
     log: Callable = print,
     progress: bool = False,
     repair: bool = False,
+    checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """Run or resume a sweep.
 
@@ -319,6 +320,9 @@ def run_sweep(
     progress : bool
     repair : bool
         Recompute corrupt point files and rewrite an unreadable sweep.json, keeping valid points.
+    checks : boresight.resources.Checks
+        The memory check (the largest point, once per local worker) and the time limit (the
+        points to run, shared by the workers).
 
     Returns
     -------
@@ -349,6 +353,7 @@ def run_sweep(
             f.unlink()
             todo.append((p, key))
     log(f"sweep: {len(points)} points, {len(points) - len(todo)} already done")
+    resources.require(_estimate(base, base_dir, todo, scheduler, workers), checks, log)
     bar = tqdm(
         total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress
     )
@@ -372,6 +377,26 @@ def run_sweep(
         bar.close()
         rows = write_tables(out, points, keys, bands)
     return rows
+
+
+def _estimate(base, base_dir, todo, scheduler, workers):
+    """The sweep's estimate: its largest point in each local process at once, and every point's
+    time shared by them (a remote cluster's memory is its own)."""
+    each = [
+        resources.study_estimate("simulate", parse_study(apply_overrides(base, p), base_dir))
+        for p, _ in todo
+    ]
+    if not each:
+        return resources.Estimate("sweep")
+    largest = max(each, key=lambda e: e.bytes)
+    local = 1 if scheduler == "serial" else workers if scheduler is None else 0
+    share = max(local, 1)
+    return resources.Estimate(
+        "sweep",
+        {k: v * local for k, v in largest.parts.items()} if local else {},
+        sum(e.seconds for e in each) / share,
+        sum(e.samples for e in each),
+    )
 
 
 def _dask():

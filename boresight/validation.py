@@ -125,13 +125,18 @@ def numbers_array(
     ------
     TypeError, ValueError
     """
-    items = np.asarray(value, dtype=object)
-    if items.ndim > 1:
-        raise ValueError(f"{name} must be a number or a 1-d list of numbers, got {value!r}")
-    for item in items.ravel():
-        if isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Real):
-            raise TypeError(f"{name} must hold numbers {_describe(lo, hi)}, got {value!r}")
-    arr = items.astype(np.float64)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "iuf":  # numbers already
+        if value.ndim > 1:
+            raise ValueError(f"{name} must be a number or a 1-d list of numbers")
+        arr = value.astype(np.float64)
+    else:
+        items = np.asarray(value, dtype=object)
+        if items.ndim > 1:
+            raise ValueError(f"{name} must be a number or a 1-d list of numbers, got {value!r}")
+        for item in items.ravel():
+            if isinstance(item, (bool, np.bool_)) or not isinstance(item, numbers.Real):
+                raise TypeError(f"{name} must hold numbers {_describe(lo, hi)}, got {value!r}")
+        arr = items.astype(np.float64)
     ok = np.isfinite(arr).all() and (lo is None or (arr >= lo).all())
     if not ok or (hi is not None and not (arr <= hi).all()):
         raise ValueError(f"{name} must be {_describe(lo, hi)}, got {value!r}")
