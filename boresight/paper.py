@@ -241,7 +241,7 @@ def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
         local = transforms.submit(
             predict.local_cl, the_sky, mask, lmax, run.nthreads, False, run.analysis
         )
-        couplings = coupling.mask_coupling(mask, lmax, run.nthreads)
+        couplings = coupling.mask_coupling(mask, lmax, run.nthreads, band=study.sky.lmax)
     res = ExperimentResult(exp, masks.fsky(mask))
     key = "r" if exp.reference == "r" else "a_lens"
     for value in exp.reference_values:

@@ -513,8 +513,10 @@ def _beam_field(sky, filt, spin, nthreads):
     """The spin-``spin`` field with coefficients sum_c filt[c] a^c_lm of the sky's T, E, B,
     (npix,) complex (for spin > 0, Q + i U of healpy's (E', B') = -(Re, Im) of the sum)."""
     n = min(filt.shape[1], sky.lmax + 1)
+    padded = np.zeros((3, sky.lmax + 1), dtype=np.complex128)  # nothing beyond the filter's band
+    padded[:, :n] = filt[:, :n]
     parts = [
-        sum(harmonics.almxfl(sky.alm[c], getattr(filt[c, :n], part)) for c in range(3))
+        sum(harmonics.almxfl(sky.alm[c], getattr(padded[c], part)) for c in range(3))
         for part in ("real", "imag")
     ]
     if spin == 0:
@@ -809,12 +811,14 @@ def systematic_cl(
     systematics : boresight.instrument.Systematics
     spectra : boresight.cosmology.Spectra
     lmax : int
+        The sky's band limit: every field's power to it enters, also that a mask later mixes
+        below a lower lmax of the pseudo-spectra (a :class:`boresight.coupling.Coupling`'s band).
     fwhm_arcmin : float
     instrument : boresight.instrument.Instrument, optional
     template_cl : numpy.ndarray, optional
         Spectrum of the leak's template.
     field_cl : FieldSpectra, optional
-        Beam-smoothed spectra to use instead of the theory (:func:`local_cl`).
+        Beam-smoothed spectra to use instead of the theory (:func:`local_cl`) where they reach.
     rotations_deg : sequence of float
         The repeats' boresight rotations [deg].
     crossings : numpy.ndarray, shape (npix,), optional
@@ -847,7 +851,7 @@ def systematic_cl(
         power = expected_power(systematics, instrument, rotations_deg)
         coefs, t2_mean = expected_coefficients(coefs, power), power.t2_mean
     nside = hp.npix2nside(h.shape[1])
-    band = 3 * nside - 1 if in_pixel == "random" else lmax  # the fields' variance needs all ell
+    band = lmax  # the fields' variance and spectra to the sky's band limit
     cl_tt, cl_pol = _field_cl(spectra, band, fwhm_arcmin, field_cl)
     omega_pix = 4 * np.pi / h.shape[1]
     ell = np.arange(band + 1)
@@ -1197,7 +1201,8 @@ def residual_pseudo_bb(
     h, mask, systematics, spectra, fwhm_arcmin, instrument, template_cl, field_cl
         As in :func:`systematic_cl`; ``mask`` may be its :class:`boresight.spectra.Footprint`.
     coupling : boresight.coupling.Coupling
-        The mask's coupling; its lmax is the prediction's.
+        The mask's coupling; its lmax is the prediction's, its band the sky's band limit, to
+        which the fields' power enters (what the mask mixes down from above lmax included).
     rotations_deg, crossings, in_pixel, expected, interpolated
         As in :func:`systematic_cl`.
     leaked : bool
@@ -1214,7 +1219,7 @@ def residual_pseudo_bb(
     numpy.ndarray, shape (lmax + 1,)
         [muK^2].
     """
-    lmax = coupling.lmax
+    lmax, band = coupling.lmax, coupling.band
     mask = as_footprint(mask)  # the observed pixels, once for every use below
     inverse_hits = _inverse_hits(in_pixel, mask, crossings)
     cl_sys = systematic_cl(
@@ -1222,7 +1227,7 @@ def residual_pseudo_bb(
         mask,
         systematics,
         spectra,
-        lmax,
+        band,
         fwhm_arcmin,
         instrument,
         template_cl,
@@ -1234,7 +1239,6 @@ def residual_pseudo_bb(
         interpolated,
     )
     nside = hp.npix2nside(h.shape[1])
-    band = 3 * nside - 1 if in_pixel == "random" else lmax
     _, cl_ee, cl_bb = field_spectra(spectra, band, fwhm_arcmin)
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
         n = min(band + 1, field_cl.ee.size)
@@ -1248,7 +1252,7 @@ def residual_pseudo_bb(
         white = 0.5 * (noise_e + noise_b)
         cl_ee, cl_bb = cl_ee + white, cl_bb + white
         if masked is not None:
-            scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
+            scatter = coupling.pseudo_bb(np.full(band + 1, white), np.full(band + 1, white))
             if sky is not None:  # the maps as the hits read them, masked: window, then mask
                 read = {} if field_cl.read is None else field_cl.read
                 key = (interpolated, lmax, analysis)
@@ -1262,7 +1266,6 @@ def residual_pseudo_bb(
                 scatter,
                 np.zeros_like(scatter),
             ]
-    cl_ee, cl_bb = cl_ee[: lmax + 1], cl_bb[: lmax + 1]
     coefs = coefficients(systematics, instrument, rotations_deg)
     power = expected_power(systematics, instrument, rotations_deg) if expected else None
     signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked, power, masked)
@@ -1326,7 +1329,7 @@ def beam_h0_bb(
     numpy.ndarray, shape (coupling.lmax + 1,)
         [muK^2].
     """
-    lmax = coupling.lmax
+    lmax, band = coupling.lmax, coupling.band
     e_filt, b_filt = -g0.real, -g0.imag
     (cl_e, noise_e), (cl_b, noise_b) = (
         (beam_power(f, cl), 0.0) if spread is None else spread(beam_power(f, cl))
@@ -1338,19 +1341,19 @@ def beam_h0_bb(
         qu = np.array([field.real, field.imag])
         e_alm, b_alm = masked_pol_alm(qu, mask, lmax, analysis=analysis)
         window = spread.pair[: lmax + 1] if spread is not None and spread.on else 1.0
-        scatter = coupling.pseudo_bb(np.full(lmax + 1, white), np.full(lmax + 1, white))
+        scatter = coupling.pseudo_bb(np.full(band + 1, white), np.full(band + 1, white))
         out = harmonics.alm2cl(b_alm) * window + scatter
         if leaked:
             return out
-        cl_e, cl_b = np.zeros(lmax + 1), np.zeros(lmax + 1)  # the cross terms below only
+        cl_e, cl_b = np.zeros(band + 1), np.zeros(band + 1)  # the cross terms below only
     else:
         out = 0.0
-        cl_e, cl_b = cl_e[: lmax + 1] + white, cl_b[: lmax + 1] + white
+        cl_e, cl_b = cl_e[: band + 1] + white, cl_b[: band + 1] + white
     if not leaked:  # <E E'> = f_T TE + f_E EE, <B B'> = f_B BB, averaged over the pixel's hits
         window = spread.pair if spread is not None and spread.on else 1.0
         cross_e = 2 * (e_filt[0] * cl[3] + e_filt[1] * cl[1]) * window
         cross_b = 2 * b_filt[2] * cl[2] * window
-        cl_e, cl_b = cl_e + cross_e[: lmax + 1], cl_b + cross_b[: lmax + 1]
+        cl_e, cl_b = cl_e + cross_e[: band + 1], cl_b + cross_b[: band + 1]
     return out + coupling.pseudo_bb(cl_b, cl_e)
 
 
@@ -1414,10 +1417,10 @@ def reference_bb(
     numpy.ndarray, shape (lmax + 1,)
         [muK^2].
     """
-    lmax = coupling.lmax
-    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)[:, 2]
-    pixwin = pixel_window(nside, lmax)
-    cl = spectra.bb(r=r, a_lens=a_lens)[: lmax + 1] * (beam * pixwin) ** 2
+    band = coupling.band  # the sky's B above the spectra's lmax, which the mask mixes down
+    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=band, pol=True)[:, 2]
+    pixwin = pixel_window(nside, band)
+    cl = spectra.bb(r=r, a_lens=a_lens)[: band + 1] * (beam * pixwin) ** 2
     return coupling.pseudo_bb(cl, np.zeros_like(cl))
 
 

@@ -132,7 +132,7 @@ class Prediction:
     theory : boresight.cosmology.Spectra
         Lensed LCDM and tensor spectra [muK^2].
     couplings : boresight.coupling.Coupling
-        The mask's coupling at the job's lmax.
+        The mask's coupling at the job's lmax, from the sky's band limit (its ``band``).
     fwhm_arcmin : float
         The sky's Gaussian beam [arcmin].
     field_cl : boresight.predict.FieldSpectra or Future, optional
@@ -680,7 +680,7 @@ def study_prediction(
 
     lmax, nthreads = study.output.lmax, study.run.nthreads
     if couplings is None:
-        couplings = coupling.mask_coupling(mask, lmax, nthreads)
+        couplings = coupling.mask_coupling(mask, lmax, nthreads, band=study.sky.lmax)
     field_cl = predict.local_cl(
         the_sky, mask, lmax, nthreads, study.systematics.has_beams, study.run.analysis
     )

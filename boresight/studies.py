@@ -218,7 +218,7 @@ def predict_study(
     mask = masks.from_config(study.mask, nside)
     n_max = residual.n_max_for(study.systematics)
     mom = residual.moments(study.scan, nside, mask > 0, study.run, n_max)
-    couplings = coupling.mask_coupling(mask, lmax, study.run.nthreads)
+    couplings = coupling.mask_coupling(mask, lmax, study.run.nthreads, band=study.sky.lmax)
     pred = predict.residual_pseudo_bb(
         mom.h,
         mask,

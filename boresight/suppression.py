@@ -166,7 +166,7 @@ def run(
     theory = load_spectra()
     nside, lmax = the_sky.nside, 2 * the_sky.nside
     mask = masks.survey_mask(survey, nside)
-    couplings = coupling.mask_coupling(mask, lmax, run_options.nthreads)
+    couplings = coupling.mask_coupling(mask, lmax, run_options.nthreads, band=the_sky.lmax)
     local = predict.local_cl(the_sky, mask, lmax, run_options.nthreads, True, run_options.analysis)
     prediction = residual.Prediction(theory, couplings, the_sky.fwhm_arcmin, local, leaked=True)
     simulated, predicted = {}, {}

@@ -171,16 +171,16 @@ def point_key(base: dict, base_dir: str, overrides: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-_COUPLING = {}  #: this worker's last mask coupling, keyed by (mask digest, lmax)
+_COUPLING = {}  #: this worker's last mask coupling, keyed by (mask digest, lmax, band)
 
 
-def _mask_coupling(mask, lmax, nthreads):
-    """The mask's coupling, reused while a worker's points share mask and lmax (most sweeps vary
-    the scan or the systematics): it saves the mask's transform to 2 lmax."""
-    key = (hashlib.sha256(np.ascontiguousarray(mask).tobytes()).hexdigest(), lmax)
+def _mask_coupling(mask, lmax, band, nthreads):
+    """The mask's coupling, reused while a worker's points share mask, lmax and the sky's band
+    (most sweeps vary the scan or the systematics): it saves the mask's transform."""
+    key = (hashlib.sha256(np.ascontiguousarray(mask).tobytes()).hexdigest(), lmax, band)
     if key not in _COUPLING:
         _COUPLING.clear()
-        _COUPLING[key] = coupling.mask_coupling(mask, lmax, nthreads)
+        _COUPLING[key] = coupling.mask_coupling(mask, lmax, nthreads, band=band)
     return _COUPLING[key]
 
 
@@ -202,7 +202,7 @@ def run_point(base: dict, base_dir: str, overrides: dict) -> list[dict]:
     study = parse_study(apply_overrides(base, overrides), base_dir)
     nside, lmax, nthreads = study.sky.nside, study.output.lmax, study.run.nthreads
     mask = masks.from_config(study.mask, nside)
-    couplings = _mask_coupling(mask, lmax, nthreads)
+    couplings = _mask_coupling(mask, lmax, study.sky.lmax, nthreads)
     job, _, _ = residual.from_study(study, mask=mask, couplings=couplings)
     template = predict.tensor_template(couplings, load_spectra(), study.sky.fwhm_arcmin, nside)
     pred = job.predicted_cl

@@ -247,7 +247,7 @@ def test_beam_cl_prediction_within_10_percent(survey, sysm, theory):
     scan = paper_scan(survey)
     ref = engine.simulate(the_sky, scan, pixels=obs)
     h, crossings = engine.scan_moments(scan.one_repeat(), nside, pixels=obs)
-    couplings = coupling.mask_coupling(mask, lmax)
+    couplings = coupling.mask_coupling(mask, lmax, band=3 * nside - 1)
     local = predict.local_cl(the_sky, mask, lmax, beams=True)
     edges = spectra.linear_bins(40, 256, 36)
     sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)

@@ -37,7 +37,7 @@ def study(paper_sky):
             ref=ref,
             sim=sim,
             h=h,
-            couplings=coupling.mask_coupling(mask, LMAX),
+            couplings=coupling.mask_coupling(mask, LMAX, band=3 * NSIDE - 1),
         )
     return out
 
@@ -84,6 +84,7 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         sky.SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2, polarised=False), theory
     )
     mask = masks.survey_mask("deep", nside)
+    # to lmax only: above it the prediction would take the theory's EE, which this sky has not
     couplings = coupling.mask_coupling(mask, lmax)
     zero = np.zeros((2, 12 * nside**2))
     for survey, sysm, angle, floor in (
@@ -250,7 +251,7 @@ def test_cl_prediction_with_the_interpolation_window_to_2_nside(survey, sysm, th
     sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
     auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1]
     common = dict(field_cl=predict.local_cl(the_sky, mask, lmax), crossings=crossings, leaked=True)
-    couplings = coupling.mask_coupling(mask, lmax)
+    couplings = coupling.mask_coupling(mask, lmax, band=3 * nside - 1)
     edges = spectra.linear_bins(40, lmax, 32)
     sim_bands = spectra.bin_spectrum(auto, edges)[1]
     ratio = {}
@@ -307,3 +308,64 @@ def test_shared_moments_give_the_same_prediction(small_sky, theory):
             prediction=prediction,
             moments_=shared,
         )
+
+
+def test_the_prediction_counts_the_sky_above_lmax_that_the_mask_mixes_down(theory):
+    """A polarisation-angle error on the deep mask, Nside 64, the spectra to lmax 128 and the sky
+    to 191: the mean of 64 TOD skies against the theory prediction. With the coupling cut at lmax
+    the top band read 0.61 of the simulation (the reviewer saw 0.94 at Nside 128); from the
+    sky's band limit every band agrees within 5 % or 3 standard errors (measured 0.98-1.00)."""
+    nside, lmax, band = 64, 128, 191
+    mask = masks.survey_mask("deep", nside)
+    obs = mask > 0
+    sysm = Systematics(pol_angle_deg=1.0)
+    scan = SyntheticScan(n_phi=4, range_rad=0.7, in_pixel="centre", seed=1)
+    edges = spectra.linear_bins(40, lmax, 22)
+    sims = []
+    for seed in range(64):
+        s = sky.make_sky(sky.SkyConfig(nside=nside, lmax=band, fwhm_arcmin=60.0, seed=seed), theory)
+        ref = engine.simulate(s, scan, pixels=obs)
+        sim = engine.simulate(s, scan, systematics=sysm, pixels=obs)
+        sims.append(spectra.bin_spectrum(spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1],
+                                         edges)[1])  # fmt: skip
+    mean = np.mean(sims, axis=0)
+    se = np.std(sims, axis=0, ddof=1) / np.sqrt(len(sims))
+    h, crossings = engine.scan_moments(scan, nside, pixels=obs)
+
+    def predicted(coupling_band):
+        c = coupling.mask_coupling(mask, lmax, band=coupling_band)
+        pred = predict.residual_pseudo_bb(h, mask, c, sysm, theory, 60.0, leaked=True,
+                                          crossings=crossings)  # fmt: skip
+        return spectra.bin_spectrum(pred, edges)[1]
+
+    wide = predicted(band)
+    assert np.all(np.abs(wide - mean) < np.maximum(0.05 * mean, 3 * se)), wide / mean
+    assert predicted(lmax)[-1] < 0.8 * mean[-1]
+
+
+def test_beam_terms_with_pixel_centre_hits_and_a_lower_output_lmax(tmp_path):
+    """A beam systematic with in_pixel = "centre" and [output] lmax below [sky] lmax crashed with
+    "operands could not be broadcast together with shapes (192,) (129,)": the beams' h_0 field's
+    filter now reaches the sky's band limit. Its leaked power follows the simulation within 10 %
+    in every band of the deep mask."""
+    from dataclasses import replace
+
+    from boresight import residual
+    from boresight.config import parse_study
+
+    study = parse_study(
+        {
+            "sky": {"nside": 64, "lmax": 191, "fwhm_arcmin": 60.0, "seed": 1},
+            "scan": {"n_phi": 4, "range_rad": 0.719, "in_pixel": "centre"},
+            "systematics": {"dfwhm_b_arcmin": 0.5},
+            "mask": {"survey": "deep"},
+            "output": {"lmax": 128},
+        }
+    )
+    assert np.isfinite(residual.from_study(study)[0].predicted_cl).all()  # the whole residual
+    the_sky, mask = residual.load_sky(study), masks.from_config(study.mask, 64)
+    leaked = replace(residual.study_prediction(study, the_sky, mask), leaked=True)
+    job = residual.residual(the_sky, study.scan, study.systematics, mask, 128, prediction=leaked)
+    edges = spectra.linear_bins(40, 128, 22)
+    sim, pred = (spectra.bin_spectrum(x, edges)[1] for x in (job.auto, job.predicted_cl))
+    assert np.all(np.abs(pred / sim - 1) < 0.10), pred / sim

@@ -103,7 +103,7 @@ def test_delta_r_recovers_input_r(theory):
     """
     nside, lmax = 256, 400
     mask = masks.survey_mask("deep", nside)
-    couplings = coupling.mask_coupling(mask, lmax)
+    couplings = coupling.mask_coupling(mask, lmax, band=3 * nside - 1)  # the sky's band
     beam = hp.gauss_beam(np.radians(7 / 60), lmax=3 * nside - 1, pol=True)[:, 2]
     # The template carries the package's pixel window; give the sky the same one.
     window = predict.pixel_window(nside, 3 * nside - 1)
@@ -130,16 +130,17 @@ def test_sweep_cli_writes_table_and_continuum_figure(tmp_path):
 def test_mask_coupling_is_reused_for_the_same_mask(monkeypatch):
     calls, original = [], coupling.mask_coupling
 
-    def counting(mask, lmax, nthreads):
-        calls.append(lmax)
-        return original(mask, lmax, nthreads)
+    def counting(mask, lmax, nthreads, band):
+        calls.append((lmax, band))
+        return original(mask, lmax, nthreads, band=band)
 
     monkeypatch.setattr(sweep.coupling, "mask_coupling", counting)
     sweep._COUPLING.clear()
     mask = masks.survey_mask("deep", 32)
-    first = sweep._mask_coupling(mask, 60, 1)
-    again = sweep._mask_coupling(mask.copy(), 60, 1)
-    assert again is first and calls == [60]
-    other = sweep._mask_coupling(mask, 50, 1)
-    sweep._mask_coupling(np.ones_like(mask), 50, 1)
-    assert calls == [60, 50, 50] and other.lmax == 50
+    first = sweep._mask_coupling(mask, 60, 95, 1)
+    again = sweep._mask_coupling(mask.copy(), 60, 95, 1)
+    assert again is first and calls == [(60, 95)]
+    other = sweep._mask_coupling(mask, 50, 95, 1)
+    sweep._mask_coupling(np.ones_like(mask), 50, 95, 1)
+    sweep._mask_coupling(np.ones_like(mask), 50, 80, 1)
+    assert calls == [(60, 95), (50, 95), (50, 95), (50, 80)] and other.lmax == 50

@@ -164,7 +164,7 @@ def test_jitter_cl_prediction(theory):
     dp = _dp(s, scan, Instrument(), sysm, pixels=mask > 0)
     sim = spectra.pseudo_spectra(np.array([0 * dp.real, dp.real, dp.imag]), mask, lmax)[2]
     h, hits = engine.scan_moments(scan.one_repeat(), nside, pixels=mask > 0)
-    couplings = coupling.mask_coupling(mask, lmax)
+    couplings = coupling.mask_coupling(mask, lmax, band=383)
     pred = predict.residual_pseudo_bb(
         h,
         mask,
