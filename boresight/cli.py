@@ -360,7 +360,14 @@ def _run(args, progress, checks):
         if ground_schedule(args.config):
             motion = _motion(args)
             rows = studies.schedule_stats(
-                args.config, args.out, args.nside, motion, args.force, **opts, **_pointing(args)
+                args.config,
+                args.out,
+                args.nside,
+                motion,
+                args.force,
+                **opts,
+                **_pointing(args),
+                progress=progress,
             )
         else:
             rows = studies.scan_stats(load_study(args.config), args.out, args.force, **opts)

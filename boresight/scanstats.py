@@ -271,7 +271,12 @@ def characterise(sample_chunks: Iterable, nside: int, tolerance_deg: float = 1.0
 
 
 def characterise_schedule(
-    schedule: Schedule, nside: int, tolerance_deg: float = 1.0, chunk_samples: int = 1 << 20
+    schedule: Schedule,
+    nside: int,
+    tolerance_deg: float = 1.0,
+    chunk_samples: int = 1 << 20,
+    *,
+    progress: bool = False,
 ) -> ScanStats:
     """Statistics of a CES schedule, pointing fused into the binning (no theta, phi, psi arrays);
     equal to characterise(ground.pointing(schedule), ...) up to rounding.
@@ -282,16 +287,23 @@ def characterise_schedule(
     nside : int
     tolerance_deg : float
     chunk_samples : int
+    progress : bool
+        Show a progress bar over the schedule's samples.
 
     Returns
     -------
     ScanStats
     """
+    from tqdm.auto import tqdm
 
     exclude = schedule.turnarounds == "exclude"
 
     def binned(nbins):
-        for args in chunk_arguments(schedule, chunk_samples):
-            yield ces_hits(*args, nside, nbins, exclude)
+        with tqdm(
+            total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress
+        ) as bar:
+            for args in chunk_arguments(schedule, chunk_samples):
+                yield ces_hits(*args, nside, nbins, exclude)
+                bar.update(args[1])
 
     return _stats(nside, tolerance_deg, binned)

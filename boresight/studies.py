@@ -302,6 +302,7 @@ def schedule_stats(
     prefix: str = "hn",
     frame: str | None = None,
     turnarounds: str | None = None,
+    progress: bool = False,
 ) -> list[dict]:
     """:func:`scan_stats` of a CES schedule file (boresight's TOML or CSV, or TOAST's).
 
@@ -323,6 +324,8 @@ def schedule_stats(
     frame, turnarounds : str, optional
         The sky frame of the maps and what the turnarounds' samples do
         (:class:`boresight.ground.Schedule`; default: the file's).
+    progress : bool
+        Show a progress bar over the schedule's samples.
 
     Returns
     -------
@@ -342,7 +345,7 @@ def schedule_stats(
     timer = provenance.Timer(log)
     precompile.precompile(precompile.kernels_for("schedule-stats"), timer=timer)
     with timer("characterise the schedule"):
-        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
+        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg, progress=progress)
     return _write_scan_stats(
         out_dir,
         force,
