@@ -16,12 +16,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from boresight import cosmology, design, ground, studies
+from boresight import cosmology, design, studies
+from boresight.schedule import load_schedule
 from boresight.instrument import Systematics
 
 
 def big_schedule():
-    base = ground.load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule("examples/schedule_deep_sat.toml")
     ces = tuple(
         replace(c, start_unix=c.start_unix + 86400 * day) for day in range(42) for c in base.ces
     )

@@ -1,6 +1,6 @@
 """GPU TOD core throughput (run on a machine with CuPy and a CUDA GPU).
 
-Times the fused kernel ``tod_gpu.bin_scan`` (hits, interpolated sky, pair differences and
+Times the fused kernel ``gpu.bin_scan`` (hits, interpolated sky, pair differences and
 normal equations; no per-hit arrays) over the full sky with CUDA events, for the paper's two
 cases with PBR: deep + gain (N_phi 4, 2 rotations, 2 pairs: 32 detector samples per pixel) and
 wide + pointing (N_phi 2: 16 samples per pixel, detector B interpolated separately), then the
@@ -16,7 +16,8 @@ import time
 import cupy as cp
 import numpy as np
 
-from boresight import engine, instrument, sky, tod_gpu
+from boresight import engine, instrument, sky
+from boresight.kernels import gpu
 from boresight.scan import SyntheticScan
 
 CASES = {
@@ -42,7 +43,7 @@ def core(the_sky, scan, systematics):
     args = [cp.arange(npix, dtype=cp.int64), cp.asarray(n_phi), cp.asarray(rng), cp.asarray(centre)]
     start, stop = cp.cuda.Event(), cp.cuda.Event()
     start.record()
-    tod_gpu.bin_scan(
+    gpu.bin_scan(
         scan.seed,
         nside,
         *args,

@@ -1,6 +1,6 @@
 """Real-scan throughput on a 24-CES schedule (Nside 512 by default).
 
-* pointing: ground.pointing alone (theta, phi, psi per sample);
+* pointing: pointing.pointing alone (theta, phi, psi per sample);
 * pointing + hit binning: scanstats.characterise_schedule (hits, h_n and crossing-angle bitmaps
   per pixel, pointing fused in). Timed at 100 and 400 Hz; the difference gives the steady-state
   rate per sample, the rest is a fixed per-map cost (allocation and per-pixel finalisation);
@@ -12,10 +12,11 @@ Usage: python bench/bench_ground.py [NSIDE]
 import sys
 import time
 
-from boresight import engine, ground, scanstats, sky
+from boresight import engine, pointing, scanstats, sky
+from boresight.schedule import CES, Schedule
 
 CES = tuple(
-    ground.CES(
+    CES(
         start_unix=1.79e9 + i * 3600,
         duration_s=3300,
         elevation_deg=50,
@@ -34,14 +35,14 @@ def timed(fn, *args):
 
 def main(nside):
     s = sky.make_sky(sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=30.0, seed=1))
-    warm = ground.Schedule(CES[:1], sample_rate_hz=1.0)
+    warm = Schedule(CES[:1], sample_rate_hz=1.0)
     scanstats.characterise_schedule(warm, nside)
-    engine.simulate_samples(s, ground.pointing(warm))
-    short, long = (ground.Schedule(CES, sample_rate_hz=r) for r in (100.0, 400.0))
-    t_point = timed(lambda: [None for _ in ground.pointing(short)])
+    engine.simulate_samples(s, pointing.pointing(warm))
+    short, long = (Schedule(CES, sample_rate_hz=r) for r in (100.0, 400.0))
+    t_point = timed(lambda: [None for _ in pointing.pointing(short)])
     t_short = timed(scanstats.characterise_schedule, short, nside)
     t_long = timed(scanstats.characterise_schedule, long, nside)
-    t_tod = timed(lambda: engine.simulate_samples(s, ground.pointing(short)))
+    t_tod = timed(lambda: engine.simulate_samples(s, pointing.pointing(short)))
     n_s, n_l = short.n_samples, long.n_samples
     steady = (n_l - n_s) / (t_long - t_short)
     print(f"Nside {nside}; samples/s on {n_s:.2e} ({n_l:.2e}) samples")

@@ -22,7 +22,7 @@ log = logging.getLogger("boresight")
 def _parser():
     from .config import RunOptions, add_flags
     from .frames import FRAMES
-    from .ground import TURNAROUNDS
+    from .schedule import TURNAROUNDS
     from .sky import SkyConfig
     from .studies import LAYOUTS
 
@@ -171,7 +171,7 @@ def _pointing_flags(p, frames, turnarounds):
 
 
 def _motion(args):
-    from .toast_schedule import ScanMotion
+    from .schedule import ScanMotion
 
     return ScanMotion(args.scan_rate, args.rate_on == "sky", args.scan_accel, args.sample_rate)
 
@@ -271,7 +271,7 @@ def _run(args, progress, checks):
     """Run the parsed command; returns the exit code."""
     from . import studies
     from .config import load_study
-    from .ground import is_schedule as ground_schedule
+    from .schedule import is_schedule
     from .sky import SkyConfig
 
     if args.command == "reproduce":
@@ -347,17 +347,18 @@ def _run(args, progress, checks):
         )
         return 0
     if args.command == "export-schedule":
-        from . import ground, io, toast_schedule
+        from . import io
+        from .schedule import load_schedule, toast
 
-        schedule = ground.load_schedule(args.schedule, _motion(args))
+        schedule = load_schedule(args.schedule, _motion(args))
         io.check_output_file(args.out, args.force, [args.schedule])
-        toast_schedule.write(schedule, args.out)
-        log.info("wrote %d TOAST rows to %s", len(toast_schedule.rows(schedule)), args.out)
-        print(toast_schedule.simground_code(schedule, args.out))
+        toast.write(schedule, args.out)
+        log.info("wrote %d TOAST rows to %s", len(toast.rows(schedule)), args.out)
+        print(toast.simground_code(schedule, args.out))
         return 0
     if args.command == "scan-stats":
         opts = dict(log=log.info, checks=checks, layout=args.format, prefix=args.prefix)
-        if ground_schedule(args.config):
+        if is_schedule(args.config):
             motion = _motion(args)
             rows = studies.schedule_stats(
                 args.config,

@@ -21,7 +21,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import io, validation
-from .backend import BACKENDS
+from .io import toml_text, tomllib
+from .kernels import BACKENDS
 from .beams import pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS
@@ -31,16 +32,8 @@ from .masks import SURVEYS
 from .scan import SyntheticScan
 from .sky import SkyConfig
 from .threads import check_threads
-from .validation import option
+from .validation import ConfigError, option
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python < 3.11
-    import tomli as tomllib
-
-
-class ConfigError(ValueError):
-    """A configuration problem, with the offending key (and file) in the message."""
 
 
 def check_backend(name, backend):
@@ -483,25 +476,6 @@ def read_toml(path: str, what: str = "config") -> dict:
         return toml_text(path)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise ConfigError(f"{path} is not valid TOML: {err}") from None
-
-
-def toml_text(path: str) -> dict:
-    """The parsed TOML of a UTF-8 file, a byte-order mark (which tomllib refuses) dropped.
-
-    Parameters
-    ----------
-    path : str
-
-    Returns
-    -------
-    dict
-
-    Raises
-    ------
-    OSError, UnicodeDecodeError, tomllib.TOMLDecodeError
-    """
-    with open(path, encoding="utf-8-sig") as f:
-        return tomllib.loads(f.read())
 
 
 def load_study(path: str) -> Study:

@@ -34,7 +34,8 @@ import numpy as np
 
 from . import coupling, interrupts, predict, validation
 from .constants import DEG
-from .ground import Schedule, chunk_arguments
+from .pointing import chunk_arguments
+from .schedule import Schedule
 from .instrument import AMPLITUDES, Instrument, _nonzero
 from .scanstats import N_MAX, ces_hits
 from .validation import option
@@ -102,7 +103,7 @@ def units_of(rows: tuple, group: str) -> list[list[int]]:
 
     Parameters
     ----------
-    rows : tuple of boresight.ground.CES
+    rows : tuple of boresight.schedule.CES
     group : {"ces", "day", "pass"}
 
     Returns
@@ -142,7 +143,7 @@ class UnitMoments:
         S_n of each entry, n = 1..N_MAX.
     units : list of list of int
         The CES rows of each unit.
-    rows : tuple of boresight.ground.CES
+    rows : tuple of boresight.schedule.CES
     """
 
     nside: int
@@ -215,7 +216,7 @@ def unit_moments(
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
     nside : int
     group : {"ces", "day", "pass"}
     chunk_samples : int

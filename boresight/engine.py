@@ -1,6 +1,6 @@
 """The simulation engine: sky -> synthetic scan -> detectors and systematics -> PBR -> maps.
 
-``simulate`` streams pixel chunks through the kernels of a backend (``tod_cpu`` or ``tod_gpu``):
+``simulate`` streams pixel chunks through the kernels of a backend (:mod:`boresight.kernels`):
 hits, detector-B pointing, sky evaluation, pair differences and per-pixel normal equations (one
 fused kernel on the GPU), then solves each pixel where the sums lie; memory is bounded by the
 chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
@@ -14,14 +14,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import harmonics, interrupts
-from .backend import get_backend
+from .kernels import get_backend
+from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
-from .evaluation import METHODS, SkyFields, pair_fields, sums_with_zero_qu
+from .evaluation import METHODS, SkyFields
 from .instrument import Instrument, Systematics, response
 from .mapmaking import RCOND_MIN, Maps, solve
-from .pixels import ang2pix_array
-from .scan import hit_offsets
+from .kernels.pixels import ang2pix_array
 from .sky import MAX_NSIDE
 from .threads import numba_threads
 
@@ -381,7 +381,7 @@ def simulate_samples(
     backend: str = "cpu",
     rcond_min: float = RCOND_MIN,
 ) -> Maps:
-    """Maps from streams of real samples, e.g. ``boresight.ground.pointing(schedule)``.
+    """Maps from streams of real samples, e.g. ``boresight.pointing.pointing(schedule)``.
 
     The normal equations of all chunks add up before the per-pixel solve, so memory is one chunk
     plus the (npix, 5) sums. Each sample's terms are added into its pixel's sums in sample order

@@ -35,7 +35,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from . import rng, validation
+from . import validation
+from .kernels import rng
 from .constants import ARCMIN, DEG
 from .validation import option
 

@@ -1,4 +1,5 @@
-"""Writing outputs atomically: FITS maps healpy reads, CSV tables, JSON, and output directories.
+"""Files in and out: TOML read (a byte-order mark dropped), and outputs written atomically: FITS maps
+healpy reads, CSV tables, JSON, and output directories.
 
 Every file is written to a temporary name beside its target and renamed into place, and a run's
 directory is built under a staging name and renamed at the end, so an interruption never leaves a
@@ -20,7 +21,13 @@ from typing import TYPE_CHECKING
 import healpy as hp
 import numpy as np
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
+
 from . import interrupts
+from .validation import OutputError
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator, Sequence
@@ -40,10 +47,6 @@ FRAME_CARDS = {
 }
 #: the file that marks a directory as boresight's own: only such a directory is ever replaced
 MARKER = ".boresight-output"
-
-
-class OutputError(ValueError):
-    """An output path boresight must not or cannot write (found before any work)."""
 
 
 def _umask() -> int:
@@ -87,6 +90,25 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def toml_text(path: str) -> dict:
+    """The parsed TOML of a UTF-8 file, a byte-order mark (which tomllib refuses) dropped.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    OSError, UnicodeDecodeError, tomllib.TOMLDecodeError
+    """
+    with open(path, encoding="utf-8-sig") as f:
+        return tomllib.loads(f.read())
 
 
 def write_maps(

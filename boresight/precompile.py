@@ -78,30 +78,30 @@ KERNELS = {
     k.name: k
     for k in (
         Kernel(
-            "tod_cpu", "accumulate", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, _I1), 3.2
+            "kernels.cpu", "accumulate", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, _I1), 3.2
         ),
-        Kernel("pixels", "interpolate_interleaved", (_F2, nt.int64, _F1, _F1), 3.1),
-        Kernel("tod_cpu", "generate_hits", (nt.int64, nt.int64, _I1, _I1, _F1, _F1, nt.bool_), 2.4),
-        Kernel("tod_cpu", "moments", (_I1, _F1, _F1, nt.int64), 1.9),
-        Kernel("predict", "_legendre_sums", (_F1, _F1, _F2), 1.4),
+        Kernel("kernels.pixels", "interpolate_interleaved", (_F2, nt.int64, _F1, _F1), 3.1),
+        Kernel("kernels.cpu", "generate_hits", (nt.int64, nt.int64, _I1, _I1, _F1, _F1, nt.bool_), 2.4),
+        Kernel("kernels.cpu", "moments", (_I1, _F1, _F1, nt.int64), 1.9),
+        Kernel("predict.windows", "_legendre_sums", (_F1, _F1, _F2), 1.4),
         Kernel(
-            "predict",
+            "predict.maps",
             "_delta_p",
             (nt.bool_, _I1, _C2, *[_STRIDED] * 3, *[_F1] * 3, *[_C1] * 3),
             1.3,
         ),
-        Kernel("tod_cpu", "offset_points", (_F1,) * 7, 0.7),
+        Kernel("kernels.cpu", "offset_points", (_F1,) * 7, 0.7),
         Kernel("instrument", "_response", (_F1,) * 6, 0.4),
         Kernel("masks", "_inside", (_F1,) * 4 + (nt.float64,), 1.3),
-        Kernel("predict", "_block_sums", (_C1, _I1, _F1, _I1, nt.int64), 0.9),
+        Kernel("predict.cl", "_block_sums", (_C1, _I1, _F1, _I1, nt.int64), 0.9),
         Kernel("scanstats", "ces_hits", (*_CHUNK, nt.int64, nt.int64, nt.bool_), 2.2),
         Kernel("design", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
         Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
         Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
-        Kernel("ground", "_ces_pointing", _CHUNK, 2.4),
-        Kernel("pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
+        Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
+        Kernel("kernels.pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel(
-            "tod_cpu",
+            "kernels.cpu",
             "accumulate_scatter",
             (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, nt.int64, _F2),
             1.6,

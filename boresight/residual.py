@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, ClassVar, NamedTuple
 
 import numpy as np
 
-from . import engine, ground, harmonics, interrupts, predict, scanstats, spectra
+from . import engine, harmonics, interrupts, pointing, predict, scanstats, spectra
+from .schedule import Schedule
 from .config import RunOptions
 from .instrument import Instrument, Systematics
 from .mapmaking import Maps
@@ -31,7 +32,6 @@ from .scan import SyntheticScan
 if TYPE_CHECKING:
     from .config import Study
     from .coupling import Coupling
-    from .ground import Schedule
     from .sky import Sky
 
 
@@ -251,7 +251,7 @@ def simulate(
     Parameters
     ----------
     sky : boresight.sky.Sky
-    scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
+    scan : boresight.scan.SyntheticScan or boresight.schedule.Schedule
         A real schedule's sample stream covers its own pixels (``pixels`` is then unused).
     instrument : boresight.instrument.Instrument
     systematics : boresight.instrument.Systematics
@@ -270,12 +270,12 @@ def simulate(
     -------
     boresight.mapmaking.Maps, or (the sky's, Q = U = 0's) with ``zero_qu``
     """
-    if isinstance(scan, ground.Schedule):
+    if isinstance(scan, Schedule):
         if zero_qu:
             raise ValueError("zero_qu needs a synthetic scan; simulate sky.without_polarisation()")
         return engine.simulate_samples(
             sky,
-            ground.pointing(scan),
+            pointing.pointing(scan),
             instrument,
             systematics,
             evaluation=run.evaluation,
@@ -332,7 +332,7 @@ def moments(
 
     Parameters
     ----------
-    scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
+    scan : boresight.scan.SyntheticScan or boresight.schedule.Schedule
     nside : int
     pixels : numpy.ndarray
         Pixels of a synthetic scan, and those :attr:`Moments.power` averages over: a boolean
@@ -346,7 +346,7 @@ def moments(
     -------
     Moments
     """
-    if isinstance(scan, ground.Schedule):
+    if isinstance(scan, Schedule):
         stats = scanstats.characterise_schedule(scan, nside)
         return Moments(stats.h, stats.hits, (0.0,), _mean_power(stats.h, pixels))
     h, crossings = engine.scan_moments(
@@ -495,7 +495,7 @@ def residual(
     Parameters
     ----------
     sky : boresight.sky.Sky
-    scan : boresight.scan.SyntheticScan or boresight.ground.Schedule
+    scan : boresight.scan.SyntheticScan or boresight.schedule.Schedule
     systematics : boresight.instrument.Systematics
     mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
         Weights in [0, 1] (RING); pixels with weight > 0 are simulated. Jobs on one mask share
@@ -564,7 +564,7 @@ def residual(
         return result
     t0 = time.perf_counter()
     n_max = n_max_for(systematics)
-    if moments_ is None or isinstance(scan, ground.Schedule):
+    if moments_ is None or isinstance(scan, Schedule):
         mom = moments(scan, sky.nside, pixels, run, n_max)
     elif moments_.h.shape[0] <= n_max:
         raise ValueError(f"moments_ hold h_n to {moments_.h.shape[0] - 1}; these need {n_max}")

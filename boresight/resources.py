@@ -28,9 +28,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .validation import MemoryLimitError, TimeLimitError
+
 if TYPE_CHECKING:
     from .config import Study
-    from .ground import Schedule
+    from .schedule import Schedule
     from .instrument import Instrument, Systematics
 
 GIB = 2.0**30
@@ -73,14 +75,6 @@ class Checks:
 
     memory: bool = True
     time: bool = True
-
-
-class MemoryLimitError(ValueError):
-    """A job whose estimated memory exceeds what the machine has."""
-
-
-class TimeLimitError(ValueError):
-    """A job estimated to run longer than :data:`TIME_LIMIT_S`, without ``--yes``."""
 
 
 @dataclass(frozen=True)
@@ -280,7 +274,7 @@ def schedule_estimate(
     ----------
     job : str
         A key of :data:`BYTES_PER_PIXEL`.
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
     nside : int
     lmax : int, optional
         The sky's band limit, if the job makes one (default 2 Nside).

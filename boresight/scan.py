@@ -132,23 +132,6 @@ class SyntheticScan:
         return out
 
 
-def hit_offsets(n_phi: np.ndarray) -> np.ndarray:
-    """Where each pixel's hits start in a chunk's hit arrays.
-
-    Parameters
-    ----------
-    n_phi : array_like of int, shape (P,)
-
-    Returns
-    -------
-    numpy.ndarray, int64, shape (P + 1,)
-        Pixel k owns hits offsets[k]..offsets[k + 1] - 1.
-    """
-    offsets = np.zeros(np.size(n_phi) + 1, dtype=np.int64)
-    np.cumsum(n_phi, out=offsets[1:])
-    return offsets
-
-
 def paper_scan(survey: str, rotation_deg: float | None = None, seed: int = 0) -> SyntheticScan:
     """The paper's synthetic scans.
 

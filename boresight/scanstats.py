@@ -18,14 +18,14 @@ import numpy as np
 
 from . import interrupts
 from .engine import check_samples
-from .ground import chunk_arguments, sample_pointing
-from .pixels import ang2pix_array, zphi2pix
+from .pointing import chunk_arguments, sample_pointing
+from .kernels.pixels import ang2pix_array, zphi2pix
 from .scan import SyntheticScan
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-    from .ground import Schedule
+    from .schedule import Schedule
 
 
 N_MAX = 4
@@ -79,7 +79,7 @@ def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
 @numba.njit(parallel=True, cache=True)
 def ces_hits(k0, n, chunk, terms, nside, nbins, exclude_turnarounds):
     """Pixel, cos psi, sin psi and angle bin of samples k0..k0+n-1 of a CES
-    (:func:`boresight.ground.sample_pointing`), without forming theta or psi; pixel -1 for a
+    (:func:`boresight.pointing.sample_pointing`), without forming theta or psi; pixel -1 for a
     sample in a turnaround when they are excluded."""
     pix = np.empty(n, dtype=np.int64)
     cos_psi = np.empty(n)
@@ -279,11 +279,11 @@ def characterise_schedule(
     progress: bool = False,
 ) -> ScanStats:
     """Statistics of a CES schedule, pointing fused into the binning (no theta, phi, psi arrays);
-    equal to characterise(ground.pointing(schedule), ...) up to rounding.
+    equal to characterise(pointing.pointing(schedule), ...) up to rounding.
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
     nside : int
     tolerance_deg : float
     chunk_samples : int

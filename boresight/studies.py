@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from .config import Study
-    from .toast_schedule import ScanMotion
+    from .schedule import ScanMotion
 
 
 def require_finite(what, values):
@@ -311,7 +311,7 @@ def schedule_stats(
     schedule_path : str
     out_dir : str
     nside : int
-    motion : boresight.toast_schedule.ScanMotion, optional
+    motion : boresight.schedule.toast.ScanMotion, optional
         For a TOAST schedule: scan rate, acceleration and sample rate.
     force : bool
     tolerance_deg : float
@@ -323,7 +323,7 @@ def schedule_stats(
         As in :func:`scan_stats`.
     frame, turnarounds : str, optional
         The sky frame of the maps and what the turnarounds' samples do
-        (:class:`boresight.ground.Schedule`; default: the file's).
+        (:class:`boresight.schedule.Schedule`; default: the file's).
     progress : bool
         Show a progress bar over the schedule's samples.
 
@@ -332,10 +332,11 @@ def schedule_stats(
     list of dict
         As :func:`scan_stats`.
     """
-    from . import ground, scanstats
+    from . import scanstats
+    from .schedule import load_schedule
 
     _check_layout(layout, prefix)
-    schedule = ground.load_schedule(
+    schedule = load_schedule(
         schedule_path, motion, frame=frame, turnarounds=turnarounds
     )
     sky.SkyConfig(nside=nside, lmax=2 * nside)  # validates nside
@@ -467,15 +468,16 @@ def compare_scans(
     Writes scan_maps.fits (crossings, N_phi, R, ``|h_1..4|^2``), scan_stats.csv (survey means of the
     real scan and the twin), compare.csv and compare.png/pdf. Returns the binned rows.
     ``motion`` sets the scan rate, acceleration and sample rate of a TOAST schedule; ``frame`` and
-    ``turnarounds`` replace the schedule file's (:class:`boresight.ground.Schedule`).
+    ``turnarounds`` replace the schedule file's (:class:`boresight.schedule.Schedule`).
     """
-    from . import ground, scanstats
+    from . import scanstats
+    from .schedule import load_schedule
     from .instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
 
     systematics = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}.get(systematic)
     if systematics is None:
         raise ValueError(f"systematic must be 'gain' or 'pointing', got {systematic!r}")
-    schedule = ground.load_schedule(
+    schedule = load_schedule(
         schedule_path, motion, frame=frame, turnarounds=turnarounds
     )
     sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)  # validate
@@ -599,14 +601,14 @@ def design_schedule(
     ----------
     budget_path, schedule_path, out_dir : str
     force : bool
-    motion : boresight.toast_schedule.ScanMotion, optional
+    motion : boresight.schedule.toast.ScanMotion, optional
         For a TOAST schedule.
     validate : bool
         Run the TOD simulation.
     log : callable
     progress : bool
     frame, turnarounds : str, optional
-        Replace the schedule file's (:class:`boresight.ground.Schedule`).
+        Replace the schedule file's (:class:`boresight.schedule.Schedule`).
     checks : boresight.resources.Checks
         The memory and time checks to make.
 
@@ -615,15 +617,16 @@ def design_schedule(
     dict
         sigma_r, the strategies' rows and the designed angles per unit.
     """
-    from . import design, ground, noise
+    from . import design, noise
+    from .schedule import load_schedule, schedule_format, write_schedule
     from .cosmology import load_spectra
 
     budget = design.load_budget(budget_path)
     opts = budget.design
-    schedule = ground.load_schedule(
+    schedule = load_schedule(
         schedule_path, motion, frame=frame, turnarounds=turnarounds
     )
-    fmt = ground.schedule_format(schedule_path)
+    fmt = schedule_format(schedule_path)
     inputs = [budget_path, schedule_path]
     io.check_output_dir(out_dir, force, inputs)
     estimate = resources.schedule_estimate(
@@ -725,7 +728,7 @@ def design_schedule(
     designed = moments.schedule(schedule, found.angles_deg)
     suffix = {"toml": ".toml", "csv": ".csv", "toast": ".txt"}[fmt]
     with io.staged_dir(out_dir, force, inputs) as stage:
-        ground.write_schedule(designed, stage / f"schedule_designed{suffix}", fmt)
+        write_schedule(designed, stage / f"schedule_designed{suffix}", fmt)
         io.write_csv(stage / "strategies.csv", rows, list(rows[0]))
         io.write_csv(stage / "history.csv", found.history, ["sweep", "objective", "moves"])
         io.write_csv(

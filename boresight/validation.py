@@ -1,8 +1,13 @@
-"""Checks for numbers at the package's boundary: finite, of the right type, within range.
+"""Checks at the package's boundary, and boresight's errors.
 
 Each check raises ``ValueError`` (or ``TypeError`` for a value of the wrong kind) with a message
 that names the field and what is allowed, so that a config error, an API error and a CLI error read
 the same. NaN and infinity never pass: every comparison below is written so that NaN fails it.
+
+Bad input that a user can fix is a :class:`BoresightError`: a config, a schedule, an output path,
+a job too large for the machine, a result holding NaN. The command line prints one of these in
+one line and exits 2; any other exception is a bug, and it shows its traceback. Each class is
+also a ``ValueError``, so that code catching those keeps working.
 """
 
 from __future__ import annotations
@@ -15,6 +20,51 @@ import numpy as np
 
 if TYPE_CHECKING:
     from typing import Any
+
+
+class BoresightError(Exception):
+    """Input a user can fix, named in the message: what the command line reports and exits 2 for."""
+
+
+class ConfigError(BoresightError, ValueError):
+    """A configuration problem, with the offending key (and file) in the message."""
+
+
+class ScheduleError(ConfigError):
+    """A schedule file that cannot be read, with the file, row and key in the message."""
+
+
+class OutputError(BoresightError, ValueError):
+    """An output path boresight must not or cannot write (found before any work)."""
+
+
+class MemoryLimitError(BoresightError, ValueError):
+    """A job whose estimated memory exceeds what the machine has."""
+
+
+class TimeLimitError(BoresightError, ValueError):
+    """A job estimated to run longer than the limit, without ``--yes``."""
+
+
+class ResultError(BoresightError, ValueError):
+    """A result that holds NaN or infinite values: nothing is written."""
+
+
+def require_finite(what: str, values: object) -> None:
+    """Refuse to report NaN or infinity as a result.
+
+    Parameters
+    ----------
+    what : str
+        The result's name, for the message.
+    values : array_like
+
+    Raises
+    ------
+    ResultError
+    """
+    if not np.isfinite(np.asarray(values, dtype=np.float64)).all():
+        raise ResultError(f"{what} holds NaN or infinite values; nothing was written")
 
 
 def _describe(lo, hi):

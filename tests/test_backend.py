@@ -1,4 +1,4 @@
-"""The kernel backend contract (boresight.backend): both backends provide every kernel with the
+"""The kernel backend contract (boresight.kernels.contract): both backends provide every kernel with the
 parameters the engine passes, checked without a GPU (the CuPy module is read, not imported)."""
 
 import ast
@@ -12,12 +12,13 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from boresight import backend, engine, scan, tod_cpu
+from boresight import engine
+from boresight.kernels import contract, cpu, fields
 from boresight.instrument import Systematics, response
 
 CONTRACT = {
     name: [p for p in inspect.signature(fn).parameters if p != "self"]
-    for name, fn in vars(backend.KernelBackend).items()
+    for name, fn in vars(contract.KernelBackend).items()
     if inspect.isfunction(fn) and not name.startswith("_")
 }
 
@@ -38,17 +39,17 @@ def test_the_engine_uses_every_kernel_of_the_contract_and_no_other():
 
 
 def test_cpu_backend_implements_the_contract():
-    assert isinstance(tod_cpu, backend.KernelBackend)
+    assert isinstance(cpu, contract.KernelBackend)
     for name, params in CONTRACT.items():
-        assert list(inspect.signature(getattr(tod_cpu, name)).parameters) == params, name
+        assert list(inspect.signature(getattr(cpu, name)).parameters) == params, name
 
 
 def test_gpu_backend_implements_the_contract_without_a_gpu():
-    tree = ast.parse((resources.files("boresight") / "tod_gpu.py").read_text())
+    tree = ast.parse((resources.files("boresight.kernels") / "gpu.py").read_text())
     functions = _module_functions(tree)
     for name, params in CONTRACT.items():
         assert functions.get(name) == params, name
-    cuda = (resources.files("boresight") / "tod_gpu.cu").read_text()
+    cuda = (resources.files("boresight.kernels") / "gpu.cu").read_text()
     for kernel in ("generate_hits", "offset_points", "interpolate", "accumulate", "bin_scan"):
         assert f"void {kernel}(" in cuda, kernel
 
@@ -81,11 +82,11 @@ def _fake_cupy():
 
 @pytest.fixture
 def gpu_without_cupy(monkeypatch):
-    """boresight.tod_gpu loaded over the stand-in CuPy, and that stand-in."""
+    """boresight.kernels.gpu loaded over the stand-in CuPy, and that stand-in."""
     fake = _fake_cupy()
     monkeypatch.setitem(sys.modules, "cupy", fake)
-    path = resources.files("boresight") / "tod_gpu.py"
-    spec = importlib.util.spec_from_file_location("tod_gpu_without_cupy", path)
+    path = resources.files("boresight.kernels") / "gpu.py"
+    spec = importlib.util.spec_from_file_location("gpu_without_cupy", path)
     gpu = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gpu)
     return gpu, fake
@@ -148,18 +149,18 @@ def test_cpu_bin_scan_equals_its_stages(small_sky):
     rho, chi, leak, jitter = par.rho, par.chi, par.leak, par.dg_jitter
     args = (rot, ang, table, rho, chi, leak, jitter, True)
     scan_args = (5, 64, pixels, n_phi, rng_rad, centre, False, small_sky.interleaved)
-    fused = tod_cpu.bin_scan(*scan_args, *args, False)
-    both = tod_cpu.bin_scan(*scan_args, *args, True)
-    offsets = scan.hit_offsets(n_phi)
-    theta, phi, psi = tod_cpu.generate_hits(5, 64, pixels, offsets, rng_rad, centre, False)
-    tb, pb = tod_cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
+    fused = cpu.bin_scan(*scan_args, *args, False)
+    both = cpu.bin_scan(*scan_args, *args, True)
+    offsets = fields.hit_offsets(n_phi)
+    theta, phi, psi = cpu.generate_hits(5, 64, pixels, offsets, rng_rad, centre, False)
+    tb, pb = cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
     no_beams = np.empty((2, 0) + tb.shape[1:])
     unpolarised = small_sky.without_polarisation()
     for the_sky, got in ((small_sky, fused), (small_sky, both[0]), (unpolarised, both[1])):
         stack = the_sky.interleaved
-        values_a = tod_cpu.interpolate(stack, 64, theta, phi)
-        values_b = tod_cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
-        staged = tod_cpu.accumulate(
+        values_a = cpu.interpolate(stack, 64, theta, phi)
+        values_b = cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
+        staged = cpu.accumulate(
             offsets, psi, values_a, values_b, no_beams, table, leak, jitter, 5, pixels
         )
         np.testing.assert_array_equal(got, staged)
@@ -171,7 +172,7 @@ def test_cpu_offset_points_equal_the_direct_formula_past_the_poles_too(offset_in
     angle + chi, folded back past a pole: the kernel's angle-addition route against numpy's
     cos(beta) and sin(beta) of the whole angle."""
     theta, phi, psi, rot, ang, rho, chi = offset_inputs
-    tb, pb = tod_cpu.offset_points(*offset_inputs)
+    tb, pb = cpu.offset_points(*offset_inputs)
     beta = psi[:, None, None] + rot[None, :, None] + (ang + chi)[None, None, :]
     t = theta[:, None, None] + rho * np.cos(beta)
     f = phi[:, None, None] + rho * np.sin(beta) / np.sin(theta)[:, None, None]
@@ -189,4 +190,4 @@ def test_cpu_offset_points_equal_the_direct_formula_past_the_poles_too(offset_in
 
 def test_unknown_backend_is_refused():
     with pytest.raises(ValueError, match="backend"):
-        backend.get_backend("tpu")
+        contract.get_backend("tpu")

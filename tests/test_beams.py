@@ -296,10 +296,10 @@ def test_beams_without_a_sky_beam_are_a_config_error():
 
 def test_gpu_refuses_beams():
     pytest.importorskip("cupy")
-    from boresight import tod_gpu
+    from boresight.kernels import gpu
 
     with pytest.raises(ValueError, match="backend = 'cpu'"):
-        tod_gpu._physics(np.zeros((1, 2, 7)), np.zeros(2), None, np.zeros((2, 3, 1, 2)))
+        gpu._physics(np.zeros((1, 2, 7)), np.zeros(2), None, np.zeros((2, 3, 1, 2)))
 
 
 def test_beams_need_a_sky_beam(small_sky):

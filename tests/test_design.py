@@ -4,7 +4,8 @@ budgets and the command (issue 15)."""
 import numpy as np
 import pytest
 
-from boresight import cli, cosmology, design, ground, predict, scanstats
+from boresight import cli, cosmology, design, predict, scanstats
+from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 from boresight.config import ConfigError
 from boresight.instrument import Instrument, Spread, Systematics
 
@@ -15,11 +16,11 @@ NSIDE = 32
 @pytest.fixture(scope="module")
 def schedule():
     """Eight 5-minute CESs of the deep example at 2 Hz, observed again at +90 deg."""
-    base = ground.load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule("examples/schedule_deep_sat.toml")
     ces = tuple(
-        ground.CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3]
+        CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3]
     )  # fmt: skip
-    return ground.Schedule(ces, base.site, 2.0, repeat_boresight_deg=(0.0, 90.0))
+    return Schedule(ces, base.site, 2.0, repeat_boresight_deg=(0.0, 90.0))
 
 
 @pytest.fixture(scope="module")
@@ -203,20 +204,20 @@ def test_design_command_on_the_deep_example(tmp_path):
     assert min(rows, key=rows.get) == "optimised" and len(rows) == 7
     for row in csv.DictReader(open(out / "validation.csv")):
         assert float(row["ratio"]) == pytest.approx(1.0, abs=0.15), row
-    designed = ground.load_schedule(str(out / "schedule_designed.toml"))
-    assert len(designed.ces) == 48 and designed.site == ground.load_schedule(args[1]).site
+    designed = load_schedule(str(out / "schedule_designed.toml"))
+    assert len(designed.ces) == 48 and designed.site == load_schedule(args[1]).site
     assert (out / "design.png").stat().st_size > 0 and (out / "hn_before_after.png").is_file()
 
 
 def test_design_command_speaks_toast_and_refuses_bad_budgets(tmp_path, schedule):
-    from boresight import toast_schedule
+    from boresight.schedule import toast
 
     src = tmp_path / "in.txt"
-    toast_schedule.write(schedule, src)
+    toast.write(schedule, src)
     out = tmp_path / "d"
     args = ["--sample-rate", "2", "--no-validate"]
     assert cli.main(["-q", "design", _budget(tmp_path), str(src), "--out", str(out), *args]) == 0
-    designed = ground.load_schedule(str(out / "schedule_designed.txt"))
+    designed = load_schedule(str(out / "schedule_designed.txt"))
     assert len(designed.ces) == 2 * len(schedule.ces) and not (out / "validation.csv").exists()
     assert cli.main(["-q", "design", _budget(tmp_path, design="angles_deg = []"), str(src),
                      "--out", str(tmp_path / "e")]) == 2  # fmt: skip
@@ -241,10 +242,10 @@ def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, mo
 
     monkeypatch.setattr(design, "optimise", interrupting)
     src = tmp_path / "s.toml"
-    ground.write_schedule(schedule, str(src), "toml")
+    write_schedule(schedule, str(src), "toml")
     out = tmp_path / "d"
     assert cli.main(["-q", "design", _budget(tmp_path), str(src), "--out", str(out)]) == 130
-    assert ground.load_schedule(str(out / "schedule_designed.toml")).ces
+    assert load_schedule(str(out / "schedule_designed.toml")).ces
     config = json.loads((out / "manifest.json").read_text())["config"]
     assert config["search_interrupted"] is True and config["validation"] == "skipped"
     assert not (out / "validation.csv").exists()
@@ -261,7 +262,7 @@ def test_interrupt_during_the_validation_keeps_the_finished_design(
     from boresight import interrupts, studies
 
     src = tmp_path / "s.toml"
-    ground.write_schedule(schedule, str(src), "toml")
+    write_schedule(schedule, str(src), "toml")
     out = tmp_path / "d"
     budget = _budget(tmp_path)
     assert cli.main(["-q", "design", budget, str(src), "--out", str(out), "--no-validate"]) == 0

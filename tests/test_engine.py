@@ -6,6 +6,7 @@ import pytest
 from conftest import rel_max
 
 from boresight import engine, harmonics, masks, predict
+from boresight.schedule import CES, Schedule
 from boresight.constants import ARCMIN, DEG
 from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan
@@ -281,11 +282,11 @@ def test_gradient_matches_finite_difference(small_sky_unpolarised):
 
 
 def test_zero_qu_needs_a_synthetic_scan(small_sky):
-    from boresight import ground, residual
+    from boresight import residual
 
-    ces = ground.CES(
+    ces = CES(
         start_unix=1.79e9, duration_s=60, elevation_deg=50, az_centre_deg=134, az_throw_deg=40
     )
-    schedule = ground.Schedule((ces,), sample_rate_hz=1.0)
+    schedule = Schedule((ces,), sample_rate_hz=1.0)
     with pytest.raises(ValueError, match="synthetic scan"):
         residual.simulate(small_sky, schedule, Instrument(), Systematics(), None, zero_qu=True)

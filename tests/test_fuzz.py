@@ -14,7 +14,9 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from boresight import engine, ground, scanstats, sweep
+from boresight import engine, scanstats, sweep
+from boresight.schedule import CES_LIMITS, CES_REQUIRED, load_schedule
+from boresight.schedule.files import SCHEDULE_KEYS
 from boresight.cli import main
 from boresight.config import ConfigError, parse_study, schema
 from boresight.instrument import Instrument, Systematics
@@ -176,7 +178,7 @@ VALID_CES = {
 @st.composite
 def csv_schedules(draw):
     """CSV schedules: mostly well-formed rows, sometimes a junk cell, column or row length."""
-    header = list(ground.CES_REQUIRED) + draw(
+    header = list(CES_REQUIRED) + draw(
         st.lists(st.sampled_from([*VALID_CES, "colour"]), max_size=3, unique=True)
     )
     header = list(dict.fromkeys(header))
@@ -200,7 +202,7 @@ def csv_schedules(draw):
 
 def _check_schedule(path):
     try:
-        schedule = ground.load_schedule(path)
+        schedule = load_schedule(path)
     except ConfigError as err:
         assert "\n" not in str(err)
         event("schedule refused")
@@ -225,11 +227,11 @@ ces_values = st.one_of(numbers, st.just("2026-01-01"), st.sampled_from([1, 50.0,
 @FUZZ
 @given(
     ces=st.lists(
-        st.dictionaries(st.sampled_from([*ground.CES_LIMITS, "colour"]), ces_values, max_size=9),
+        st.dictionaries(st.sampled_from([*CES_LIMITS, "colour"]), ces_values, max_size=9),
         max_size=2,
     ),
     top=st.dictionaries(
-        st.sampled_from([*ground.SCHEDULE_KEYS[2:], "repeat"]), numbers, max_size=2
+        st.sampled_from([*SCHEDULE_KEYS[2:], "repeat"]), numbers, max_size=2
     ),
 )
 def test_any_toml_schedule_loads_or_names_its_error(ces, top, tmp_path_factory):
@@ -240,7 +242,7 @@ def test_any_toml_schedule_loads_or_names_its_error(ces, top, tmp_path_factory):
 
     text = "".join(f"{k} = {value(v)}\n" for k, v in top.items())
     for c in ces:
-        c = {**dict.fromkeys(ground.CES_REQUIRED, 10), **c}
+        c = {**dict.fromkeys(CES_REQUIRED, 10), **c}
         text += "[[ces]]\n" + "".join(f"{k} = {value(v)}\n" for k, v in c.items())
     path = tmp_path_factory.mktemp("s") / "s.toml"
     path.write_text(text)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from boresight import engine
+from boresight.schedule import CES, Schedule
 from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan
 
@@ -73,11 +74,11 @@ def test_gpu_matches_cpu(small_sky, scan, sysm, evaluation):
 def test_gpu_offset_points_match_cpu_past_the_poles_too(offset_inputs):
     """The same angle-addition route as tod_cpu: B's points agree to a few ulp (CUDA may fuse
     the multiply-adds), folded past the poles alike."""
-    from boresight import tod_cpu, tod_gpu
+    from boresight.kernels import cpu, gpu
 
     theta = offset_inputs[0]
-    tb_cpu, pb_cpu = tod_cpu.offset_points(*offset_inputs)
-    tb_gpu, pb_gpu = (tod_gpu.to_host(x) for x in tod_gpu.offset_points(*offset_inputs))
+    tb_cpu, pb_cpu = cpu.offset_points(*offset_inputs)
+    tb_gpu, pb_gpu = (gpu.to_host(x) for x in gpu.offset_points(*offset_inputs))
     assert tb_gpu.shape == tb_cpu.shape == (theta.size, 3, 2)
     np.testing.assert_allclose(tb_gpu, tb_cpu, rtol=0, atol=4e-15)
     dphi = np.angle(np.exp(1j * (pb_gpu - pb_cpu)))  # phi wraps at 2 pi
@@ -125,16 +126,16 @@ def test_gpu_other_pair_layouts(small_sky):
 @pytest.mark.gpu
 def test_gpu_sample_streams_match_cpu(small_sky):
     """Real-scan sample streams (host arrays) through the GPU kernels, pointing included."""
-    from boresight import ground
+    from boresight import pointing
 
-    ces = ground.CES(
+    ces = CES(
         start_unix=1.79e9, duration_s=600, elevation_deg=50, az_centre_deg=134, az_throw_deg=40
     )
-    sched = ground.Schedule((ces,), sample_rate_hz=20.0)
+    sched = Schedule((ces,), sample_rate_hz=20.0)
     sysm = Systematics(dg=(0.01, -0.01), rho_arcmin=1.0)
-    a = engine.simulate_samples(small_sky, ground.pointing(sched), systematics=sysm)
-    b = engine.simulate_samples(small_sky, ground.pointing(sched), systematics=sysm, backend="gpu")
-    c = engine.simulate_samples(small_sky, ground.pointing(sched), systematics=sysm, backend="gpu")
+    a = engine.simulate_samples(small_sky, pointing.pointing(sched), systematics=sysm)
+    b = engine.simulate_samples(small_sky, pointing.pointing(sched), systematics=sysm, backend="gpu")
+    c = engine.simulate_samples(small_sky, pointing.pointing(sched), systematics=sysm, backend="gpu")
     assert np.array_equal(b.q, c.q)  # sorted, not atomic, sums: the GPU result is deterministic
     ok = a.valid
     assert np.array_equal(ok, b.valid) and np.array_equal(a.hits, b.hits)

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 from conftest import rel_max
 
-from boresight import engine, frames, ground, scanstats, tod_cpu
+from boresight import engine, frames, pointing, scanstats
+from boresight.schedule import CES, Schedule, ScheduleError, Site, load_schedule, write_schedule
+from boresight.kernels import cpu
 from boresight.constants import DEG
 from boresight.instrument import Systematics
 from boresight.scan import SyntheticScan
@@ -14,9 +16,9 @@ from boresight.scan import SyntheticScan
 T0 = 1.79e9  # 2026-09-21, inside the IERS tables astropy ships
 
 
-def _night(site=ground.Site(), rate=10.0, n=6, el=50.0):
+def _night(site=Site(), rate=10.0, n=6, el=50.0):
     ces = tuple(
-        ground.CES(
+        CES(
             start_unix=T0 + i * 3600,
             duration_s=1800,
             elevation_deg=el,
@@ -25,7 +27,7 @@ def _night(site=ground.Site(), rate=10.0, n=6, el=50.0):
         )
         for i in range(n)
     )
-    return ground.Schedule(ces, site, sample_rate_hz=rate)
+    return Schedule(ces, site, sample_rate_hz=rate)
 
 
 #: 2026-12-15, where ICRS and the frame of date differ by 0.15 deg
@@ -44,8 +46,8 @@ def test_pointing_matches_astropy(frame):
 
     iers.conf.auto_download = False
     iers.conf.auto_max_age = None  # astropy's own tables, no download
-    site = ground.Site()
-    ces = ground.CES(
+    site = Site()
+    ces = CES(
         start_unix=T_FRAMES,
         duration_s=7200,
         elevation_deg=40,
@@ -53,12 +55,12 @@ def test_pointing_matches_astropy(frame):
         az_throw_deg=60,
         boresight_deg=30,
     )
-    t, az, el, _ = ground.ces_samples(ces, ground.Schedule((ces,), site, 0.05))
+    t, az, el, _ = pointing.ces_samples(ces, Schedule((ces,), site, 0.05))
     times = Time(t, format="unix")
-    sched = ground.Schedule(
+    sched = Schedule(
         (ces,), site, sample_rate_hz=0.05, dut1_s=float(np.mean(times.delta_ut1_utc)), frame=frame
     )
-    theta, phi, psi = (np.concatenate(x) for x in zip(*ground.pointing(sched)))
+    theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(sched)))
     loc = EarthLocation(lat=site.lat_deg * u.deg, lon=site.lon_deg * u.deg, height=site.alt_m * u.m)
     target = {"icrs": ICRS(), "galactic": Galactic(), "cirs": CIRS(obstime=times, location=loc)}
     altaz = AltAz(obstime=times, location=loc, pressure=0 * u.hPa)
@@ -79,15 +81,15 @@ def test_pointing_matches_astropy(frame):
 def test_geometry_at_pole_and_equator():
     """In the frame of date at a pole every elevation is a declination; at the equator the
     east point rises with RA = local ERA + 90 deg."""
-    chunk = np.zeros(ground.N_CHUNK)
-    chunk[[1, 7]] = 1.0, ground.UNIX_EPOCH_JD  # rate; start at the Unix epoch
+    chunk = np.zeros(pointing.N_CHUNK)
+    chunk[[1, 7]] = 1.0, pointing.UNIX_EPOCH_JD  # rate; start at the Unix epoch
     terms = frames.frame_terms(np.zeros(1), 0.0, "cirs")[0]
     for lat, az, el in ((-90.0, [0, 45, 90, 180, 300.0], [10, 30, 50, 70, 89.0]), (0.0, [90.0], [0.0])):
         for a, e in zip(az, el):
             chunk[[2, 6, 9]] = a * DEG, e * DEG, lat * DEG
             chunk[3:5] = 0.0, 1.0  # no throw: the azimuth stays at the centre
-            z, r, phi, c, s, _ = ground.sample_pointing(0, chunk, terms)
-            era = ground.earth_rotation_angle(ground.UNIX_EPOCH_JD)
+            z, r, phi, c, s, _ = pointing.sample_pointing(0, chunk, terms)
+            era = pointing.earth_rotation_angle(pointing.UNIX_EPOCH_JD)
             if lat == -90.0:
                 assert np.isclose(np.arcsin(z), -e * DEG)  # dec = -el whatever the azimuth
             else:
@@ -97,7 +99,7 @@ def test_geometry_at_pole_and_equator():
 
 
 def test_repeat_at_180_cancels_h1_h3():
-    stats = scanstats.characterise(ground.pointing(_night(rate=4).repeated([0, 180])), 64)
+    stats = scanstats.characterise(pointing.pointing(_night(rate=4).repeated([0, 180])), 64)
     obs = stats.observed
     assert obs.sum() > 300
     assert np.abs(stats.h[1, obs]).max() < 1e-13 and np.abs(stats.h[3, obs]).max() < 1e-13
@@ -106,7 +108,7 @@ def test_repeat_at_180_cancels_h1_h3():
 
 
 def test_twin_reproduces_hn_power():
-    stats = scanstats.characterise(ground.pointing(_night()), 64)
+    stats = scanstats.characterise(pointing.pointing(_night()), 64)
     twin = stats.synthetic_twin(seed=1)
     h, _ = engine.scan_moments(twin, 64, pixels=stats.observed)
     means = stats.survey_means()
@@ -141,7 +143,7 @@ def test_sample_stream_uses_the_same_pipeline(small_sky, sysm):
     pix = np.arange(12 * 64**2, dtype=np.int64)
     offsets = np.arange(pix.size + 1, dtype=np.int64) * 3
     n_phi, rng_rad, centre = scan.per_pixel(pix, pix.size)
-    theta, phi, psi = tod_cpu.generate_hits(4, 64, pix, offsets, rng_rad, centre, False)
+    theta, phi, psi = cpu.generate_hits(4, 64, pix, offsets, rng_rad, centre, False)
     order = np.random.default_rng(0).permutation(theta.size)  # any order, any chunking
     chunks = [
         (theta[order[s : s + 10000]], phi[order[s : s + 10000]], psi[order[s : s + 10000]])
@@ -155,7 +157,7 @@ def test_sample_stream_uses_the_same_pipeline(small_sky, sysm):
 
 def test_turnaround_profile():
     """Constant speed across the throw, a smooth reversal that overshoots by v tau / 4."""
-    ces = ground.CES(
+    ces = CES(
         start_unix=T0,
         duration_s=100,
         elevation_deg=45,
@@ -164,7 +166,7 @@ def test_turnaround_profile():
         speed_deg_s=2.0,
         turnaround_s=1.0,
     )
-    _, az, _, _ = ground.ces_samples(ces, ground.Schedule((ces,), sample_rate_hz=1000.0))
+    _, az, _, _ = pointing.ces_samples(ces, Schedule((ces,), sample_rate_hz=1000.0))
     offset = np.degrees(az) - 180
     assert np.isclose(offset.min(), -5 - 0.5, atol=1e-3) and np.isclose(
         offset.max(), 5.5, atol=1e-3
@@ -182,16 +184,16 @@ def test_schedule_files(tmp_path):
         "[[ces]]\nstart_unix = 1.79e9\nduration_s = 60\nelevation_deg = 45\n"
         "az_centre_deg = 180\naz_throw_deg = 20\n"
     )
-    sched = ground.load_schedule(str(tmp_path / "s.toml"))
+    sched = load_schedule(str(tmp_path / "s.toml"))
     assert sched.repeat_boresight_deg == (0.0, 90.0) and sched.n_samples == 600
-    psi = np.concatenate([c[2] for c in ground.pointing(sched)])
+    psi = np.concatenate([c[2] for c in pointing.pointing(sched)])
     assert np.allclose(psi[300:] - psi[:300], np.pi / 2)  # the repeat: same track, rotated
     (tmp_path / "s.csv").write_text(
         "start_unix,duration_s,elevation_deg,az_centre_deg,az_throw_deg\n1.79e9,60,45,180,20\n"
     )
-    assert ground.load_schedule(str(tmp_path / "s.csv")).ces[0].az_throw_deg == 20
+    assert load_schedule(str(tmp_path / "s.csv")).ces[0].az_throw_deg == 20
     with pytest.raises(ValueError, match="elevation_deg"):
-        ground.CES(start_unix=0, duration_s=1, elevation_deg=95, az_centre_deg=0, az_throw_deg=1)
+        CES(start_unix=0, duration_s=1, elevation_deg=95, az_centre_deg=0, az_throw_deg=1)
 
 
 def test_turnarounds_are_left_out_of_every_path_alike(tmp_path):
@@ -200,21 +202,21 @@ def test_turnarounds_are_left_out_of_every_path_alike(tmp_path):
     schedule keeps its frame and turnarounds through writing and reading."""
     from boresight import design
 
-    ces = ground.CES(T0, 300.0, 50.0, 180.0, 20.0, speed_deg_s=1.0, turnaround_s=4.0)
-    every = ground.Schedule((ces,), sample_rate_hz=10.0, frame="galactic")
+    ces = CES(T0, 300.0, 50.0, 180.0, 20.0, speed_deg_s=1.0, turnaround_s=4.0)
+    every = Schedule((ces,), sample_rate_hz=10.0, frame="galactic")
     kept = replace(every, turnarounds="exclude")
-    _, _, _, turning = ground.ces_samples(ces, every)
+    _, _, _, turning = pointing.ces_samples(ces, every)
     assert 0.1 < turning.mean() < 0.5  # 2 x 4 s of every 2 x (20 + 4) s
-    streamed = sum(chunk[0].size for chunk in ground.pointing(kept))
+    streamed = sum(chunk[0].size for chunk in pointing.pointing(kept))
     assert streamed == (~turning).sum() == scanstats.characterise_schedule(kept, 32).hits.sum()
     assert design.unit_moments(kept, 32).hits.sum() == streamed
     assert scanstats.characterise_schedule(every, 32).hits.sum() == turning.size
-    ground.write_schedule(kept, tmp_path / "k.toml", "toml")
-    back = ground.load_schedule(str(tmp_path / "k.toml"))
+    write_schedule(kept, tmp_path / "k.toml", "toml")
+    back = load_schedule(str(tmp_path / "k.toml"))
     assert (back.frame, back.turnarounds) == ("galactic", "exclude")
-    assert ground.load_schedule(str(tmp_path / "k.toml"), frame="icrs").frame == "icrs"
-    with pytest.raises(ground.ScheduleError, match="turnarounds"):
-        ground.load_schedule(str(tmp_path / "k.toml"), turnarounds="drop")
+    assert load_schedule(str(tmp_path / "k.toml"), frame="icrs").frame == "icrs"
+    with pytest.raises(ScheduleError, match="turnarounds"):
+        load_schedule(str(tmp_path / "k.toml"), turnarounds="drop")
 
 
 def test_compare_scans_cli(tmp_path):
@@ -247,7 +249,7 @@ def test_compare_scans_cli(tmp_path):
 
 def test_fused_schedule_characterisation_equals_streamed():
     sched = _night(rate=4).repeated([0, 90])
-    a = scanstats.characterise(ground.pointing(sched), 128)
+    a = scanstats.characterise(pointing.pointing(sched), 128)
     b = scanstats.characterise_schedule(sched, 128)
     assert np.array_equal(a.hits, b.hits)
     assert np.max(np.abs(a.h - b.h)) < 1e-12

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from boresight import cli, ground, interrupts
+from boresight import cli, interrupts
+from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 
 STUDY = """
 [sky]
@@ -70,10 +71,10 @@ def inputs(tmp_path_factory):
     (d / "study128.toml").write_text(STUDY.replace("nside = 16\nlmax = 47", "nside = 128\nlmax = 383"))
     (d / "budget.toml").write_text(BUDGET)
     (d / "sweep.toml").write_text(SWEEP)
-    base = ground.load_schedule("examples/schedule_deep_sat.toml")
-    ces = tuple(ground.CES(**{**c.__dict__, "duration_s": 240.0}) for c in base.ces[:6])
-    schedule = ground.Schedule(ces, base.site, 2.0, repeat_boresight_deg=(0.0, 90.0))
-    ground.write_schedule(schedule, d / "schedule.toml", "toml")
+    base = load_schedule("examples/schedule_deep_sat.toml")
+    ces = tuple(CES(**{**c.__dict__, "duration_s": 240.0}) for c in base.ces[:6])
+    schedule = Schedule(ces, base.site, 2.0, repeat_boresight_deg=(0.0, 90.0))
+    write_schedule(schedule, d / "schedule.toml", "toml")
     return d
 
 

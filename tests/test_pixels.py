@@ -2,7 +2,7 @@ import healpy as hp
 import numpy as np
 import pytest
 
-from boresight import pixels
+from boresight.kernels import pixels
 
 
 @pytest.mark.parametrize("nside", [1, 2, 8, 64])

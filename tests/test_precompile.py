@@ -8,22 +8,24 @@ import sys
 import pytest
 
 from boresight import precompile
+from boresight.schedule import Schedule, load_schedule
 
 JOBS = ("study", "design", "validation", "schedule-stats")
 
 EVERY_JOB_ON_REGISTERED_KERNELS = r"""
 import sys
 from pathlib import Path
-from boresight import ground, paper, precompile, studies
+from boresight import paper, precompile, studies
+from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 tmp = Path(sys.argv[1])
 asked = set()  # the kernels the jobs precompile
 real = precompile.precompile
 precompile.precompile = lambda names, *args, **kw: asked.update(names) or real(names, *args, **kw)
 paper.run_study(paper.preset(nside=16, lmax=47, seed=3))
 # two 2-minute CESs of the deep example at 1 Hz, and a gain + pointing budget at Nside 16
-base = ground.load_schedule("examples/schedule_deep_sat.toml")
-ces = tuple(ground.CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:2])
-ground.write_schedule(ground.Schedule(ces, base.site, 1.0), tmp / "s.toml", "toml")
+base = load_schedule("examples/schedule_deep_sat.toml")
+ces = tuple(CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:2])
+write_schedule(Schedule(ces, base.site, 1.0), tmp / "s.toml", "toml")
 (tmp / "b.toml").write_text(
     "[systematics]\ndg = [0.01, -0.01]\nrho_arcmin = 0.5\n"
     "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 60.0\n"
@@ -55,14 +57,14 @@ def test_a_schedule_in_integers_or_floats_calls_the_ces_kernels_at_one_signature
 
     import numba
 
-    from boresight import ground
+    from boresight import pointing
 
-    base = ground.load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule("examples/schedule_deep_sat.toml")
     as_int = [replace(c, start_unix=int(c.start_unix), turnaround_s=0) for c in base.ces[:2]]
     as_float = [replace(c, start_unix=c.start_unix + 0.5, turnaround_s=2.5) for c in base.ces[:2]]
     for ces, rate in ((as_int, 20), (as_float, 12.5)):
-        schedule = ground.Schedule(tuple(ces), base.site, rate)
-        for args in ground.chunk_arguments(schedule, chunk_samples=1 << 14):
+        schedule = Schedule(tuple(ces), base.site, rate)
+        for args in pointing.chunk_arguments(schedule, chunk_samples=1 << 14):
             types = tuple(numba.typeof(a) for a in args)
             assert types == precompile.KERNELS["_ces_pointing"].signature
             extra = (numba.int64, numba.int64, numba.bool_)

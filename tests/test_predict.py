@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from boresight.predict import windows
 from boresight import coupling, engine, masks, predict, sky, spectra
 from boresight.instrument import PAPER_GAIN, PAPER_POINTING, Systematics
 from boresight.scan import SyntheticScan, paper_scan
@@ -274,11 +275,11 @@ def test_legendre_means_match_numpy_and_ignore_threads():
     rng = np.random.default_rng(0)
     x = rng.uniform(-1, 1, (4, 4, 1000))
     w = rng.normal(size=x.shape)
-    got = predict._legendre_means(x, w, 200)
+    got = windows._legendre_means(x, w, 200)
     want = [np.sum(w * legendre.legval(x, np.eye(201)[ell])) / 1000 for ell in range(201)]
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.max(np.abs(want)))
     with numba_threads(1):
-        assert np.array_equal(predict._legendre_means(x, w, 200), got)
+        assert np.array_equal(windows._legendre_means(x, w, 200), got)
 
 
 def test_shared_moments_give_the_same_prediction(small_sky, theory):

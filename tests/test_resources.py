@@ -10,7 +10,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
 from bench_memory import command_args, measure  # noqa: E402
 
-from boresight import cli, ground, resources  # noqa: E402
+from boresight import cli, resources  # noqa: E402
+from boresight.schedule import CES, Schedule, write_schedule
 
 ROOT = Path(__file__).resolve().parent.parent
 FACTOR = 1.5  #: the estimate may be this much above or below the measured peak
@@ -62,10 +63,10 @@ def test_beam_analysis_grids_and_convolution_cubes_are_estimated(tmp_path):
 
 def _long_schedule(tmp_path, days):
     ces = tuple(
-        ground.CES(1.79e9 + 86400 * d, 86000.0, 50.0, 140.0, 30.0) for d in range(days)
+        CES(1.79e9 + 86400 * d, 86000.0, 50.0, 140.0, 30.0) for d in range(days)
     )
     path = tmp_path / "long.toml"
-    ground.write_schedule(ground.Schedule(ces, sample_rate_hz=1000.0), path, "toml")
+    write_schedule(Schedule(ces, sample_rate_hz=1000.0), path, "toml")
     return str(path)
 
 

@@ -1,6 +1,6 @@
 import numpy as np
 
-from boresight import rng
+from boresight.kernels import rng
 
 MASK64 = (1 << 64) - 1
 

@@ -13,7 +13,8 @@ import healpy as hp
 import numpy as np
 import pytest
 
-from boresight import engine, ground, io, sweep
+from boresight import engine, io, sweep
+from boresight.schedule import CES, Schedule, ScheduleError, Site, is_schedule, load_schedule, schedule_format, write_schedule
 from boresight.cli import main
 from boresight.config import ConfigError, parse_study
 from boresight.scan import SyntheticScan
@@ -407,8 +408,8 @@ def test_gpu_backend_without_cupy_is_a_config_error(tmp_path, capsys):
 def test_bad_csv_schedules_name_the_row(tmp_path, text, where):
     path = tmp_path / "s.csv"
     path.write_text(text)
-    with pytest.raises(ground.ScheduleError, match=where):
-        ground.load_schedule(path)
+    with pytest.raises(ScheduleError, match=where):
+        load_schedule(path)
 
 
 @pytest.mark.parametrize(
@@ -435,8 +436,8 @@ def test_bad_csv_schedules_name_the_row(tmp_path, text, where):
 def test_bad_toml_schedules_name_the_key(tmp_path, text, where):
     path = tmp_path / "s.toml"
     path.write_text(text)
-    with pytest.raises(ground.ScheduleError, match=where):
-        ground.load_schedule(path)
+    with pytest.raises(ScheduleError, match=where):
+        load_schedule(path)
 
 
 def test_sweep_file_errors_are_one_line(tmp_path, capsys, monkeypatch):
@@ -566,14 +567,14 @@ def test_writes_stay_inside_out(tmp_path, study_file):
 
 
 def _toast_text(tmp_path, name="in.txt", site="atacama", patch="deep"):
-    from boresight import toast_schedule
+    from boresight.schedule import toast
 
     def ces(patch):
-        return (ground.CES(1.79e9, 600.0, 50.0, 120.0, 20.0, 1.0, 0.0, 2.0, patch, 0, 0),)
+        return (CES(1.79e9, 600.0, 50.0, 120.0, 20.0, 1.0, 0.0, 2.0, patch, 0, 0),)
 
-    schedule = ground.Schedule(ces(patch), ground.Site(-22.96, -67.79, 5200.0, site, "sat"), 5.0)
+    schedule = Schedule(ces(patch), Site(-22.96, -67.79, 5200.0, site, "sat"), 5.0)
     path = tmp_path / name  # a clean TOAST file to export from
-    path.write_text(toast_schedule.text(ground.Schedule(ces("deep"), ground.Site(), 5.0)))
+    path.write_text(toast.text(Schedule(ces("deep"), Site(), 5.0)))
     return schedule, path
 
 
@@ -626,7 +627,7 @@ def test_export_refuses_names_toast_would_not_read_back(tmp_path, capsys, site, 
     schedule exported 2 rows and read back 1 with exit 0. Now it is refused, and writes nothing."""
     schedule, _ = _toast_text(tmp_path, site=site, patch=patch)
     src = tmp_path / "s.toml"
-    ground.write_schedule(schedule.repeated([0.0, 90.0]), src, "toml")
+    write_schedule(schedule.repeated([0.0, 90.0]), src, "toml")
     assert main(["-q", "export-schedule", str(src), str(tmp_path / "out.txt")]) == 2
     assert message in _error(capsys)
     assert not (tmp_path / "out.txt").exists()
@@ -634,13 +635,13 @@ def test_export_refuses_names_toast_would_not_read_back(tmp_path, capsys, site, 
 
 def test_every_exported_schedule_reads_back_whole(tmp_path):
     """Text and ECSV exports read back with every row, by boresight and by TOAST's own reader."""
-    from boresight import toast_schedule
+    from boresight.schedule import toast
 
     schedule, _ = _toast_text(tmp_path, site="Cerro Toco", patch="deep field-2")
     schedule = schedule.repeated([0.0, 45.0, 90.0])
     for name in ("out.txt", "out.ecsv"):
-        toast_schedule.write(schedule, tmp_path / name)
-        back = ground.load_schedule(str(tmp_path / name))
+        toast.write(schedule, tmp_path / name)
+        back = load_schedule(str(tmp_path / name))
         assert len(back.ces) == 3 and back.site.name == "Cerro Toco"
         assert [c.name for c in back.ces] == ["deep field-2"] * 3
         try:
@@ -659,17 +660,17 @@ def test_formats_are_told_apart_by_content_not_comments(tmp_path):
 
     study = tmp_path / "study.toml"
     study.write_text("# Site: Atacama, a study of the deep field\n" + STUDY)
-    assert not ground.is_schedule(str(study)) and load_study(str(study)).sky.nside == 16
+    assert not is_schedule(str(study)) and load_study(str(study)).sky.nside == 16
     schedule, toast_path = _toast_text(tmp_path)
     toml_schedule = tmp_path / "schedule.toml"
-    ground.write_schedule(schedule, toml_schedule, "toml")
+    write_schedule(schedule, toml_schedule, "toml")
     toml_schedule.write_text("# Site | Telescope | lat | lon | alt\n" + toml_schedule.read_text())
-    assert ground.schedule_format(str(toml_schedule)) == "toml"
-    assert ground.load_schedule(str(toml_schedule)).ces == schedule.ces
+    assert schedule_format(str(toml_schedule)) == "toml"
+    assert load_schedule(str(toml_schedule)).ces == schedule.ces
     bom = tmp_path / "bom.txt"
     bom.write_bytes(b"\xef\xbb\xbf" + toast_path.read_bytes())
-    assert ground.schedule_format(str(bom)) == "toast"
-    assert ground.load_schedule(str(bom)).ces == ground.load_schedule(str(toast_path)).ces
+    assert schedule_format(str(bom)) == "toast"
+    assert load_schedule(str(bom)).ces == load_schedule(str(toast_path)).ces
     study_bom = tmp_path / "study_bom.toml"
     study_bom.write_bytes(b"\xef\xbb\xbf" + STUDY.encode())
     assert load_study(str(study_bom)).sky.nside == 16
@@ -694,9 +695,9 @@ def _design(tmp_path, capsys, systematics, *extra):
     budget = tmp_path / "budget.toml"
     budget.write_text(BUDGET.format(systematics=systematics))
     schedule = tmp_path / "schedule.toml"
-    base = ground.load_schedule("examples/schedule_deep_sat.toml")
-    ces = tuple(ground.CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:4])
-    ground.write_schedule(ground.Schedule(ces, base.site, 1.0, repeat_boresight_deg=(0.0, 90.0)),
+    base = load_schedule("examples/schedule_deep_sat.toml")
+    ces = tuple(CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:4])
+    write_schedule(Schedule(ces, base.site, 1.0, repeat_boresight_deg=(0.0, 90.0)),
                           schedule, "toml")  # fmt: skip
     out = tmp_path / "d"
     code = main(["-q", "design", str(budget), str(schedule), "--out", str(out), *extra])
@@ -743,7 +744,7 @@ def test_budgets_of_angle_independent_systematics_design_and_validate(tmp_path, 
 def test_a_toast_row_at_an_impossible_elevation_says_why(tmp_path, capsys):
     """el = inf gave "math domain error"; el = 89.5 a refusal of "speed 114.6", a value the file
     does not hold (SimGround's 1 deg/s on the sky is 114.6 deg/s of the mount there)."""
-    from boresight import toast_schedule
+    from boresight.schedule import toast
 
     _, good = _toast_text(tmp_path)
     text = good.read_text().splitlines()
@@ -755,23 +756,23 @@ def test_a_toast_row_at_an_impossible_elevation_says_why(tmp_path, capsys):
         row[6] = el
         bad = tmp_path / f"el_{el}.txt"
         bad.write_text("\n".join([*text[:-1], " | ".join(row)]) + "\n")
-        with pytest.raises(ground.ScheduleError, match=re.escape(message)) as info:
-            toast_schedule.read(bad)
+        with pytest.raises(ScheduleError, match=re.escape(message)) as info:
+            toast.read(bad)
         assert f"{bad}, line {len(text)}" in str(info.value)
 
 
 def test_ecsv_units_and_passes_are_checked_by_column(tmp_path):
     """A wrong unit named neither the file nor the column; a fractional pass was cut short."""
-    from boresight import toast_schedule
+    from boresight.schedule import toast
 
     schedule, _ = _toast_text(tmp_path)
     path = tmp_path / "s.ecsv"
-    toast_schedule.write(schedule, path)
+    toast.write(schedule, path)
     text = path.read_text()
     wrong_unit = tmp_path / "unit.ecsv"
     wrong_unit.write_text(text.replace("{name: el, unit: deg", "{name: el, unit: m", 1))
-    with pytest.raises(ground.ScheduleError, match=rf"{wrong_unit}, column el: .*needs deg"):
-        toast_schedule.read(wrong_unit)
+    with pytest.raises(ScheduleError, match=rf"{wrong_unit}, column el: .*needs deg"):
+        toast.read(wrong_unit)
     fraction = tmp_path / "pass.ecsv"
     header = [line for line in text.splitlines() if line.startswith("#")]
     body = [line for line in text.splitlines() if not line.startswith("#")]
@@ -780,8 +781,8 @@ def test_ecsv_units_and_passes_are_checked_by_column(tmp_path):
     header = [h.replace("{name: scan_index, datatype: int64}", "{name: scan_index, datatype: "
                         "float64}") for h in header]  # fmt: skip
     fraction.write_text("\n".join(header + body) + "\n")
-    with pytest.raises(ground.ScheduleError, match=r"row 1: the pass 1.5 is not an integer"):
-        toast_schedule.read(fraction)
+    with pytest.raises(ScheduleError, match=r"row 1: the pass 1.5 is not an integer"):
+        toast.read(fraction)
 
 
 def test_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path, capsys):

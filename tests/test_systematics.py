@@ -9,6 +9,7 @@ import pytest
 from conftest import rel_max
 
 from boresight import config, coupling, engine, masks, predict, sky, spectra
+from boresight.schedule import CES, Schedule
 from boresight.instrument import Instrument, Spread, Systematics
 from boresight.scan import SyntheticScan
 
@@ -119,19 +120,19 @@ def test_jitter_on_a_schedule_is_white_with_the_predicted_variance(small_sky_unp
     """A schedule's samples draw their jitter keyed by (seed, index in the stream): |dP|^2 has
     mean sigma^2 <T^2> / N_samples per pixel as for synthetic hits (T read where each sample
     falls, averaged in its pixel), and the maps do not depend on the chunking."""
-    from boresight import ground
+    from boresight import pointing
 
     sigma = 0.02
     sky_ = small_sky_unpolarised
     ces = tuple(
-        ground.CES(1.79e9 + 3600 * i, 1800.0, 50.0, az, 40.0, 1.0, 45.0 * i)
+        CES(1.79e9 + 3600 * i, 1800.0, 50.0, az, 40.0, 1.0, 45.0 * i)
         for i, az in enumerate((130.0, 230.0, 135.0, 225.0))
     )
-    schedule = ground.Schedule(ces, sample_rate_hz=2.0)
+    schedule = Schedule(ces, sample_rate_hz=2.0)
     sysm = Systematics(dg_jitter=sigma, seed=4)
 
     def maps(chunk, systematics):
-        stream = ground.pointing(schedule, chunk_samples=chunk)
+        stream = pointing.pointing(schedule, chunk_samples=chunk)
         return engine.simulate_samples(sky_, stream, systematics=systematics)
 
     m, ref = maps(1 << 20, sysm), maps(1 << 20, Systematics())
@@ -140,7 +141,7 @@ def test_jitter_on_a_schedule_is_white_with_the_predicted_variance(small_sky_unp
     dp = (m.q - ref.q)[ok] + 1j * (m.u - ref.u)[ok]
     t2 = np.zeros(sky_.maps.shape[1])  # <T^2> over each pixel's samples
     counts = np.zeros_like(t2)
-    for theta, phi, _ in ground.pointing(schedule):
+    for theta, phi, _ in pointing.pointing(schedule):
         pix = hp.ang2pix(sky_.nside, theta, phi)
         t = hp.get_interp_val(sky_.maps[0], theta, phi)
         t2 += np.bincount(pix, t**2, t2.size)

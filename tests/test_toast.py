@@ -10,8 +10,10 @@ import healpy as hp
 import numpy as np
 import pytest
 
-from boresight import cli, ground, scanstats, so_maps, toast_schedule
-from boresight.toast_schedule import ScanMotion
+from boresight import cli, pointing, scanstats, so_maps
+from boresight.schedule import CES, Schedule, ScheduleError, Site, is_schedule, load_schedule, write_schedule
+from boresight.schedule import toast
+from boresight.schedule import ScanMotion
 
 SITE = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
 SITE += ["--site-lon", " -67.787", "--site-alt", "5200"]
@@ -56,7 +58,7 @@ def toast_files(tmp_path_factory):
 
 def test_every_toast_version_reads_to_the_same_schedule(toast_files):
     """Text versions 1-4 and ECSV, as TOAST's own tools write them, give identical CESs."""
-    read = {v: ground.load_schedule(str(p)) for v, p in toast_files.items()}
+    read = {v: load_schedule(str(p)) for v, p in toast_files.items()}
     first = read["v3"]
     assert len(first.ces) >= 10 and len({c.boresight_deg for c in first.ces}) >= 3
     assert (first.site.name, first.site.telescope, first.site.lat_deg) == (
@@ -80,12 +82,12 @@ def test_toast_reads_the_schedules_boresight_writes(toast_files, tmp_path):
     from astropy import units as u
     from toast.schedule import GroundSchedule
 
-    schedule = ground.load_schedule(str(toast_files["v3"])).repeated([0.0, 90.0])
+    schedule = load_schedule(str(toast_files["v3"])).repeated([0.0, 90.0])
     for name in ("out.txt", "out.ecsv"):
-        toast_schedule.write(schedule, tmp_path / name)
+        toast.write(schedule, tmp_path / name)
         theirs = GroundSchedule()
         theirs.read(str(tmp_path / name))
-        ours = toast_schedule.rows(schedule)
+        ours = toast.rows(schedule)
         assert len(theirs.scans) == len(ours) == 2 * len(schedule.ces)
         for scan, row in zip(theirs.scans, ours):
             assert scan.start.timestamp() == row["start"].timestamp()
@@ -152,7 +154,7 @@ def test_pointing_matches_toast_simground(toast_files, toast_sim):
     astropy path 20-37 arcsec), which boresight matches to 0.5 arcsec (test_ground). In the frame
     of date the positions are 0.13-0.15 deg away."""
     data, _, _, dut1 = toast_sim
-    ours = ground.load_schedule(str(toast_files["v3"]), ScanMotion(sample_rate_hz=RATE))
+    ours = load_schedule(str(toast_files["v3"]), ScanMotion(sample_rate_hz=RATE))
     ours = dataclasses.replace(ours, dut1_s=dut1)
     wrap = lambda x: (x + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
     assert len(data.obs) == len(ours.ces)
@@ -162,9 +164,9 @@ def test_pointing_matches_toast_simground(toast_files, toast_sim):
         i = [c.boresight_deg for c in ours.ces].index(angle)
         ob, ces = data.obs[i], ours.ces[i]
         for frame, near, far in (("icrs", 0.0, 50.0), ("cirs", 400.0, np.inf)):
-            one = ground.Schedule((ces,), ours.site, RATE, dut1_s=dut1, frame=frame)
-            t, az, _, _ = ground.ces_samples(ces, one)
-            theta, phi, psi = (np.concatenate(x) for x in zip(*ground.pointing(one)))
+            one = Schedule((ces,), ours.site, RATE, dut1_s=dut1, frame=frame)
+            t, az, _, _ = pointing.ces_samples(ces, one)
+            theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(one)))
             t_toast = np.asarray(ob.shared["times"])
             n = t.size
             assert t_toast.size == n  # int(rate T) samples in both codes
@@ -210,8 +212,8 @@ def test_so_maps_match_toast_hn_maps_in_j2000(toast_files, toast_sim, tmp_path):
     hits, theirs = _toast_hn(data, focalplane, 64)
     flags = ["--nside", "64", "--format", "so", "--prefix", "p", "--sample-rate", str(RATE)]
     path = tmp_path / "v3_2026.toml"  # the TOAST file with astropy's UT1 - UTC, as boresight's
-    schedule = ground.load_schedule(str(toast_files["v3"]), ScanMotion(sample_rate_hz=RATE))
-    ground.write_schedule(dataclasses.replace(schedule, dut1_s=dut1), path, "toml")
+    schedule = load_schedule(str(toast_files["v3"]), ScanMotion(sample_rate_hz=RATE))
+    write_schedule(dataclasses.replace(schedule, dut1_s=dut1), path, "toml")
     for frame, good in (("icrs", True), ("cirs", False)):
         out = tmp_path / frame
         args = ["-q", "scan-stats", str(path), "--out", str(out), *flags, "--frame", frame]
@@ -242,11 +244,11 @@ def test_turnarounds_match_toast_flags_and_can_be_left_out(toast_files, toast_si
     sample falls on an interval's edge), and ``--turnarounds exclude`` bins TOAST's unflagged
     samples: the hit maps of TOAST's map-making default."""
     data, sim, focalplane, dut1 = toast_sim
-    ours = ground.load_schedule(str(toast_files["v3"]), ScanMotion(sample_rate_hz=RATE))
+    ours = load_schedule(str(toast_files["v3"]), ScanMotion(sample_rate_hz=RATE))
     mismatched = total = turning = 0
     for ob, ces in zip(data.obs, ours.ces):
         flagged = (np.asarray(ob.shared["flags"]) & sim.turnaround_mask) != 0
-        _, _, _, ours_turning = ground.ces_samples(ces, ground.Schedule((ces,), ours.site, RATE))
+        _, _, _, ours_turning = pointing.ces_samples(ces, Schedule((ces,), ours.site, RATE))
         n = min(flagged.size, ours_turning.size)
         mismatched += int(np.sum(flagged[:n] != ours_turning[:n]))
         total, turning = total + n, turning + int(flagged.sum())
@@ -284,10 +286,10 @@ def test_a_fresh_toast_schedule_runs_end_to_end(toast_files, tmp_path):
 
 def _schedule():
     ces = (
-        ground.CES(9.466848e8 + 3000.5, 600.0, 50.0, 355.0, 20.0, 1.5, -45.0, 3.0, "field a", 2, 1),
-        ground.CES(9.466848e8 + 4000.0, 450.0, 60.0, 120.0, 10.0, 1.5, 30.0, 3.0, "b", 3, 0),
+        CES(9.466848e8 + 3000.5, 600.0, 50.0, 355.0, 20.0, 1.5, -45.0, 3.0, "field a", 2, 1),
+        CES(9.466848e8 + 4000.0, 450.0, 60.0, 120.0, 10.0, 1.5, 30.0, 3.0, "b", 3, 0),
     )
-    return ground.Schedule(ces, ground.Site(-22.9, -67.8, 5190.0, "chajnantor", "sat1"), 5.0)
+    return Schedule(ces, Site(-22.9, -67.8, 5190.0, "chajnantor", "sat1"), 5.0)
 
 
 @pytest.mark.parametrize("name", ["s.txt", "s.ecsv"])
@@ -295,10 +297,10 @@ def test_written_schedules_read_back_to_the_same_pointing(tmp_path, name):
     """boresight -> TOAST file -> boresight keeps every CES (the repeats as rows, the azimuth range
     across north kept whole) and so the pointing, with the motion supplied on reading."""
     schedule = _schedule().repeated([0.0, 90.0])
-    toast_schedule.write(schedule, tmp_path / name)
-    assert ground.is_schedule(str(tmp_path / name))
+    toast.write(schedule, tmp_path / name)
+    assert is_schedule(str(tmp_path / name))
     motion = ScanMotion(1.5, rate_on_sky=False, accel_deg_s2=1.0, sample_rate_hz=5.0)
-    back = ground.load_schedule(str(tmp_path / name), motion)
+    back = load_schedule(str(tmp_path / name), motion)
     assert len(back.ces) == 4 and back.repeat_boresight_deg == (0.0,) and back.site == schedule.site
     expanded = [
         (c, rep) for rep in schedule.repeat_boresight_deg for c in schedule.ces
@@ -310,8 +312,8 @@ def test_written_schedules_read_back_to_the_same_pointing(tmp_path, name):
         assert b.az_throw_deg == pytest.approx(c.az_throw_deg, abs=1e-8)
         assert b.az_centre_deg == pytest.approx(c.az_centre_deg, abs=1e-8)
         assert (b.speed_deg_s, b.turnaround_s) == (1.5, 3.0)
-    ours = np.concatenate([np.stack(x) for x in ground.pointing(schedule)], axis=1)
-    theirs = np.concatenate([np.stack(x) for x in ground.pointing(back)], axis=1)
+    ours = np.concatenate([np.stack(x) for x in pointing.pointing(schedule)], axis=1)
+    theirs = np.concatenate([np.stack(x) for x in pointing.pointing(back)], axis=1)
     assert ours.shape == theirs.shape
     assert np.max(np.abs(ours - theirs)) < 1e-9
 
@@ -322,20 +324,20 @@ def test_scan_motion_and_simground_settings():
     assert m.mount_speed(60.0) == pytest.approx(1.0, rel=1e-15)
     assert m.turnaround_s(60.0) == pytest.approx(1.0, rel=1e-15)
     assert ScanMotion(0.5, rate_on_sky=False).mount_speed(60.0) == 0.5
-    across_north = toast_schedule._ces(m, 0.0, 600.0, 0.0, "p", 350.0, 10.0, 50.0, 0, 0)
+    across_north = toast._ces(m, 0.0, 600.0, 0.0, "p", 350.0, 10.0, 50.0, 0, 0)
     assert (across_north.az_centre_deg, across_north.az_throw_deg) == (360.0, 20.0)
     ces = tuple(
-        toast_schedule._ces(m, 0.0, 600.0, 0.0, "p", 10.0, 40.0, el, 0, 0) for el in (40.0, 60.0)
+        toast._ces(m, 0.0, 600.0, 0.0, "p", 10.0, 40.0, el, 0, 0) for el in (40.0, 60.0)
     )
-    settings, notes = toast_schedule.simground_settings(ground.Schedule(ces))
+    settings, notes = toast.simground_settings(Schedule(ces))
     assert notes == []
     assert settings["fix_rate_on_sky"] is True
     assert settings["scan_rate_az"] == pytest.approx(0.5, rel=1e-12)
     assert settings["scan_accel_az"] == pytest.approx(2.0, rel=1e-12)
-    _, notes = toast_schedule.simground_settings(_schedule())
+    _, notes = toast.simground_settings(_schedule())
     assert notes == []  # equal mount speeds: the rate is the mount's
-    mixed = ground.Schedule((ces[0], ground.CES(0.0, 60.0, 50.0, 0.0, 10.0, 3.0)))
-    _, notes = toast_schedule.simground_settings(mixed)
+    mixed = Schedule((ces[0], CES(0.0, 60.0, 50.0, 0.0, 10.0, 3.0)))
+    _, notes = toast.simground_settings(mixed)
     assert any("different rates" in n for n in notes) and any("instantly" in n for n in notes)
 
 
@@ -362,8 +364,8 @@ def test_scan_motion_and_simground_settings():
 def test_bad_toast_schedules_name_the_line(tmp_path, text, message):
     path = tmp_path / "bad.txt"
     path.write_text(text)
-    with pytest.raises(ground.ScheduleError, match=message):
-        ground.load_schedule(str(path))
+    with pytest.raises(ScheduleError, match=message):
+        load_schedule(str(path))
 
 
 def test_so_layout_round_trip_and_convention(tmp_path):
@@ -372,11 +374,11 @@ def test_so_layout_round_trip_and_convention(tmp_path):
     exp(i n a) in SO's."""
     schedule = _schedule()
     schedule_path = tmp_path / "s.txt"
-    toast_schedule.write(schedule, schedule_path)
+    toast.write(schedule, schedule_path)
     out = tmp_path / "so"
     assert cli.main(["-q", "scan-stats", str(schedule_path), "--out", str(out), "--nside", "32",
                      "--format", "so", "--prefix", "p"]) == 0  # fmt: skip
-    stats = scanstats.characterise_schedule(ground.load_schedule(str(schedule_path)), 32)
+    stats = scanstats.characterise_schedule(load_schedule(str(schedule_path)), 32)
     seen = stats.observed
     hits = hp.read_map(out / "p_hits.fits")
     np.testing.assert_array_equal(hits, stats.hits)
@@ -397,7 +399,7 @@ def test_so_layout_round_trip_and_convention(tmp_path):
 
 def test_export_schedule_cli(tmp_path, capsys):
     src = tmp_path / "in.txt"
-    toast_schedule.write(_schedule(), src)
+    toast.write(_schedule(), src)
     out = tmp_path / "out.txt"
     assert cli.main(["export-schedule", str(src), str(out)]) == 0
     assert "SimGround(" in capsys.readouterr().out

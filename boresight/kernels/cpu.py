@@ -2,7 +2,7 @@
 
 Each kernel works on one chunk of pixels and runs in parallel over pixels (or hits); every random
 number comes from :mod:`boresight.rng` keyed by (seed, pixel, hit), so results do not depend on the
-chunking or the thread count. ``boresight.tod_gpu`` implements the same kernels for CuPy.
+chunking or the thread count. ``boresight.kernels.gpu`` implements the same kernels for CuPy.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .evaluation import pair_fields, sums_with_zero_qu
+from .fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import (
     JITTER_SALT,
@@ -22,7 +22,6 @@ from .rng import (
     pixel_key,
     uniform_from_key,
 )
-from .scan import hit_offsets
 
 __all__ = [
     "generate_hits",

@@ -39,9 +39,10 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from . import validation
-from .config import tomllib
-from .ground import CES, CES_LIMITS, Schedule, ScheduleError, Site
+from .. import validation
+from ..io import tomllib
+from ..validation import ScheduleError
+from .model import CES, CES_LIMITS, Schedule, Site
 
 #: field count of a text row -> (version, whether dates and times are split into two fields)
 TEXT_VERSIONS = {9: (4, False), 11: (3, True), 22: (2, False), 24: (1, True)}
@@ -161,13 +162,13 @@ def read(path: str | os.PathLike, motion: ScanMotion = ScanMotion()) -> Schedule
 
     Returns
     -------
-    boresight.ground.Schedule
+    boresight.schedule.Schedule
         One CES per row, in file order, with the patch name, pass and sub-pass as metadata and
         the site's and telescope's names on its site.
 
     Raises
     ------
-    boresight.ground.ScheduleError
+    boresight.schedule.ScheduleError
         Naming the file and line.
     """
     path = str(path)
@@ -360,7 +361,7 @@ def rows(schedule: Schedule) -> list[dict]:
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
 
     Returns
     -------
@@ -394,7 +395,7 @@ def text(schedule: Schedule) -> str:
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
 
     Returns
     -------
@@ -403,7 +404,7 @@ def text(schedule: Schedule) -> str:
 
     Raises
     ------
-    boresight.ground.ScheduleError
+    boresight.schedule.ScheduleError
         A name TOAST's readers would not read back (:func:`check_names`).
     """
     check_names(schedule)
@@ -430,11 +431,11 @@ def check_names(schedule: Schedule) -> None:
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
 
     Raises
     ------
-    boresight.ground.ScheduleError
+    boresight.schedule.ScheduleError
         Naming the site, the telescope or the CES (by its row in observing order).
     """
     s = schedule.site
@@ -459,10 +460,10 @@ def write(schedule: Schedule, path: str | os.PathLike) -> None:
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
     path : str or os.PathLike
     """
-    from .io import atomic_path, write_text
+    from ..io import atomic_path, write_text
 
     if not str(path).lower().endswith(".ecsv"):
         write_text(path, text(schedule))
@@ -498,7 +499,7 @@ def simground_settings(schedule: Schedule) -> tuple[dict, list[str]]:
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
 
     Returns
     -------
@@ -543,7 +544,7 @@ def simground_code(schedule: Schedule, schedule_file: str) -> str:
 
     Parameters
     ----------
-    schedule : boresight.ground.Schedule
+    schedule : boresight.schedule.Schedule
     schedule_file : str
         The TOAST schedule written for it.
 

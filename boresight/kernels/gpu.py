@@ -1,7 +1,7 @@
-"""The hot loop on an NVIDIA GPU: CuPy RawKernels with the same algorithms as ``tod_cpu``.
+"""The hot loop on an NVIDIA GPU: CuPy RawKernels with the same algorithms as ``kernels.cpu``.
 
-The CUDA source (tod_gpu.cu, package data) ports boresight.rng, boresight.pixels and
-boresight.tod_cpu line by line
+The CUDA source (gpu.cu, package data) ports boresight.kernels.rng, boresight.kernels.pixels
+and boresight.kernels.cpu line by line
 (same integer arithmetic for the counter-based random numbers), so CPU and GPU maps agree to the
 rounding of sin/cos/acos (tests/test_gpu.py: <= 1e-12 relative). Synthetic scans with an
 interpolated sky run as one fused kernel (bin_scan, 7e10 detector samples/s on an H100); the
@@ -28,7 +28,7 @@ except ImportError as err:  # pragma: no cover - exercised where CuPy is missing
 
 _THREADS = 256
 #: the CUDA kernels, shipped as package data beside this module
-SOURCE = (resources.files("boresight") / "tod_gpu.cu").read_text()
+SOURCE = (resources.files("boresight.kernels") / "gpu.cu").read_text()
 _module = None
 
 
@@ -136,7 +136,7 @@ def offset_points(
 def _offsets(rotations, pair_angles, rho, chi):
     """Device arrays (K, M) of rho cos and rho sin of rotation + pair angle + chi [rad]: detector
     B's offset before the hit's crossing angle turns it (angle addition, as in
-    tod_cpu.offset_points)."""
+    kernels.cpu.offset_points)."""
     beta = np.asarray(rotations)[:, None] + np.asarray(pair_angles)[None, :] + np.asarray(chi)
     rho = np.asarray(rho)
     return _d(rho * np.cos(beta)), _d(rho * np.sin(beta))

@@ -1,4 +1,4 @@
-"""The kernel backend contract: what the engine needs from ``tod_cpu`` (numba) and ``tod_gpu``
+"""The kernel backend contract: what the engine needs from ``kernels.cpu`` (numba) and ``kernels.gpu``
 (CuPy), and the one place that picks a backend by name.
 
 A backend is a module with the functions of :class:`KernelBackend`. The engine calls only these,
@@ -240,14 +240,14 @@ def get_backend(name: str) -> KernelBackend:
     Returns
     -------
     module
-        ``tod_cpu`` (numba) or ``tod_gpu`` (CuPy), each a :class:`KernelBackend`.
+        ``kernels.cpu`` (numba) or ``kernels.gpu`` (CuPy), each a :class:`KernelBackend`.
     """
     if name == "cpu":
-        from . import tod_cpu
+        from . import cpu
 
-        return tod_cpu
+        return cpu
     if name == "gpu":
-        from . import tod_gpu
+        from . import gpu
 
-        return tod_gpu
+        return gpu
     raise ValueError(f"backend must be one of {BACKENDS}, got {name!r}")

@@ -1,0 +1,268 @@
+"""Pointing of real scans: the sky direction and crossing angle of every sample of a schedule.
+
+The Earth turns between and during CESs. Each sample's direction is rotated from the horizon to
+the apparent equatorial frame of date (CIRS, from the Earth Rotation Angle with UT1 = UTC + dut1),
+then to the schedule's frame, ICRS by default (:mod:`boresight.frames`: aberration and
+precession-nutation, 0.15 deg in 2026). Refraction and polar motion are left out (below 0.5
+arcsec). A schedule may leave out the samples of its turnarounds, as TOAST's map-making does by
+default; it keeps them by default.
+
+The crossing angle psi of a sample is the orientation on the sky of the focal plane's "up" axis
+(towards the zenith at zero boresight rotation), measured from e_theta towards e_phi of the
+schedule's frame like the synthetic scans' psi, plus the boresight angle: in CIRS,
+psi = pi - q + boresight, with q the parallactic angle (position angle of the zenith, east of
+north). The fused numba kernels compute it per sample without a stored TOD.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numba
+import numpy as np
+
+from . import frames
+from .constants import DEG
+from .frames import to_frame
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    from .schedule import Schedule
+
+UNIX_EPOCH_JD = frames.UNIX_EPOCH_JD
+
+
+@numba.njit(inline="always")
+def earth_rotation_angle(jd_ut1):
+    """Earth Rotation Angle (IERS 2003), not reduced to [0, 2 pi).
+
+    Parameters
+    ----------
+    jd_ut1 : float
+        UT1 Julian date.
+
+    Returns
+    -------
+    float
+        [rad].
+    """
+    return (
+        2 * np.pi * ((jd_ut1 % 1.0) + 0.7790572732640 + 0.00273781191135448 * (jd_ut1 - 2451545.0))
+    )
+
+
+@numba.njit(inline="always")
+def horizon_terms(az, se, ce, sl, cl):
+    """The rotation from horizon to equatorial coordinates of one direction.
+
+    Parameters
+    ----------
+    az : float
+        Azimuth east of north [rad].
+    se, ce : float
+        sin and cos of the elevation.
+    sl, cl : float
+        sin and cos of the latitude.
+
+    Returns
+    -------
+    sd, y, x : float
+        sin(dec), cos(dec) sin(H) and cos(dec) cos(H), H the hour angle.
+    """
+    sa, ca = np.sin(az), np.cos(az)
+    sd = min(1.0, max(-1.0, sl * se + cl * ce * ca))
+    return sd, -sa * ce, cl * se - sl * ce * ca
+
+
+@numba.njit(inline="always")
+def _scan_offset(t, throw, speed, turnaround):
+    """Azimuth offset from the CES centre [rad] at time t [s] (throw [rad], speed [rad/s]), and
+    whether the mount is turning around (outside the throw, as TOAST's turnaround intervals)."""
+    leg = throw / speed
+    u = t % (2 * (leg + turnaround))
+    if u < leg:
+        return -0.5 * throw + speed * u, False
+    u -= leg
+    if u < turnaround:
+        return 0.5 * throw + speed * u - speed * u * u / turnaround, True
+    u -= turnaround
+    if u < leg:
+        return 0.5 * throw - speed * u, False
+    u -= leg
+    return -0.5 * throw - speed * u + speed * u * u / turnaround, True
+
+
+@numba.njit(cache=True)
+def _scan_offsets(t, throw, speed, turnaround):
+    out = np.empty(t.size)
+    turning = np.empty(t.size, dtype=np.bool_)
+    for i in range(t.size):
+        out[i], turning[i] = _scan_offset(t[i], throw, speed, turnaround)
+    return out, turning
+
+
+def ces_samples(ces, schedule, start=0, stop=None):
+    """Times and horizon pointing of samples of a CES.
+
+    Parameters
+    ----------
+    ces : CES
+    schedule : Schedule
+        Its sample rate.
+    start, stop : int
+        Sample range (default: the whole CES).
+
+    Returns
+    -------
+    t : numpy.ndarray
+        [unix s].
+    az, el : numpy.ndarray
+        [rad].
+    turning : numpy.ndarray of bool
+        Whether the mount is turning around (TOAST's turnaround intervals).
+    """
+    n = int(ces.duration_s * schedule.sample_rate_hz)
+    stop = n if stop is None else min(stop, n)
+    t = np.arange(start, stop) / schedule.sample_rate_hz
+    offset, turning = _scan_offsets(
+        t, max(ces.az_throw_deg, 1e-12) * DEG, ces.speed_deg_s * DEG, ces.turnaround_s
+    )
+    az = ces.az_centre_deg * DEG + offset
+    return ces.start_unix + t, az, np.full(t.size, ces.elevation_deg * DEG), turning
+
+
+@numba.njit(inline="always")
+def sample_pointing(k, chunk, terms):
+    """One sample of a CES in the frame of ``terms``.
+
+    Parameters
+    ----------
+    k : int
+        The sample's index in its CES.
+    chunk : numpy.ndarray, shape (N_CHUNK,)
+        The CES's scalars (:func:`chunk_arguments`).
+    terms : numpy.ndarray, shape (frames.N_TERMS,)
+        The frame's rotation and velocities (:func:`boresight.frames.frame_terms`).
+
+    Returns
+    -------
+    z, r, phi : float
+        cos(theta), sin(theta) and longitude [rad] of the direction.
+    c, s : float
+        cos and sin of the crossing angle at boresight angle 0: the direction of the zenith,
+        measured from e_theta towards e_phi.
+    turning : bool
+        Whether the mount is turning around.
+    """
+    t = k / chunk[1]
+    offset, turning = _scan_offset(t, max(chunk[3], 1e-300), chunk[4], chunk[5])
+    era = earth_rotation_angle((chunk[0] + t) / 86400.0 + chunk[7]) + chunk[8]
+    sl, cl = np.sin(chunk[9]), np.cos(chunk[9])
+    sd, y, x = horizon_terms(chunk[2] + offset, np.sin(chunk[6]), np.cos(chunk[6]), sl, cl)
+    c_era, s_era = np.cos(era), np.sin(era)
+    dx, dy = c_era * x + s_era * y, s_era * x - c_era * y  # CIRS: RA = local ERA - H
+    zx, zy, zz = cl * c_era, cl * s_era, sl  # the site's zenith
+    dot = zx * dx + zy * dy + zz * sd
+    z, r, phi, c, s = to_frame(
+        dx, dy, sd, zx - dot * dx, zy - dot * dy, zz - dot * sd, c_era, s_era, terms
+    )
+    return z, r, phi, c, s, turning
+
+
+@numba.njit(parallel=True, cache=True)
+def _ces_pointing(k0, n, chunk, terms):
+    """theta, phi, psi [rad] and the turnaround flag of samples k0..k0+n-1 of a CES
+    (:func:`sample_pointing`), psi with the CES's boresight angle."""
+    theta = np.empty(n)
+    phi = np.empty(n)
+    psi = np.empty(n)
+    turning = np.empty(n, dtype=np.bool_)
+    boresight = chunk[10]
+    for i in numba.prange(n):
+        z, r, phi[i], c, s, turning[i] = sample_pointing(k0 + i, chunk, terms)
+        theta[i] = np.arctan2(r, z)
+        psi[i] = np.arctan2(s, c) + boresight
+    return theta, phi, psi, turning
+
+
+#: the scalars of a CES chunk: start [unix s], rate [Hz], azimuth centre, throw [rad], speed
+#: [rad/s], turnaround [s], elevation [rad], UT1 Julian date of the Unix epoch, longitude, latitude,
+#: boresight angle [rad]
+N_CHUNK = 11
+
+
+def chunk_arguments(schedule, chunk_samples=1 << 20):
+    """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time order,
+    once per boresight repeat.
+
+    A chunk holds at most ``chunk_samples`` samples and lies in one block of
+    :data:`boresight.frames.CHUNK_SECONDS` of its CES (counted from the CES's start), over which
+    the frame's rotation is one, evaluated at the block's middle: so the pointing does not depend
+    on ``chunk_samples``.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    chunk_samples : int
+
+    Yields
+    ------
+    tuple
+        (first sample, samples: int; the CES's scalars, (:data:`N_CHUNK`,) float64; the frame's
+        terms at the chunk's middle, (frames.N_TERMS,) float64).
+    """
+    lat, lon = schedule.site.lat_deg * DEG, schedule.site.lon_deg * DEG
+    jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
+    rate = schedule.sample_rate_hz
+    block = max(1, int(frames.CHUNK_SECONDS * rate))
+    for repeat in schedule.repeat_boresight_deg:
+        for c in schedule.ces:
+            n = int(c.duration_s * rate)
+            chunk = np.array(
+                [
+                    c.start_unix,
+                    rate,
+                    c.az_centre_deg * DEG,
+                    c.az_throw_deg * DEG,
+                    c.speed_deg_s * DEG,
+                    c.turnaround_s,
+                    c.elevation_deg * DEG,
+                    jd_offset,
+                    lon,
+                    lat,
+                    (c.boresight_deg + repeat) * DEG,
+                ],
+                dtype=np.float64,
+            )
+            starts = np.arange(0, n, block)
+            middles = c.start_unix + (starts + 0.5 * block) / rate
+            terms = frames.frame_terms(middles, schedule.site.lat_deg, schedule.frame)
+            for b, t in zip(starts, terms):
+                end = min(b + block, n)
+                for s in range(int(b), end, chunk_samples):
+                    yield s, min(chunk_samples, end - s), chunk, t
+
+
+def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple]:
+    """The pointing of a whole schedule, chunk by chunk, in the schedule's frame.
+
+    Samples in the turnarounds are left out where the schedule says so.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    chunk_samples : int
+
+    Yields
+    ------
+    theta, phi, psi : numpy.ndarray, shape (<= chunk_samples,)
+        Colatitude, longitude and crossing angle [rad] in ``schedule.frame``; the CES set in time
+        order, once per boresight repeat.
+    """
+    for args in chunk_arguments(schedule, chunk_samples):
+        theta, phi, psi, turning = _ces_pointing(*args)
+        if schedule.turnarounds == "exclude":
+            keep = ~turning
+            theta, phi, psi = theta[keep], phi[keep], psi[keep]
+        yield theta, phi, psi
