@@ -55,15 +55,16 @@ def cube_table(nsides):
 
 
 def cl_table(nside=512):
-    from boresight import coupling, engine, masks, predict, sky, spectra
+    from boresight import coupling, engine, masks, predict, spectra
     from boresight.cosmology import load_spectra
     from boresight.instrument import Systematics
     from boresight.scan import paper_scan
+    from boresight.sky import SkyConfig, make_sky
 
     theory = load_spectra()
     lmax = 2 * nside
-    cfg = sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=7.0, seed=1)
-    the_sky = sky.make_sky(cfg, theory)
+    cfg = SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=7.0, seed=1)
+    sky = make_sky(cfg, theory)
     edges = spectra.linear_bins(40, lmax, 32)
     cases = {
         "width, FWHM_B + 0.5'": Systematics(dfwhm_b_arcmin=0.5),
@@ -76,24 +77,16 @@ def cl_table(nside=512):
         mask = masks.survey_mask(survey, nside)
         obs = mask > 0
         scan = paper_scan(survey)
-        ref = engine.simulate(the_sky, scan, pixels=obs)
+        ref = engine.simulate(sky, scan, pixels=obs)
         h, crossings = engine.scan_moments(scan.one_repeat(), nside, predict.BEAM_N_MAX, pixels=obs)
         couplings = coupling.mask_coupling(mask, lmax)
-        local = predict.local_cl(the_sky, mask, lmax, beams=True)
+        local = predict.local_cl(sky, mask, lmax, beams=True)
+        prediction = predict.Prediction(theory, couplings, cfg.fwhm_arcmin, local, leaked=True)
         for name, sysm in cases.items():
-            sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
+            sim = engine.simulate(sky, scan, systematics=sysm, pixels=obs)
             auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1]
             pred = predict.residual_pseudo_bb(
-                h,
-                mask,
-                couplings,
-                sysm,
-                theory,
-                cfg.fwhm_arcmin,
-                field_cl=local,
-                crossings=crossings,
-                leaked=True,
-                in_pixel="random",
+                h, mask, prediction, sysm, crossings=crossings, in_pixel="random"
             )
             centres, p = spectra.bin_spectrum(pred, edges)
             ratio = p / spectra.bin_spectrum(auto, edges)[1]

@@ -16,9 +16,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from boresight import cosmology, design, studies
-from boresight.schedule import load_schedule
+from boresight import cosmology, design
+from boresight.commands import design as design_command
 from boresight.instrument import Systematics
+from boresight.schedule import load_schedule
 
 
 def big_schedule():
@@ -60,11 +61,10 @@ def objective_costs(nside):
 
 def worked_example():
     with tempfile.TemporaryDirectory() as tmp:
-        result = studies.design_schedule(
+        result = design_command.run(
             "examples/budget_deep_sat.toml",
             "examples/schedule_deep_sat.toml",
             f"{tmp}/design",
-            log=lambda *a: None,
         )
     print(f"\nsigma(r) = {result['sigma_r']:.3g} (30 <= ell <= 300)\n")
     print("| strategy | predicted delta_r | delta_r / sigma(r) | angle changes |")

@@ -16,9 +16,10 @@ import time
 import cupy as cp
 import numpy as np
 
-from boresight import engine, instrument, sky
+from boresight import engine, instrument
 from boresight.kernels import gpu
 from boresight.scan import SyntheticScan
+from boresight.sky import SkyConfig, make_sky
 
 CASES = {
     "deep + gain": (
@@ -32,13 +33,13 @@ CASES = {
 }
 
 
-def core(the_sky, scan, systematics):
+def core(sky, scan, systematics):
     """Seconds of bin_scan over the full sky (inputs already on the GPU) and its sample count.
 
     The kernel gets the arguments the engine gives it (its binner's per-pair parameters)."""
-    nside, npix = the_sky.nside, 12 * the_sky.nside**2
+    nside, npix = sky.nside, 12 * sky.nside**2
     inst = instrument.Instrument()
-    b = engine._Binner(the_sky, inst, systematics, scan.rotations_rad, "interp", None, 0, "gpu")
+    b = engine._Binner(sky, inst, systematics, scan.rotations_rad, "interp", None, 0, "gpu")
     n_phi, rng, centre = scan.per_pixel(np.arange(npix), npix)
     args = [cp.arange(npix, dtype=cp.int64), cp.asarray(n_phi), cp.asarray(rng), cp.asarray(centre)]
     start, stop = cp.cuda.Event(), cp.cuda.Event()
@@ -73,13 +74,13 @@ def main(nsides):
         f"{'simulate s':>11}"
     )
     for nside in nsides:
-        the_sky = sky.make_sky(sky.SkyConfig(nside=nside, lmax=min(3 * nside - 1, 4000), seed=1))
+        sky = make_sky(SkyConfig(nside=nside, lmax=min(3 * nside - 1, 4000), seed=1))
         for name, (scan, systematics) in CASES.items():
-            core(the_sky, scan, systematics)  # compile and warm up
-            t_core, samples = min(core(the_sky, scan, systematics) for _ in range(3))
+            core(sky, scan, systematics)  # compile and warm up
+            t_core, samples = min(core(sky, scan, systematics) for _ in range(3))
             nbytes = 12 * nside**2 * (32 + 24 + 40)
             t0 = time.perf_counter()
-            engine.simulate(the_sky, scan, systematics=systematics, backend="gpu")
+            engine.simulate(sky, scan, systematics=systematics, backend="gpu")
             t_sim = time.perf_counter() - t0
             print(
                 f"{name:<16} {nside:>6} {t_core:>8.4f} {samples / t_core:>14.3e} "

@@ -29,8 +29,12 @@ EXAMPLES = ROOT / "examples"
 def study_file(directory, nside, systematics="dg = [0.01, -0.01]", fwhm=7.0):
     """The deep gain example at one Nside: lmax 3 Nside - 1, spectra to 2 Nside."""
     text = (EXAMPLES / "gain_deep.toml").read_text()
-    text = text.replace("nside = 256", f"nside = {nside}").replace("lmax = 767", f"lmax = {3 * nside - 1}")
-    text = text.replace("lmax = 512", f"lmax = {2 * nside}").replace("dg = [0.01, -0.01]", systematics)
+    text = text.replace("nside = 256", f"nside = {nside}").replace(
+        "lmax = 767", f"lmax = {3 * nside - 1}"
+    )
+    text = text.replace("lmax = 512", f"lmax = {2 * nside}").replace(
+        "dg = [0.01, -0.01]", systematics
+    )
     text = text.replace("fwhm_arcmin = 7.0", f"fwhm_arcmin = {fwhm}")
     path = Path(directory) / f"study_{nside}_{abs(hash((systematics, fwhm)))}.toml"
     path.write_text(text)
@@ -38,7 +42,9 @@ def study_file(directory, nside, systematics="dg = [0.01, -0.01]", fwhm=7.0):
 
 
 def budget_file(directory, nside):
-    text = (EXAMPLES / "budget_deep_sat.toml").read_text().replace("nside = 128", f"nside = {nside}")
+    text = (
+        (EXAMPLES / "budget_deep_sat.toml").read_text().replace("nside = 128", f"nside = {nside}")
+    )
     path = Path(directory) / f"budget_{nside}.toml"
     path.write_text(text)
     return str(path)

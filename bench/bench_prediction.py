@@ -18,9 +18,10 @@ import sys
 
 import numpy as np
 
-from boresight import coupling, masks, predict, residual, sky, spectra, suppression
+from boresight import coupling, masks, predict, residual, spectra, suppression
 from boresight.cosmology import load_spectra
 from boresight.scan import paper_scan
+from boresight.sky import SkyConfig, make_sky
 
 HIT_SEEDS = (0, 1, 2, 3)
 
@@ -28,8 +29,8 @@ HIT_SEEDS = (0, 1, 2, 3)
 def main(nside):
     theory = load_spectra()
     lmax = 2 * nside
-    cfg = sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=7.0, seed=1)
-    the_sky = sky.make_sky(cfg, theory)
+    cfg = SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=7.0, seed=1)
+    sky = make_sky(cfg, theory)
     edges = spectra.linear_bins(40, lmax, 32)
     print(f"Predicted / simulated leaked power, Nside {nside}, no rotation, bands of 32 from 40:")
     print("| survey | systematic | min | max | every band within 10 % | one draw: min, max |")
@@ -37,21 +38,21 @@ def main(nside):
     for survey in ("deep", "wide"):
         mask = masks.survey_mask(survey, nside)
         couplings = coupling.mask_coupling(mask, lmax)
-        local = predict.local_cl(the_sky, mask, lmax, beams=True)
-        prediction = residual.Prediction(theory, couplings, cfg.fwhm_arcmin, local, leaked=True)
+        local = predict.local_cl(sky, mask, lmax, beams=True)
+        prediction = predict.Prediction(theory, couplings, cfg.fwhm_arcmin, local, leaked=True)
         sims = {entry.name: [] for entry in suppression.CATALOGUE}
         predicted = {}
         for seed in HIT_SEEDS:
             scan = paper_scan(survey, seed=seed)
-            ref, _ = residual.reference(the_sky, scan, mask, lmax)
+            ref, _ = residual.simulate_reference(sky, scan, mask, lmax)
             for entry in suppression.CATALOGUE:
                 job = residual.residual(
-                    the_sky,
+                    sky,
                     scan,
                     entry.for_repeats(1),
                     mask,
                     lmax,
-                    reference_=ref,
+                    reference=ref,
                     prediction=prediction,
                 )
                 sims[entry.name].append(spectra.bin_spectrum(job.auto, edges)[1])

@@ -10,7 +10,8 @@ import sys
 import tempfile
 import time
 
-from boresight import paper, studies
+from boresight import paper
+from boresight.commands import reproduce
 from boresight.config import RunOptions
 
 
@@ -18,7 +19,7 @@ def main(nside, lmax, backend):
     study = paper.preset(nside=nside, lmax=lmax, run=RunOptions(backend=backend))
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        claims = studies.reproduce(f"{tmp}/out", study, log=lambda msg: None)
+        claims = reproduce.run(f"{tmp}/out", study)
         total = time.perf_counter() - t0
         with open(f"{tmp}/out/manifest.json") as f:
             stages = json.load(f)

@@ -37,7 +37,7 @@ def ducc0_rows(nside, lmax, maps):
     geom = harmonics.healpix_geometry(nside)
     for spin, m in ((0, maps[:1]), (2, maps[1:])):
         t, _ = timed(
-            lambda: ducc0.sht.adjoint_synthesis(
+            lambda m=m, spin=spin: ducc0.sht.adjoint_synthesis(
                 map=m, lmax=lmax, spin=spin, nthreads=os.cpu_count(), **geom
             )
         )
@@ -51,7 +51,10 @@ def ducc0_rows(nside, lmax, maps):
     _row("  4 maps per call, per map", 2, np.nan, t / 4)
     for label, analysis in (("ring weights", "ring_weights"), ("3 iterations", "jacobi")):
         t, _ = timed(
-            lambda a=analysis: harmonics.map2alm(maps[1:], lmax, 2, a, nthreads=os.cpu_count()), 1
+            lambda a=analysis: harmonics.map2alm(
+                maps[1:], lmax, spin=2, analysis=a, nthreads=os.cpu_count()
+            ),
+            1,
         )
         _row(f"  map2alm, {label}", 2, np.nan, t)
 
@@ -75,7 +78,10 @@ def ring_subset_rows(nside, lmax, maps):
             1,
         )
         subset, _ = timed(
-            lambda m=masked: harmonics.map2alm(m, lmax, 2, "ring_weights", nthreads=0), 1
+            lambda m=masked: harmonics.map2alm(
+                m, lmax, spin=2, analysis="ring_weights", nthreads=0
+            ),
+            1,
         )
         print(f"{survey:<6} {share:>16.2f} {every:>12.2f} {subset:>10.2f}", flush=True)
 

@@ -14,21 +14,22 @@ import resource
 import sys
 import time
 
-from boresight import engine, masks, sky, suppression
+from boresight import engine, masks, suppression
 from boresight.instrument import Systematics
 from boresight.scan import paper_scan
+from boresight.sky import SkyConfig, make_sky
 
 
-def per_systematic(the_sky):
-    obs = masks.survey_mask("deep", the_sky.nside) > 0
+def per_systematic(sky):
+    obs = masks.survey_mask("deep", sky.nside) > 0
     scan = paper_scan("deep", 90.0)
     rows = []
     for name, sysm in [("none", Systematics())] + [
         (e.name, e.for_repeats(2)) for e in suppression.CATALOGUE
     ]:
-        engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)  # compile, warm caches
+        engine.simulate(sky, scan, systematics=sysm, pixels=obs)  # compile, warm caches
         t0 = time.perf_counter()
-        engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
+        engine.simulate(sky, scan, systematics=sysm, pixels=obs)
         rows.append((name, time.perf_counter() - t0))
     return rows, int(obs.sum())
 
@@ -38,14 +39,14 @@ def main(nsides):
     print("|---|---|---|---|")
     whole = []
     for nside in nsides:
-        cfg = sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=30.0)
-        the_sky = sky.make_sky(cfg)
-        rows, npix = per_systematic(the_sky)
+        cfg = SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=30.0)
+        sky = make_sky(cfg)
+        rows, npix = per_systematic(sky)
         base = rows[0][1]
         for name, t in rows:
             print(f"| {nside} | {name} | {t:.2f} | {t / base:.2f} |")
         t0 = time.perf_counter()
-        result = suppression.run(sky.make_sky(cfg), log=lambda *a: None)
+        result = suppression.run(make_sky(cfg))
         whole.append((nside, npix, time.perf_counter() - t0))
         table = suppression.markdown(suppression.table(result, nside))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20

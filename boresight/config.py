@@ -18,22 +18,22 @@ import importlib.util
 import os
 from dataclasses import dataclass, replace
 
+import healpy as hp
 import numpy as np
 
 from . import io, validation
-from .io import toml_text, tomllib
-from .kernels import BACKENDS
 from .beams import pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS
 from .harmonics import ANALYSES
 from .instrument import Instrument, Spread, Systematics, response
+from .io import toml_text, tomllib
+from .kernels import BACKENDS
 from .masks import SURVEYS
 from .scan import SyntheticScan
-from .sky import SkyConfig
+from .sky import Sky, SkyConfig, make_sky
 from .threads import check_threads
 from .validation import ConfigError, option
-
 
 
 def check_backend(name, backend):
@@ -284,6 +284,24 @@ class Study:
         """The files the study reads (an output directory may not hold them)."""
         return [f for f in (self.source, self.sky_maps, self.leak_template, self.mask.file) if f]
 
+    def load_sky(self) -> Sky:
+        """The study's sky: the seeded realisation of [sky], or the I, Q, U maps of its sky.maps
+        file (alm computed)."""
+        if self.sky_maps is None:
+            return make_sky(self.sky, nthreads=self.run.nthreads)
+        maps = hp.read_map(self.sky_maps, field=(0, 1, 2))
+        return Sky.from_maps(
+            maps,
+            lmax=self.sky.lmax,
+            fwhm_arcmin=self.sky.fwhm_arcmin,
+            nthreads=self.run.nthreads,
+        )
+
+    def load_leak_template(self) -> np.ndarray | None:
+        """The (npix,) map of systematics.leak_template [muK], or None: the leak scales the
+        sky's I."""
+        return None if self.leak_template is None else hp.read_map(self.leak_template)
+
 
 def add_flags(parser, cls, names=None, paper_defaults=False):
     """Add ``--name`` flags for fields of a section dataclass.
@@ -315,7 +333,9 @@ def add_flags(parser, cls, names=None, paper_defaults=False):
             + (
                 " (default: the paper's)"
                 if paper_defaults
-                else f" (default {f.default})" if f.default is not None else ""
+                else f" (default {f.default})"
+                if f.default is not None
+                else ""
             ),
         )
 

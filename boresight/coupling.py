@@ -159,7 +159,9 @@ def mask_spectrum(mask: np.ndarray, lmax: int, nthreads: int = 0) -> np.ndarray:
     """Pseudo power spectrum W_L (lmax + 1,) of the mask (iteration-free, as NaMaster);
     parameters as :func:`mask_coupling`.
     """
-    return harmonics.alm2cl(harmonics.map2alm(mask, lmax, 0, "jacobi", 0, nthreads))
+    return harmonics.alm2cl(
+        harmonics.map2alm(mask, lmax, spin=0, analysis="jacobi", iterations=0, nthreads=nthreads)
+    )
 
 
 def mask_coupling(

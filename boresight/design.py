@@ -34,10 +34,10 @@ import numpy as np
 
 from . import coupling, interrupts, predict, validation
 from .constants import DEG
-from .pointing import chunk_arguments
-from .schedule import Schedule
 from .instrument import AMPLITUDES, Instrument, _nonzero
+from .pointing import chunk_arguments
 from .scanstats import N_MAX, ces_hits
+from .schedule import Schedule
 from .validation import option
 
 if TYPE_CHECKING:
@@ -343,8 +343,9 @@ class Objective:
 def objective(
     moments: UnitMoments,
     systematics: Systematics,
-    spectra: Spectra,
+    theory: Spectra,
     fwhm_arcmin: float,
+    *,
     change_cost: float = 0.0,
     nthreads: int = 0,
     instrument: Instrument | None = None,
@@ -363,7 +364,7 @@ def objective(
     ----------
     moments : UnitMoments
     systematics : boresight.instrument.Systematics
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
     change_cost : float
     nthreads : int
@@ -377,14 +378,14 @@ def objective(
     nside = moments.nside
     lmax = 2 * nside
     couplings = coupling.mask_coupling(moments.mask, lmax, nthreads)
-    template = predict.tensor_template(couplings, spectra, fwhm_arcmin, nside)
+    template = predict.tensor_template(couplings, theory, fwhm_arcmin, nside)
 
     def bias(cl_e, cl_b):
         cl = np.array([cl_e, cl_b], dtype=float)
         cl[:, :2] = 0.0
         return predict.delta_r(couplings.pseudo_bb(cl[1], cl[0]), template)
 
-    cl_tt, cl_ee, cl_bb = predict.field_spectra(spectra, lmax, fwhm_arcmin)
+    cl_tt, cl_ee, cl_bb = predict.field_spectra(theory, lmax, fwhm_arcmin)
     ell = np.arange(lmax + 1)
     omega_pix = 4 * np.pi / (12 * nside**2)
     white_unit = bias(np.ones(lmax + 1), np.ones(lmax + 1))
@@ -395,9 +396,9 @@ def objective(
         power = predict.expected_power(systematics, instrument)
         coefs, t2_mean = predict.expected_coefficients(coefs, power), power.t2_mean
     leaked_const = 0.0
-    beam_cl = predict.beam_spectra(spectra, lmax, fwhm_arcmin)
+    beam_cl = predict.beam_spectra(theory, lmax, fwhm_arcmin)
     if systematics.has_beams:
-        beam = predict.beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, lmax, N_MAX)
+        beam = predict.beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, lmax, n_max=N_MAX)
         h0 = predict.beam_h0_bb(couplings, beam[0], beam_cl)
         leaked_const = predict.delta_r(h0, template)
     terms = predict.leak_terms(
@@ -467,6 +468,7 @@ def optimise(
     obj: Objective,
     allowed_deg: tuple,
     start_deg: np.ndarray,
+    *,
     sweeps: int = 8,
     seed: int = 0,
     progress: Callable | None = None,

@@ -14,14 +14,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from . import harmonics, interrupts
-from .kernels import get_backend
-from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS, SkyFields
 from .instrument import Instrument, Systematics, response
-from .mapmaking import RCOND_MIN, Maps, solve
+from .kernels import get_backend
+from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
+from .mapmaking import RCOND_MIN, Maps, solve
 from .sky import MAX_NSIDE
 from .threads import numba_threads
 
@@ -133,9 +133,8 @@ def simulate(
     nthreads: int = 0,
     backend: str = "cpu",
     rcond_min: float = RCOND_MIN,
-    zero_qu: bool = False,
     progress: bool = False,
-) -> Maps | tuple[Maps, Maps]:
+) -> Maps:
     """Simulate the pair-differenced TOD of a synthetic scan over a sky and make Q, U maps.
 
     Parameters
@@ -163,23 +162,78 @@ def simulate(
         Kernel backend (:mod:`boresight.backend`).
     rcond_min : float
         Pixels whose 2x2 system has a smaller reciprocal condition number are flagged invalid.
-    zero_qu : bool
-        Also the maps of the same hits over the sky with Q = U = 0 (the paper's check that a
-        residual comes from the polarised sky), in the same pass: the numbers of simulating
-        ``sky.without_polarisation()``. Not with detector beams.
     progress : bool
         Show a progress bar over chunks.
 
     Returns
     -------
-    boresight.mapmaking.Maps, or a pair of them with ``zero_qu`` (the sky's, Q = U = 0's)
+    boresight.mapmaking.Maps
         On ``pixels``: q, u [muK] (UNSEEN where invalid), hits (int) and rcond.
+    """
+    maps, _ = _simulate(
+        sky,
+        scan,
+        instrument,
+        systematics,
+        False,
+        pixels=pixels,
+        evaluation=evaluation,
+        leak_template=leak_template,
+        chunk_pixels=chunk_pixels,
+        nthreads=nthreads,
+        backend=backend,
+        rcond_min=rcond_min,
+        progress=progress,
+    )
+    return maps
+
+
+def simulate_with_zero_qu(
+    sky: Sky,
+    scan: SyntheticScan,
+    instrument: Instrument = Instrument(),
+    systematics: Systematics = Systematics(),
+    **options,
+) -> tuple[Maps, Maps]:
+    """:func:`simulate`, and the maps of the same hits over the sky with Q = U = 0, in one pass.
+
+    The second maps are the numbers of simulating ``sky.without_polarisation()`` (the paper's
+    check that a residual comes from the polarised sky); their hits and rcond are the first's.
+
+    Parameters
+    ----------
+    sky, scan, instrument, systematics, **options
+        As in :func:`simulate`.
+
+    Returns
+    -------
+    maps, zero_qu_maps : boresight.mapmaking.Maps
 
     Raises
     ------
     ValueError
-        ``zero_qu`` with detector beams, whose signal is the polarised sky's.
+        With detector beams, whose signal is the polarised sky's.
     """
+    return _simulate(sky, scan, instrument, systematics, True, **options)
+
+
+def _simulate(
+    sky,
+    scan,
+    instrument,
+    systematics,
+    zero_qu,
+    *,
+    pixels=None,
+    evaluation="interp",
+    leak_template=None,
+    chunk_pixels=None,
+    nthreads=0,
+    backend="cpu",
+    rcond_min=RCOND_MIN,
+    progress=False,
+):
+    """(the sky's maps, Q = U = 0's maps or None)."""
     if zero_qu and systematics.has_beams:
         raise ValueError(
             "zero_qu does not apply to detector beams (their signal is the polarised sky's): "
@@ -214,7 +268,7 @@ def simulate(
                 kernels, normal, instrument.n_pairs, rcond_min
             )
     maps = Maps(nside, pix, q, u, ncross, rcond)
-    return (maps, Maps(nside, pix, q0, u0, ncross, rcond)) if zero_qu else maps
+    return maps, Maps(nside, pix, q0, u0, ncross, rcond) if zero_qu else None
 
 
 def _maps_from(kernels, normal, n_pairs, rcond_min):
@@ -429,7 +483,7 @@ def _sky_fields(sky, systematics, template, evaluation, nthreads):
     if not np.isfinite(template).all():
         raise ValueError("leak_template contains NaN or infinite values")
     alm = (
-        harmonics.map2alm(template, sky.lmax, 0, "jacobi", nthreads=nthreads)
+        harmonics.map2alm(template, sky.lmax, spin=0, analysis="jacobi", nthreads=nthreads)
         if evaluation == "exact"
         else None
     )

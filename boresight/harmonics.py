@@ -142,7 +142,12 @@ def alm_lmax(nalm: int) -> int:
 
 
 def alm2map(
-    alm: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0, out: np.ndarray | None = None
+    alm: np.ndarray,
+    nside: int,
+    *,
+    spin: int = 0,
+    nthreads: int = 0,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Synthesis: alm -> RING map.
 
@@ -202,6 +207,7 @@ def alm2map_gradient(
 def map2alm(
     maps: np.ndarray,
     lmax: int,
+    *,
     spin: int = 0,
     analysis: str = "auto",
     iterations: int = 3,
@@ -332,6 +338,7 @@ def map2alm_pixels(
     pixels: np.ndarray,
     nside: int,
     lmax: int,
+    *,
     spin: int = 0,
     analysis: str = "auto",
     nthreads: int = 0,
@@ -365,7 +372,7 @@ def map2alm_pixels(
     if analysis != "ring_weights":
         maps = np.zeros((values.shape[0], 12 * nside**2))
         maps[:, pixels] = values
-        return map2alm(maps, lmax, spin, analysis, nthreads=nthreads)
+        return map2alm(maps, lmax, spin=spin, analysis=analysis, nthreads=nthreads)
     rings = _PackedRings(nside, pixels, values)
     alm = _single_pass(
         rings.pack(values),
@@ -380,7 +387,7 @@ def map2alm_pixels(
 
 
 def alm2map_pixels(
-    alm: np.ndarray, pixels: np.ndarray, nside: int, spin: int = 0, nthreads: int = 0
+    alm: np.ndarray, pixels: np.ndarray, nside: int, *, spin: int = 0, nthreads: int = 0
 ) -> np.ndarray:
     """:func:`alm2map` on some pixels only: the rings that hold them are synthesised into one
     packed array, so no full-sky map is made (at Nside 2048 the wide survey's Q, U take 0.37 GB
@@ -420,6 +427,7 @@ def evaluate(
     alm: np.ndarray,
     theta: np.ndarray,
     phi: np.ndarray,
+    *,
     spin: int = 0,
     epsilon: float = 1e-12,
     nthreads: int = 0,

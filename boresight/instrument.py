@@ -36,8 +36,8 @@ import numba
 import numpy as np
 
 from . import validation
-from .kernels import rng
 from .constants import ARCMIN, DEG
+from .kernels import rng
 from .validation import option
 
 MAX_ANGLE_DEG = 3600.0  #: angles beyond ten turns are input mistakes
@@ -79,7 +79,9 @@ UNITS = {
 }
 #: the per-pair parameters that set an amplitude (the others, chi_deg and the ellipticities'
 #: angles, only orient one)
-AMPLITUDES = tuple(k for k in LIMITS if k != "chi_deg" and "angle_a" not in k and "angle_b" not in k)
+AMPLITUDES = tuple(
+    k for k in LIMITS if k != "chi_deg" and "angle_a" not in k and "angle_b" not in k
+)
 #: the beam keys of each detector: FWHM change, ellipticity, major-axis angle
 BEAM_KEYS = {
     "a": ("dfwhm_a_arcmin", "ellipticity_a", "ellipticity_angle_a_deg"),

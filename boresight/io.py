@@ -27,7 +27,7 @@ except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
 from . import interrupts
-from .validation import OutputError
+from .validation import OutputError, OutputExistsError
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator, Sequence
@@ -60,7 +60,9 @@ def _refuse_special(path: Path) -> None:
     """OutputError for an existing path that is not a regular file (a FIFO, a device, a socket):
     renaming a file onto it would replace it."""
     if path.exists() and not path.is_file():
-        raise OutputError(f"{path} exists and is not a regular file (a FIFO or device?); not replacing it")
+        raise OutputError(
+            f"{path} exists and is not a regular file (a FIFO or device?); not replacing it"
+        )
 
 
 @contextlib.contextmanager
@@ -116,6 +118,7 @@ def write_maps(
     maps: np.ndarray,
     names: Sequence[str],
     units: Sequence[str],
+    *,
     comments: Sequence[str] = (),
     frame: str = "icrs",
 ) -> None:
@@ -355,12 +358,12 @@ def check_output_dir(path: str | os.PathLike, force: bool, inputs: Iterable[str]
 
     Raises
     ------
-    OutputError, FileExistsError
+    OutputError, OutputExistsError
     """
     target = check_output_path(path, inputs)
     if target.is_dir() and any(target.iterdir()):
         if not force:
-            raise FileExistsError(f"output directory {path} exists; use --force to overwrite it")
+            raise OutputExistsError(f"output directory {path} exists; use --force to overwrite it")
         if not is_own(target):
             raise OutputError(
                 f"output directory {path} was not written by boresight (no {MARKER}); "

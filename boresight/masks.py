@@ -22,6 +22,7 @@ import numpy as np
 
 from . import io, validation
 from .constants import DEG
+from .validation import ConfigError
 
 if TYPE_CHECKING:
     from .config import MaskSpec
@@ -165,7 +166,7 @@ def from_config(spec: MaskSpec, nside: int) -> np.ndarray:
 
     Raises
     ------
-    ValueError
+    boresight.validation.ConfigError
         The mask leaves no observed pixel.
     """
     if spec.file is not None:
@@ -177,7 +178,8 @@ def from_config(spec: MaskSpec, nside: int) -> np.ndarray:
     if spec.apodize_fwhm_deg is not None:
         mask = apodize(mask, spec.apodize_fwhm_deg)
     if not (mask > 0).any():
-        raise ValueError(f"[mask] {spec} leaves no observed pixel at Nside {nside}")
+        what = f"mask.file = {spec.file}" if spec.file else f"mask.survey = {spec.survey!r}"
+        raise ConfigError(f"[mask] {what} leaves no observed pixel at Nside {nside}")
     return mask
 
 

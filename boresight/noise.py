@@ -124,14 +124,19 @@ class SurveyNoise:
 
 
 def band_fisher(
-    noise: SurveyNoise, spectra: Spectra, edges: np.ndarray, r: float = 0.0, a_lens: float = 1.0
+    noise: SurveyNoise,
+    theory: Spectra,
+    edges: np.ndarray,
+    *,
+    r: float = 0.0,
+    a_lens: float = 1.0,
 ) -> np.ndarray:
     """The Fisher information on r of each band of C_BB.
 
     Parameters
     ----------
     noise : SurveyNoise
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
     edges : numpy.ndarray, int
         Band edges: band b is edges[b] <= ell < edges[b + 1], ell >= 2.
     r, a_lens : float
@@ -146,26 +151,31 @@ def band_fisher(
     if edges.ndim != 1 or edges.size < 2 or edges[0] < 2 or np.any(np.diff(edges) <= 0):
         raise ValueError(f"band edges must increase from ell >= 2, got {edges}")
     lmax = int(edges[-1]) - 1
-    if lmax > spectra.lmax:
-        raise ValueError(f"bands reach ell = {lmax}, beyond the spectra's lmax = {spectra.lmax}")
+    if lmax > theory.lmax:
+        raise ValueError(f"bands reach ell = {lmax}, beyond the spectra's lmax = {theory.lmax}")
     ell = np.arange(lmax + 1)
-    total = spectra.bb(r=r, a_lens=a_lens)[: lmax + 1] + noise.n_ell(lmax)
-    per_ell = 0.5 * noise.fsky * (2 * ell + 1) * (spectra.bb_tensor[: lmax + 1] / total) ** 2
+    total = theory.bb(r=r, a_lens=a_lens)[: lmax + 1] + noise.n_ell(lmax)
+    per_ell = 0.5 * noise.fsky * (2 * ell + 1) * (theory.bb_tensor[: lmax + 1] / total) ** 2
     return np.array([per_ell[lo:hi].sum() for lo, hi in zip(edges[:-1], edges[1:])])
 
 
 def sigma_r(
-    noise: SurveyNoise, spectra: Spectra, edges: np.ndarray, r: float = 0.0, a_lens: float = 1.0
+    noise: SurveyNoise,
+    theory: Spectra,
+    edges: np.ndarray,
+    *,
+    r: float = 0.0,
+    a_lens: float = 1.0,
 ) -> float:
     """The survey's 1-sigma uncertainty on r: the Fisher sum over the bands, F^(-1/2).
 
     Parameters
     ----------
-    noise, spectra, edges, r, a_lens
+    noise, theory, edges, r, a_lens
         As in :func:`band_fisher`.
 
     Returns
     -------
     float
     """
-    return float(1.0 / np.sqrt(np.sum(band_fisher(noise, spectra, edges, r, a_lens))))
+    return float(1.0 / np.sqrt(np.sum(band_fisher(noise, theory, edges, r=r, a_lens=a_lens))))

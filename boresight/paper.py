@@ -12,12 +12,14 @@ simulated and predicted; the stage times in the manifest are the main thread's.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import coupling, masks, precompile, predict, provenance, residual, sky, spectra
+from . import precompile, predict, provenance
 from .config import (
     ConfigError,
     OutputOptions,
@@ -27,12 +29,19 @@ from .config import (
     check_types,
 )
 from .cosmology import load_spectra
+from .coupling import mask_coupling
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
+from .masks import fsky, survey_mask
+from .residual import Residual, band_rows, compute_moments, n_max_for, residual, simulate_reference
 from .scan import SyntheticScan, paper_scan
-from .sky import SkyConfig
+from .sky import SkyConfig, make_sky
+from .spectra import Footprint
+from .transforms import Transforms
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+    from collections.abc import Sequence
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -195,7 +204,7 @@ class ExperimentResult:
 def run_study(
     study: Study = preset(),
     experiments: Sequence[Experiment] = EXPERIMENTS,
-    log: Callable = lambda msg: None,
+    *,
     progress: bool = False,
 ) -> tuple[dict, dict]:
     """Run the paper's study.
@@ -204,7 +213,6 @@ def run_study(
     ----------
     study : boresight.config.Study
     experiments : sequence of Experiment
-    log : callable
     progress : bool
 
     Returns
@@ -220,59 +228,72 @@ def run_study(
     precompile.precompile(kernels, study.run.nthreads, timer)
     theory = load_spectra()
     with timer("sky"):
-        the_sky = sky.make_sky(study.sky, theory, study.run.nthreads)
+        sky = make_sky(study.sky, theory, study.run.nthreads)
     results = {}
     # one queue for every experiment: the next one starts while the last transforms run
-    with residual.Transforms(background=True) as transforms:
+    with Transforms(background=True) as transforms:
         for exp in experiments:
             results[exp.name] = _run_experiment(
-                exp, study, the_sky, theory, timer, progress, transforms
+                exp, study, sky, theory, timer, progress, transforms
             )
         with timer("transforms still running"):
             transforms.wait()
     return results, timer.stages
 
 
-def _run_experiment(exp, study, the_sky, theory, timer, progress, transforms):
+def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
     lmax, run, seed = study.output.lmax, study.run, study.scan.seed
     fwhm, nside = study.sky.fwhm_arcmin, study.sky.nside
     with timer(f"{exp.name}: mask and coupling"):
-        mask = masks.survey_mask(exp.survey, nside)
+        mask = survey_mask(exp.survey, nside)
         local = transforms.submit(
-            predict.local_cl, the_sky, mask, lmax, run.nthreads, False, run.analysis
+            partial(
+                predict.local_cl,
+                nthreads=run.nthreads,
+                beams=False,
+                analysis=run.analysis,
+            ),
+            sky,
+            mask,
+            lmax,
         )
-        couplings = coupling.mask_coupling(mask, lmax, run.nthreads, band=study.sky.lmax)
-    res = ExperimentResult(exp, masks.fsky(mask))
+        couplings = mask_coupling(mask, lmax, run.nthreads, band=study.sky.lmax)
+    res = ExperimentResult(exp, fsky(mask))
     key = "r" if exp.reference == "r" else "a_lens"
     for value in exp.reference_values:
         res.references[value] = predict.reference_bb(couplings, theory, fwhm, nside, **{key: value})
-    prediction = residual.Prediction(theory, couplings, fwhm, field_cl=local)
+    prediction = predict.Prediction(theory, couplings, fwhm, field_cl=local)
     job = dict(run=run, transforms=transforms, progress=progress)
-    footprint = spectra.Footprint(mask)  # the observed pixels, shared by every job
+    footprint = Footprint(mask)  # the observed pixels, shared by every job
     with timer(f"{exp.name}: reference (no systematic)"):
-        scan = paper_scan(exp.survey, seed=seed)
-        ref = residual.reference(the_sky, scan, footprint, lmax, **job)[0]
+        reference, _ = simulate_reference(
+            sky, paper_scan(exp.survey, seed=seed), footprint, lmax, **job
+        )
     label = {
         angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
         for angle in (None,) + exp.angles_deg
     }
-
-    def job_at(sky_, angle, **options):
-        scan_ = paper_scan(exp.survey, angle, seed=seed)
-        return residual.residual(sky_, scan_, exp.systematics, footprint, lmax, **job, **options)
-
     with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
-        n_max = residual.n_max_for(exp.systematics)
-        mom = residual.moments(scan, nside, footprint.pixels, run, n_max)
+        moments = compute_moments(
+            paper_scan(exp.survey, seed=seed),
+            nside,
+            footprint.pixels,
+            run=run,
+            n_max=n_max_for(exp.systematics),
+        )
     for angle in (None,) + exp.angles_deg:
         # the map-level and Q = U = 0 checks need no other angle than none and the ideal one
         ideal = angle in (None, exp.ideal_deg)
         with timer(f"{exp.name}: {label[angle]}"):
-            res.residuals[angle] = job_at(
-                the_sky,
-                angle,
-                reference_=ref,
-                moments_=mom,
+            res.residuals[angle] = residual(
+                sky,
+                paper_scan(exp.survey, angle, seed=seed),
+                exp.systematics,
+                footprint,
+                lmax,
+                **job,
+                reference=reference,
+                moments=moments,
                 prediction=prediction,
                 predict_map=ideal,
                 zero_qu=ideal,
@@ -335,7 +356,7 @@ class BandTable:
         return self.references[value][keep]
 
 
-def band_rows(res: ExperimentResult, study: Study) -> list[dict]:
+def experiment_rows(res: ExperimentResult, study: Study) -> list[dict]:
     """The results.csv rows of one experiment.
 
     Parameters
@@ -351,7 +372,7 @@ def band_rows(res: ExperimentResult, study: Study) -> list[dict]:
     edges = study.output.edges()
     rows = []
     for angle, job in res.residuals.items():
-        rows += residual.band_rows(
+        rows += band_rows(
             edges,
             {**job.columns(), "predicted_map_bb": job.predicted_map},
             experiment=res.experiment.name,
@@ -393,8 +414,7 @@ def band_table(res: ExperimentResult, rows: list[dict], study: Study) -> BandTab
         for name in CSV_COLUMNS[4:-4]:
             columns.setdefault((a, name), []).append(r[name])
     references = {
-        value: residual.band_rows(study.output.edges(), {"c": cl})
-        for value, cl in res.references.items()
+        value: band_rows(study.output.edges(), {"c": cl}) for value, cl in res.references.items()
     }
     return BandTable(
         centres,
@@ -417,7 +437,7 @@ def tidy_rows(results: dict, study: Study) -> list[dict]:
     list of dict
         One per (experiment, rotation angle, ell band).
     """
-    return [row for res in results.values() for row in band_rows(res, study)]
+    return [row for res in results.values() for row in experiment_rows(res, study)]
 
 
 #: the columns of results.csv
@@ -426,7 +446,7 @@ CSV_COLUMNS = (
     "pbr_angle_deg",
     "ell_lo",
     "ell_hi",
-    *residual.Residual.COLUMNS,
+    *Residual.COLUMNS,
     "predicted_map_bb",
     "reduction",
     "nside",

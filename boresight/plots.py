@@ -298,7 +298,8 @@ def design_figure(
     objective: Objective,
     noise: SurveyNoise,
     sigma_r: float,
-    spectra: Spectra,
+    *,
+    theory: Spectra,
     path_stem: str | os.PathLike,
 ) -> None:
     """Predicted residual pseudo-C_BB of each rotation strategy beside the noise and r.
@@ -312,7 +313,7 @@ def design_figure(
     noise : boresight.noise.SurveyNoise
     sigma_r : float
         The survey's sigma(r): its tensor spectrum is drawn.
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
     path_stem : pathlib.Path
     """
     from .constants import ARCMIN
@@ -329,7 +330,7 @@ def design_figure(
     white = fsky * (noise.depth * ARCMIN) ** 2
     ax.axhline(white, color="grey", ls=":", label=f"noise ({noise.depth:.3g} \u03bcK\u2032)")
     for r, ls in ((sigma_r, "--"), (10 * sigma_r, "-.")):
-        ref = predict.reference_bb(coupling, spectra, noise.fwhm_arcmin, nside, r=r)
+        ref = predict.reference_bb(coupling, theory, noise.fwhm_arcmin, nside, r=r)
         ax.plot(ell[keep], ref[keep], "k", ls=ls, lw=1, label=f"r = {r:.2g}")
     _residual_axes(ax)
     ax.set_ylabel(f"{RESIDUAL} predicted {MUK2}")

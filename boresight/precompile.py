@@ -78,10 +78,15 @@ KERNELS = {
     k.name: k
     for k in (
         Kernel(
-            "kernels.cpu", "accumulate", (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, _I1), 3.2
+            "kernels.cpu",
+            "accumulate",
+            (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, _I1),
+            3.2,
         ),
         Kernel("kernels.pixels", "interpolate_interleaved", (_F2, nt.int64, _F1, _F1), 3.1),
-        Kernel("kernels.cpu", "generate_hits", (nt.int64, nt.int64, _I1, _I1, _F1, _F1, nt.bool_), 2.4),
+        Kernel(
+            "kernels.cpu", "generate_hits", (nt.int64, nt.int64, _I1, _I1, _F1, _F1, nt.bool_), 2.4
+        ),
         Kernel("kernels.cpu", "moments", (_I1, _F1, _F1, nt.int64), 1.9),
         Kernel("predict.windows", "_legendre_sums", (_F1, _F1, _F2), 1.4),
         Kernel(

@@ -6,6 +6,7 @@ and the inputs that made it.
 
 from __future__ import annotations
 
+import logging
 import platform
 import subprocess
 import time
@@ -16,23 +17,25 @@ import numpy as np
 
 from . import interrupts
 
+_log = logging.getLogger(__name__)
+
 
 class Timer:
     """Wall time of each named stage, for the manifest.
 
     Parameters
     ----------
-    log : callable
-        Called with "NAME ..." as each stage starts.
+    log : logging.Logger, optional
+        Told "NAME ..." at INFO as each stage starts (default: this module's logger).
 
     Notes
     -----
     ``with timer("name"):`` records the stage's seconds in ``timer.stages``.
     """
 
-    def __init__(self, log):
+    def __init__(self, log: logging.Logger | None = None):
         self.stages = {}
-        self.log = log
+        self.log = _log if log is None else log
 
     def __call__(self, name):
         timer = self
@@ -40,7 +43,7 @@ class Timer:
         class _Stage:
             def __enter__(self):
                 interrupts.check()
-                timer.log(f"{name} ...")
+                timer.log.info("%s ...", name)
                 self.t0 = time.perf_counter()
 
             def __exit__(self, *exc):

@@ -40,12 +40,12 @@ class Claim:
     reproduced: bool
 
 
-
 def _median(values):
     """The median of a band statistic, NaN (a claim not reproduced) where a resolution too low
     for the claim leaves its multipole range empty."""
     values = np.asarray(values)
     return float(np.median(values)) if values.size else float("nan")
+
 
 def _column(part):
     return {"total": "residual_bb", "auto": "residual_auto_bb"}[part]

@@ -6,95 +6,32 @@ h_n prediction (C_ell level, and optionally map level) -> one :class:`Residual`.
 it per experiment and rotation angle, ``simulate`` once, ``sweep`` once per point and
 ``compare-scans`` once per scan, and :func:`band_rows` makes every table from its result.
 
-The spherical-harmonic transforms, most of the time at high lmax, go through a
-:class:`Transforms` queue: inline by default, or on one background thread so that they overlap the
-simulation of the next job (ducc0 releases the GIL and uses every core). Either way the numbers are
-the same bits.
+The spherical-harmonic transforms go through a :class:`boresight.transforms.Transforms` queue,
+inline or overlapping the next job's simulation; either way the numbers are the same bits.
 """
 
 from __future__ import annotations
 
 import time
-from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar, NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from . import engine, harmonics, interrupts, pointing, predict, scanstats, spectra
-from .schedule import Schedule
-from .config import RunOptions
+from .config import RunOptions, Study
+from .cosmology import load_spectra
+from .coupling import Coupling, mask_coupling
 from .instrument import Instrument, Systematics
 from .mapmaking import Maps
+from .masks import from_config
 from .scan import SyntheticScan
-
-if TYPE_CHECKING:
-    from .config import Study
-    from .coupling import Coupling
-    from .sky import Sky
-
+from .schedule import Schedule
+from .sky import Sky
+from .transforms import Transforms
 
 N_MAX = predict.N_MAX
-
-
-class Transforms:
-    """A queue of spherical-harmonic jobs: inline, or in order on one background thread.
-
-    Parameters
-    ----------
-    background : bool
-        Run jobs on a background thread (ducc0 releases the GIL and uses every core), so they
-        overlap the main thread's simulations; else run each at once.
-    depth : int
-        At most this many background jobs wait at a time (each holds full-sky maps).
-
-    Notes
-    -----
-    Jobs must not call numba's parallel kernels, which run on the main thread (numba's threading
-    layer is not re-entrant). Use as a context manager; :meth:`wait` re-raises a job's error.
-    """
-
-    def __init__(self, background=False, depth=2):
-        self._pool = (
-            ThreadPoolExecutor(max_workers=1, thread_name_prefix="boresight-transforms")
-            if background
-            else None
-        )
-        self._queued = deque()
-        self._all = []
-        self.depth = depth
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=exc[0] is not None)
-
-    def submit(self, fn, *args):
-        """Run or queue ``fn(*args)``.
-
-        Returns
-        -------
-        concurrent.futures.Future
-            Of ``fn``'s result (already done when inline).
-        """
-        if self._pool is None:
-            future = Future()
-            future.set_result(fn(*args))
-            return future
-        while len(self._queued) >= self.depth:
-            interrupts.result(self._queued.popleft())
-        future = self._pool.submit(fn, *args)
-        self._queued.append(future)
-        self._all.append(future)
-        return future
-
-    def wait(self):
-        """Wait for every job; re-raises the first job's exception."""
-        for future in self._all:
-            interrupts.result(future)
 
 
 @dataclass(frozen=True)
@@ -121,48 +58,6 @@ class Reference:
     @classmethod
     def zero(cls):
         return cls()
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """What the h_n prediction of a residual needs.
-
-    Parameters
-    ----------
-    theory : boresight.cosmology.Spectra
-        Lensed LCDM and tensor spectra [muK^2].
-    couplings : boresight.coupling.Coupling
-        The mask's coupling at the job's lmax, from the sky's band limit (its ``band``).
-    fwhm_arcmin : float
-        The sky's Gaussian beam [arcmin].
-    field_cl : boresight.predict.FieldSpectra or Future, optional
-        Spectra [muK^2] of the sky inside the mask (:func:`boresight.predict.local_cl`),
-        which removes the patch's sample variance from the comparison; default: the theory.
-    leaked : bool
-        Predict the leaked power (:attr:`Residual.auto`) rather than the whole residual.
-    """
-
-    theory: object
-    couplings: object
-    fwhm_arcmin: float
-    field_cl: object = None
-    leaked: bool = False
-    _held: dict = field(default_factory=dict, repr=False, compare=False)
-
-    def gradient(self, sky: Sky, pixels: np.ndarray, nthreads: int = 0) -> np.ndarray:
-        """The sky's dT/dtheta, dT/dphi / sin(theta) at ``pixels``, (2, n), kept for the next
-        job's map-level prediction on the same sky and pixels (the jobs of one mask share both).
-        """
-        held = self._held.get("gradient")
-        if held is None or held[0] is not sky or held[1] is not pixels:
-            grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
-            held = self._held["gradient"] = (sky, pixels, grad)
-        return held[2]
-
-    def release(self):
-        """Drop what :meth:`gradient` keeps (0.3 GB on the wide mask at Nside 2048) once no
-        other job will check its map."""
-        self._held.clear()
 
 
 @dataclass
@@ -235,17 +130,17 @@ class Residual:
         return {name: getattr(self, spectrum) for name, spectrum in self.COLUMNS.items()}
 
 
-def simulate(
+def simulate_maps(
     sky: Sky,
     scan: SyntheticScan | Schedule,
     instrument: Instrument,
     systematics: Systematics,
-    pixels: np.ndarray,
+    *,
+    pixels: np.ndarray | None = None,
     run: RunOptions = RunOptions(),
     leak_template: np.ndarray | None = None,
     progress: bool = False,
-    zero_qu: bool = False,
-) -> Maps | tuple[Maps, Maps]:
+) -> Maps:
     """Maps of a synthetic or a real scan.
 
     Parameters
@@ -255,25 +150,36 @@ def simulate(
         A real schedule's sample stream covers its own pixels (``pixels`` is then unused).
     instrument : boresight.instrument.Instrument
     systematics : boresight.instrument.Systematics
-    pixels : numpy.ndarray
+    pixels : numpy.ndarray, optional
         Pixels a synthetic scan observes: a boolean map (npix,) or increasing RING indices (the
-        engine then keeps them without a copy).
+        engine then keeps them without a copy); default: all.
     run : boresight.config.RunOptions
     leak_template : numpy.ndarray, optional
         (npix,) template of the additive leak [muK].
     progress : bool
-    zero_qu : bool
-        Also the maps with the sky's Q = U = 0, from the same hits (a synthetic scan's;
-        :func:`boresight.engine.simulate`).
 
     Returns
     -------
-    boresight.mapmaking.Maps, or (the sky's, Q = U = 0's) with ``zero_qu``
+    boresight.mapmaking.Maps
     """
+    maps, _ = _simulate(
+        sky,
+        scan,
+        instrument,
+        systematics,
+        pixels,
+        run,
+        leak_template,
+        progress,
+        zero_qu=False,
+    )
+    return maps
+
+
+def _simulate(sky, scan, instrument, systematics, pixels, run, leak_template, progress, zero_qu):
+    """(maps, the maps of Q = U = 0 from the same hits with ``zero_qu``, else None)."""
     if isinstance(scan, Schedule):
-        if zero_qu:
-            raise ValueError("zero_qu needs a synthetic scan; simulate sky.without_polarisation()")
-        return engine.simulate_samples(
+        maps = engine.simulate_samples(
             sky,
             pointing.pointing(scan),
             instrument,
@@ -283,17 +189,14 @@ def simulate(
             nthreads=run.nthreads,
             backend=run.backend,
         )
-    return engine.simulate(
-        sky,
-        scan,
-        instrument,
-        systematics,
-        pixels=pixels,
-        leak_template=leak_template,
-        zero_qu=zero_qu,
-        progress=progress,
-        **run.engine_kwargs(),
-    )
+        return maps, None
+    options = dict(pixels=pixels, leak_template=leak_template, progress=progress)
+    if zero_qu:
+        return engine.simulate_with_zero_qu(
+            sky, scan, instrument, systematics, **options, **run.engine_kwargs()
+        )
+    maps = engine.simulate(sky, scan, instrument, systematics, **options, **run.engine_kwargs())
+    return maps, None
 
 
 class Moments(NamedTuple):
@@ -321,10 +224,11 @@ class Moments(NamedTuple):
         return self.power[n] * abs(turn) ** 2
 
 
-def moments(
+def compute_moments(
     scan: SyntheticScan | Schedule,
     nside: int,
     pixels: np.ndarray,
+    *,
     run: RunOptions = RunOptions(),
     n_max: int = N_MAX,
 ) -> Moments:
@@ -382,15 +286,18 @@ def n_max_for(systematics: Systematics) -> int:
 def _masked_b(qu, footprint, lmax, run, overwrite=True):
     """B alm of (2, nobs) Q, U on the footprint's pixels, masked in place unless ``overwrite`` is
     False (the reference's maps, which later jobs read)."""
-    eb = footprint.alm(qu, lmax, 2, run.nthreads, run.analysis, overwrite)
+    eb = footprint.alm(
+        qu, lmax, 2, nthreads=run.nthreads, analysis=run.analysis, overwrite=overwrite
+    )
     return eb[1].copy()  # not a view that keeps E alive with the reference
 
 
-def reference(
+def simulate_reference(
     sky: Sky,
     scan: SyntheticScan | Schedule,
     mask: np.ndarray | spectra.Footprint,
     lmax: int,
+    *,
     instrument: Instrument = Instrument(),
     run: RunOptions = RunOptions(),
     transforms: Transforms | None = None,
@@ -414,14 +321,23 @@ def reference(
     maps : boresight.mapmaking.Maps
     """
     footprint = spectra.as_footprint(mask)
-    maps = simulate(sky, scan, instrument, Systematics(), footprint.pixels, run, progress=progress)
-    return reference_from_maps(maps, footprint, lmax, run, transforms), maps
+    maps = simulate_maps(
+        sky,
+        scan,
+        instrument,
+        Systematics(),
+        pixels=footprint.pixels,
+        run=run,
+        progress=progress,
+    )
+    return reference_from_maps(maps, footprint, lmax, run=run, transforms=transforms), maps
 
 
 def reference_from_maps(
     maps: Maps,
     mask: np.ndarray | spectra.Footprint,
     lmax: int,
+    *,
     run: RunOptions = RunOptions(),
     transforms: Transforms | None = None,
 ) -> Reference:
@@ -451,11 +367,17 @@ def _parts(d_qu, ref, footprint, lmax, run):
     """(cross, auto) from the difference map (2, nobs) on the footprint's pixels, which the job
     owns; the cross part is 0 against a zero reference."""
     if ref.qu is None:
-        auto = spectra.harmonics.alm2cl(_masked_b(d_qu, footprint, lmax, run))
+        auto = harmonics.alm2cl(_masked_b(d_qu, footprint, lmax, run))
         return np.zeros_like(auto), auto
     b_ref = ref.b_alm.result()
     return spectra.difference_bb_parts(
-        d_qu, b_ref, footprint, lmax, run.nthreads, run.analysis, overwrite=True
+        d_qu,
+        b_ref,
+        footprint,
+        lmax,
+        nthreads=run.nthreads,
+        analysis=run.analysis,
+        overwrite=True,
     )
 
 
@@ -480,10 +402,10 @@ def residual(
     *,
     instrument: Instrument = Instrument(),
     run: RunOptions = RunOptions(),
-    reference_: Reference | None = None,
-    prediction: Prediction | None = None,
+    reference: Reference | None = None,
+    prediction: predict.Prediction | None = None,
     predict_map: bool = False,
-    moments_: Moments | None = None,
+    moments: Moments | None = None,
     leak_template: np.ndarray | None = None,
     transforms: Transforms | None = None,
     keep_maps: bool = False,
@@ -505,16 +427,16 @@ def residual(
     instrument : boresight.instrument.Instrument
     run : RunOptions
         Evaluation, backend, chunking and threads of the engine.
-    reference_ : Reference, optional
+    reference : Reference, optional
         The no-systematic side, when shared by several jobs (the same sky and scan positions);
         simulated here by default. ``Reference.zero()`` measures the systematic's own spectrum.
-    prediction : Prediction, optional
+    prediction : boresight.predict.Prediction, optional
         Predict the residual from h_n; the C_ell level where :func:`boresight.predict.supports`
         the instrument and its repeats.
     predict_map : bool
         Also transform the predicted spurious map (the map-level check).
-    moments_ : Moments, optional
-        The moments of a synthetic ``scan``'s one repeat (:func:`moments`), when several jobs
+    moments : Moments, optional
+        The moments of a synthetic ``scan``'s one repeat (:func:`compute_moments`), when several jobs
         share them (the same scan at other rotations); ``scan``'s rotations replace theirs.
     leak_template : numpy.ndarray, optional
         Template map of the additive leak (default: the sky's I).
@@ -533,23 +455,36 @@ def residual(
     -------
     Residual
     """
+    if zero_qu and isinstance(scan, Schedule):
+        raise ValueError("zero_qu needs a synthetic scan; simulate sky.without_polarisation()")
     transforms = Transforms() if transforms is None else transforms
     stages, t0 = {}, time.perf_counter()
     footprint = spectra.as_footprint(mask)
     pixels = footprint.pixels
     ref_maps = None
-    if reference_ is None:
-        reference_, ref_maps = reference(
-            sky, scan, footprint, lmax, instrument, run, transforms, progress
+    if reference is None:
+        reference, ref_maps = simulate_reference(
+            sky,
+            scan,
+            footprint,
+            lmax,
+            instrument=instrument,
+            run=run,
+            transforms=transforms,
+            progress=progress,
         )
-    sims = simulate(
-        sky, scan, instrument, systematics, pixels, run, leak_template, progress, zero_qu
+    sim, sim_qu0 = _simulate(
+        sky,
+        scan,
+        instrument,
+        systematics,
+        pixels,
+        run,
+        leak_template,
+        progress,
+        zero_qu,
     )
-    sim, sim_qu0 = sims if zero_qu else (sims, None)
-    del sims
-    parts = transforms.submit(
-        _difference_parts, sim.qu_at(pixels), reference_, footprint, lmax, run
-    )
+    parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference, footprint, lmax, run)
     stages["simulate"] = time.perf_counter() - t0
     result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)
     del sim  # kept in the result only when asked for
@@ -564,28 +499,22 @@ def residual(
         return result
     t0 = time.perf_counter()
     n_max = n_max_for(systematics)
-    if moments_ is None or isinstance(scan, Schedule):
-        mom = moments(scan, sky.nside, pixels, run, n_max)
-    elif moments_.h.shape[0] <= n_max:
-        raise ValueError(f"moments_ hold h_n to {moments_.h.shape[0] - 1}; these need {n_max}")
+    if moments is None or isinstance(scan, Schedule):
+        moments = compute_moments(scan, sky.nside, pixels, run=run, n_max=n_max)
+    elif moments.h.shape[0] <= n_max:
+        raise ValueError(f"moments hold h_n to {moments.h.shape[0] - 1}; these need {n_max}")
     else:
-        mom = moments_._replace(rotations_deg=tuple(scan.rotations_deg))
-    result.h_power = {n: float(mom.rotated_power(n)) for n in range(1, N_MAX + 1)}
-    if predict.supports(instrument, mom.rotations_deg):
-        field_cl = prediction.field_cl
-        field_cl = interrupts.result(field_cl) if isinstance(field_cl, Future) else field_cl
+        moments = moments._replace(rotations_deg=tuple(scan.rotations_deg))
+    result.h_power = {n: float(moments.rotated_power(n)) for n in range(1, N_MAX + 1)}
+    if predict.supports(instrument, moments.rotations_deg):
         result.predicted_cl = predict.residual_pseudo_bb(
-            mom.h,
+            moments.h,
             footprint,
-            prediction.couplings,
+            prediction,
             systematics,
-            prediction.theory,
-            prediction.fwhm_arcmin,
-            instrument,
-            field_cl=field_cl,
-            rotations_deg=mom.rotations_deg,
-            crossings=mom.crossings,
-            leaked=prediction.leaked,
+            instrument=instrument,
+            rotations_deg=moments.rotations_deg,
+            crossings=moments.crossings,
             # the hits' spread over their pixels, and the maps read by interpolation there
             in_pixel=getattr(scan, "in_pixel", "random"),
             interpolated=run.evaluation == "interp",
@@ -598,97 +527,57 @@ def residual(
         )
         dp = predict.delta_p(
             sky,
-            mom.h,
+            moments.h,
             systematics,
             instrument,
-            leak_template,
-            run.nthreads,
-            mom.rotations_deg,
-            pixels,
-            gradient,
+            template=leak_template,
+            nthreads=run.nthreads,
+            rotations_deg=moments.rotations_deg,
+            pixels=pixels,
+            gradient=gradient,
         )
         result.predicted_map_parts = transforms.submit(
-            _parts, _as_qu(dp), reference_, footprint, lmax, run
+            _parts, _as_qu(dp), reference, footprint, lmax, run
         )
     stages["predict"] = time.perf_counter() - t0
     return result
 
 
-def load_sky(study: Study) -> Sky:
-    """A study's sky.
-
-    Parameters
-    ----------
-    study : boresight.config.Study
-
-    Returns
-    -------
-    boresight.sky.Sky
-        The seeded realisation of [sky], or the I, Q, U maps of its sky.maps file (alm computed).
-    """
-    from . import sky
-
-    if study.sky_maps is None:
-        return sky.make_sky(study.sky, nthreads=study.run.nthreads)
-    import healpy as hp
-
-    maps = hp.read_map(study.sky_maps, field=(0, 1, 2))
-    return sky.Sky.from_maps(
-        maps, lmax=study.sky.lmax, fwhm_arcmin=study.sky.fwhm_arcmin, nthreads=study.run.nthreads
-    )
-
-
-def load_template(study: Study) -> np.ndarray | None:
-    """A study's leak template.
-
-    Parameters
-    ----------
-    study : boresight.config.Study
-
-    Returns
-    -------
-    numpy.ndarray or None
-        The (npix,) map of systematics.leak_template [muK], or None (the leak scales the sky's I).
-    """
-    if study.leak_template is None:
-        return None
-    import healpy as hp
-
-    return hp.read_map(study.leak_template)
-
-
 def study_prediction(
-    study: Study, the_sky: Sky, mask: np.ndarray, couplings: Coupling | None = None
-) -> Prediction | None:
-    """The :class:`Prediction` of a study's residual.
+    study: Study, sky: Sky, mask: np.ndarray, couplings: Coupling | None = None
+) -> predict.Prediction:
+    """The :class:`boresight.predict.Prediction` of a study's residual.
 
     Parameters
     ----------
     study : boresight.config.Study
-    the_sky : boresight.sky.Sky
+    sky : boresight.sky.Sky
     mask : numpy.ndarray, shape (npix,)
     couplings : boresight.coupling.Coupling, optional
         Reuse this coupling of the mask (default: computed here).
 
     Returns
     -------
-    Prediction
+    boresight.predict.Prediction
         With the sky's own spectra inside the mask.
     """
-    from . import coupling
-    from .cosmology import load_spectra
-
     lmax, nthreads = study.output.lmax, study.run.nthreads
     if couplings is None:
-        couplings = coupling.mask_coupling(mask, lmax, nthreads, band=study.sky.lmax)
+        couplings = mask_coupling(mask, lmax, nthreads, band=study.sky.lmax)
     field_cl = predict.local_cl(
-        the_sky, mask, lmax, nthreads, study.systematics.has_beams, study.run.analysis
+        sky,
+        mask,
+        lmax,
+        nthreads=nthreads,
+        beams=study.systematics.has_beams,
+        analysis=study.run.analysis,
     )
-    return Prediction(load_spectra(), couplings, study.sky.fwhm_arcmin, field_cl)
+    return predict.Prediction(load_spectra(), couplings, study.sky.fwhm_arcmin, field_cl)
 
 
 def from_study(
     study: Study,
+    *,
     mask: np.ndarray | None = None,
     couplings: Coupling | None = None,
     keep_maps: bool = False,
@@ -714,13 +603,11 @@ def from_study(
     sky : boresight.sky.Sky
     mask : numpy.ndarray, shape (npix,)
     """
-    from . import masks
-
-    mask = masks.from_config(study.mask, study.sky.nside) if mask is None else mask
-    the_sky = load_sky(study)
-    prediction = study_prediction(study, the_sky, mask, couplings)
+    mask = from_config(study.mask, study.sky.nside) if mask is None else mask
+    sky = study.load_sky()
+    prediction = study_prediction(study, sky, mask, couplings)
     job = residual(
-        the_sky,
+        sky,
         study.scan,
         study.systematics,
         mask,
@@ -728,11 +615,11 @@ def from_study(
         instrument=study.instrument,
         run=study.run,
         prediction=prediction,
-        leak_template=load_template(study),
+        leak_template=study.load_leak_template(),
         keep_maps=keep_maps,
         progress=progress,
     )
-    return job, the_sky, mask
+    return job, sky, mask
 
 
 def band_rows(edges: np.ndarray, columns: dict, **fixed) -> list[dict]:

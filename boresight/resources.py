@@ -21,6 +21,7 @@ memory estimate against the measured peak of every command within a factor of 1.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,10 +31,12 @@ import numpy as np
 
 from .validation import MemoryLimitError, TimeLimitError
 
+_log = logging.getLogger(__name__)
+
 if TYPE_CHECKING:
     from .config import Study
-    from .schedule import Schedule
     from .instrument import Instrument, Systematics
+    from .schedule import Schedule
 
 GIB = 2.0**30
 #: peak bytes per HEALPix pixel of each job, over what it holds per alm, per hit and per beam:
@@ -191,7 +194,6 @@ def beam_bytes(
 
     from . import beams
     from .constants import ARCMIN
-
     from .predict import BEAM_N_MAX
 
     nominal = fwhm_arcmin * ARCMIN
@@ -314,7 +316,7 @@ def _duration(seconds):
     return f"{seconds / 3600:.1f} h"
 
 
-def require(estimate: Estimate, checks: Checks = Checks(), log=None) -> None:
+def require(estimate: Estimate, checks: Checks = Checks()) -> None:
     """Refuse a job whose estimate exceeds the machine's memory or :data:`TIME_LIMIT_S`.
 
     Parameters
@@ -322,8 +324,10 @@ def require(estimate: Estimate, checks: Checks = Checks(), log=None) -> None:
     estimate : Estimate
     checks : Checks
         Which of the two to make.
-    log : callable, optional
-        Told the time estimate when it is over :data:`TIME_NOTICE_S`.
+
+    Notes
+    -----
+    An estimate over :data:`TIME_NOTICE_S` is logged at INFO.
 
     Raises
     ------
@@ -345,5 +349,5 @@ def require(estimate: Estimate, checks: Checks = Checks(), log=None) -> None:
             f"{COMMANDS.get(estimate.job, estimate.job)} would take about {_duration(estimate.seconds)} on this machine "
             f"({estimate.samples:.3g} detector samples); pass --yes to run it"
         )
-    if log is not None and estimate.seconds > TIME_NOTICE_S:
-        log(f"estimated run time: about {_duration(estimate.seconds)}")
+    if estimate.seconds > TIME_NOTICE_S:
+        _log.info("estimated run time: about %s", _duration(estimate.seconds))

@@ -18,8 +18,8 @@ import numpy as np
 
 from . import interrupts
 from .engine import check_samples
-from .pointing import chunk_arguments, sample_pointing
 from .kernels.pixels import ang2pix_array, zphi2pix
+from .pointing import chunk_arguments, sample_pointing
 from .scan import SyntheticScan
 
 if TYPE_CHECKING:

@@ -147,8 +147,8 @@ class Sky:
         lmax = 3 * nside - 1 if lmax is None else lmax
         alm = np.empty((3, harmonics.n_alm(lmax)), dtype=np.complex128)
         # full-sky maps as healpy.map2alm reads them (3 Jacobi iterations)
-        alm[0] = harmonics.map2alm(maps[0], lmax, 0, "jacobi", nthreads=nthreads)
-        alm[1:] = harmonics.map2alm(maps[1:], lmax, 2, "jacobi", nthreads=nthreads)
+        alm[0] = harmonics.map2alm(maps[0], lmax, spin=0, analysis="jacobi", nthreads=nthreads)
+        alm[1:] = harmonics.map2alm(maps[1:], lmax, spin=2, analysis="jacobi", nthreads=nthreads)
         return cls(alm=alm, maps=maps, nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin)
 
 

@@ -78,7 +78,14 @@ def write(
         h_so = np.where(seen, to_so(h[n], n), 0.0)
         for part, values in (("cos", h_so.real), ("sin", h_so.imag)):
             path = directory / f"{prefix}_{part}_{n}.fits"
-            write_maps(path, [values], [f"{part.upper()}_{n}"], [""], [CONVENTION], frame=frame)
+            write_maps(
+                path,
+                [values],
+                [f"{part.upper()}_{n}"],
+                [""],
+                comments=[CONVENTION],
+                frame=frame,
+            )
             paths.append(path)
     path = directory / f"{prefix}_hits.fits"
     write_maps(path, [np.where(seen, hits, 0)], ["HITS"], [""], frame=frame)

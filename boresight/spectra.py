@@ -58,7 +58,7 @@ class Footprint:
             self._parents[block] = hp.ring2nest(self.nside, self.pixels) // (block * block)
         return self._parents[block]
 
-    def alm(self, values, lmax, spin=0, nthreads=0, analysis="auto", overwrite=False):
+    def alm(self, values, lmax, spin=0, *, nthreads=0, analysis="auto", overwrite=False):
         """alm of the masked map that is ``values`` on the observed pixels.
 
         Parameters
@@ -85,7 +85,13 @@ class Footprint:
             raise ValueError("maps contain NaN or UNSEEN values inside the mask")
         masked = np.multiply(values, self.weights, out=values if overwrite else None)
         return harmonics.map2alm_pixels(
-            masked, self.pixels, self.nside, lmax, spin, analysis, nthreads
+            masked,
+            self.pixels,
+            self.nside,
+            lmax,
+            spin=spin,
+            analysis=analysis,
+            nthreads=nthreads,
         )
 
 
@@ -104,7 +110,12 @@ def as_footprint(mask: np.ndarray | Footprint) -> Footprint:
 
 
 def masked_alm(
-    maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+    maps: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    *,
+    nthreads: int = 0,
+    analysis: str = "auto",
 ) -> np.ndarray:
     """T, E, B alm of masked I, Q, U maps.
 
@@ -124,19 +135,24 @@ def masked_alm(
     """
     footprint, maps = _observed(maps, mask)
     alm = np.empty((3, harmonics.n_alm(lmax)), dtype=np.complex128)
-    alm[0] = footprint.alm(maps[0], lmax, 0, nthreads, analysis)
-    alm[1:] = footprint.alm(maps[1:], lmax, 2, nthreads, analysis)
+    alm[0] = footprint.alm(maps[0], lmax, 0, nthreads=nthreads, analysis=analysis)
+    alm[1:] = footprint.alm(maps[1:], lmax, 2, nthreads=nthreads, analysis=analysis)
     return alm
 
 
 def masked_pol_alm(
-    qu: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+    qu: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    *,
+    nthreads: int = 0,
+    analysis: str = "auto",
 ) -> np.ndarray:
     """E, B alm (2, nalm) of masked Q, U maps ``qu`` (2, npix) [muK], finite inside the mask; the
     other parameters as :func:`masked_alm`.
     """
     footprint, qu = _observed(qu, mask)
-    return footprint.alm(qu, lmax, 2, nthreads, analysis, overwrite=True)
+    return footprint.alm(qu, lmax, 2, nthreads=nthreads, analysis=analysis, overwrite=True)
 
 
 def _observed(maps, mask):
@@ -151,7 +167,12 @@ def _observed(maps, mask):
 
 
 def pseudo_spectra(
-    maps: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0, analysis: str = "auto"
+    maps: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    *,
+    nthreads: int = 0,
+    analysis: str = "auto",
 ) -> np.ndarray:
     """Pseudo-C_ell of masked maps, beam not deconvolved.
 
@@ -170,7 +191,7 @@ def pseudo_spectra(
     numpy.ndarray, shape (6, lmax + 1)
         TT, EE, BB, TE, EB, TB [muK^2] from ell = 0 (healpy's order, :data:`ORDER`).
     """
-    t, e, b = masked_alm(maps, mask, lmax, nthreads, analysis)
+    t, e, b = masked_alm(maps, mask, lmax, nthreads=nthreads, analysis=analysis)
     return np.array(
         [harmonics.alm2cl(x, y) for x, y in ((t, t), (e, e), (b, b), (t, e), (e, b), (t, b))]
     )
@@ -181,6 +202,7 @@ def residual_bb_parts(
     qu_ref: np.ndarray,
     mask: np.ndarray,
     lmax: int,
+    *,
     nthreads: int = 0,
     analysis: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -208,9 +230,17 @@ def residual_bb_parts(
         <dB, dB> [muK^2].
     """
     footprint, qu_ref = _observed(qu_ref, mask)
-    b_ref = footprint.alm(qu_ref, lmax, 2, nthreads, analysis)[1]
+    b_ref = footprint.alm(qu_ref, lmax, 2, nthreads=nthreads, analysis=analysis)[1]
     d_qu = np.subtract(np.asarray(qu_sys)[:, footprint.pixels], qu_ref)
-    return difference_bb_parts(d_qu, b_ref, footprint, lmax, nthreads, analysis, overwrite=True)
+    return difference_bb_parts(
+        d_qu,
+        b_ref,
+        footprint,
+        lmax,
+        nthreads=nthreads,
+        analysis=analysis,
+        overwrite=True,
+    )
 
 
 def difference_bb_parts(
@@ -218,6 +248,7 @@ def difference_bb_parts(
     b_ref: np.ndarray,
     footprint: Footprint,
     lmax: int,
+    *,
     nthreads: int = 0,
     analysis: str = "auto",
     overwrite: bool = False,
@@ -241,12 +272,17 @@ def difference_bb_parts(
     -------
     cross, auto : numpy.ndarray, shape (lmax + 1,)
     """
-    d_b = footprint.alm(d_qu, lmax, 2, nthreads, analysis, overwrite)[1]
+    d_b = footprint.alm(d_qu, lmax, 2, nthreads=nthreads, analysis=analysis, overwrite=overwrite)[1]
     return 2.0 * harmonics.alm2cl(b_ref, d_b), harmonics.alm2cl(d_b)
 
 
 def residual_bb(
-    qu_sys: np.ndarray, qu_ref: np.ndarray, mask: np.ndarray, lmax: int, nthreads: int = 0
+    qu_sys: np.ndarray,
+    qu_ref: np.ndarray,
+    mask: np.ndarray,
+    lmax: int,
+    *,
+    nthreads: int = 0,
 ) -> np.ndarray:
     """C_BB(sys) - C_BB(ref) of masked Q, U maps: the sum of :func:`residual_bb_parts`.
 
@@ -255,7 +291,7 @@ def residual_bb(
     numpy.ndarray, shape (lmax + 1,)
         [muK^2] from ell = 0.
     """
-    return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads))
+    return sum(residual_bb_parts(qu_sys, qu_ref, mask, lmax, nthreads=nthreads))
 
 
 def linear_bins(lmin: int, lmax: int, width: int) -> np.ndarray:

@@ -12,23 +12,28 @@ white gain jitter (which only averages down with more samples) it cannot touch.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import coupling, masks, predict, residual, resources, spectra
+from . import predict, resources, spectra
 from .config import RunOptions
+from .cosmology import load_spectra
+from .coupling import mask_coupling
 from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
+from .masks import SURVEY_FSKY, survey_mask
+from .residual import compute_moments, residual, simulate_reference
 from .scan import paper_scan
+from .transforms import Transforms
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from .config import Study
     from .resources import Estimate
-
     from .sky import Sky
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -128,7 +133,7 @@ def estimate(study: Study) -> Estimate:
         for e in CATALOGUE
     )
     scan = paper_scan("deep")
-    pixels = 12.0 * study.sky.nside**2 * masks.SURVEY_FSKY["wide"]  # the larger survey
+    pixels = 12.0 * study.sky.nside**2 * SURVEY_FSKY["wide"]  # the larger survey
     runs = len(CATALOGUE) * len(ANGLES) * 2  # each entry and schedule, with its reference
     samples = runs * pixels * scan.n_phi * 2 * 2 * 2  # hits x repeats x pairs x detectors
     return replace(
@@ -140,56 +145,66 @@ def estimate(study: Study) -> Estimate:
 
 
 def run(
-    the_sky: Sky,
+    sky: Sky,
     survey: str = "deep",
+    *,
     run_options: RunOptions = RunOptions(),
-    log: Callable = print,
     progress: bool = False,
 ) -> Result:
     """Simulate and predict every systematic of :data:`CATALOGUE` through :data:`ANGLES`.
 
     Parameters
     ----------
-    the_sky : boresight.sky.Sky
+    sky : boresight.sky.Sky
     survey : {"deep", "wide"}
         The paper's synthetic survey and mask.
     run_options : boresight.config.RunOptions
-    log : callable
     progress : bool
 
     Returns
     -------
     Result
     """
-    from .cosmology import load_spectra
-
     theory = load_spectra()
-    nside, lmax = the_sky.nside, 2 * the_sky.nside
-    mask = masks.survey_mask(survey, nside)
-    couplings = coupling.mask_coupling(mask, lmax, run_options.nthreads, band=the_sky.lmax)
-    local = predict.local_cl(the_sky, mask, lmax, run_options.nthreads, True, run_options.analysis)
-    prediction = residual.Prediction(theory, couplings, the_sky.fwhm_arcmin, local, leaked=True)
+    nside, lmax = sky.nside, 2 * sky.nside
+    mask = survey_mask(survey, nside)
+    couplings = mask_coupling(mask, lmax, run_options.nthreads, band=sky.lmax)
+    local = predict.local_cl(
+        sky,
+        mask,
+        lmax,
+        nthreads=run_options.nthreads,
+        beams=True,
+        analysis=run_options.analysis,
+    )
+    prediction = predict.Prediction(theory, couplings, sky.fwhm_arcmin, local, leaked=True)
     simulated, predicted = {}, {}
-    with residual.Transforms(background=True) as transforms:
-        ref, _ = residual.reference(
-            the_sky, paper_scan(survey), mask, lmax, run=run_options, transforms=transforms
+    with Transforms(background=True) as transforms:
+        ref, _ = simulate_reference(
+            sky, paper_scan(survey), mask, lmax, run=run_options, transforms=transforms
         )
         # one repeat's moments, the same under every schedule, to the beams' h_6
-        mom = residual.moments(paper_scan(survey), nside, mask > 0, run_options, predict.BEAM_N_MAX)
+        moments = compute_moments(
+            paper_scan(survey),
+            nside,
+            mask > 0,
+            run=run_options,
+            n_max=predict.BEAM_N_MAX,
+        )
         for entry in CATALOGUE:
             for i, angle in enumerate(ANGLES):
                 scan = paper_scan(survey, angle)
-                log(f"{entry.name}: rotations {_schedule(scan)} deg")
-                job = residual.residual(
-                    the_sky,
+                log.info("%s: rotations %s deg", entry.name, _schedule(scan))
+                job = residual(
+                    sky,
                     scan,
                     entry.for_repeats(len(scan.rotations_deg)),
                     mask,
                     lmax,
                     run=run_options,
-                    reference_=ref,
+                    reference=ref,
                     prediction=prediction,
-                    moments_=mom,
+                    moments=moments,
                     transforms=transforms,
                     progress=progress,
                 )
@@ -197,8 +212,8 @@ def run(
                 predicted[entry.name, i] = job.predicted_cl
         transforms.wait()
     simulated = {key: job.auto for key, job in simulated.items()}
-    template = predict.tensor_template(couplings, theory, the_sky.fwhm_arcmin, nside)
-    lensing = predict.reference_bb(couplings, theory, the_sky.fwhm_arcmin, nside, a_lens=1.0)
+    template = predict.tensor_template(couplings, theory, sky.fwhm_arcmin, nside)
+    lensing = predict.reference_bb(couplings, theory, sky.fwhm_arcmin, nside, a_lens=1.0)
     return Result(simulated, predicted, template, lensing)
 
 
@@ -257,15 +272,16 @@ def markdown(rows: list[dict]) -> str:
     -------
     str
     """
-    bands_ = [k[len("suppression_sim_") :] for k in rows[0] if k.startswith("suppression_sim_")]
+    band_names = [k[len("suppression_sim_") :] for k in rows[0] if k.startswith("suppression_sim_")]
     head = ["systematic", "amplitude", "couples through", "rotation [deg]"]
-    head += [f"suppression {b.replace('ell_', 'ell ').replace('_', '-')}" for b in bands_]
+    head += [f"suppression {b.replace('ell_', 'ell ').replace('_', '-')}" for b in band_names]
     head += ["delta_r sim (pred)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         cells = [r["systematic"], r["amplitude"], r["couples_through"], r["rotations_deg"]]
         cells += [
-            f"{_g(r[f'suppression_sim_{b}'])} ({_g(r[f'suppression_pred_{b}'])})" for b in bands_
+            f"{_g(r[f'suppression_sim_{b}'])} ({_g(r[f'suppression_pred_{b}'])})"
+            for b in band_names
         ]
         cells.append(f"{r['delta_r_sim']:.2g} ({r['delta_r_pred']:.2g})")
         lines.append("| " + " | ".join(cells) + " |")

@@ -21,20 +21,19 @@ import copy
 import hashlib
 import itertools
 import json
+import logging
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from . import __version__, coupling, interrupts, io, masks, predict, residual, resources
-from .config import ConfigError, parse_study, read_toml
+from .config import parse_study, read_toml
 from .cosmology import load_spectra
+from .validation import ConfigError, OutputExistsError
 
-if TYPE_CHECKING:
-    from collections.abc import Callable
-
+log = logging.getLogger(__name__)
 
 CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
 #: the columns of a point's rows
@@ -282,7 +281,7 @@ def _open_sweep_dir(out, spec_id, force, repair):
             io.remove_output_dir(out)
         elif not same and not (repair and not readable):
             why = "holds another sweep" if readable else "has an unreadable sweep.json"
-            raise FileExistsError(f"{out} {why}; use --force to start again or --repair")
+            raise OutputExistsError(f"{out} {why}; use --force to start again or --repair")
     io.make_output_dir(out)
     (out / "points").mkdir(exist_ok=True)
     for stale in (out / "points").glob(".*"):  # temp files of a write that was killed
@@ -293,10 +292,10 @@ def _open_sweep_dir(out, spec_id, force, repair):
 def run_sweep(
     path: str,
     out_dir: str,
+    *,
     scheduler: str | None = None,
     workers: int = 2,
     force: bool = False,
-    log: Callable = print,
     progress: bool = False,
     repair: bool = False,
     checks: resources.Checks = resources.Checks(),
@@ -316,7 +315,6 @@ def run_sweep(
         >= 1.
     force : bool
         Start a different (or unreadable) sweep in ``out_dir`` afresh; recompute corrupt points.
-    log : callable
     progress : bool
     repair : bool
         Recompute corrupt point files and rewrite an unreadable sweep.json, keeping valid points.
@@ -352,8 +350,8 @@ def run_sweep(
                 raise
             f.unlink()
             todo.append((p, key))
-    log(f"sweep: {len(points)} points, {len(points) - len(todo)} already done")
-    resources.require(_estimate(base, base_dir, todo, scheduler, workers), checks, log)
+    log.info("sweep: %d points, %d already done", len(points), len(points) - len(todo))
+    resources.require(_estimate(base, base_dir, todo, scheduler, workers), checks)
     bar = tqdm(
         total=len(points), initial=len(points) - len(todo), unit="point", disable=not progress
     )

@@ -38,6 +38,11 @@ class OutputError(BoresightError, ValueError):
     """An output path boresight must not or cannot write (found before any work)."""
 
 
+class OutputExistsError(OutputError, FileExistsError):
+    """An earlier output where a job would write, which only ``--force`` (or ``--repair``)
+    replaces."""
+
+
 class MemoryLimitError(BoresightError, ValueError):
     """A job whose estimated memory exceeds what the machine has."""
 

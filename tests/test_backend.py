@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from boresight import engine
-from boresight.kernels import contract, cpu, fields
 from boresight.instrument import Systematics, response
+from boresight.kernels import contract, cpu, fields
 
 CONTRACT = {
     name: [p for p in inspect.signature(fn).parameters if p != "self"]
@@ -156,8 +156,12 @@ def test_cpu_bin_scan_equals_its_stages(small_sky):
     tb, pb = cpu.offset_points(theta, phi, psi, rot, ang, rho, chi)
     no_beams = np.empty((2, 0) + tb.shape[1:])
     unpolarised = small_sky.without_polarisation()
-    for the_sky, got in ((small_sky, fused), (small_sky, both[0]), (unpolarised, both[1])):
-        stack = the_sky.interleaved
+    for maps_of, got in (
+        (small_sky, fused),
+        (small_sky, both[0]),
+        (unpolarised, both[1]),
+    ):
+        stack = maps_of.interleaved
         values_a = cpu.interpolate(stack, 64, theta, phi)
         values_b = cpu.interpolate(stack, 64, tb.ravel(), pb.ravel()).reshape((3,) + tb.shape)
         staged = cpu.accumulate(

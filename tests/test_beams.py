@@ -13,12 +13,12 @@ from boresight import (
     harmonics,
     masks,
     predict,
-    sky,
     spectra,
 )
 from boresight.constants import ARCMIN, DEG
 from boresight.instrument import Systematics
 from boresight.scan import SyntheticScan, paper_scan
+from boresight.sky import SkyConfig, make_sky
 
 CENTRED = SyntheticScan(n_phi=4, range_rad=0.7, in_pixel="centre", seed=3)
 
@@ -241,28 +241,20 @@ def test_beam_cl_prediction_within_10_percent(survey, sysm, theory):
     the simulation in every band 40 <= ell <= 256. (Both systematics on both masks at Nside 512:
     bench/bench_beams.py.)"""
     nside, lmax = 256, 300
-    the_sky = sky.make_sky(sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=14.0), theory)
+    sky = make_sky(SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=14.0), theory)
     mask = masks.survey_mask(survey, nside)
     obs = mask > 0
     scan = paper_scan(survey)
-    ref = engine.simulate(the_sky, scan, pixels=obs)
+    ref = engine.simulate(sky, scan, pixels=obs)
     h, crossings = engine.scan_moments(scan.one_repeat(), nside, pixels=obs)
     couplings = coupling.mask_coupling(mask, lmax, band=3 * nside - 1)
-    local = predict.local_cl(the_sky, mask, lmax, beams=True)
+    local = predict.local_cl(sky, mask, lmax, beams=True)
     edges = spectra.linear_bins(40, 256, 36)
-    sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
+    sim = engine.simulate(sky, scan, systematics=sysm, pixels=obs)
     auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1]
+    prediction = predict.Prediction(theory, couplings, 14.0, field_cl=local, leaked=True)
     pred = predict.residual_pseudo_bb(
-        h,
-        mask,
-        couplings,
-        sysm,
-        theory,
-        14.0,
-        field_cl=local,
-        crossings=crossings,
-        leaked=True,
-        in_pixel="random",
+        h, mask, prediction, sysm, crossings=crossings, in_pixel="random"
     )
     ratio = spectra.bin_spectrum(pred, edges)[1] / spectra.bin_spectrum(auto, edges)[1]
     assert np.all(np.abs(ratio - 1) < 0.10), ratio

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from boresight import cli, cosmology, design, predict, scanstats
-from boresight.schedule import CES, Schedule, load_schedule, write_schedule
+from boresight.commands import design as design_command
 from boresight.config import ConfigError
 from boresight.instrument import Instrument, Spread, Systematics
+from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 
 ALLOWED = (-90.0, -45.0, 0.0, 45.0, 90.0)
 NSIDE = 32
@@ -61,11 +62,9 @@ def test_objective_is_the_prediction_of_the_designed_schedule(
         res = predict.residual_pseudo_bb(
             stats.h,
             mask,
-            obj.coupling,
+            predict.Prediction(theory, obj.coupling, 30.0),
             budget,
-            theory,
-            30.0,
-            instrument,
+            instrument=instrument,
             expected=design.drawn(budget),
         )
         expected = predict.delta_r(res, obj.template)
@@ -103,7 +102,9 @@ def test_units_follow_the_schedule(schedule, moments):
 
 def test_optimiser_descends_deterministically_and_beats_baselines(moments, theory):
     obj = design.objective(moments, BUDGET, theory, 30.0)
-    runs = [design.optimise(obj, ALLOWED, np.zeros(moments.n_units), 6, seed=4) for _ in range(2)]
+    runs = [
+        design.optimise(obj, ALLOWED, np.zeros(moments.n_units), sweeps=6, seed=4) for _ in range(2)
+    ]
     np.testing.assert_array_equal(runs[0].angles_deg, runs[1].angles_deg)
     found = runs[0]
     values = [h["objective"] for h in found.history]
@@ -119,7 +120,7 @@ def test_gain_alone_is_cancelled_by_90_degree_pairs(moments, theory):
     gain = Systematics(dg=(0.01, -0.01))
     obj = design.objective(moments, gain, theory, 30.0)
     assert obj.terms == [2, 4]
-    found = design.optimise(obj, (0.0, 90.0), np.zeros(moments.n_units), 10, seed=1)
+    found = design.optimise(obj, (0.0, 90.0), np.zeros(moments.n_units), sweeps=10, seed=1)
     h = moments.h(found.angles_deg)
     assert np.mean(np.abs(h[2]) ** 2) < 1e-20
     assert found.value == pytest.approx(obj.alpha[4] * np.mean(np.abs(h[4]) ** 2)
@@ -130,13 +131,16 @@ def test_change_cost_and_interrupt(moments, theory):
     """A change cost keeps the angles fixed when it outweighs every gain; an interrupt returns
     the best assignment so far."""
     obj = design.objective(moments, BUDGET, theory, 30.0, change_cost=1e3)
-    found = design.optimise(obj, ALLOWED, np.zeros(moments.n_units), 3)
+    found = design.optimise(obj, ALLOWED, np.zeros(moments.n_units), sweeps=3)
     assert obj.changes(found.angles_deg) == 0
     free = design.optimise(
-        design.objective(moments, BUDGET, theory, 30.0), ALLOWED, np.zeros(moments.n_units), 6
+        design.objective(moments, BUDGET, theory, 30.0),
+        ALLOWED,
+        np.zeros(moments.n_units),
+        sweeps=6,
     )
     costly = design.objective(moments, BUDGET, theory, 30.0, change_cost=0.1)
-    found = design.optimise(costly, ALLOWED, np.zeros(moments.n_units), 6)
+    found = design.optimise(costly, ALLOWED, np.zeros(moments.n_units), sweeps=6)
     values = [h["objective"] for h in found.history]  # re-evaluated directly after each pass
     assert all(b <= a + 1e-12 for a, b in zip(values, values[1:]))
     assert costly.changes(found.angles_deg) < costly.changes(free.angles_deg)
@@ -148,7 +152,9 @@ def test_change_cost_and_interrupt(moments, theory):
         if len(calls) == 5:
             raise KeyboardInterrupt
 
-    found = design.optimise(obj, ALLOWED, np.zeros(moments.n_units), 3, progress=stop_after_five)
+    found = design.optimise(
+        obj, ALLOWED, np.zeros(moments.n_units), sweeps=3, progress=stop_after_five
+    )
     assert found.interrupted and found.value == pytest.approx(obj(found.angles_deg))
     assert found.value <= obj(np.zeros(moments.n_units))
 
@@ -168,8 +174,13 @@ def _budget(tmp_path, nside=NSIDE, **tables):
 @pytest.mark.parametrize(
     "tables, message",
     [
-        (dict(noise="net_uk_sqrt_s = -300.0\nn_detectors = 10\nyears = 1.0\nfsky = 0.1\n"
-                    "fwhm_arcmin = 30.0"), "net_uk_sqrt_s"),  # fmt: skip
+        (
+            dict(
+                noise="net_uk_sqrt_s = -300.0\nn_detectors = 10\nyears = 1.0\nfsky = 0.1\n"
+                "fwhm_arcmin = 30.0"
+            ),
+            "net_uk_sqrt_s",
+        ),  # fmt: skip
         (dict(systematics="ellipticity = 0.01"), "ellipticity"),
         (dict(design="angles_deg = []"), "angles_deg"),
         (dict(design="group = 'week'"), "group"),
@@ -177,10 +188,14 @@ def _budget(tmp_path, nside=NSIDE, **tables):
         (dict(systematics="dg = 0.0"), "no non-zero"),
         (dict(systematics="ellipticity_b = 0.99"), "ellipticity_b"),
         (dict(systematics="dfwhm_b_arcmin = -40.0"), "FWHM"),
-        (dict(systematics="dg = {mean = 0.0, rms = 0.01}", instrument="pair_angles_deg = [0.0]"),
-         "m_4"),  # fmt: skip
-        (dict(systematics="dg = 0.01", instrument="pair_angles_deg = 'hexagonal'\nn_pairs = 6"),
-         "preset"),  # fmt: skip
+        (
+            dict(systematics="dg = {mean = 0.0, rms = 0.01}", instrument="pair_angles_deg = [0.0]"),
+            "m_4",
+        ),  # fmt: skip
+        (
+            dict(systematics="dg = 0.01", instrument="pair_angles_deg = 'hexagonal'\nn_pairs = 6"),
+            "preset",
+        ),  # fmt: skip
     ],
 )
 def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
@@ -232,15 +247,15 @@ def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, mo
     original = design.optimise
     calls = []
 
-    def interrupting(*args):
+    def interrupting(*args, **kwargs):
         def stop(_):
             calls.append(1)
             if len(calls) == 3:
                 raise KeyboardInterrupt
 
-        return original(*args[:5], progress=stop)
+        return original(*args, **{**kwargs, "progress": stop})
 
-    monkeypatch.setattr(design, "optimise", interrupting)
+    monkeypatch.setattr(design_command, "optimise", interrupting)
     src = tmp_path / "s.toml"
     write_schedule(schedule, str(src), "toml")
     out = tmp_path / "d"
@@ -259,7 +274,7 @@ def test_interrupt_during_the_validation_keeps_the_finished_design(
     import json
     import signal
 
-    from boresight import interrupts, studies
+    from boresight import interrupts
 
     src = tmp_path / "s.toml"
     write_schedule(schedule, str(src), "toml")
@@ -272,7 +287,7 @@ def test_interrupt_during_the_validation_keeps_the_finished_design(
         def stopped(*args, signum=signum):
             raise interrupts.Interrupted(signum)
 
-        monkeypatch.setattr(studies, "_validate_design", stopped)
+        monkeypatch.setattr(design_command, "_validate", stopped)
         args = ["-q", "design", budget, str(src), "--out", str(out), "--force"]
         assert cli.main(args) == code
         err = capsys.readouterr().err

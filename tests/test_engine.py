@@ -6,10 +6,10 @@ import pytest
 from conftest import rel_max
 
 from boresight import engine, harmonics, masks, predict
-from boresight.schedule import CES, Schedule
 from boresight.constants import ARCMIN, DEG
 from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan
+from boresight.schedule import CES, Schedule
 
 CENTRED = dict(n_phi=4, range_rad=0.9, in_pixel="centre", seed=3)
 
@@ -79,13 +79,12 @@ def test_prediction_and_maps_at_observed_pixels(small_sky):
 def test_a_prediction_makes_the_gradient_once_per_sky_and_pixels(small_sky, monkeypatch):
     """The map-level prediction of several jobs on one mask synthesises the sky's gradient once;
     another sky or other pixels make their own, and delta_p gives the same map with it."""
-    from boresight import residual
 
     calls, original = [], harmonics.alm2map_gradient
     monkeypatch.setattr(
         harmonics, "alm2map_gradient", lambda *a, **k: calls.append(1) or original(*a, **k)
     )
-    pred = residual.Prediction(None, None, 60.0)
+    pred = predict.Prediction(None, None, 60.0)
     pixels = np.flatnonzero(masks.survey_mask("deep", small_sky.nside))
     first = pred.gradient(small_sky, pixels)
     assert pred.gradient(small_sky, pixels) is first and len(calls) == 1
@@ -170,7 +169,7 @@ def test_zero_qu_maps_are_those_of_the_unpolarised_sky_to_the_bit(small_sky, eva
         ]
     for sysm in cases:
         kw = dict(systematics=sysm, evaluation=evaluation, chunk_pixels=5000)
-        maps, zero = engine.simulate(small_sky, scan, zero_qu=True, **kw)
+        maps, zero = engine.simulate_with_zero_qu(small_sky, scan, **kw)
         alone = engine.simulate(small_sky, scan, **kw)
         separate = engine.simulate(unpolarised, scan, **kw)
         for got, want in ((maps, alone), (zero, separate)):
@@ -181,8 +180,8 @@ def test_zero_qu_maps_are_those_of_the_unpolarised_sky_to_the_bit(small_sky, eva
 
 def test_zero_qu_refuses_detector_beams(small_sky):
     with pytest.raises(ValueError, match="without_polarisation"):
-        engine.simulate(
-            small_sky, SyntheticScan(), systematics=Systematics(dfwhm_a_arcmin=0.5), zero_qu=True
+        engine.simulate_with_zero_qu(
+            small_sky, SyntheticScan(), systematics=Systematics(dfwhm_a_arcmin=0.5)
         )
 
 
@@ -253,7 +252,7 @@ def test_rotated_power_is_that_of_the_rotated_scan():
     pixels = np.flatnonzero(masks.survey_mask("wide", nside))
     for angles in ((0.0, 70.0), (0.0, 45.0, 160.0)):
         scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=angles)
-        mom = residual.moments(scan, nside, pixels, n_max=4)
+        mom = residual.compute_moments(scan, nside, pixels, n_max=4)
         whole, _ = engine.scan_moments(scan, nside, 4, pixels=pixels)
         for n in range(1, 5):
             want = np.mean(np.abs(whole[n, pixels]) ** 2)
@@ -289,4 +288,4 @@ def test_zero_qu_needs_a_synthetic_scan(small_sky):
     )
     schedule = Schedule((ces,), sample_rate_hz=1.0)
     with pytest.raises(ValueError, match="synthetic scan"):
-        residual.simulate(small_sky, schedule, Instrument(), Systematics(), None, zero_qu=True)
+        residual.residual(small_sky, schedule, Systematics(), np.ones(12 * 16**2), 32, zero_qu=True)

@@ -15,12 +15,12 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from boresight import engine, scanstats, sweep
-from boresight.schedule import CES_LIMITS, CES_REQUIRED, load_schedule
-from boresight.schedule.files import SCHEDULE_KEYS
 from boresight.cli import main
 from boresight.config import ConfigError, parse_study, schema
 from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan
+from boresight.schedule import CES_LIMITS, CES_REQUIRED, load_schedule
+from boresight.schedule.files import SCHEDULE_KEYS
 
 FUZZ = settings(
     max_examples=150,
@@ -230,9 +230,7 @@ ces_values = st.one_of(numbers, st.just("2026-01-01"), st.sampled_from([1, 50.0,
         st.dictionaries(st.sampled_from([*CES_LIMITS, "colour"]), ces_values, max_size=9),
         max_size=2,
     ),
-    top=st.dictionaries(
-        st.sampled_from([*SCHEDULE_KEYS[2:], "repeat"]), numbers, max_size=2
-    ),
+    top=st.dictionaries(st.sampled_from([*SCHEDULE_KEYS[2:], "repeat"]), numbers, max_size=2),
 )
 def test_any_toml_schedule_loads_or_names_its_error(ces, top, tmp_path_factory):
     def value(v):

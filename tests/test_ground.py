@@ -7,11 +7,11 @@ import pytest
 from conftest import rel_max
 
 from boresight import engine, frames, pointing, scanstats
-from boresight.schedule import CES, Schedule, ScheduleError, Site, load_schedule, write_schedule
-from boresight.kernels import cpu
 from boresight.constants import DEG
 from boresight.instrument import Systematics
+from boresight.kernels import cpu
 from boresight.scan import SyntheticScan
+from boresight.schedule import CES, Schedule, ScheduleError, Site, load_schedule, write_schedule
 
 T0 = 1.79e9  # 2026-09-21, inside the IERS tables astropy ships
 
@@ -84,7 +84,10 @@ def test_geometry_at_pole_and_equator():
     chunk = np.zeros(pointing.N_CHUNK)
     chunk[[1, 7]] = 1.0, pointing.UNIX_EPOCH_JD  # rate; start at the Unix epoch
     terms = frames.frame_terms(np.zeros(1), 0.0, "cirs")[0]
-    for lat, az, el in ((-90.0, [0, 45, 90, 180, 300.0], [10, 30, 50, 70, 89.0]), (0.0, [90.0], [0.0])):
+    for lat, az, el in (
+        (-90.0, [0, 45, 90, 180, 300.0], [10, 30, 50, 70, 89.0]),
+        (0.0, [90.0], [0.0]),
+    ):
         for a, e in zip(az, el):
             chunk[[2, 6, 9]] = a * DEG, e * DEG, lat * DEG
             chunk[3:5] = 0.0, 1.0  # no throw: the azimuth stays at the centre

@@ -68,7 +68,9 @@ def inputs(tmp_path_factory):
     d = tmp_path_factory.mktemp("inputs")
     (d / "study.toml").write_text(STUDY)
     # predict takes 10 ms at Nside 16: at 128 a signal can land inside it
-    (d / "study128.toml").write_text(STUDY.replace("nside = 16\nlmax = 47", "nside = 128\nlmax = 383"))
+    (d / "study128.toml").write_text(
+        STUDY.replace("nside = 16\nlmax = 47", "nside = 128\nlmax = 383")
+    )
     (d / "budget.toml").write_text(BUDGET)
     (d / "sweep.toml").write_text(SWEEP)
     base = load_schedule("examples/schedule_deep_sat.toml")
@@ -153,7 +155,9 @@ def test_signals_at_random_moments_end_cleanly(command, inputs, tmp_path, capsys
         tries += 1
         assert tries < 3 * TRIALS, f"{command}: the runs keep finishing before the signal"
         signum = rng.choice([signal.SIGINT, signal.SIGTERM])
-        got = _interrupted_run(_args(command, inputs, out), rng.uniform(0, duration), signum, capsys)
+        got = _interrupted_run(
+            _args(command, inputs, out), rng.uniform(0, duration), signum, capsys
+        )
         if got is None:  # the run finished first: draw again
             shutil.rmtree(out, ignore_errors=True)
             continue

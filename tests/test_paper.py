@@ -5,8 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from boresight import engine, masks, paper, predict, sky, spectra
+from boresight import engine, masks, paper, predict, spectra
 from boresight.scan import paper_scan
+from boresight.sky import SkyConfig, make_sky
 
 STUDY = paper.preset(nside=64, lmax=191, seed=3)
 
@@ -20,23 +21,23 @@ def study():
 @pytest.mark.parametrize("exp", paper.EXPERIMENTS, ids=lambda e: e.name)
 def test_background_transforms_match_direct_calls(study, exp):
     res = study[0][exp.name]
-    sky_cfg = sky.SkyConfig(nside=64, lmax=191, fwhm_arcmin=7.0, seed=3)
-    the_sky = sky.make_sky(sky_cfg)
-    unpolarised = sky.make_sky(dataclasses.replace(sky_cfg, polarised=False))
+    sky_cfg = SkyConfig(nside=64, lmax=191, fwhm_arcmin=7.0, seed=3)
+    sky = make_sky(sky_cfg)
+    unpolarised = make_sky(dataclasses.replace(sky_cfg, polarised=False))
     mask = masks.survey_mask(exp.survey, 64)
     obs, lmax = mask > 0, 128  # bands end at 2 Nside
-    ref = engine.simulate(the_sky, paper_scan(exp.survey, seed=3), pixels=obs)
+    ref = engine.simulate(sky, paper_scan(exp.survey, seed=3), pixels=obs)
     assert set(res.cross) == set(res.auto) == {None, *exp.angles_deg}
     assert set(res.predicted_map) == set(res.zero_qu) == {None, exp.ideal_deg}
     for angle in (None, exp.ideal_deg, exp.angles_deg[-1]):
         scan = paper_scan(exp.survey, angle, seed=3)
-        sim = engine.simulate(the_sky, scan, systematics=exp.systematics, pixels=obs)
+        sim = engine.simulate(sky, scan, systematics=exp.systematics, pixels=obs)
         cross, auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)
         np.testing.assert_array_equal(res.cross[angle], cross)
         np.testing.assert_array_equal(res.auto[angle], auto)
         if angle in res.predicted_map:
             h, _ = engine.scan_moments(scan, 64, pixels=obs)
-            dp = predict.delta_p(the_sky, h, exp.systematics) * obs
+            dp = predict.delta_p(sky, h, exp.systematics) * obs
             expected = spectra.residual_bb(ref.qu + [dp.real, dp.imag], ref.qu, mask, lmax)
             # the direct route adds dP to the reference and subtracts it again: rounding of ref
             scale = np.max(np.abs(res.predicted_map[None]))
@@ -87,11 +88,11 @@ def test_a_study_file_of_the_gain_case_gives_the_reproduction_rows(study, tmp_pa
     `reproduce` writes for it, to the bit (same sky, scan, mask, prediction and binning)."""
     import csv
 
-    from boresight import studies
+    from boresight.commands import simulate
     from boresight.config import load_study
 
     (tmp_path / "gain.toml").write_text(GAIN_CASE)
-    studies.simulate(load_study(tmp_path / "gain.toml"), tmp_path / "out", log=lambda m: None)
+    simulate.run(load_study(tmp_path / "gain.toml"), tmp_path / "out")
     with open(tmp_path / "out" / "bands.csv") as f:
         mine = list(csv.DictReader(f))
     theirs = [

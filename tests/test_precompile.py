@@ -15,7 +15,8 @@ JOBS = ("study", "design", "validation", "schedule-stats")
 EVERY_JOB_ON_REGISTERED_KERNELS = r"""
 import sys
 from pathlib import Path
-from boresight import paper, precompile, studies
+from boresight import paper, precompile
+from boresight.commands import design, scan_stats
 from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 tmp = Path(sys.argv[1])
 asked = set()  # the kernels the jobs precompile
@@ -31,9 +32,8 @@ write_schedule(Schedule(ces, base.site, 1.0), tmp / "s.toml", "toml")
     "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 60.0\n"
     "[design]\nnside = 16\nsweeps = 1\nangles_deg = [0.0, 90.0]\n"
 )
-quiet = lambda *args: None
-studies.design_schedule(str(tmp / "b.toml"), str(tmp / "s.toml"), str(tmp / "d"), log=quiet)
-studies.schedule_stats(str(tmp / "s.toml"), str(tmp / "h"), nside=16, log=quiet)
+design.run(str(tmp / "b.toml"), str(tmp / "s.toml"), str(tmp / "d"))
+scan_stats.run_schedule(str(tmp / "s.toml"), str(tmp / "h"), nside=16)
 for kernel in precompile.KERNELS.values():  # another argument type would add a signature
     assert kernel.dispatcher.signatures in ([], [kernel.signature]), kernel.name
     assert kernel.name in asked or not kernel.dispatcher.signatures, kernel.name  # called late

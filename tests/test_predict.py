@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from boresight.predict import windows
-from boresight import coupling, engine, masks, predict, sky, spectra
+from boresight import coupling, engine, masks, predict, spectra
 from boresight.instrument import PAPER_GAIN, PAPER_POINTING, Systematics
+from boresight.predict import windows
 from boresight.scan import SyntheticScan, paper_scan
+from boresight.sky import SkyConfig, make_sky
 
 NSIDE, LMAX = 512, 300
 #: Bands where the residual is far above the numerical floor and the interpolation window of the
@@ -17,9 +18,7 @@ CASES = {"wide": PAPER_POINTING, "deep": PAPER_GAIN}
 
 @pytest.fixture(scope="module")
 def paper_sky(theory):
-    return sky.make_sky(
-        sky.SkyConfig(nside=NSIDE, lmax=3 * NSIDE - 1, fwhm_arcmin=7.0, seed=1), theory
-    )
+    return make_sky(SkyConfig(nside=NSIDE, lmax=3 * NSIDE - 1, fwhm_arcmin=7.0, seed=1), theory)
 
 
 @pytest.fixture(scope="module")
@@ -63,15 +62,9 @@ def test_cl_level_prediction_within_10_percent(survey, study, paper_sky, theory)
     cannot follow; the prediction uses the patch's own temperature spectrum (predict.local_cl).
     """
     s = study[survey]
-    pred = predict.residual_pseudo_bb(
-        s["h"],
-        s["mask"],
-        s["couplings"],
-        CASES[survey],
-        theory,
-        7.0,
-        field_cl=predict.local_cl(paper_sky, s["mask"], LMAX),
-    )
+    local = predict.local_cl(paper_sky, s["mask"], LMAX)
+    prediction = predict.Prediction(theory, s["couplings"], 7.0, field_cl=local)
+    pred = predict.residual_pseudo_bb(s["h"], s["mask"], prediction, CASES[survey])
     auto = spectra.residual_bb_parts(s["sim"].qu, s["ref"].qu, s["mask"], LMAX)[1]
     _, w = spectra.bin_spectrum(auto, EDGES)
     _, g = spectra.bin_spectrum(pred, EDGES)
@@ -81,8 +74,9 @@ def test_cl_level_prediction_within_10_percent(survey, study, paper_sky, theory)
 def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
     """Q = U = 0: gain + 90 deg cancels to rounding; pointing + 180 deg leaves only O(rho^2)."""
     nside, lmax = 128, 200
-    s0 = sky.make_sky(
-        sky.SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2, polarised=False), theory
+    s0 = make_sky(
+        SkyConfig(nside=nside, lmax=383, fwhm_arcmin=30.0, seed=2, polarised=False),
+        theory,
     )
     mask = masks.survey_mask("deep", nside)
     # to lmax only: above it the prediction would take the theory's EE, which this sky has not
@@ -105,11 +99,8 @@ def test_ideal_rotation_with_zero_polarisation_is_at_the_floor(theory):
         pred = predict.residual_pseudo_bb(
             h,
             mask,
-            couplings,
+            predict.Prediction(theory, couplings, 30.0, field_cl=local),
             sysm,
-            theory,
-            30.0,
-            field_cl=local,
             rotations_deg=pbr_scan.rotations_deg,
         )
         pred = np.abs(pred[2:]).max()
@@ -128,7 +119,7 @@ def test_spectrum_suppression_follows_cos2(alpha, theory):
     ratios = []
     h, _ = engine.scan_moments(SyntheticScan(n_phi=3, range_rad=0.8), nside)
     for rot in ((0.0,), (0.0, alpha)):
-        cl = predict.systematic_cl(h, mask, sysm, theory, 60, 7.0, rotations_deg=rot)
+        cl = predict.systematic_cl(h, mask, sysm, theory, 60, fwhm_arcmin=7.0, rotations_deg=rot)
         np.testing.assert_array_equal(cl[0], cl[1])  # no beam pairs: E and B share equally
         ratios.append(cl[1, 2:])
     assert np.allclose(ratios[1] / ratios[0], np.cos(np.radians(alpha)) ** 2, rtol=1e-10)
@@ -144,7 +135,7 @@ def test_cl_prediction_needs_cancelling_4x_angles(small_sky, theory):
     mask = masks.survey_mask("deep", small_sky.nside)
     h = np.zeros((5, mask.size), dtype=complex)
     with pytest.raises(ValueError, match="m_4"):
-        predict.systematic_cl(h, mask, PAPER_GAIN, theory, 60, 7.0, inst)
+        predict.systematic_cl(h, mask, PAPER_GAIN, theory, 60, fwhm_arcmin=7.0, instrument=inst)
 
 
 def test_coherent_power_is_numpys_bincount_of_the_weighted_h_for_any_thread_count():
@@ -223,9 +214,9 @@ def test_angle_error_cl_prediction_from_the_maps_own_spectra(survey, study, pape
     local = predict.local_cl(paper_sky, s["mask"], LMAX)
     cross, auto = spectra.residual_bb_parts(sim.qu, s["ref"].qu, s["mask"], LMAX)
     for leaked, simulated in ((True, auto), (False, auto + cross)):
-        pred = predict.residual_pseudo_bb(
-            s["h"], s["mask"], s["couplings"], sysm, theory, 7.0, field_cl=local, leaked=leaked
-        )
+        prediction = predict.Prediction(theory, s["couplings"], 7.0, local, leaked=leaked)
+        pred = predict.residual_pseudo_bb(s["h"], s["mask"], prediction, sysm)
+        ratio = spectra.bin_spectrum(pred, EDGES)[1] / spectra.bin_spectrum(simulated, EDGES)[1]
         ratio = spectra.bin_spectrum(pred, EDGES)[1] / spectra.bin_spectrum(simulated, EDGES)[1]
         assert np.all(np.abs(ratio - 1) < 0.1), (leaked, ratio)
 
@@ -241,24 +232,29 @@ def test_cl_prediction_with_the_interpolation_window_to_2_nside(survey, sysm, th
     pointing 19 % high); without a window the prediction overshoots the last band by 1.4x or
     more."""
     nside, lmax = 256, 512
-    the_sky = sky.make_sky(
-        sky.SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=14.0, seed=1), theory
-    )
+    sky = make_sky(SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=14.0, seed=1), theory)
     mask = masks.survey_mask(survey, nside)
     obs = mask > 0
     scan = paper_scan(survey)
     h, crossings = engine.scan_moments(scan, nside, pixels=obs)
-    ref = engine.simulate(the_sky, scan, pixels=obs)
-    sim = engine.simulate(the_sky, scan, systematics=sysm, pixels=obs)
+    ref = engine.simulate(sky, scan, pixels=obs)
+    sim = engine.simulate(sky, scan, systematics=sysm, pixels=obs)
     auto = spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1]
-    common = dict(field_cl=predict.local_cl(the_sky, mask, lmax), crossings=crossings, leaked=True)
     couplings = coupling.mask_coupling(mask, lmax, band=3 * nside - 1)
+    local = predict.local_cl(sky, mask, lmax)
+    prediction = predict.Prediction(theory, couplings, 14.0, local, leaked=True)
     edges = spectra.linear_bins(40, lmax, 32)
     sim_bands = spectra.bin_spectrum(auto, edges)[1]
     ratio = {}
     for window in (True, False):
         pred = predict.residual_pseudo_bb(
-            h, mask, couplings, sysm, theory, 14.0, in_pixel="random", interpolated=window, **common
+            h,
+            mask,
+            prediction,
+            sysm,
+            crossings=crossings,
+            in_pixel="random",
+            interpolated=window,
         )
         ratio[window] = spectra.bin_spectrum(pred, edges)[1] / sim_bands
     assert np.all(np.abs(ratio[True] - 1) < 0.10), ratio[True]
@@ -288,13 +284,13 @@ def test_shared_moments_give_the_same_prediction(small_sky, theory):
     from boresight import residual
 
     mask = masks.survey_mask("deep", 64)
-    prediction = residual.Prediction(theory, coupling.mask_coupling(mask, 128), 60.0)
-    shared = residual.moments(paper_scan("deep"), 64, mask > 0)
+    prediction = predict.Prediction(theory, coupling.mask_coupling(mask, 128), 60.0)
+    shared = residual.compute_moments(paper_scan("deep"), 64, mask > 0)
     for angle in (None, 90.0):
         scan = paper_scan("deep", angle)
         own, reused = (
             residual.residual(
-                small_sky, scan, PAPER_GAIN, mask, 128, prediction=prediction, moments_=m
+                small_sky, scan, PAPER_GAIN, mask, 128, prediction=prediction, moments=m
             )
             for m in (None, shared)
         )
@@ -307,11 +303,11 @@ def test_shared_moments_give_the_same_prediction(small_sky, theory):
             mask,
             128,
             prediction=prediction,
-            moments_=shared,
+            moments=shared,
         )
 
 
-def test_the_prediction_counts_the_sky_above_lmax_that_the_mask_mixes_down(theory):
+def test_the_prediction_counts_sky_above_lmax_that_the_mask_mixes_down(theory):
     """A polarisation-angle error on the deep mask, Nside 64, the spectra to lmax 128 and the sky
     to 191: the mean of 64 TOD skies against the theory prediction. With the coupling cut at lmax
     the top band read 0.61 of the simulation (the reviewer saw 0.94 at Nside 128); from the
@@ -324,7 +320,7 @@ def test_the_prediction_counts_the_sky_above_lmax_that_the_mask_mixes_down(theor
     edges = spectra.linear_bins(40, lmax, 22)
     sims = []
     for seed in range(64):
-        s = sky.make_sky(sky.SkyConfig(nside=nside, lmax=band, fwhm_arcmin=60.0, seed=seed), theory)
+        s = make_sky(SkyConfig(nside=nside, lmax=band, fwhm_arcmin=60.0, seed=seed), theory)
         ref = engine.simulate(s, scan, pixels=obs)
         sim = engine.simulate(s, scan, systematics=sysm, pixels=obs)
         sims.append(spectra.bin_spectrum(spectra.residual_bb_parts(sim.qu, ref.qu, mask, lmax)[1],
@@ -335,8 +331,8 @@ def test_the_prediction_counts_the_sky_above_lmax_that_the_mask_mixes_down(theor
 
     def predicted(coupling_band):
         c = coupling.mask_coupling(mask, lmax, band=coupling_band)
-        pred = predict.residual_pseudo_bb(h, mask, c, sysm, theory, 60.0, leaked=True,
-                                          crossings=crossings)  # fmt: skip
+        prediction = predict.Prediction(theory, c, 60.0, leaked=True)
+        pred = predict.residual_pseudo_bb(h, mask, prediction, sysm, crossings=crossings)
         return spectra.bin_spectrum(pred, edges)[1]
 
     wide = predicted(band)
@@ -364,9 +360,9 @@ def test_beam_terms_with_pixel_centre_hits_and_a_lower_output_lmax(tmp_path):
         }
     )
     assert np.isfinite(residual.from_study(study)[0].predicted_cl).all()  # the whole residual
-    the_sky, mask = residual.load_sky(study), masks.from_config(study.mask, 64)
-    leaked = replace(residual.study_prediction(study, the_sky, mask), leaked=True)
-    job = residual.residual(the_sky, study.scan, study.systematics, mask, 128, prediction=leaked)
+    sky, mask = study.load_sky(), masks.from_config(study.mask, 64)
+    leaked = replace(residual.study_prediction(study, sky, mask), leaked=True)
+    job = residual.residual(sky, study.scan, study.systematics, mask, 128, prediction=leaked)
     edges = spectra.linear_bins(40, 128, 22)
     sim, pred = (spectra.bin_spectrum(x, edges)[1] for x in (job.auto, job.predicted_cl))
     assert np.all(np.abs(pred / sim - 1) < 0.10), pred / sim

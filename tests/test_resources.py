@@ -62,9 +62,7 @@ def test_beam_analysis_grids_and_convolution_cubes_are_estimated(tmp_path):
 
 
 def _long_schedule(tmp_path, days):
-    ces = tuple(
-        CES(1.79e9 + 86400 * d, 86000.0, 50.0, 140.0, 30.0) for d in range(days)
-    )
+    ces = tuple(CES(1.79e9 + 86400 * d, 86000.0, 50.0, 140.0, 30.0) for d in range(days))
     path = tmp_path / "long.toml"
     write_schedule(Schedule(ces, sample_rate_hz=1000.0), path, "toml")
     return str(path)
@@ -75,6 +73,8 @@ def test_a_run_of_hours_is_refused_up_front_unless_yes(tmp_path, capsys, monkeyp
     estimate; --yes accepts it (the job is stopped here before its work)."""
     import time
 
+    from boresight.validation import BoresightError
+
     path = _long_schedule(tmp_path, 1200)  # 1.0e11 samples at 1 kHz
     t0 = time.perf_counter()
     assert cli.main(["scan-stats", path, "--out", str(tmp_path / "o"), "--nside", "16"]) == 2
@@ -83,7 +83,7 @@ def test_a_run_of_hours_is_refused_up_front_unless_yes(tmp_path, capsys, monkeyp
     assert time.perf_counter() - t0 < 5 and not (tmp_path / "o").exists()
 
     def stop(*args, **kwargs):
-        raise ValueError("stopped after the checks")
+        raise BoresightError("stopped after the checks")
 
     monkeypatch.setattr("boresight.scanstats.characterise_schedule", stop)
     args = ["scan-stats", path, "--out", str(tmp_path / "o"), "--nside", "16", "--yes"]

@@ -3,6 +3,7 @@ before the fix. Bad input ends in exit 2 with one line naming the key or file, b
 output directories that boresight did not create are never removed."""
 
 import json
+import logging
 import os
 import re
 import signal
@@ -14,10 +15,19 @@ import numpy as np
 import pytest
 
 from boresight import engine, io, sweep
-from boresight.schedule import CES, Schedule, ScheduleError, Site, is_schedule, load_schedule, schedule_format, write_schedule
 from boresight.cli import main
 from boresight.config import ConfigError, parse_study
 from boresight.scan import SyntheticScan
+from boresight.schedule import (
+    CES,
+    Schedule,
+    ScheduleError,
+    Site,
+    is_schedule,
+    load_schedule,
+    schedule_format,
+    write_schedule,
+)
 
 STUDY = """
 [sky]
@@ -121,7 +131,11 @@ def test_force_replaces_boresight_own_output(tmp_path, study_file):
 # 2. Segmentation fault --------------------------------------------------------------------------
 
 
-NAN_ROWS = ["nan,600,50,133.6,60,1\n", "1790028800,600,50,nan,60,1\n", "1790028800,600,50,1,60,inf\n"]
+NAN_ROWS = [
+    "nan,600,50,133.6,60,1\n",
+    "1790028800,600,50,nan,60,1\n",
+    "1790028800,600,50,1,60,inf\n",
+]
 
 #: compare-scans of each schedule file in turn, in one process, each exit code after its output
 EACH_SCHEDULE = """
@@ -171,20 +185,16 @@ def _sweep(tmp_path, parameters='pbr_angle_deg = [0, 90]\n"sky.seed" = [1]'):
     return str(path)
 
 
-def _quiet(*_):
-    pass
-
-
-def test_editing_the_base_config_recomputes_every_point(tmp_path):
+def test_editing_the_base_config_recomputes_every_point(tmp_path, caplog):
     path = _sweep(tmp_path)
     out = tmp_path / "out"
-    first = sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    first = sweep.run_sweep(path, out, scheduler="serial")
     (tmp_path / "study.toml").write_text(STUDY.replace("0.01, -0.01", "0.05, -0.05"))
     with pytest.raises(FileExistsError, match="another sweep"):
-        sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
-    messages = []
-    again = sweep.run_sweep(path, out, scheduler="serial", log=messages.append, force=True)
-    assert "0 already done" in messages[0]
+        sweep.run_sweep(path, out, scheduler="serial")
+    with caplog.at_level(logging.INFO, logger="boresight.sweep"):
+        again = sweep.run_sweep(path, out, scheduler="serial", force=True)
+    assert "0 already done" in caplog.records[0].getMessage()
     # The residual is quadratic in dg at no rotation: 25 times larger.
     ratio = again[0]["residual_auto_bb"] / first[0]["residual_auto_bb"]
     assert abs(ratio / 25 - 1) < 1e-6  # exact up to rounding: the same sky and scan
@@ -204,30 +214,31 @@ def test_editing_the_base_config_recomputes_every_point(tmp_path):
 def test_corrupt_point_file_is_named_and_repaired(tmp_path, damage):
     path = _sweep(tmp_path)
     out = tmp_path / "out"
-    sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    sweep.run_sweep(path, out, scheduler="serial")
     whole = (out / "results.csv").read_text()
     victim = sorted((out / "points").glob("*.json"))[0]
     victim.write_text(damage(victim.read_text()))
     with pytest.raises(ConfigError, match=victim.name):
-        sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
-    sweep.run_sweep(path, out, scheduler="serial", log=_quiet, repair=True)
+        sweep.run_sweep(path, out, scheduler="serial")
+    sweep.run_sweep(path, out, scheduler="serial", repair=True)
     assert (out / "results.csv").read_text() == whole
 
 
-def test_truncated_sweep_json_is_repaired_or_forced(tmp_path):
+def test_truncated_sweep_json_is_repaired_or_forced(tmp_path, caplog):
     path = _sweep(tmp_path)
     out = tmp_path / "out"
-    sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
+    sweep.run_sweep(path, out, scheduler="serial")
     whole = (out / "results.csv").read_text()
     marker = out / "sweep.json"
     marker.write_text(marker.read_text()[:20])
     with pytest.raises(FileExistsError, match="unreadable"):
-        sweep.run_sweep(path, out, scheduler="serial", log=_quiet)
-    messages = []
-    sweep.run_sweep(path, out, scheduler="serial", log=messages.append, repair=True)
-    assert "2 already done" in messages[0] and (out / "results.csv").read_text() == whole
+        sweep.run_sweep(path, out, scheduler="serial")
+    with caplog.at_level(logging.INFO, logger="boresight.sweep"):
+        sweep.run_sweep(path, out, scheduler="serial", repair=True)
+    assert "2 already done" in caplog.records[0].getMessage()
+    assert (out / "results.csv").read_text() == whole
     marker.write_text("{")
-    sweep.run_sweep(path, out, scheduler="serial", log=_quiet, force=True)
+    sweep.run_sweep(path, out, scheduler="serial", force=True)
     assert (out / "results.csv").read_text() == whole
 
 
@@ -583,7 +594,7 @@ def test_export_refuses_a_fifo_and_leaves_it_alone(tmp_path, capsys):
     _, src = _toast_text(tmp_path)
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)
-    assert main(["export-schedule", str(src), str(fifo), "--force"]) == 2
+    assert main(["export-schedule", str(src), "--out", str(fifo), "--force"]) == 2
     assert "not a regular file" in _error(capsys)
     assert fifo.is_fifo()
     with pytest.raises(io.OutputError, match="not a regular file"):
@@ -592,7 +603,9 @@ def test_export_refuses_a_fifo_and_leaves_it_alone(tmp_path, capsys):
     assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == ["in.txt", "pipe"]
 
 
-@pytest.mark.parametrize("umask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o077, 0o600, 0o700)])
+@pytest.mark.parametrize(
+    "umask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o077, 0o600, 0o700)]
+)
 def test_outputs_respect_the_umask(tmp_path, study_file, umask, file_mode, dir_mode):
     """Files 0666 and directories 0777 less the umask, as any tool writes them: mkstemp's 0600
     and mkdtemp's 0700 kept collaborators out; --force keeps them readable too."""
@@ -608,7 +621,7 @@ def test_outputs_respect_the_umask(tmp_path, study_file, umask, file_mode, dir_m
         target = tmp_path / "t.txt"
         target.write_text("old")
         os.chmod(target, 0o644 & ~umask)
-        assert main(["-q", "export-schedule", str(src), str(target), "--force"]) == 0
+        assert main(["-q", "export-schedule", str(src), "--out", str(target), "--force"]) == 0
         assert target.stat().st_mode & 0o777 == file_mode
     finally:
         os.umask(old)
@@ -628,7 +641,7 @@ def test_export_refuses_names_toast_would_not_read_back(tmp_path, capsys, site, 
     schedule, _ = _toast_text(tmp_path, site=site, patch=patch)
     src = tmp_path / "s.toml"
     write_schedule(schedule.repeated([0.0, 90.0]), src, "toml")
-    assert main(["-q", "export-schedule", str(src), str(tmp_path / "out.txt")]) == 2
+    assert main(["-q", "export-schedule", str(src), "--out", str(tmp_path / "out.txt")]) == 2
     assert message in _error(capsys)
     assert not (tmp_path / "out.txt").exists()
 
@@ -711,8 +724,10 @@ def _design(tmp_path, capsys, systematics, *extra):
         ("dg = [0.01, -0.01]\ndg_repeat = [0.001, -0.001]", "dg_repeat is a gain drift between"),
         ("chi_deg = 30.0", "[systematics] has no non-zero amplitude (chi_deg"),
         ("ellipticity_angle_b_deg = 20.0", "[systematics] has no non-zero amplitude"),
-        ("dg = {mean = 0, rms = 2.0}", "dg = 2.101 and repeat 1 dg_repeat = 0, drawn from dg = "
-                                       "{mean = 0, rms = 2}"),  # fmt: skip
+        (
+            "dg = {mean = 0, rms = 2.0}",
+            "dg = 2.101 and repeat 1 dg_repeat = 0, drawn from dg = {mean = 0, rms = 2}",
+        ),  # fmt: skip
     ],
 )
 def test_budget_errors_name_the_file_and_the_key(tmp_path, capsys, systematics, message):
@@ -727,7 +742,9 @@ def test_budget_errors_name_the_file_and_the_key(tmp_path, capsys, systematics, 
 
 
 @pytest.mark.parametrize("systematics", ["dg_jitter = 0.01", "pol_angle_deg = 0.5"])
-def test_budgets_of_angle_independent_systematics_design_and_validate(tmp_path, capsys, systematics):
+def test_budgets_of_angle_independent_systematics_design_and_validate(
+    tmp_path, capsys, systematics
+):
     """A gain jitter (white) and an angle error (h_0) budget: every strategy has the same delta_r,
     the log says so, and the jitter is simulated on the schedule's samples in the validation
     ("the gain jitter's prediction needs the crossings per pixel" refused it)."""
@@ -789,7 +806,7 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path, ca
     """A missing directory of an output file and a 300-character prefix failed after the work,
     naming a staging file; so did an output directory whose name is too long."""
     _, src = _toast_text(tmp_path)
-    assert main(["-q", "export-schedule", str(src), str(tmp_path / "no" / "s.txt")]) == 2
+    assert main(["-q", "export-schedule", str(src), "--out", str(tmp_path / "no" / "s.txt")]) == 2
     assert "directory of the output file" in _error(capsys) and not (tmp_path / "no").exists()
     args = ["-q", "scan-stats", str(src), "--nside", "16", "--format", "so"]
     assert main([*args, "--out", str(tmp_path / "o"), "--prefix", "p" * 300]) == 2

@@ -94,9 +94,9 @@ def test_interleaved_fields_are_built_once(small_sky):
 def test_one_copy_of_the_maps(small_sky):
     """make_sky and from_maps store the maps interleaved: the kernels' layout is the maps
     themselves, not a second copy (1.2 GB at Nside 2048); the unpolarised copy keeps I alone."""
-    for the_sky in (small_sky, sky.Sky.from_maps(small_sky.maps, lmax=small_sky.lmax)):
-        assert np.shares_memory(the_sky.interleaved, the_sky.maps)
-        assert the_sky.interleaved.flags.c_contiguous
+    for s in (small_sky, sky.Sky.from_maps(small_sky.maps, lmax=small_sky.lmax)):
+        assert np.shares_memory(s.interleaved, s.maps)
+        assert s.interleaved.flags.c_contiguous
     bare = small_sky.without_polarisation()
     assert np.shares_memory(bare.interleaved, bare.maps)
     np.testing.assert_array_equal(bare.maps[0], small_sky.maps[0])

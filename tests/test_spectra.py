@@ -181,7 +181,7 @@ def _gauss_legendre_case(nside, lmax, mask_of, order=4):
     edges = spectra.log_bins(20, lmax, 14)
 
     def worst(analysis):
-        route = harmonics.map2alm(qu, lmax, 2, analysis)
+        route = harmonics.map2alm(qu, lmax, spin=2, analysis=analysis)
         return max(
             np.max(
                 np.abs(
@@ -236,10 +236,10 @@ def test_ring_weights_are_healpys(footprint):
     maps = rng.standard_normal((3, 12 * nside**2)) * weight[footprint]
     want = hp.map2alm(maps, lmax=lmax, iter=0, use_weights=True, pol=True)
     if footprint == "nothing":
-        assert not np.any(harmonics.map2alm(maps[1:], lmax, 2, "ring_weights"))
+        assert not np.any(harmonics.map2alm(maps[1:], lmax, spin=2, analysis="ring_weights"))
         return
-    got_t = harmonics.map2alm(maps[0], lmax, 0, "ring_weights")
-    got_eb = harmonics.map2alm(maps[1:], lmax, 2, "ring_weights")
+    got_t = harmonics.map2alm(maps[0], lmax, spin=0, analysis="ring_weights")
+    got_eb = harmonics.map2alm(maps[1:], lmax, spin=2, analysis="ring_weights")
     np.testing.assert_allclose(got_t, want[0], rtol=0, atol=1e-12 * np.abs(want[0]).max())
     np.testing.assert_allclose(got_eb, want[1:], rtol=0, atol=1e-12 * np.abs(want[1:]).max())
 
@@ -293,8 +293,8 @@ def test_transform_on_observed_pixels_is_the_full_sky_ones(case):
     maps[:, pixels] = values
     analysis = {"north cap": "jacobi", "above 2 nside": "lsqr"}.get(case, "ring_weights")
     assert harmonics.resolve_analysis("auto", maps, lmax) == analysis
-    want = harmonics.map2alm(maps, lmax, 2)
-    got = harmonics.map2alm_pixels(values, pixels, nside, lmax, 2)
+    want = harmonics.map2alm(maps, lmax, spin=2)
+    got = harmonics.map2alm_pixels(values, pixels, nside, lmax, spin=2)
     np.testing.assert_array_equal(got, want)
     got_t = harmonics.map2alm_pixels(values[0], pixels, nside, lmax)
     np.testing.assert_array_equal(got_t, harmonics.map2alm(maps[0], lmax))
@@ -312,8 +312,8 @@ def test_synthesis_on_observed_pixels_is_the_full_sky_maps():
     few = np.unique(rng.integers(0, 12 * nside**2, 40))
     for pixels in (np.flatnonzero(masks.survey_mask("wide", nside)), few):
         for spin, coefficients in ((2, alm), (0, alm[0])):
-            got = harmonics.alm2map_pixels(coefficients, pixels, nside, spin)
-            want = harmonics.alm2map(coefficients, nside, spin)[..., pixels]
+            got = harmonics.alm2map_pixels(coefficients, pixels, nside, spin=spin)
+            want = harmonics.alm2map(coefficients, nside, spin=spin)[..., pixels]
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.abs(want).max())
 
 

@@ -42,9 +42,9 @@ def _table(out):
 
 def test_serial_and_local_cluster_give_identical_tables(tmp_path):
     path = _sweep_files(tmp_path)
-    a = sweep.run_sweep(path, tmp_path / "serial", scheduler="serial", log=lambda m: None)
+    a = sweep.run_sweep(path, tmp_path / "serial", scheduler="serial")
     pytest.importorskip("dask.distributed")
-    sweep.run_sweep(path, tmp_path / "dask", scheduler=None, workers=2, log=lambda m: None)
+    sweep.run_sweep(path, tmp_path / "dask", scheduler=None, workers=2)
     assert _table(tmp_path / "serial") == _table(tmp_path / "dask")
     assert len(a) == 6 * 4 and (tmp_path / "serial" / "results.parquet").exists()
     ens = (tmp_path / "serial" / "ensemble.csv").read_text().splitlines()
@@ -54,7 +54,7 @@ def test_serial_and_local_cluster_give_identical_tables(tmp_path):
 def test_interrupted_sweep_resumes_to_the_same_rows(tmp_path):
     path = _sweep_files(tmp_path, "pbr_angle_deg = [0, 30, 60, 80, 89, 90]")
     whole = tmp_path / "whole"
-    sweep.run_sweep(path, whole, scheduler="serial", log=lambda m: None)
+    sweep.run_sweep(path, whole, scheduler="serial")
     out = tmp_path / "killed"
     cmd = [
         sys.executable,
@@ -79,7 +79,7 @@ def test_interrupted_sweep_resumes_to_the_same_rows(tmp_path):
     proc.wait()
     partial = len(list((out / "points").glob("*.json")))
     assert partial < 6, "the sweep finished before it could be interrupted"
-    sweep.run_sweep(path, out, scheduler="serial", log=lambda m: None)
+    sweep.run_sweep(path, out, scheduler="serial")
     assert _table(out) == _table(whole)
     assert not [p for p in (out / "points").iterdir() if p.name.startswith(".")]
 

@@ -9,9 +9,9 @@ import pytest
 from conftest import rel_max
 
 from boresight import config, coupling, engine, masks, predict, sky, spectra
-from boresight.schedule import CES, Schedule
 from boresight.instrument import Instrument, Spread, Systematics
 from boresight.scan import SyntheticScan
+from boresight.schedule import CES, Schedule
 
 CENTRED = dict(n_phi=4, range_rad=0.9, in_pixel="centre", seed=3)
 ANGLES = Systematics(
@@ -166,14 +166,14 @@ def test_jitter_cl_prediction(theory):
     sim = spectra.pseudo_spectra(np.array([0 * dp.real, dp.real, dp.imag]), mask, lmax)[2]
     h, hits = engine.scan_moments(scan.one_repeat(), nside, pixels=mask > 0)
     couplings = coupling.mask_coupling(mask, lmax, band=383)
+    prediction = predict.Prediction(
+        theory, couplings, 30.0, field_cl=predict.local_cl(s, mask, lmax)
+    )
     pred = predict.residual_pseudo_bb(
         h,
         mask,
-        couplings,
+        prediction,
         sysm,
-        theory,
-        30.0,
-        field_cl=predict.local_cl(s, mask, lmax),
         rotations_deg=scan.rotations_deg,
         crossings=hits,
     )
@@ -362,13 +362,15 @@ def test_expected_cl_falls_as_one_over_n_and_equals_a_fixed_plane_without_scatte
     for n in (4, 16):
         sysm = Systematics(dg=Spread(0.0, 0.01), pol_angle_deg=Spread(0.0, 0.5))
         inst = Instrument("uniform", n)
-        cl[n] = predict.systematic_cl(h, mask, sysm, theory, 100, 60.0, inst, expected=True)
+        cl[n] = predict.systematic_cl(
+            h, mask, sysm, theory, 100, fwhm_arcmin=60.0, instrument=inst, expected=True
+        )
     np.testing.assert_allclose(cl[4][:, 2:], 4 * cl[16][:, 2:], rtol=1e-10)
     fixed = Systematics(dg=(0.01, -0.004), pol_angle_deg=0.3)
     spread = Systematics(dg=(0.01, -0.004), pol_angle_deg=Spread(0.3, 0.0))
     np.testing.assert_allclose(
-        predict.systematic_cl(h, mask, spread, theory, 100, 60.0, expected=True),
-        predict.systematic_cl(h, mask, fixed, theory, 100, 60.0),
+        predict.systematic_cl(h, mask, spread, theory, 100, fwhm_arcmin=60.0, expected=True),
+        predict.systematic_cl(h, mask, fixed, theory, 100, fwhm_arcmin=60.0),
         rtol=1e-12,
     )
     with pytest.raises(ValueError, match="dg_repeat"):

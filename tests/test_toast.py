@@ -11,9 +11,17 @@ import numpy as np
 import pytest
 
 from boresight import cli, pointing, scanstats, so_maps
-from boresight.schedule import CES, Schedule, ScheduleError, Site, is_schedule, load_schedule, write_schedule
-from boresight.schedule import toast
-from boresight.schedule import ScanMotion
+from boresight.schedule import (
+    CES,
+    ScanMotion,
+    Schedule,
+    ScheduleError,
+    Site,
+    is_schedule,
+    load_schedule,
+    toast,
+    write_schedule,
+)
 
 SITE = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
 SITE += ["--site-lon", " -67.787", "--site-alt", "5200"]
@@ -326,9 +334,7 @@ def test_scan_motion_and_simground_settings():
     assert ScanMotion(0.5, rate_on_sky=False).mount_speed(60.0) == 0.5
     across_north = toast._ces(m, 0.0, 600.0, 0.0, "p", 350.0, 10.0, 50.0, 0, 0)
     assert (across_north.az_centre_deg, across_north.az_throw_deg) == (360.0, 20.0)
-    ces = tuple(
-        toast._ces(m, 0.0, 600.0, 0.0, "p", 10.0, 40.0, el, 0, 0) for el in (40.0, 60.0)
-    )
+    ces = tuple(toast._ces(m, 0.0, 600.0, 0.0, "p", 10.0, 40.0, el, 0, 0) for el in (40.0, 60.0))
     settings, notes = toast.simground_settings(Schedule(ces))
     assert notes == []
     assert settings["fix_rate_on_sky"] is True
@@ -401,8 +407,8 @@ def test_export_schedule_cli(tmp_path, capsys):
     src = tmp_path / "in.txt"
     toast.write(_schedule(), src)
     out = tmp_path / "out.txt"
-    assert cli.main(["export-schedule", str(src), str(out)]) == 0
+    assert cli.main(["export-schedule", str(src), "--out", str(out)]) == 0
     assert "SimGround(" in capsys.readouterr().out
     assert out.read_text() == src.read_text()
-    assert cli.main(["export-schedule", str(src), str(out)]) == 2  # exists
-    assert cli.main(["export-schedule", str(src), str(out), "--force"]) == 0
+    assert cli.main(["export-schedule", str(src), "--out", str(out)]) == 2  # exists
+    assert cli.main(["export-schedule", str(src), "--out", str(out), "--force"]) == 0

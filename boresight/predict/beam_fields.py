@@ -20,8 +20,8 @@ from .coefficients import _drawn
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from ..coupling import Coupling
     from ..cosmology import Spectra
+    from ..coupling import Coupling
     from ..instrument import Instrument, Systematics
     from ..sky import Sky
     from .cl import FieldSpectra
@@ -37,6 +37,7 @@ def beam_filters(
     rotations_deg: Sequence[float],
     fwhm_arcmin: float,
     lmax: int,
+    *,
     n_max: int = BEAM_N_MAX,
 ) -> dict[int, np.ndarray]:
     """The filters of the detectors' beam terms h_n G_n of Y, -n_max <= n <= n_max.
@@ -135,7 +136,7 @@ def _beam_field(sky, filt, spin, nthreads):
 
 
 def beam_spectra(
-    spectra: Spectra, band: int, fwhm_arcmin: float, field_cl: FieldSpectra | None = None
+    theory: Spectra, band: int, fwhm_arcmin: float, field_cl: FieldSpectra | None = None
 ) -> np.ndarray:
     """The beam-smoothed TT, EE, BB, TE that the beam terms scale: the patch's through the
     apodized mask where ``field_cl`` has them (:func:`local_cl` with ``beams=True``), else the
@@ -148,7 +149,7 @@ def beam_spectra(
 
     Parameters
     ----------
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
     band : int
     fwhm_arcmin : float
     field_cl : FieldSpectra, optional
@@ -159,7 +160,7 @@ def beam_spectra(
         [muK^2].
     """
     # healpy's TE window is sqrt(b_T b_E), so every column squared is the spectrum's window
-    cl = spectra.total(lmax=band) * hp.gauss_beam(fwhm_arcmin * ARCMIN, band, pol=True).T ** 2
+    cl = theory.total(lmax=band) * hp.gauss_beam(fwhm_arcmin * ARCMIN, band, pol=True).T ** 2
     if field_cl is not None and field_cl.apodized is not None:
         n = min(band + 1, field_cl.apodized.shape[1])
         cl[:, :n] = field_cl.apodized[:, :n]
@@ -170,6 +171,7 @@ def beam_h0_bb(
     coupling: Coupling,
     g0: np.ndarray,
     cl: np.ndarray,
+    *,
     leaked: bool = False,
     spread: _HitSpread | None = None,
     sky: Sky | None = None,

@@ -13,15 +13,16 @@ from ..constants import ARCMIN
 from .windows import pixel_window
 
 if TYPE_CHECKING:
-    from ..coupling import Coupling
     from ..cosmology import Spectra
+    from ..coupling import Coupling
 
 
 def reference_bb(
     coupling: Coupling,
-    spectra: Spectra,
+    theory: Spectra,
     fwhm_arcmin: float,
     nside: int,
+    *,
     r: float = 0.0,
     a_lens: float = 0.0,
 ) -> np.ndarray:
@@ -30,7 +31,7 @@ def reference_bb(
     Parameters
     ----------
     coupling : boresight.coupling.Coupling
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
     nside : int
     r, a_lens : float
@@ -43,7 +44,7 @@ def reference_bb(
     band = coupling.band  # the sky's B above the spectra's lmax, which the mask mixes down
     beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=band, pol=True)[:, 2]
     pixwin = pixel_window(nside, band)
-    cl = spectra.bb(r=r, a_lens=a_lens)[: band + 1] * (beam * pixwin) ** 2
+    cl = theory.bb(r=r, a_lens=a_lens)[: band + 1] * (beam * pixwin) ** 2
     return coupling.pseudo_bb(cl, np.zeros_like(cl))
 
 
@@ -51,13 +52,13 @@ R_RANGE = (30, 300)  #: the deep survey's primordial range
 
 
 def tensor_template(
-    coupling: Coupling, spectra: Spectra, fwhm_arcmin: float, nside: int
+    coupling: Coupling, theory: Spectra, fwhm_arcmin: float, nside: int
 ) -> np.ndarray:
     """Pseudo-C_BB of tensors at r = 1 through the mask: the template of :func:`delta_r`.
 
     Parameters
     ----------
-    coupling, spectra, fwhm_arcmin, nside
+    coupling, theory, fwhm_arcmin, nside
         As in :func:`reference_bb`.
 
     Returns
@@ -65,7 +66,7 @@ def tensor_template(
     numpy.ndarray, shape (lmax + 1,)
         [muK^2].
     """
-    return reference_bb(coupling, spectra, fwhm_arcmin, nside, r=1.0)
+    return reference_bb(coupling, theory, fwhm_arcmin, nside, r=1.0)
 
 
 def delta_r(

@@ -6,13 +6,15 @@ pseudo-C_BB. It needs m_4 = 0 (pairs whose 4 x angles cancel); the map level has
 
 from __future__ import annotations
 
+from concurrent.futures import Future
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
 import numba
 import numpy as np
 
-from .. import harmonics
+from .. import harmonics, interrupts
 from ..constants import ARCMIN
 from ..spectra import Footprint, as_footprint, pseudo_spectra
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
@@ -28,8 +30,8 @@ from .windows import _HitSpread, _inverse_hits
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from ..coupling import Coupling
     from ..cosmology import Spectra
+    from ..coupling import Coupling
     from ..instrument import Instrument, Systematics
     from ..sky import Sky
     from .coefficients import Coefficients, ExpectedPower
@@ -102,12 +104,12 @@ def _block_sums(hn, obs, weight, parent, nblock):
     return power, sum_re, sum_im
 
 
-def field_spectra(spectra, lmax, fwhm_arcmin):
+def field_spectra(theory, lmax, fwhm_arcmin):
     """Beam-smoothed spectra of the sky.
 
     Parameters
     ----------
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
     lmax : int
     fwhm_arcmin : float
 
@@ -116,7 +118,7 @@ def field_spectra(spectra, lmax, fwhm_arcmin):
     tt, ee, bb : numpy.ndarray, shape (lmax + 1,)
         [muK^2].
     """
-    tt, ee, bb, _ = spectra.total(lmax=lmax)
+    tt, ee, bb, _ = theory.total(lmax=lmax)
     beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)
     return tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2
 
@@ -135,7 +137,15 @@ class Term(NamedTuple):
 
 
 def leak_terms(
-    coefs, systematics, cl_tt, cl_pol, template_cl=None, beam=None, beam_cl=None, t2_mean=None
+    coefs,
+    systematics,
+    cl_tt,
+    cl_pol,
+    *,
+    template_cl=None,
+    beam=None,
+    beam_cl=None,
+    t2_mean=None,
 ):
     """The terms c h_n F of the spurious P whose spectra add (all but the h_0 terms).
 
@@ -228,6 +238,7 @@ def local_cl(
     sky: Sky,
     mask: np.ndarray,
     lmax: int,
+    *,
     nthreads: int = 0,
     beams: bool = False,
     analysis: str = "auto",
@@ -255,13 +266,13 @@ def local_cl(
     from ..masks import apodize
 
     mask = np.asarray(mask, dtype=np.float64)
-    pseudo = pseudo_spectra(sky.maps, mask, lmax, nthreads, analysis)
+    pseudo = pseudo_spectra(sky.maps, mask, lmax, nthreads=nthreads, analysis=analysis)
     cl = pseudo / np.mean(mask**2)
     masked = pseudo[[1, 2, 4]]
     if not beams:
         return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, read={})
     smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_APODIZATION_DEG)
-    apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads, analysis)[:4]
+    apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads=nthreads, analysis=analysis)[:4]
     apodized /= np.mean(smooth**2)
     return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, apodized, read={})
 
@@ -270,8 +281,9 @@ def systematic_cl(
     h: np.ndarray,
     mask: np.ndarray | Footprint,
     systematics: Systematics,
-    spectra: Spectra,
+    theory: Spectra,
     lmax: int,
+    *,
     fwhm_arcmin: float,
     instrument: Instrument | None = None,
     template_cl: np.ndarray | None = None,
@@ -294,7 +306,8 @@ def systematic_cl(
         :data:`BEAM_N_MAX`.
     mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
     systematics : boresight.instrument.Systematics
-    spectra : boresight.cosmology.Spectra
+    theory : boresight.cosmology.Spectra
+        Lensed LCDM and tensor spectra [muK^2].
     lmax : int
         The sky's band limit: every field's power to it enters, also that a mask later mixes
         below a lower lmax of the pseudo-spectra (a :class:`boresight.coupling.Coupling`'s band).
@@ -337,7 +350,7 @@ def systematic_cl(
         coefs, t2_mean = expected_coefficients(coefs, power), power.t2_mean
     nside = hp.npix2nside(h.shape[1])
     band = lmax  # the fields' variance and spectra to the sky's band limit
-    cl_tt, cl_pol = _field_cl(spectra, band, fwhm_arcmin, field_cl)
+    cl_tt, cl_pol = _field_cl(theory, band, fwhm_arcmin, field_cl)
     omega_pix = 4 * np.pi / h.shape[1]
     ell = np.arange(band + 1)
     out = np.zeros((2, lmax + 1))
@@ -346,15 +359,24 @@ def systematic_cl(
     beam = beam_cl = None
     if systematics.has_beams:  # the patch's spectra through the apodized mask: beam_spectra
         n_max = min(BEAM_N_MAX, h.shape[0] - 1)
-        beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max)
-        beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
+        beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max=n_max)
+        beam_cl = beam_spectra(theory, band, fwhm_arcmin, field_cl)
     inverse_hits = _inverse_hits(in_pixel, footprint, crossings)
     exact = _HitSpread(in_pixel, nside, band, inverse_hits)
     value = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
     slope = value  # replaced for the pointing terms below
     if systematics.has_pointing:
         slope = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated, gradient=True)
-    terms = leak_terms(coefs, systematics, cl_tt, cl_pol, template_cl, beam, beam_cl, t2_mean)
+    terms = leak_terms(
+        coefs,
+        systematics,
+        cl_tt,
+        cl_pol,
+        template_cl=template_cl,
+        beam=beam,
+        beam_cl=beam_cl,
+        t2_mean=t2_mean,
+    )
     for n, c, cl_e, cl_b, read_exactly in terms:
         if c == 0:
             continue
@@ -380,10 +402,10 @@ def systematic_cl(
     return out
 
 
-def _field_cl(spectra, band, fwhm_arcmin, field_cl):
+def _field_cl(theory, band, fwhm_arcmin, field_cl):
     """TT and EE + BB to ``band``: the patch's own (``field_cl``) where it has them, else the
     theory's."""
-    cl_tt, cl_ee, cl_bb = field_spectra(spectra, band, fwhm_arcmin)
+    cl_tt, cl_ee, cl_bb = field_spectra(theory, band, fwhm_arcmin)
     cl_pol = cl_ee + cl_bb
     if field_cl is not None:
         n = min(band + 1, field_cl.tt.size)
@@ -396,6 +418,7 @@ def signal_bb(
     coefs: Coefficients,
     cl_ee: np.ndarray,
     cl_bb: np.ndarray,
+    *,
     leaked: bool = False,
     expected: ExpectedPower | None = None,
     masked: np.ndarray | None = None,
@@ -444,19 +467,65 @@ def signal_bb(
     return out
 
 
+@dataclass(frozen=True)
+class Prediction:
+    """What the h_n prediction of a residual needs besides the scan and the systematics.
+
+    Parameters
+    ----------
+    theory : boresight.cosmology.Spectra
+        Lensed LCDM and tensor spectra [muK^2].
+    couplings : boresight.coupling.Coupling
+        The mask's coupling at the prediction's lmax, from the sky's band limit (its ``band``).
+    fwhm_arcmin : float
+        The sky's Gaussian beam [arcmin].
+    field_cl : FieldSpectra or concurrent.futures.Future, optional
+        Spectra [muK^2] of the sky inside the mask (:func:`local_cl`), which removes the patch's
+        sample variance from the comparison; default: the theory.
+    leaked : bool
+        Predict the leaked power <dB, dB> alone, without the h_0 term's rescaling of the sky's own
+        B (:func:`signal_bb`), rather than the whole residual.
+    """
+
+    theory: Spectra
+    couplings: Coupling
+    fwhm_arcmin: float
+    field_cl: FieldSpectra | Future | None = None
+    leaked: bool = False
+    _held: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def resolved_field_cl(self) -> FieldSpectra | None:
+        """:attr:`field_cl`, waited for where it is still being computed."""
+        if isinstance(self.field_cl, Future):
+            return interrupts.result(self.field_cl)
+        return self.field_cl
+
+    def gradient(self, sky: Sky, pixels: np.ndarray, nthreads: int = 0) -> np.ndarray:
+        """The sky's dT/dtheta, dT/dphi / sin(theta) at ``pixels``, (2, n), kept for the next
+        job's map-level prediction on the same sky and pixels (the jobs of one mask share both).
+        """
+        held = self._held.get("gradient")
+        if held is None or held[0] is not sky or held[1] is not pixels:
+            grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
+            held = self._held["gradient"] = (sky, pixels, grad)
+        return held[2]
+
+    def release(self):
+        """Drop what :meth:`gradient` keeps (0.3 GB on the wide mask at Nside 2048) once no
+        other job will check its map."""
+        self._held.clear()
+
+
 def residual_pseudo_bb(
     h: np.ndarray,
     mask: np.ndarray | Footprint,
-    coupling: Coupling,
+    prediction: Prediction,
     systematics: Systematics,
-    spectra: Spectra,
-    fwhm_arcmin: float,
+    *,
     instrument: Instrument | None = None,
     template_cl: np.ndarray | None = None,
-    field_cl: FieldSpectra | None = None,
     rotations_deg: Sequence[float] = (0.0,),
     crossings: np.ndarray | None = None,
-    leaked: bool = False,
     in_pixel: str = "centre",
     expected: bool = False,
     interpolated: bool = False,
@@ -468,21 +537,20 @@ def residual_pseudo_bb(
     The leaked power M^{BB,BB} C^BB_sys + M^{BB,EE} C^EE_sys plus the h_0 term's change of the
     cosmological signal (:func:`signal_bb`; for the paper's gain (1 - (dg_1 + dg_2)/4)^2 - 1),
     plus the beams' h_0 field (:func:`beam_h0_bb`; its cross term with an angle error's
-    rotation of E is left out). With ``field_cl`` the h_0 term of u uses the maps' own masked
-    spectra (:func:`signal_bb`).
+    rotation of E is left out). With the prediction's ``field_cl`` the h_0 term of u uses the
+    maps' own masked spectra (:func:`signal_bb`).
 
     Parameters
     ----------
-    h, mask, systematics, spectra, fwhm_arcmin, instrument, template_cl, field_cl
+    h, mask, systematics, instrument, template_cl
         As in :func:`systematic_cl`; ``mask`` may be its :class:`boresight.spectra.Footprint`.
-    coupling : boresight.coupling.Coupling
-        The mask's coupling; its lmax is the prediction's, its band the sky's band limit, to
-        which the fields' power enters (what the mask mixes down from above lmax included).
+    prediction : Prediction
+        The theory, the mask's coupling (its lmax is the prediction's, its band the sky's band
+        limit, to which the fields' power enters: what the mask mixes down from above lmax
+        included), the sky's beam, its spectra inside the mask and whether to predict the leaked
+        power alone.
     rotations_deg, crossings, in_pixel, expected, interpolated
         As in :func:`systematic_cl`.
-    leaked : bool
-        Predict the leaked power <dB, dB> alone, without the h_0 term's rescaling of the sky's own
-        B (:func:`signal_bb`).
     sky : boresight.sky.Sky, optional
         The simulated sky: the beams' h_0 field is then made on the sphere and masked
         (:func:`beam_h0_bb`), so its leaked power is this realisation's.
@@ -494,6 +562,12 @@ def residual_pseudo_bb(
     numpy.ndarray, shape (lmax + 1,)
         [muK^2].
     """
+    coupling, theory, fwhm_arcmin = (
+        prediction.couplings,
+        prediction.theory,
+        prediction.fwhm_arcmin,
+    )
+    field_cl, leaked = prediction.resolved_field_cl(), prediction.leaked
     lmax, band = coupling.lmax, coupling.band
     mask = as_footprint(mask)  # the observed pixels, once for every use below
     inverse_hits = _inverse_hits(in_pixel, mask, crossings)
@@ -501,20 +575,20 @@ def residual_pseudo_bb(
         h,
         mask,
         systematics,
-        spectra,
+        theory,
         band,
-        fwhm_arcmin,
-        instrument,
-        template_cl,
-        field_cl,
-        rotations_deg,
-        crossings,
-        in_pixel,
-        expected,
-        interpolated,
+        fwhm_arcmin=fwhm_arcmin,
+        instrument=instrument,
+        template_cl=template_cl,
+        field_cl=field_cl,
+        rotations_deg=rotations_deg,
+        crossings=crossings,
+        in_pixel=in_pixel,
+        expected=expected,
+        interpolated=interpolated,
     )
     nside = hp.npix2nside(h.shape[1])
-    _, cl_ee, cl_bb = field_spectra(spectra, band, fwhm_arcmin)
+    _, cl_ee, cl_bb = field_spectra(theory, band, fwhm_arcmin)
     if field_cl is not None:  # the patch's E; its masked B would carry the mask's E-to-B leak
         n = min(band + 1, field_cl.ee.size)
         cl_ee[:n] = field_cl.ee[:n]
@@ -543,12 +617,21 @@ def residual_pseudo_bb(
             ]
     coefs = coefficients(systematics, instrument, rotations_deg)
     power = expected_power(systematics, instrument, rotations_deg) if expected else None
-    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked, power, masked)
+    signal = signal_bb(coupling, coefs, cl_ee, cl_bb, leaked=leaked, expected=power, masked=masked)
     if systematics.has_beams:
-        g0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, 0)[0]
-        beam_cl = beam_spectra(spectra, band, fwhm_arcmin, field_cl)
+        g0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max=0)[0]
+        beam_cl = beam_spectra(theory, band, fwhm_arcmin, field_cl)
         spread = _HitSpread(in_pixel, nside, band, inverse_hits)
-        h0 = beam_h0_bb(coupling, g0, beam_cl, leaked, spread, sky, mask, analysis)
+        h0 = beam_h0_bb(
+            coupling,
+            g0,
+            beam_cl,
+            leaked=leaked,
+            spread=spread,
+            sky=sky,
+            mask=mask,
+            analysis=analysis,
+        )
         signal = signal + h0
     return coupling.pseudo_bb(cl_sys[1], cl_sys[0]) + signal
 

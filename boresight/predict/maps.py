@@ -26,6 +26,7 @@ def delta_p(
     h: np.ndarray,
     systematics: Systematics,
     instrument: Instrument | None = None,
+    *,
     template: np.ndarray | None = None,
     nthreads: int = 0,
     rotations_deg: Sequence[float] = (0.0,),
@@ -104,7 +105,9 @@ def _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads):
     """The beam terms' part of Y: sum_n h_n G_n over the n that h holds (:func:`beam_filters`),
     (npix,) complex."""
     n_max = h.shape[0] - 1
-    filters = beam_filters(systematics, instrument, rotations_deg, sky.fwhm_arcmin, sky.lmax, n_max)
+    filters = beam_filters(
+        systematics, instrument, rotations_deg, sky.fwhm_arcmin, sky.lmax, n_max=n_max
+    )
     out = np.zeros(h.shape[1], dtype=np.complex128)
     for n, filt in filters.items():
         if np.any(filt):

@@ -10,7 +10,6 @@ import healpy as hp
 import numba
 import numpy as np
 
-
 SPREAD_PIXELS = 1 << 16  #: pixels whose hit pairs sample the window of hits spread over pixels
 
 

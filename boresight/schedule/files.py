@@ -18,6 +18,7 @@ from .model import CES, CES_LIMITS, CES_METADATA, CES_REQUIRED, Schedule, Site
 if TYPE_CHECKING:
     from .toast import ScanMotion
 
+
 def load_schedule(
     path: str,
     motion: ScanMotion | None = None,

@@ -1,0 +1,68 @@
+"""What the commands share: the checks a user may skip, the progress bar's switch, and the flags
+of schedule files."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..resources import Checks
+
+
+def checks(args: argparse.Namespace) -> Checks:
+    """The up-front checks the flags leave on: memory (--no-memory-check), time (--yes)."""
+    return Checks(memory=not args.no_memory_check, time=not args.yes)
+
+
+def progress(args: argparse.Namespace) -> bool:
+    """Whether to show progress bars: on a terminal, without -q."""
+    return sys.stderr.isatty() and not args.quiet
+
+
+def motion_flags(parser: argparse.ArgumentParser) -> None:
+    """Flags for what a TOAST schedule leaves out; defaults are TOAST SimGround's."""
+    g = parser.add_argument_group("TOAST schedules (the file does not say how the mount moves)")
+    g.add_argument("--scan-rate", type=float, default=1.0, help="azimuth rate [deg/s] (1)")
+    g.add_argument(
+        "--rate-on",
+        choices=("sky", "mount"),
+        default="sky",
+        help="the rate is on the sky (SimGround's fix_rate_on_sky, default) or the mount's",
+    )
+    g.add_argument("--scan-accel", type=float, default=1.0, help="turnaround [deg/s^2] (1)")
+    g.add_argument("--sample-rate", type=float, default=20.0, help="samples per second (20)")
+
+
+def motion(args: argparse.Namespace):
+    """The :class:`boresight.schedule.ScanMotion` of the motion flags."""
+    from ..schedule import ScanMotion
+    from ..validation import ConfigError
+
+    try:
+        return ScanMotion(args.scan_rate, args.rate_on == "sky", args.scan_accel, args.sample_rate)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"--scan-rate, --scan-accel or --sample-rate: {err}") from None
+
+
+def pointing_flags(parser: argparse.ArgumentParser) -> None:
+    """Flags for how a schedule's samples become pointing: the sky frame and the turnarounds."""
+    from ..frames import FRAMES
+    from ..schedule import TURNAROUNDS
+
+    g = parser.add_argument_group("schedule pointing")
+    g.add_argument(
+        "--frame",
+        choices=FRAMES,
+        help="sky frame of the pointing and the maps (default: the schedule file's, else icrs)",
+    )
+    g.add_argument(
+        "--turnarounds",
+        choices=TURNAROUNDS,
+        help="keep the samples of the turnarounds, or leave them out as TOAST's map-making does "
+        "(default: the schedule file's, else include)",
+    )
+
+
+def pointing(args: argparse.Namespace) -> dict:
+    """The --frame and --turnarounds given (None: the schedule file's)."""
+    return dict(frame=args.frame, turnarounds=args.turnarounds)

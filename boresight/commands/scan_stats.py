@@ -1,0 +1,304 @@
+"""``boresight scan-stats``: the h_n, hit, N_phi and R maps of a study's synthetic scan or of a real
+schedule, their survey means, in boresight's layout or SO/SMARTIES's."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, NamedTuple
+
+import healpy as hp
+import numpy as np
+
+from .. import (
+    engine,
+    io,
+    masks,
+    plots,
+    precompile,
+    provenance,
+    resources,
+    scanstats,
+    so_maps,
+)
+from ..config import Study, as_dict, load_study
+from ..schedule import is_schedule, load_schedule
+from ..sky import SkyConfig
+from ..validation import ConfigError, require_finite
+from . import _common
+
+if TYPE_CHECKING:
+    from ..schedule import ScanMotion
+
+log = logging.getLogger(__name__)
+
+NAME = "scan-stats"
+HELP = "h_n, hit, N_phi and R maps of a study or a schedule"
+FORMATS = ("boresight", "so")
+#: the header COMMENT of boresight-layout h_n maps
+BORESIGHT_CONVENTION = "h_n = RE + i IM of <exp(i n psi)>, psi in boresight's convention"
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How the h_n maps are written.
+
+    Parameters
+    ----------
+    format : {"boresight", "so"}
+        One FITS table ``hn_maps.fits`` (RE_H1.., IM_H1..) in boresight's psi convention, or the
+        SO/SMARTIES files of :mod:`boresight.so_maps` (``{prefix}_cos_{n}.fits``...) in TOAST's.
+    prefix : str
+        File name prefix of the SO layout: letters, digits, '_', '-' and '.'.
+    """
+
+    format: str = "boresight"
+    prefix: str = "hn"
+
+    def __post_init__(self):
+        if self.format not in FORMATS:
+            raise ConfigError(f"--format {self.format!r}; allowed: {FORMATS}")
+        if not self.prefix or not all(c.isalnum() or c in "_-." for c in self.prefix):
+            raise ConfigError(f"--prefix {self.prefix!r} must be letters, digits, '_', '-' or '.'")
+        longest = len(os.fsencode(f"{self.prefix}_cos_4.fits"))
+        if longest > io.MAX_NAME_BYTES:
+            raise ConfigError(
+                f"--prefix is {len(self.prefix)} characters: its files' names would be {longest} "
+                f"bytes, at most {io.MAX_NAME_BYTES} are allowed"
+            )
+
+    @property
+    def convention(self) -> str:
+        """The psi convention of every output: TOAST/SO's in the SO layout, else boresight's."""
+        return "toast" if self.format == "so" else "boresight"
+
+
+class ScanMaps(NamedTuple):
+    """What scan-stats writes of a scan, RING maps (npix,).
+
+    h : numpy.ndarray, complex128, shape (n_max + 1, npix)
+        h_n in boresight's convention, 0 where unobserved.
+    observed : numpy.ndarray of bool
+    crossings : numpy.ndarray
+        Samples (or hits x rotations) per pixel.
+    n_phi, range_rad : numpy.ndarray
+        Distinct crossing angles and their range [rad].
+    """
+
+    h: np.ndarray
+    observed: np.ndarray
+    crossings: np.ndarray
+    n_phi: np.ndarray
+    range_rad: np.ndarray
+
+
+def run(
+    study: Study,
+    out_dir: str,
+    *,
+    force: bool = False,
+    n_max: int = 4,
+    layout: Layout = Layout(),
+    checks: resources.Checks = resources.Checks(),
+) -> list[dict]:
+    """Write the h_n, hit, N_phi and R maps of a study's synthetic scan, and their survey means.
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+    out_dir : str
+    force : bool
+    n_max : int
+        Highest moment written.
+    layout : Layout
+    checks : boresight.resources.Checks
+        The up-front memory and time checks to make.
+
+    Returns
+    -------
+    list of dict
+        n, mean_abs_h2, mean_re, mean_im for n = 1..n_max, in the layout's convention.
+    """
+    io.check_output_dir(out_dir, force, study.inputs)
+    estimate = resources.study_estimate("scan-stats", study)
+    resources.require(estimate, checks)
+    nside = study.sky.nside
+    obs = masks.from_config(study.mask, nside) > 0
+    h, crossings = engine.scan_moments(study.scan, nside, pixels=obs, nthreads=study.run.nthreads)
+    n_phi, r, _ = study.scan.per_pixel(np.arange(12 * nside**2), 12 * nside**2)
+    maps = ScanMaps(h, obs, crossings, n_phi, r)
+    return _write(out_dir, maps, n_max, study.inputs, force, layout, as_dict(study), estimate)
+
+
+def run_schedule(
+    schedule_path: str,
+    out_dir: str,
+    *,
+    nside: int = 128,
+    motion: ScanMotion | None = None,
+    force: bool = False,
+    tolerance_deg: float = 1.0,
+    layout: Layout = Layout(),
+    frame: str | None = None,
+    turnarounds: str | None = None,
+    progress: bool = False,
+    checks: resources.Checks = resources.Checks(),
+) -> list[dict]:
+    """:func:`run` for a CES schedule file (boresight's TOML or CSV, or TOAST's).
+
+    Parameters
+    ----------
+    schedule_path, out_dir : str
+    nside : int
+    motion : boresight.schedule.ScanMotion, optional
+        For a TOAST schedule: scan rate, acceleration and sample rate.
+    force : bool
+    tolerance_deg : float
+        Crossing angles closer than this count as one in N_phi.
+    layout : Layout
+    frame, turnarounds : str, optional
+        The sky frame of the maps and what the turnarounds' samples do
+        (:class:`boresight.schedule.Schedule`; default: the file's).
+    progress : bool
+        Show a progress bar over the schedule's samples.
+    checks : boresight.resources.Checks
+
+    Returns
+    -------
+    list of dict
+        As :func:`run`.
+    """
+    schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
+    try:
+        SkyConfig(nside=nside, lmax=2 * nside)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"--nside: {err}") from None
+    io.check_output_dir(out_dir, force, [schedule_path])
+    estimate = resources.schedule_estimate("schedule-stats", schedule, nside)
+    resources.require(estimate, checks)
+    timer = provenance.Timer(log)
+    precompile.precompile(precompile.kernels_for("schedule-stats"), timer=timer)
+    with timer("characterise the schedule"):
+        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg, progress=progress)
+    maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
+    config = {
+        "schedule": schedule_path,
+        "nside": nside,
+        "frame": schedule.frame,
+        "turnarounds": schedule.turnarounds,
+        "tolerance_deg": tolerance_deg,
+    }
+    return _write(out_dir, maps, scanstats.N_MAX, [schedule_path], force, layout, config, estimate)
+
+
+def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate):
+    """The survey means, the h_n maps in the layout, the scan maps, a figure and the manifest. In
+    the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi convention (odd h_n
+    change sign); the manifest's ``psi_convention`` says which."""
+    h, obs = maps.h, maps.observed
+    frame = config.get("frame", "icrs")
+    turn = so_maps.to_so if layout.format == "so" else (lambda hn, n: hn)
+    rows = [
+        dict(
+            n=n,
+            mean_abs_h2=float(np.mean(np.abs(h[n][obs]) ** 2)),
+            mean_re=float(np.mean(turn(h[n][obs], n).real)),
+            mean_im=float(np.mean(turn(h[n][obs], n).imag)),
+        )
+        for n in range(1, n_max + 1)
+    ]
+    require_finite("the h_n summary", [list(row.values()) for row in rows])
+    with io.staged_dir(out_dir, force, inputs) as stage:
+        if layout.format == "so":
+            so_maps.write(
+                stage,
+                layout.prefix,
+                h,
+                maps.crossings,
+                n_values=range(1, n_max + 1),
+                frame=frame,
+            )
+        else:
+            parts = [("RE", np.real), ("IM", np.imag)]
+            io.write_maps(
+                stage / "hn_maps.fits",
+                [np.where(obs, f(h[n]), hp.UNSEEN) for _, f in parts for n in range(1, n_max + 1)],
+                [f"{p}_H{n}" for p, _ in parts for n in range(1, n_max + 1)],
+                [""] * (2 * n_max),
+                comments=[BORESIGHT_CONVENTION],
+                frame=frame,
+            )
+        io.write_maps(
+            stage / "scan_maps.fits",
+            [
+                maps.crossings,
+                np.where(obs, maps.n_phi, 0),
+                np.where(obs, maps.range_rad, 0),
+            ],
+            ["CROSSINGS", "N_PHI", "RANGE_RAD"],
+            ["", "", "rad"],
+            frame=frame,
+        )
+        io.write_csv(stage / "hn_summary.csv", rows, list(rows[0]))
+        plots.map_figure(
+            [np.where(obs, np.abs(h[n]) ** 2, hp.UNSEEN) for n in (1, 2)],
+            ["|h_1|^2", "|h_2|^2"],
+            stage / "hn_maps.png",
+            unit="",
+        )
+        io.write_json(
+            stage / "manifest.json",
+            provenance.manifest(
+                {**config, "frame": frame, "psi_convention": layout.convention},
+                {},
+                {},
+                estimate.as_dict(),
+            ),
+        )
+    return rows
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", help="a study file, or a schedule (TOML, CSV or TOAST)")
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace an earlier output")
+    parser.add_argument("--nside", type=int, default=128, help="map resolution of a schedule")
+    parser.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="boresight",
+        help="h_n maps as hn_maps.fits, or as SO/SMARTIES {prefix}_cos_{n}/_sin_{n}.fits in "
+        "TOAST's psi convention (odd h_n change sign)",
+    )
+    parser.add_argument("--prefix", default="hn", help="file name prefix of --format so")
+    _common.motion_flags(parser)
+    _common.pointing_flags(parser)
+
+
+def main(args: argparse.Namespace) -> int:
+    layout = Layout(args.format, args.prefix)
+    if is_schedule(args.config):
+        rows = run_schedule(
+            args.config,
+            args.out,
+            nside=args.nside,
+            motion=_common.motion(args),
+            force=args.force,
+            layout=layout,
+            progress=_common.progress(args),
+            checks=_common.checks(args),
+            **_common.pointing(args),
+        )
+    else:
+        rows = run(
+            load_study(args.config),
+            args.out,
+            force=args.force,
+            layout=layout,
+            checks=_common.checks(args),
+        )
+    for row in rows:
+        log.info("n=%d  <|h_n|^2> = %.4g", row["n"], row["mean_abs_h2"])
+    return 0
