@@ -11,13 +11,15 @@ Usage: python bench/bench_beams.py [NSIDE ...]   (cube table; default 256 512 10
        python bench/bench_beams.py --cl           (the prediction table only)
 """
 
+import json
 import subprocess
 import sys
 
 import numpy as np
+from _table import report
 
 CUBE = """
-import resource, time, numpy as np
+import json, resource, time, numpy as np
 from boresight import beams, harmonics
 from boresight.constants import ARCMIN
 nside, e, dfwhm = {nside}, {e}, {dfwhm}
@@ -40,18 +42,27 @@ t0 = time.perf_counter()
 conv.extra(beam, th, ph, psi)
 rate = m / (time.perf_counter() - t0) / 1e6
 rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-print(f"| {{nside}} | {{lmax}} | {{'e = ' + str(e) if e else 'FWHM + 1 %'}} | {{kmax}} | "
-      f"{{build:.1f}} | {{rate:.2f}} | {{rss:.2f}} |")
+print(json.dumps(dict(nside=nside, lmax=lmax, beam="e = " + str(e) if e else "FWHM + 1 %",
+                      kmax=int(kmax), cube_build_s=build, msamples_per_s=rate, peak_rss_gib=rss)))
 """
 
 
 def cube_table(nsides):
-    print("| Nside | lmax | beam | kmax | cube build [s] | Msamples/s | peak RSS [GiB] |")
-    print("|---|---|---|---|---|---|---|")
+    rows = []
     for nside in nsides:
         for e, dfwhm in ((0.0, 0.07), (0.03, 0.0)):
             code = CUBE.format(nside=nside, e=e, dfwhm=dfwhm)
-            subprocess.run([sys.executable, "-c", code], check=True)
+            out = subprocess.run(
+                [sys.executable, "-c", code], check=True, capture_output=True, text=True
+            )
+            rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    report(
+        "beams_cube",
+        "Detector beams: ducc0 totalconvolve's cube, built and read at 4 million samples",
+        list(rows[0]),
+        rows,
+        "each row a fresh process: its peak RSS is the cube's",
+    )
 
 
 def cl_table(nside=512):
@@ -70,9 +81,7 @@ def cl_table(nside=512):
         "width, FWHM_B + 0.5'": Systematics(dfwhm_b_arcmin=0.5),
         "ellipticity e_B = 0.03": Systematics(ellipticity_b=0.03, ellipticity_angle_b_deg=30.0),
     }
-    print(f"\nPredicted / simulated leaked power at Nside {nside}, bands of 32 from ell = 40:")
-    print("| survey | systematic | min | max | worst band | every band within 10 % |")
-    print("|---|---|---|---|---|---|")
+    rows = []
     for survey in ("deep", "wide"):
         mask = masks.survey_mask(survey, nside)
         obs = mask > 0
@@ -91,10 +100,22 @@ def cl_table(nside=512):
             centres, p = spectra.bin_spectrum(pred, edges)
             ratio = p / spectra.bin_spectrum(auto, edges)[1]
             worst = int(np.argmax(np.abs(ratio - 1)))
-            print(
-                f"| {survey} | {name} | {ratio.min():.3f} | {ratio.max():.3f} | "
-                f"ell ~ {centres[worst]:.0f} | {bool(np.all(np.abs(ratio - 1) < 0.1))} |"
+            rows.append(
+                dict(
+                    survey=survey,
+                    systematic=name,
+                    ratio_min=float(ratio.min()),
+                    ratio_max=float(ratio.max()),
+                    worst_band_ell=float(centres[worst]),
+                    within_10_percent=bool(np.all(np.abs(ratio - 1) < 0.1)),
+                )
             )
+    report(
+        "beams_prediction",
+        f"Beams: predicted / simulated leaked power at Nside {nside}, bands of 32 from ell = 40",
+        list(rows[0]),
+        rows,
+    )
 
 
 if __name__ == "__main__":

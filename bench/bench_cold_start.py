@@ -12,6 +12,8 @@ import sys
 import tempfile
 import time
 
+from _table import report
+
 DEEP = ["examples/budget_deep_sat.toml", "examples/schedule_deep_sat.toml"]
 
 
@@ -37,11 +39,12 @@ def main(nside):
         with tempfile.TemporaryDirectory() as tmp:
             cache, out = os.path.join(tmp, "numba-cache"), os.path.join(tmp, "out")
             rows.append((name, run(cmd, cache, out), run(cmd, cache, out)))
-    print(f"{os.cpu_count()} cores")
-    print("| command | cold (empty numba cache) [s] | warm [s] | compilation (cold - warm) [s] |")
-    print("|---|---|---|---|")
-    for name, cold, warm in rows:
-        print(f"| {name} | {cold:.1f} | {warm:.1f} | {cold - warm:.1f} |")
+    report(
+        "cold_start",
+        "Commands in a fresh process: cold (empty numba cache) and warm",
+        ["command", "cold_s", "warm_s", "compilation_s"],
+        [dict(command=n, cold_s=c, warm_s=w, compilation_s=c - w) for n, c, w in rows],
+    )
 
 
 if __name__ == "__main__":

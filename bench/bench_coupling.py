@@ -10,6 +10,7 @@ import sys
 import time
 
 import numpy as np
+from _table import report
 
 from boresight import coupling, masks
 
@@ -19,8 +20,7 @@ def main(pairs):
         import pymaster as nmt
     except ImportError:
         nmt = None
-    head = ("Nside", "lmax", "W_L s", "pseudo_bb s", "spin-2 matrices s", "TT s", "NaMaster s")
-    print(" ".join(f"{h:>{max(len(h), 6)}}" for h in head))
+    rows = []
     for nside, lmax in pairs:
         mask = masks.survey_mask("wide", nside)
         t_ours = [time.perf_counter()]
@@ -42,11 +42,24 @@ def main(pairs):
             nmt.NmtWorkspace.from_fields(f0, f0, b)
             nmt.NmtWorkspace.from_fields(f2, f2, b)
             t_nmt = time.perf_counter() - t0
-        times = [f"{t:>{max(len(h), 6)}.3f}" for h, t in zip(head[2:], [*t_ours, t_nmt])]
-        row = f"{nside:>6} {lmax:>6} " + " ".join(times)
-        print(row, flush=True)
-    if nmt is None:
-        print("(pymaster not installed: NaMaster column is nan)")
+        rows.append(
+            dict(
+                nside=nside,
+                lmax=lmax,
+                mask_spectrum_s=t_ours[0],
+                pseudo_bb_s=t_ours[1],
+                spin2_matrices_s=t_ours[2],
+                tt_matrix_s=t_ours[3],
+                namaster_s=None if nmt is None else t_nmt,
+            )
+        )
+    report(
+        "coupling",
+        "Mask coupling on the wide mask: boresight's (ducc0) stages against NaMaster's workspaces",
+        list(rows[0]),
+        rows,
+        "" if nmt is not None else "pymaster not installed: no NaMaster column",
+    )
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from _table import report
 
 from boresight import cosmology, design
 from boresight.commands import design as design_command
@@ -47,15 +48,23 @@ def objective_costs(nside):
     t4 = time.perf_counter()
     design.optimise(obj, (-90.0, -45.0, 0.0, 45.0, 90.0), angles, sweeps=1)
     t5 = time.perf_counter()
-    print(
-        "| CESs | samples | Nside | observed pixels | entries | moments build | objective build "
-        "| one evaluation | one sweep (per unit) |"
+    row = dict(
+        ces=len(schedule.ces),
+        samples=schedule.n_samples,
+        nside=nside,
+        observed_pixels=int(moments.pixels.size),
+        entries=int(moments.index.size),
+        moments_build_s=t1 - t0,
+        objective_build_s=t2 - t1,
+        one_evaluation_s=(t4 - t3) / reps,
+        one_sweep_s=t5 - t4,
+        per_unit_ms=(t5 - t4) / moments.n_units * 1e3,
     )
-    print("|---|---|---|---|---|---|---|---|---|")
-    print(
-        f"| {len(schedule.ces)} | {schedule.n_samples:.3g} | {nside} | {moments.pixels.size} "
-        f"| {moments.index.size} | {t1 - t0:.1f} s | {t2 - t1:.1f} s | {(t4 - t3) / reps:.3f} s "
-        f"| {t5 - t4:.1f} s ({(t5 - t4) / moments.n_units * 1e3:.1f} ms) |"
+    report(
+        "design_costs",
+        "design: the cost of the objective on a 1,008-CES schedule",
+        list(row),
+        [row],
     )
 
 
@@ -66,24 +75,22 @@ def worked_example():
             "examples/schedule_deep_sat.toml",
             f"{tmp}/design",
         )
-    print(f"\nsigma(r) = {result['sigma_r']:.3g} (30 <= ell <= 300)\n")
-    print("| strategy | predicted delta_r | delta_r / sigma(r) | angle changes |")
-    print("|---|---|---|---|")
-    for r in result["strategies"]:
-        print(
-            f"| {r['strategy']} | {r['delta_r']:.3g} | {r['delta_r_over_sigma_r']:.3g} "
-            f"| {r['changes']} |"
-        )
     rows = {r["strategy"]: r["delta_r"] for r in result["strategies"]}
     best = min((v, k) for k, v in rows.items() if k != "optimised")
-    print(f"\noptimised / best baseline ({best[1]}): {rows['optimised'] / best[0]:.3g}\n")
-    print("| TOD check | predicted delta_r | simulated (leaked power) | ratio |")
-    print("|---|---|---|---|")
-    for v in result["validation"]:
-        print(
-            f"| {v['strategy']} | {v['predicted_delta_r']:.3g} | {v['simulated_delta_r']:.3g} "
-            f"| {v['ratio']:.3f} |"
-        )
+    report(
+        "design_example",
+        "design on the deep example: every strategy's predicted delta_r",
+        ["strategy", "delta_r", "delta_r_over_sigma_r", "changes"],
+        result["strategies"],
+        f"sigma(r) = {result['sigma_r']:.3g} (30 <= ell <= 300); optimised / best baseline "
+        f"({best[1]}): {rows['optimised'] / best[0]:.3g}",
+    )
+    report(
+        "design_validation",
+        "design on the deep example: the TOD check of the prediction",
+        ["strategy", "predicted_delta_r", "simulated_delta_r", "ratio"],
+        result["validation"],
+    )
 
 
 if __name__ == "__main__":

@@ -9,7 +9,8 @@ same work, timed on a slice of the sky. Usage: python bench/bench_engine.py [NSI
 import json
 import subprocess
 import sys
-import time
+
+from _table import report
 
 CHILD = r"""
 import json, resource, sys, time
@@ -54,10 +55,7 @@ print(json.dumps(dict(nside=nside, t_engine=t_engine, rate=samples / t_engine,
 
 
 def main(nsides, backend="cpu"):
-    print(
-        f"{'Nside':>6} {'engine s':>9} {'det-samples/s':>14} {'naive /s':>10} {'speed-up':>9} "
-        f"{'peak RSS GiB':>13}"
-    )
+    rows = []
     for nside in nsides:
         out = subprocess.run(
             [sys.executable, "-c", CHILD, str(nside), backend],
@@ -66,17 +64,27 @@ def main(nsides, backend="cpu"):
             check=True,
         )
         r = json.loads(out.stdout.strip().splitlines()[-1])
-        print(
-            f"{r['nside']:>6} {r['t_engine']:>9.2f} {r['rate']:>14.3e} {r['naive_rate']:>10.2e} "
-            f"{r['rate'] / r['naive_rate']:>9.0f} {r['rss_gib']:>13.2f}",
-            flush=True,
+        rows.append(
+            dict(
+                nside=r["nside"],
+                engine_s=r["t_engine"],
+                detector_samples_per_s=r["rate"],
+                naive_per_s=r["naive_rate"],
+                speed_up=r["rate"] / r["naive_rate"],
+                peak_rss_gib=r["rss_gib"],
+            )
         )
+    report(
+        f"engine_{backend}",
+        f"Engine throughput, the paper's deep case with 0/90 rotation, backend {backend}",
+        list(rows[0]),
+        rows,
+        "naive: healpy.get_interp_val and numpy.bincount on the same hits, on a slice of the sky",
+    )
 
 
 if __name__ == "__main__":
     args = sys.argv[1:]
     backend = "gpu" if "--gpu" in args else "cpu"
     nsides = [int(a) for a in args if a != "--gpu"] or [512, 1024, 2048]
-    t0 = time.time()
     main(nsides, backend)
-    print(f"(total {time.time() - t0:.0f} s, backend {backend})")

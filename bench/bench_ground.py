@@ -12,8 +12,11 @@ Usage: python bench/bench_ground.py [NSIDE]
 import sys
 import time
 
-from boresight import engine, pointing, scanstats, sky
+from _table import report
+
+from boresight import engine, pointing, scanstats
 from boresight.schedule import CES, Schedule
+from boresight.sky import SkyConfig, make_sky
 
 CES = tuple(
     CES(
@@ -34,7 +37,7 @@ def timed(fn, *args):
 
 
 def main(nside):
-    s = sky.make_sky(sky.SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=30.0, seed=1))
+    s = make_sky(SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=30.0, seed=1))
     warm = Schedule(CES[:1], sample_rate_hz=1.0)
     scanstats.characterise_schedule(warm, nside)
     engine.simulate_samples(s, pointing.pointing(warm))
@@ -45,13 +48,19 @@ def main(nside):
     t_tod = timed(lambda: engine.simulate_samples(s, pointing.pointing(short)))
     n_s, n_l = short.n_samples, long.n_samples
     steady = (n_l - n_s) / (t_long - t_short)
-    print(f"Nside {nside}; samples/s on {n_s:.2e} ({n_l:.2e}) samples")
-    print(f"{'pointing':<32} {n_s / t_point:.3e}")
-    print(
-        f"{'pointing + hit binning':<32} {n_s / t_short:.3e} ({n_l / t_long:.3e}); steady state "
-        f"{steady:.3e}, fixed {t_short - n_s / steady:.2f} s"
+    report(
+        "ground",
+        f"Real-scan throughput, 24 CESs at Nside {nside}: samples per second",
+        ["stage", "samples", "samples_per_s"],
+        [
+            dict(stage="pointing", samples=n_s, samples_per_s=n_s / t_point),
+            dict(stage="pointing + hit binning", samples=n_s, samples_per_s=n_s / t_short),
+            dict(stage="pointing + hit binning", samples=n_l, samples_per_s=n_l / t_long),
+            dict(stage="pointing + hit binning, steady state", samples=None, samples_per_s=steady),
+            dict(stage="pointing + TOD and maps", samples=n_s, samples_per_s=n_s / t_tod),
+        ],
+        f"the hit binning's fixed cost per map: {t_short - n_s / steady:.2f} s",
     )
-    print(f"{'pointing + TOD and maps':<32} {n_s / t_tod:.3e}")
 
 
 if __name__ == "__main__":

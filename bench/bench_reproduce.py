@@ -10,6 +10,8 @@ import sys
 import tempfile
 import time
 
+from _table import report
+
 from boresight import paper
 from boresight.commands import reproduce
 from boresight.config import RunOptions
@@ -23,15 +25,16 @@ def main(nside, lmax, backend):
         total = time.perf_counter() - t0
         with open(f"{tmp}/out/manifest.json") as f:
             stages = json.load(f)
-    print(f"Nside {nside}, lmax {lmax}, backend {backend}")
-    print(f"{'stage':<48} {'s':>8}")
-    for name, seconds in stages["wall_time_s"].items():
-        print(f"{name:<48} {seconds:>8.1f}")
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-    print(f"{'total':<48} {total:>8.1f}")
-    print(
-        f"peak RSS {rss:.2f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} claims "
-        "reproduced"
+    rows = [dict(stage=name, seconds=s) for name, s in stages["wall_time_s"].items()]
+    rows.append(dict(stage="total", seconds=total))
+    report(
+        f"reproduce_{nside}_{backend}",
+        f"The paper's reproduction at Nside {nside}, lmax {lmax}, backend {backend}, by stage",
+        ["stage", "seconds"],
+        rows,
+        f"peak RSS {rss:.2f} GiB; {sum(c.reproduced for c in claims)} of {len(claims)} "
+        "claims reproduced",
     )
 
 

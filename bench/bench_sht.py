@@ -1,8 +1,8 @@
 """Spherical-harmonic transforms at the paper's size: ducc0 on the CPU against s2fft on a GPU.
 
 The reproduction spends its time in map -> alm transforms of masked spin-2 maps (HEALPix: one
-adjoint synthesis with ring weights at lmax <= 2 Nside; 3 Jacobi iterations, 4 adjoint and 3
-forward syntheses, before 2026-11-23). This prints the time of one spin-0
+adjoint synthesis with ring weights at lmax <= 2 Nside, or 3 Jacobi iterations: 4 adjoint and 3
+forward syntheses). This prints the time of one spin-0
 and one spin-2 adjoint synthesis with ducc0 on all cores (and per map when 4 go in one call)
 and, where s2fft and a JAX GPU are importable, with s2fft's recursion-based JAX transform in
 float64 (first call, which compiles, and steady state), plus s2fft's spin-0 agreement with ducc0.
@@ -16,6 +16,7 @@ import time
 import ducc0
 import healpy as hp
 import numpy as np
+from _table import report
 
 from boresight import harmonics
 
@@ -30,10 +31,13 @@ def timed(fn, repeat=3):
 
 
 def _row(name, spin, first, t):
-    print(f"{name:<26} {spin:>4} {first:>13.2f} {t:>9.3f}", flush=True)
+    return dict(
+        library=name, spin=spin, first_call_s=None if np.isnan(first) else first, steady_s=t
+    )
 
 
 def ducc0_rows(nside, lmax, maps):
+    rows = []
     geom = harmonics.healpix_geometry(nside)
     for spin, m in ((0, maps[:1]), (2, maps[1:])):
         t, _ = timed(
@@ -41,14 +45,14 @@ def ducc0_rows(nside, lmax, maps):
                 map=m, lmax=lmax, spin=spin, nthreads=os.cpu_count(), **geom
             )
         )
-        _row(f"ducc0 ({os.cpu_count()} threads)", spin, np.nan, t)
+        rows.append(_row(f"ducc0 ({os.cpu_count()} threads)", spin, np.nan, t))
     batch = np.broadcast_to(maps[1:], (4,) + maps[1:].shape)  # ducc0's ntrans: 4 maps, one call
     t, _ = timed(
         lambda: ducc0.sht.adjoint_synthesis(
             map=batch, lmax=lmax, spin=2, nthreads=os.cpu_count(), **geom
         )
     )
-    _row("  4 maps per call, per map", 2, np.nan, t / 4)
+    rows.append(_row("  4 maps per call, per map", 2, np.nan, t / 4))
     for label, analysis in (("ring weights", "ring_weights"), ("3 iterations", "jacobi")):
         t, _ = timed(
             lambda a=analysis: harmonics.map2alm(
@@ -56,7 +60,8 @@ def ducc0_rows(nside, lmax, maps):
             ),
             1,
         )
-        _row(f"  map2alm, {label}", 2, np.nan, t)
+        rows.append(_row(f"  map2alm, {label}", 2, np.nan, t))
+    return rows
 
 
 def ring_subset_rows(nside, lmax, maps):
@@ -66,7 +71,7 @@ def ring_subset_rows(nside, lmax, maps):
 
     geom = harmonics.healpix_geometry(nside)
     weights = 4 * np.pi / maps.shape[-1] * harmonics.ring_weights(nside)
-    print(f"{'mask':<6} {'rings with data':>16} {'all rings s':>12} {'map2alm s':>10}")
+    rows = []
     for survey in ("wide", "deep"):
         masked = maps[1:] * masks.survey_mask(survey, nside)
         starts = geom["ringstart"].astype(np.int64)
@@ -83,7 +88,10 @@ def ring_subset_rows(nside, lmax, maps):
             ),
             1,
         )
-        print(f"{survey:<6} {share:>16.2f} {every:>12.2f} {subset:>10.2f}", flush=True)
+        rows.append(
+            dict(mask=survey, rings_with_data=float(share), all_rings_s=every, map2alm_s=subset)
+        )
+    return rows
 
 
 def s2fft_rows(nside, lmax, maps):
@@ -95,11 +103,11 @@ def s2fft_rows(nside, lmax, maps):
         import s2fft
 
         if jax.devices()[0].platform != "gpu":
-            return None
+            return None, []
     except Exception as err:  # noqa: BLE001 - any import or device failure means: not measured
         print(f"s2fft not measured: {str(err)[:200]}")
-        return None
-    flm0 = None
+        return None, []
+    flm0, rows = None, []
     for spin, f in ((0, maps[0]), (2, maps[1] + 1j * maps[2])):
         f_dev = jax.device_put(f)
 
@@ -123,10 +131,10 @@ def s2fft_rows(nside, lmax, maps):
         except Exception as err:  # noqa: BLE001 - out of memory, unsupported size: not measured
             print(f"s2fft spin {spin} failed: {str(err)[:200]}")
             continue
-        _row(f"s2fft jax (GPU, L={2 * nside})", spin, first, t)
+        rows.append(_row(f"s2fft jax (GPU, L={2 * nside})", spin, first, t))
         if spin == 0:
             flm0 = np.asarray(out)
-    return flm0
+    return flm0, rows
 
 
 def main(nside, lmax):
@@ -136,18 +144,30 @@ def main(nside, lmax):
     maps = np.empty((3, 12 * nside**2))
     maps[0] = harmonics.alm2map(alm[0], nside)
     maps[1:] = harmonics.alm2map(alm[1:], nside, spin=2)
-    print(f"Nside {nside}, lmax {lmax}: one adjoint synthesis (map -> alm, no iteration)")
-    print(f"{'library':<26} {'spin':>4} {'first call s':>13} {'steady s':>9}", flush=True)
-    ducc0_rows(nside, lmax, maps)
-    ring_subset_rows(nside, lmax, maps)
-    flm0 = s2fft_rows(nside, lmax, maps)
+    rows = ducc0_rows(nside, lmax, maps)
+    flm0, gpu_rows = s2fft_rows(nside, lmax, maps)
+    notes = ""
     if flm0 is not None:
         ref = harmonics.map2alm(maps[0], lmax, iterations=0)
         ell, em = hp.Alm.getlm(lmax)
         mine = flm0[ell, 2 * nside - 1 + em]
         scale = np.vdot(ref, mine) / np.vdot(mine, mine)  # normalisation conventions differ
         err = np.max(np.abs(mine * scale - ref)) / np.max(np.abs(ref))
-        print(f"s2fft spin-0 vs ducc0 (after one overall scale {abs(scale):.4g}): {err:.2e}")
+        notes = f"s2fft spin-0 vs ducc0 (after one overall scale {abs(scale):.4g}): {err:.2e}"
+    report(
+        "sht",
+        f"One adjoint synthesis (map -> alm) at Nside {nside}, lmax {lmax}",
+        ["library", "spin", "first_call_s", "steady_s"],
+        rows + gpu_rows,
+        notes,
+    )
+    masked = ring_subset_rows(nside, lmax, maps)
+    report(
+        "sht_masked",
+        f"A survey-masked spin-2 map at Nside {nside}: every ring against the rings with data",
+        list(masked[0]),
+        masked,
+    )
 
 
 if __name__ == "__main__":

@@ -14,6 +14,8 @@ import resource
 import sys
 import time
 
+from _table import report
+
 from boresight import engine, masks, suppression
 from boresight.instrument import Systematics
 from boresight.scan import paper_scan
@@ -35,28 +37,35 @@ def per_systematic(sky):
 
 
 def main(nsides):
-    print("| Nside | systematic | engine time, deep survey at 0/90 deg [s] | x no systematic |")
-    print("|---|---|---|---|")
-    whole = []
+    costs, whole = [], []
     for nside in nsides:
         cfg = SkyConfig(nside=nside, lmax=3 * nside - 1, fwhm_arcmin=30.0)
         sky = make_sky(cfg)
         rows, npix = per_systematic(sky)
         base = rows[0][1]
-        for name, t in rows:
-            print(f"| {nside} | {name} | {t:.2f} | {t / base:.2f} |")
+        costs += [
+            dict(nside=nside, systematic=name, engine_s=t, times_no_systematic=t / base)
+            for name, t in rows
+        ]
         t0 = time.perf_counter()
         result = suppression.run(make_sky(cfg))
         whole.append((nside, npix, time.perf_counter() - t0))
         table = suppression.markdown(suppression.table(result, nside))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-    print()
-    print("| Nside | observed pixels | suppression map (36 simulations + predictions) [s] |")
-    print("|---|---|---|")
-    for nside, npix, t in whole:
-        print(f"| {nside} | {npix} | {t:.1f} |")
-    print(f"\npeak RSS of this process: {rss:.2f} GiB")
-    print(f"\nThe suppression map at Nside {nsides[-1]} (the README's table):\n")
+    report(
+        "suppression_costs",
+        "What each systematic costs the engine: the deep survey at 0/90 deg rotation",
+        list(costs[0]),
+        costs,
+    )
+    report(
+        "suppression",
+        "The whole suppression map: 9 systematics x 4 schedules, simulated and predicted",
+        ["nside", "observed_pixels", "seconds"],
+        [dict(nside=n, observed_pixels=p, seconds=t) for n, p, t in whole],
+        f"peak RSS of this process {rss:.2f} GiB",
+    )
+    print(f"\nThe suppression map at Nside {nsides[-1]}:\n")
     print(table)
 
 

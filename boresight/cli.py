@@ -87,13 +87,14 @@ def main(argv: list[str] | None = None) -> int:
     int
         The exit code (see the module's docstring).
     """
-    from .validation import BoresightError
 
     # the command line draws files, never windows (a library leaves a notebook's backend alone)
     os.environ.setdefault("MPLBACKEND", "Agg")
     with interrupts.handled():
         done = False
         try:
+            from .validation import BoresightError
+
             args = parser().parse_args(argv)
             configure_logging(quiet=args.quiet, verbose=args.verbose)
             interrupts.check()

@@ -29,9 +29,10 @@ from .harmonics import ANALYSES
 from .instrument import Instrument, Spread, Systematics, response
 from .io import toml_text, tomllib
 from .kernels import BACKENDS
-from .masks import SURVEYS
+from .masks import MaskSpec
 from .scan import SyntheticScan
 from .sky import Sky, SkyConfig, make_sky
+from .spectra import log_bins
 from .threads import check_threads
 from .validation import ConfigError, option
 
@@ -53,33 +54,6 @@ def check_backend(name, backend):
         raise ConfigError(f"{name} = {backend!r}; allowed: {BACKENDS}")
     if backend == "gpu" and importlib.util.find_spec("cupy") is None:
         raise ConfigError(f"{name} = 'gpu' needs CuPy: pip install 'boresight[gpu]'")
-
-
-@dataclass(frozen=True)
-class MaskSpec:
-    """Where a study looks: the ``[mask]`` table.
-
-    Parameters
-    ----------
-    survey : {"deep", "wide", "none"}
-        SO-like survey footprint (:mod:`boresight.masks`); "none" is the full sky.
-    file : str, optional
-        A HEALPix FITS mask with weights in [0, 1], instead of the survey.
-    apodize_fwhm_deg : float, optional
-        Apodisation FWHM [deg], in [0.001, 180].
-    """
-
-    survey: str = option("none", "survey footprint ('none': full sky)", choices=SURVEYS)
-    file: str = option(
-        None, "a HEALPix FITS mask with weights in [0, 1] (instead of survey)", (str,)
-    )
-    apodize_fwhm_deg: float = option(None, "apodisation FWHM [deg], in [0.001, 180]", (int, float))
-
-    def __post_init__(self):
-        if self.survey not in SURVEYS:
-            raise ValueError(f"survey = {self.survey!r}; allowed: {SURVEYS}")
-        if self.apodize_fwhm_deg is not None:
-            validation.number("apodize_fwhm_deg", self.apodize_fwhm_deg, 1e-3, 180.0)
 
 
 @dataclass(frozen=True)
@@ -192,7 +166,6 @@ class OutputOptions:
             About n_bands logarithmic edges from lmin to lmax + 1
             (:func:`boresight.spectra.log_bins`).
         """
-        from .spectra import log_bins
 
         return log_bins(self.lmin, self.lmax, self.n_bands)
 

@@ -67,7 +67,7 @@ class Coupling:
         Applied in real space (module docstring); it agrees with the matrices to about 1e-15 of
         the spectrum's peak (double precision), so a spectrum that falls steeply agrees less,
         relative to itself, where it is small (7.5e-6 at l = 3998 for the r = 1 template at
-        lmax 4000, README). By symmetry,
+        lmax 4000; docs/conventions.md). By symmetry,
         ``pseudo_bb(cl_ee, cl_bb)`` is the pseudo-C_EE.
 
         Parameters

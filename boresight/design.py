@@ -33,8 +33,10 @@ import numba
 import numpy as np
 
 from . import coupling, interrupts, predict, validation
+from .config import ConfigError, build_section, check_systematics, read_toml
 from .constants import DEG
-from .instrument import AMPLITUDES, Instrument, _nonzero
+from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
+from .noise import SurveyNoise
 from .pointing import chunk_arguments
 from .scanstats import N_MAX, ces_hits
 from .schedule import Schedule
@@ -434,7 +436,6 @@ def drawn(systematics: Systematics) -> bool:
     -------
     bool
     """
-    from .instrument import LIMITS, Spread
 
     return any(
         isinstance(v, Spread) and v.rms > 0 for v in (getattr(systematics, k) for k in LIMITS)
@@ -633,9 +634,6 @@ def load_budget(path: str) -> Budget:
     -------
     Budget
     """
-    from .config import ConfigError, build_section, check_systematics, read_toml
-    from .instrument import Systematics
-    from .noise import SurveyNoise
 
     raw = read_toml(path, "budget")
     unknown = sorted(set(raw) - set(BUDGET_SECTIONS))

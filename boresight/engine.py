@@ -48,7 +48,7 @@ def _pixel_list(pixels, npix):
         raise ValueError(f"pixels must be 1-d (indices or a boolean map), got shape {pixels.shape}")
     if pixels.dtype == bool:
         if pixels.size != npix:
-            raise ValueError(f"pixel mask has {pixels.size} entries, the sky has {npix}")
+            raise ValueError(f"pixels: a boolean map of {pixels.size} entries, the sky has {npix}")
         return np.flatnonzero(pixels).astype(np.int64, copy=False)
     if not np.issubdtype(pixels.dtype, np.integer):
         raise ValueError(
@@ -59,7 +59,7 @@ def _pixel_list(pixels, npix):
     if pixels.size > 1 and not np.all(pixels[1:] > pixels[:-1]):
         pixels = np.unique(pixels)  # else already sorted and unique: no copy
     if pixels.size and (pixels[0] < 0 or pixels[-1] >= npix):
-        raise ValueError(f"pixel indices must lie in [0, {npix})")
+        raise ValueError(f"pixels: RING indices must lie in [0, {npix})")
     return pixels
 
 

@@ -15,7 +15,7 @@ The rotation and the Earth's velocity change slowly: :func:`frame_terms` evaluat
 chunk of at most :data:`CHUNK_SECONDS`, at the chunk's middle, and the kernels apply them to every
 sample with :func:`to_frame`. Aberration is first order in v / c (a 2e-8 rad = 4 mas remainder).
 Light deflection by the Sun (4 mas at 90 deg from it) and polar motion (< 0.5 arcsec) are left
-out. The result is astropy's AltAz -> ICRS to 0.5 arcsec (``tests/test_ground.py``).
+out. The result is astropy's AltAz -> ICRS to 0.5 arcsec (``tests/test_pointing.py``).
 
 The crossing angle moves with the frame: the focal plane's "up" direction at the sample is
 rotated with the direction and measured against the new frame's (e_theta, e_phi) there.

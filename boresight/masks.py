@@ -14,7 +14,7 @@ They are not official SO masks; they reproduce the paper's sky fractions and geo
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import healpy as hp
 import numba
@@ -22,11 +22,7 @@ import numpy as np
 
 from . import io, validation
 from .constants import DEG
-from .validation import ConfigError
-
-if TYPE_CHECKING:
-    from .config import MaskSpec
-
+from .validation import ConfigError, option
 
 FOOTPRINTS = {
     "deep": dict(ra_deg=(-60.0, 60.0), dec_deg=(-70.0, -20.0), galactic_cut_deg=0.0),
@@ -151,12 +147,39 @@ def read_mask(path: str, nside: int | None = None) -> np.ndarray:
     return mask
 
 
+@dataclass(frozen=True)
+class MaskSpec:
+    """Where a study looks: the ``[mask]`` table.
+
+    Parameters
+    ----------
+    survey : {"deep", "wide", "none"}
+        SO-like survey footprint (:mod:`boresight.masks`); "none" is the full sky.
+    file : str, optional
+        A HEALPix FITS mask with weights in [0, 1], instead of the survey.
+    apodize_fwhm_deg : float, optional
+        Apodisation FWHM [deg], in [0.001, 180].
+    """
+
+    survey: str = option("none", "survey footprint ('none': full sky)", choices=SURVEYS)
+    file: str = option(
+        None, "a HEALPix FITS mask with weights in [0, 1] (instead of survey)", (str,)
+    )
+    apodize_fwhm_deg: float = option(None, "apodisation FWHM [deg], in [0.001, 180]", (int, float))
+
+    def __post_init__(self):
+        if self.survey not in SURVEYS:
+            raise ValueError(f"survey = {self.survey!r}; allowed: {SURVEYS}")
+        if self.apodize_fwhm_deg is not None:
+            validation.number("apodize_fwhm_deg", self.apodize_fwhm_deg, 1e-3, 180.0)
+
+
 def from_config(spec: MaskSpec, nside: int) -> np.ndarray:
     """The mask a study's [mask] table describes.
 
     Parameters
     ----------
-    spec : boresight.config.MaskSpec
+    spec : MaskSpec
     nside : int
 
     Returns

@@ -12,6 +12,8 @@ import matplotlib.ticker
 import numpy as np
 
 from . import interrupts, predict
+from .constants import ARCMIN
+from .suppression import ANGLES, CATALOGUE
 
 if TYPE_CHECKING:
     import os
@@ -84,8 +86,9 @@ def residual_figure(
     res: ExperimentResult,
     table: BandTable,
     study: Study,
-    angles: list,
     path_stem: str | os.PathLike,
+    *,
+    angles: list,
 ) -> None:
     """Residual pseudo-C_BB against ell at some rotation angles, as in the paper's figures.
 
@@ -316,7 +319,6 @@ def design_figure(
     theory : boresight.cosmology.Spectra
     path_stem : pathlib.Path
     """
-    from .constants import ARCMIN
 
     coupling = objective.coupling
     nside = objective.moments.nside
@@ -350,7 +352,6 @@ def suppression_figure(result, nside: int, path_stem: str | os.PathLike) -> None
     path_stem : pathlib.Path
         Writes .png and .pdf.
     """
-    from .suppression import ANGLES, CATALOGUE
 
     ncol = 4
     nrow = -(-len(CATALOGUE) // ncol)

@@ -1,9 +1,10 @@
 """Compiling the numba kernels a run calls before it calls them, on several cores at once.
 
 With an empty numba cache (a new install, a new numba) each kernel compiles on its first call, one
-after another on one core: about 13 s of CPU time in a quick reproduction and 10 s in ``design``,
-while the other cores wait. :func:`precompile` shares the kernels that the cache lacks between this
-process and helper processes (``python -m boresight.precompile NAME ...``). Each helper writes its
+after another on one core, while the other cores wait (``bench/bench_cold_start.py`` measures
+it). :func:`precompile` shares the kernels that the cache lacks between this process and helper
+processes (``python -m boresight.precompile NAME ...``); ``python -m boresight.precompile``
+alone compiles every kernel. Each helper writes its
 kernels to numba's cache, and this process then loads them from there. With a warm cache it only
 checks the cache, a few milliseconds per kernel.
 
@@ -56,7 +57,7 @@ class Kernel:
         It is ``boresight.<module>.<name>``.
     signature : tuple of numba types
     seconds : float
-        Its compile time on the 2-core machine (2026-11-24); it only balances the processes.
+        Its relative compile time, measured once; it only balances the processes.
     """
 
     module: str
@@ -283,5 +284,11 @@ def _compile(name):
 
 
 if __name__ == "__main__":
-    for arg in sys.argv[1:]:
-        _compile(arg)
+    # ``python -m boresight.precompile``: every kernel, on all cores (CI before the tests); with
+    # kernel names, a helper process of precompile() compiling its share
+    if len(sys.argv) > 1:
+        for arg in sys.argv[1:]:
+            _compile(arg)
+    else:
+        compiled = precompile(list(KERNELS))
+        print(f"{len(compiled)} of {len(KERNELS)} numba kernels compiled; the rest were cached")

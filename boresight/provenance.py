@@ -15,7 +15,7 @@ from pathlib import Path
 import healpy as hp
 import numpy as np
 
-from . import interrupts
+from . import __version__, interrupts
 
 _log = logging.getLogger(__name__)
 
@@ -57,8 +57,6 @@ class Timer:
 def _versions():
     import ducc0
     import numba
-
-    from . import __version__
 
     return {
         "boresight": __version__,

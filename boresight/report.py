@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .paper import band_table
+
 if TYPE_CHECKING:
     from .config import Study
     from .paper import BandTable, ExperimentResult
@@ -291,7 +293,6 @@ def evaluate_claims(results: dict, rows: list[dict], study: Study) -> list[Claim
     -------
     list of Claim
     """
-    from .paper import band_table
 
     claims = []
     for name, res in results.items():

@@ -29,6 +29,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from . import beams
+from .constants import ARCMIN
+from .engine import DEFAULT_CHUNK_PIXELS
+from .instrument import Instrument
+from .masks import SURVEY_FSKY
+from .predict import BEAM_N_MAX
 from .validation import MemoryLimitError, TimeLimitError
 
 _log = logging.getLogger(__name__)
@@ -192,10 +198,6 @@ def beam_bytes(
         return 0.0
     import ducc0
 
-    from . import beams
-    from .constants import ARCMIN
-    from .predict import BEAM_N_MAX
-
     nominal = fwhm_arcmin * ARCMIN
     distinct = {b for pair in beams.pair_beams(systematics.per_pair(instrument.n_pairs), nominal)
                 for b in pair if b != beams.Beam(nominal)}  # fmt: skip
@@ -217,7 +219,6 @@ def beam_bytes(
 
 def _survey_fraction(study):
     """The share of the sky a study's scan observes (its mask's), for the chunks of hits."""
-    from .masks import SURVEY_FSKY
 
     return SURVEY_FSKY.get(study.mask.survey, 1.0) if study.mask.file is None else 1.0
 
@@ -235,7 +236,6 @@ def study_estimate(job: str, study: Study) -> Estimate:
     -------
     Estimate
     """
-    from .engine import DEFAULT_CHUNK_PIXELS
 
     nside, lmax = study.sky.nside, max(study.sky.lmax, study.output.lmax)
     parts = _common(job, nside, lmax)
@@ -291,14 +291,13 @@ def schedule_estimate(
     -------
     Estimate
     """
-    from .instrument import Instrument as _Instrument
 
     lmax = 2 * nside if lmax is None else lmax
     parts = _common(job, nside, lmax)
     parts["chunk"] = 8.0 * 6.0 * min(float(schedule.n_samples), 2.0**20)
     if systematics is not None and tod_runs:
         parts["beams"] = beam_bytes(
-            systematics, instrument or _Instrument(), fwhm_arcmin, lmax, cubes=True
+            systematics, instrument or Instrument(), fwhm_arcmin, lmax, cubes=True
         )
     samples = float(schedule.n_samples)
     seconds = samples / SAMPLE_RATES["pointing"]

@@ -22,7 +22,7 @@ from . import predict, resources, spectra
 from .config import RunOptions
 from .cosmology import load_spectra
 from .coupling import mask_coupling
-from .instrument import PAPER_GAIN, PAPER_POINTING, Systematics
+from .instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
 from .masks import SURVEY_FSKY, survey_mask
 from .residual import compute_moments, residual, simulate_reference
 from .scan import paper_scan
@@ -125,7 +125,6 @@ def estimate(study: Study) -> Estimate:
     -------
     boresight.resources.Estimate
     """
-    from .instrument import Instrument
 
     base = resources.study_estimate("suppression", study)
     beams = max(

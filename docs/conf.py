@@ -1,4 +1,11 @@
-"""Sphinx configuration: the documentation site of boresight (build: see the README)."""
+"""Sphinx configuration: the documentation site of boresight (build: see CONTRIBUTING.md).
+
+The performance page is built from the benchmarks' tables, ``bench/results/*.json``, which this
+file turns into ``_generated/performance_tables.md`` on every build.
+"""
+
+import json
+from pathlib import Path
 
 import boresight
 
@@ -25,7 +32,55 @@ nb_execution_mode = "force"
 nb_execution_timeout = 600
 nb_execution_raise_on_error = True
 nb_execution_show_tb = True
-exclude_patterns = ["_build", "**.ipynb_checkpoints"]
-html_theme = "alabaster"
+exclude_patterns = ["_build", "**.ipynb_checkpoints", "_generated"]
+html_theme = "furo"
 html_title = "boresight"
 autodoc_mock_imports = ["cupy"]  # the GPU backend documents without a GPU
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE.parent / "bench" / "results"
+
+
+def _cell(value):
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return "" if value is None else str(value)
+
+
+def performance_tables(results=RESULTS):
+    """Markdown of every benchmark table, each with its machine, date and versions."""
+    out = []
+    files = sorted(results.glob("*.json"))
+    if not files:
+        return "No benchmark has written its table yet: run a script of `bench/`.\n"
+    for path in files:
+        data = json.loads(path.read_text())
+        machine, versions = data["machine"], data["versions"]
+        out += [
+            f"## {data['title']}",
+            "",
+            f"`bench/results/{path.name}`: {data['date']}, {machine['cpu']}, "
+            f"{machine['cores']} cores, {machine['memory_gib']} GiB; boresight "
+            f"{versions['boresight']}, numba {versions['numba']}, ducc0 {versions['ducc0']}.",
+            "",
+            "| " + " | ".join(data["columns"]) + " |",
+            "|" + "---|" * len(data["columns"]),
+        ]
+        out += [
+            "| " + " | ".join(_cell(row.get(c)) for c in data["columns"]) + " |"
+            for row in data["rows"]
+        ]
+        out += ["", data["notes"], ""] if data.get("notes") else [""]
+    return "\n".join(out)
+
+
+def _write_performance(app):
+    target = HERE / "_generated" / "performance_tables.md"
+    target.parent.mkdir(exist_ok=True)
+    target.write_text(performance_tables())
+
+
+def setup(app):
+    app.connect("builder-inited", _write_performance)

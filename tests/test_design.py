@@ -1,5 +1,5 @@
 """boresight design: per-unit moments, the predicted-delta_r objective, the optimiser, baselines,
-budgets and the command (issue 15)."""
+budgets and the command."""
 
 import numpy as np
 import pytest
@@ -204,7 +204,7 @@ def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
 
 
 def test_design_command_on_the_deep_example(tmp_path):
-    """The issue's check: gain + pointing + ellipticity budget on examples/schedule_deep_sat.toml
+    """The check: gain + pointing + ellipticity budget on examples/schedule_deep_sat.toml
     at Nside 128.
     The optimised schedule's predicted delta_r is below every baseline's, and the TOD simulation
     confirms the prediction within 15 % for the optimised and the unrotated schedule."""

@@ -1,7 +1,9 @@
-"""The maps of the code a newcomer reads stay complete: every module in the README's layout table,
-the API reference and the architecture; every benchmark in the README. The tests run this
-checkout."""
+"""The package's layout holds what docs/architecture.md says of it: each module imports only from
+its own layer or below, no import cycle (type-level imports included), imports at the top of the
+module, keyword-only options on wide public functions, a test file per module, and every module
+on the architecture page. The tests run this checkout."""
 
+import ast
 import re
 import subprocess
 import sys
@@ -10,38 +12,239 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-MODULES = sorted(p.stem for p in (ROOT / "boresight").glob("*.py") if p.stem != "__init__")
+PACKAGE = ROOT / "boresight"
+
+#: the layers, lowest first: a module may import from its own layer and the ones below
+LAYERS = {
+    "base": {
+        "constants",
+        "data",
+        "validation",
+        "interrupts",
+        "threads",
+        "io",
+        "provenance",
+        "precompile",
+    },
+    "kernels": {"kernels", "harmonics"},
+    "inputs": {
+        "cosmology",
+        "sky",
+        "instrument",
+        "beams",
+        "scan",
+        "frames",
+        "schedule",
+        "pointing",
+        "masks",
+        "noise",
+    },
+    "engine": {"evaluation", "mapmaking", "engine"},
+    "analysis": {"spectra", "coupling", "predict", "scanstats"},
+    "job": {"config", "transforms", "residual", "resources"},
+    "studies": {"design", "suppression", "paper", "sweep"},
+    "outputs": {"report", "plots", "so_maps"},
+    "commands": {"commands"},
+    "cli": {"cli"},
+}
+#: imports inside a function, and why each is there
+DEFERRED = {
+    ("boresight.cli", "boresight"): "Ctrl-C is handled before anything heavy is imported",
+    ("boresight.cli", "boresight.commands"): "Ctrl-C is handled before numba is imported",
+    ("boresight.cli", "boresight.validation"): "Ctrl-C is handled before numpy is imported",
+    ("boresight.kernels.contract", "boresight.kernels.cpu"): "a backend compiles when chosen",
+    ("boresight.kernels.contract", "boresight.kernels.gpu"): "the GPU backend needs CuPy",
+}
+#: modules whose tests live elsewhere than tests/.../test_<module>.py, and where
+TESTED_ELSEWHERE = {
+    "cli": "tests/cli",  # the command line end to end
+    "kernels.gpu": "tests/test_gpu.py",  # the GPU backend, on a GPU
+}
+#: decorators of compiled kernels, whose signatures numba fixes
+COMPILED = {"njit", "jit", "register_jitable", "vectorize", "guvectorize", "generated_jit"}
 
 
-def _readme_layout():
-    readme = (ROOT / "README.md").read_text()
-    return readme[readme.index("## Layout") : readme.index("The package stays one flat")]
+def _modules():
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = list(path.relative_to(ROOT).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
 
 
-@pytest.mark.parametrize(
-    "where, text",
-    [
-        ("README layout", _readme_layout()),
-        ("docs/api.md", (ROOT / "docs/api.md").read_text()),
-        ("docs/architecture.md", (ROOT / "docs/architecture.md").read_text()),
-    ],
-)
-def test_every_module_is_on_the_maps(where, text):
-    assert [m for m in MODULES if not re.search(rf"\b{m}\b", text)] == [], where
+MODULES = _modules()
 
 
-def test_the_readme_names_every_benchmark_and_the_module_count():
-    readme = (ROOT / "README.md").read_text()
-    benches = {p.name for p in (ROOT / "bench").glob("bench_*.py")}
-    assert benches - set(re.findall(r"bench_\w+\.py", readme)) == set()
-    assert f"one flat folder of {len(MODULES)} modules" in readme
+def _layer(module):
+    top = module.split(".")[1] if "." in module else None
+    if top is None:  # the package itself: __version__ and the lazy exports
+        return 0
+    return next(i for i, names in enumerate(LAYERS.values()) if top in names)
+
+
+def _imports(module):
+    """(imported module, the function it is imported in or None) of every boresight import."""
+    path = MODULES[module]
+    package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+    found = []
+
+    def visit(node, function):
+        for child in ast.iter_child_nodes(node):
+            inner = child.name if isinstance(child, ast.FunctionDef) else function
+            if isinstance(child, ast.ImportFrom):
+                base = package[: len(package) - child.level + 1] if child.level else []
+                target = ".".join(base + ([child.module] if child.module else []))
+                for alias in child.names:
+                    name = f"{target}.{alias.name}"
+                    found.append((name if name in MODULES else target, function))
+            elif isinstance(child, ast.Import):
+                found.extend((alias.name, function) for alias in child.names)
+            visit(child, inner)
+
+    visit(ast.parse(path.read_text()), None)
+    return [(m, f) for m, f in found if m in MODULES and m != module]
+
+
+def test_every_module_has_a_layer():
+    tops = {m.split(".")[1] for m in MODULES if "." in m}
+    named = set().union(*LAYERS.values())
+    assert tops - named == set() and named - tops == set()
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_a_module_imports_only_from_its_layer_and_below(module):
+    higher = [m for m, _ in _imports(module) if _layer(m) > _layer(module)]
+    assert higher == [], f"{module} imports from a higher layer"
+
+
+def test_no_import_cycles():
+    graph = {m: {d for d, _ in _imports(m)} for m in MODULES}
+    state = {}
+
+    def walk(node, path):
+        state[node] = "open"
+        for dep in graph[node]:
+            if dep.startswith(node + "."):  # a package re-exports its own modules
+                continue
+            if state.get(dep) == "open":
+                pytest.fail(" -> ".join([*path, dep]))
+            if dep not in state:
+                walk(dep, [*path, dep])
+        state[node] = "done"
+
+    for module in MODULES:
+        if module not in state:
+            walk(module, [module])
+
+
+def test_imports_are_at_the_top_unless_a_reason_is_given():
+    deferred = {(m, d) for m in MODULES for d, function in _imports(m) if function is not None}
+    assert deferred == set(DEFERRED)
+
+
+def _public_functions():
+    for module, path in MODULES.items():
+        if any(part.startswith("_") for part in module.split(".")[1:]) or ".kernels" in module:
+            continue  # private modules and the kernels, whose contract numba fixes
+        tree = ast.parse(path.read_text())
+        scopes = [(tree.body, "")] + [
+            (node.body, f"{node.name}.")
+            for node in tree.body
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_")
+        ]
+        for body, prefix in scopes:
+            for node in body:
+                if not isinstance(node, ast.FunctionDef) or node.name.startswith("_"):
+                    continue
+                names = {
+                    ast.unparse(d.func if isinstance(d, ast.Call) else d).split(".")[-1]
+                    for d in node.decorator_list
+                }
+                if names & COMPILED:
+                    continue
+                yield f"{module}.{prefix}{node.name}", node.args, bool(prefix)
+
+
+def test_wide_public_functions_take_keyword_only_options():
+    """More than four parameters: the options after the essential ones are keyword-only, and at
+    most five are positional (as NaMaster's NmtField(mask, maps, *, ...))."""
+    wide = []
+    for name, args, method in _public_functions():
+        positional = args.posonlyargs + args.args
+        positional = positional[1:] if method else positional
+        total = len(positional) + len(args.kwonlyargs)
+        if total > 4 and (not args.kwonlyargs or len(positional) > 5) and not args.kwarg:
+            wide.append(f"{name} ({len(positional)} positional)")
+    assert wide == []
+
+
+def test_every_module_with_logic_has_a_test_file():
+    """tests/ mirrors the package: boresight/x.py is tested in tests/test_x.py, a subpackage's
+    module boresight/p/x.py in tests/p/test_x.py; the command line end to end in tests/cli/."""
+    missing = []
+    for module, path in MODULES.items():
+        tree = ast.parse(path.read_text())
+        logic = any(isinstance(n, (ast.FunctionDef, ast.ClassDef)) for n in tree.body)
+        parts = module.split(".")[1:]
+        if not parts or not logic or parts[-1].startswith("_") or parts[0] == "commands":
+            continue
+        elsewhere = TESTED_ELSEWHERE.get(".".join(parts))
+        where = ROOT / (elsewhere or Path("tests", *parts[:-1], f"test_{parts[-1]}.py"))
+        if not where.exists():
+            missing.append(str(where.relative_to(ROOT)))
+    assert missing == []
+
+
+def test_every_command_has_an_end_to_end_test():
+    from boresight import commands
+
+    text = "".join(p.read_text() for p in (ROOT / "tests" / "cli").glob("test_*.py"))
+    assert [c.NAME for c in commands.ALL if f'"{c.NAME}"' not in text] == []
+
+
+def test_the_architecture_page_names_every_module():
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    short = {m.removeprefix("boresight.") for m in MODULES if m != "boresight"}
+    assert sorted(m for m in short if not re.search(rf"`{re.escape(m)}`", text)) == []
+
+
+def test_no_tracker_issue_numbers_in_code_or_tests():
+    pattern = re.compile(r"\bissues? #?\d+|\(#\d+\)", re.IGNORECASE)
+    hits = [
+        f"{p.relative_to(ROOT)}:{i}"
+        for folder in ("boresight", "tests", "bench")
+        for p in (ROOT / folder).rglob("*.py")
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if pattern.search(line)
+    ]
+    assert hits == []
+
+
+def test_the_public_api_of_the_docstring_exists():
+    import boresight
+
+    listed = re.findall(r"``(\w+)``", boresight.__doc__)
+    assert set(listed) >= set(boresight.__all__) - {"__version__"}
+    for name in boresight.__all__:
+        assert getattr(boresight, name) is not None, name
+
+
+def test_every_benchmark_writes_its_table_as_json():
+    """bench/bench_*.py report through bench/_table.py, which writes bench/results/NAME.json."""
+    lazy = [
+        p.name
+        for p in sorted((ROOT / "bench").glob("bench_*.py"))
+        if "report(" not in p.read_text()
+    ]
+    assert lazy == []
 
 
 def test_the_tests_and_the_processes_they_start_import_this_checkout():
     """``python -m boresight.cli`` started from the checkout (the CLI, kill and compile tests)
     imports the checkout's boresight, and so must the tests (the README installs it with
-    ``pip install -e``). After a plain ``pip install .`` pytest imported the site-packages copy:
-    two copies, each compiling its own numba kernels (the suite took 37 s longer in CI)."""
+    ``pip install -e``): two copies would each compile their own numba kernels."""
     import boresight
 
     code = "import importlib.util as u; print(u.find_spec('boresight').origin)"
@@ -50,11 +253,3 @@ def test_the_tests_and_the_processes_they_start_import_this_checkout():
     )
     here = ROOT / "boresight" / "__init__.py"
     assert Path(boresight.__file__).resolve() == Path(found.stdout.strip()).resolve() == here
-
-
-def test_the_modules_kept_on_one_xdist_worker_exist():
-    """conftest.MODULES_ON_ONE_WORKER names test files by path: a renamed one would silently be
-    split between the workers again, building its module fixtures twice."""
-    from conftest import MODULES_ON_ONE_WORKER
-
-    assert all((ROOT / path).is_file() for path in MODULES_ON_ONE_WORKER), MODULES_ON_ONE_WORKER

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from boresight import masks
-from boresight.config import MaskSpec
+from boresight.masks import MaskSpec
 
 
 @pytest.mark.parametrize("name, fsky, tol", [("deep", 0.10, 0.01), ("wide", 0.40, 0.02)])

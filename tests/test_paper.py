@@ -57,15 +57,6 @@ def test_stages_cover_the_waiting_for_transforms(study):
     assert all(t >= 0 for t in stages.values())
 
 
-def test_a_failing_transform_is_raised_not_lost(monkeypatch):
-    def broken(*args, **kwargs):
-        raise RuntimeError("transform failed")
-
-    monkeypatch.setattr(spectra, "difference_bb_parts", broken)
-    with pytest.raises(RuntimeError, match="transform failed"):
-        paper.run_study(STUDY, experiments=paper.EXPERIMENTS[:1])
-
-
 GAIN_CASE = """
 [sky]
 nside = 64
@@ -116,3 +107,12 @@ def test_reproduce_config_sets_sky_run_and_output_only(tmp_path):
     assert study_.output.lmax == 128
     with pytest.raises(ConfigError, match="systematics"):
         paper.from_raw({"systematics": {"dg": 0.1}})
+
+
+def test_a_failing_transform_is_raised_not_lost(monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError("transform failed")
+
+    monkeypatch.setattr(spectra, "difference_bb_parts", broken)
+    with pytest.raises(RuntimeError, match="transform failed"):
+        paper.run_study(STUDY, experiments=paper.EXPERIMENTS[:1])

@@ -1,5 +1,7 @@
-"""Sweeps: serial and Dask give the same table, interrupted sweeps resume exactly (issue 7)."""
+"""Sweeps: serial and Dask give the same table, interrupted sweeps resume exactly."""
 
+import json
+import logging
 import subprocess
 import sys
 import time
@@ -7,11 +9,15 @@ import time
 import healpy as hp
 import numpy as np
 import pytest
+from helpers import FUZZ, FUZZ_STUDY, STUDY, scalars, sweep_file, values
+from hypothesis import given
+from hypothesis import strategies as st
 
 from boresight import coupling, masks, predict, spectra, sweep
+from boresight.cli import main
 from boresight.config import ConfigError
 
-STUDY = """
+BASE_STUDY = """
 [sky]
 nside = 32
 lmax = 64
@@ -30,7 +36,7 @@ n_bands = 4
 
 
 def _sweep_files(tmp_path, points='pbr_angle_deg = [0, 45, 90]\n"sky.seed" = [1, 2]'):
-    (tmp_path / "study.toml").write_text(STUDY)
+    (tmp_path / "study.toml").write_text(BASE_STUDY)
     path = tmp_path / "sweep.toml"
     path.write_text(f'base = "study.toml"\nmode = "grid"\n[parameters]\n{points}\n')
     return str(path)
@@ -119,7 +125,6 @@ def test_delta_r_recovers_input_r(theory):
 
 
 def test_sweep_cli_writes_table_and_continuum_figure(tmp_path):
-    from boresight.cli import main
 
     path = _sweep_files(tmp_path, "pbr_angle_deg = [0, 60, 90]")
     out = tmp_path / "cli"
@@ -144,3 +149,96 @@ def test_mask_coupling_is_reused_for_the_same_mask(monkeypatch):
     sweep._mask_coupling(np.ones_like(mask), 50, 95, 1)
     sweep._mask_coupling(np.ones_like(mask), 50, 80, 1)
     assert calls == [(60, 95), (50, 95), (50, 95), (50, 80)] and other.lmax == 50
+
+
+@FUZZ
+@given(
+    spec=st.dictionaries(
+        st.sampled_from(["base", "mode", "parameters", "colour"]),
+        st.one_of(
+            values,
+            st.just("study.toml"),
+            st.sampled_from(["grid", "list"]),
+            st.dictionaries(
+                st.sampled_from(["pbr_angle_deg", "sky.seed", "scan.n_phi", "x", "a.b.c"]),
+                st.one_of(st.lists(scalars, max_size=3), scalars),
+                max_size=3,
+            ),
+        ),
+        max_size=4,
+    )
+)
+def test_any_sweep_file_loads_or_names_its_error(spec, tmp_path_factory):
+    base = tmp_path_factory.mktemp("sw")
+    (base / "study.toml").write_text(FUZZ_STUDY)
+    path = base / "sweep.toml"
+    path.write_text(
+        "".join(
+            f"{k} = {v!r}\n".replace("True", "true").replace("False", "false")
+            for k, v in spec.items()
+            if not isinstance(v, dict)
+        )
+        + "".join(
+            f"[{k}]\n" + "".join(f'"{a}" = {b!r}\n' for a, b in v.items())
+            for k, v in spec.items()
+            if isinstance(v, dict)
+        )
+    )
+    try:
+        sweep.load_sweep(str(path))
+    except ConfigError as err:
+        assert "\n" not in str(err)
+
+
+def test_editing_the_base_config_recomputes_every_point(tmp_path, caplog):
+    path = sweep_file(tmp_path)
+    out = tmp_path / "out"
+    first = sweep.run_sweep(path, out, scheduler="serial")
+    (tmp_path / "study.toml").write_text(STUDY.replace("0.01, -0.01", "0.05, -0.05"))
+    with pytest.raises(FileExistsError, match="another sweep"):
+        sweep.run_sweep(path, out, scheduler="serial")
+    with caplog.at_level(logging.INFO, logger="boresight.sweep"):
+        again = sweep.run_sweep(path, out, scheduler="serial", force=True)
+    assert "0 already done" in caplog.records[0].getMessage()
+    # The residual is quadratic in dg at no rotation: 25 times larger.
+    ratio = again[0]["residual_auto_bb"] / first[0]["residual_auto_bb"]
+    assert abs(ratio / 25 - 1) < 1e-6  # exact up to rounding: the same sky and scan
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda text: text[: len(text) // 2],  # truncated by a kill
+        lambda text: json.dumps({**json.loads(text), "rows": []}),
+        lambda text: json.dumps({k: v for k, v in json.loads(text).items() if k != "rows"}),
+    ],
+)
+def test_corrupt_point_file_is_named_and_repaired(tmp_path, damage):
+    path = sweep_file(tmp_path)
+    out = tmp_path / "out"
+    sweep.run_sweep(path, out, scheduler="serial")
+    whole = (out / "results.csv").read_text()
+    victim = sorted((out / "points").glob("*.json"))[0]
+    victim.write_text(damage(victim.read_text()))
+    with pytest.raises(ConfigError, match=victim.name):
+        sweep.run_sweep(path, out, scheduler="serial")
+    sweep.run_sweep(path, out, scheduler="serial", repair=True)
+    assert (out / "results.csv").read_text() == whole
+
+
+def test_truncated_sweep_json_is_repaired_or_forced(tmp_path, caplog):
+    path = sweep_file(tmp_path)
+    out = tmp_path / "out"
+    sweep.run_sweep(path, out, scheduler="serial")
+    whole = (out / "results.csv").read_text()
+    marker = out / "sweep.json"
+    marker.write_text(marker.read_text()[:20])
+    with pytest.raises(FileExistsError, match="unreadable"):
+        sweep.run_sweep(path, out, scheduler="serial")
+    with caplog.at_level(logging.INFO, logger="boresight.sweep"):
+        sweep.run_sweep(path, out, scheduler="serial", repair=True)
+    assert "2 already done" in caplog.records[0].getMessage()
+    assert (out / "results.csv").read_text() == whole
+    marker.write_text("{")
+    sweep.run_sweep(path, out, scheduler="serial", force=True)
+    assert (out / "results.csv").read_text() == whole

@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..frames import FRAMES
 from ..resources import Checks
+from ..schedule import TURNAROUNDS, ScanMotion
+from ..validation import ConfigError
 
 
 def checks(args: argparse.Namespace) -> Checks:
@@ -35,8 +38,6 @@ def motion_flags(parser: argparse.ArgumentParser) -> None:
 
 def motion(args: argparse.Namespace):
     """The :class:`boresight.schedule.ScanMotion` of the motion flags."""
-    from ..schedule import ScanMotion
-    from ..validation import ConfigError
 
     try:
         return ScanMotion(args.scan_rate, args.rate_on == "sky", args.scan_accel, args.sample_rate)
@@ -46,8 +47,6 @@ def motion(args: argparse.Namespace):
 
 def pointing_flags(parser: argparse.ArgumentParser) -> None:
     """Flags for how a schedule's samples become pointing: the sky frame and the turnarounds."""
-    from ..frames import FRAMES
-    from ..schedule import TURNAROUNDS
 
     g = parser.add_argument_group("schedule pointing")
     g.add_argument(

@@ -67,7 +67,7 @@ def run(
         for name, angles, stem in FIGURES:
             res = results[name]
             table = paper.band_table(res, rows, study)
-            plots.residual_figure(res, table, study, angles, stage / stem)
+            plots.residual_figure(res, table, study, stage / stem, angles=angles)
         fig_nside = min(study.sky.nside, 256)
         for survey, title, stem in (
             ("wide", "SO-like wide (LAT) footprint", "fig5_wide_mask"),

@@ -4,7 +4,7 @@
 A backend is a module with the functions of :class:`KernelBackend`. The engine calls only these,
 never asks which backend it has, and hands arrays back and forth through ``to_device`` /
 ``to_host``. Both backends draw the same counter-based random numbers, so their maps agree to
-rounding (``tests/test_gpu.py``); ``tests/test_backend.py`` checks that both modules provide the
+rounding (``tests/test_gpu.py``); ``tests/kernels/test_contract.py`` checks that both modules provide the
 contract with the same parameters, without needing a GPU.
 """
 

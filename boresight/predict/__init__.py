@@ -44,6 +44,8 @@ The package, in the order a prediction is made:
   a focal plane's drawn pairs;
 * :mod:`~boresight.predict.windows`: what hits spread over their pixels, read exactly or by
   interpolation, do to a field;
+* :mod:`~boresight.predict.sky_spectra`: the spectra of the sky's fields, the theory's or one
+  sky's own inside the mask;
 * :mod:`~boresight.predict.beam_fields`: the detectors' beam terms;
 * :mod:`~boresight.predict.maps`: the map-level prediction, ``delta_p``;
 * :mod:`~boresight.predict.cl`: the C_ell-level prediction, ``systematic_cl`` and
@@ -54,15 +56,11 @@ The package, in the order a prediction is made:
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .bias import R_RANGE, delta_r, reference_bb, tensor_template
 from .cl import (
-    BEAM_APODIZATION_DEG,
     COHERENT_BLOCK,
-    FieldSpectra,
     PixelBlocks,
     Prediction,
     Term,
-    field_spectra,
     leak_terms,
-    local_cl,
     residual_pseudo_bb,
     signal_bb,
     systematic_cl,
@@ -81,6 +79,7 @@ from .coefficients import (
     supports,
 )
 from .maps import delta_p
+from .sky_spectra import BEAM_APODIZATION_DEG, FieldSpectra, field_spectra, local_cl
 from .windows import SPREAD_PIXELS, hit_spread_window, interpolation_window, pixel_window
 
 __all__ = [

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from ..coupling import Coupling
     from ..instrument import Instrument, Systematics
     from ..sky import Sky
-    from .cl import FieldSpectra
+    from .sky_spectra import FieldSpectra
     from .windows import _HitSpread
 
 

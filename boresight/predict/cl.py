@@ -15,8 +15,7 @@ import numba
 import numpy as np
 
 from .. import harmonics, interrupts
-from ..constants import ARCMIN
-from ..spectra import Footprint, as_footprint, pseudo_spectra
+from ..spectra import Footprint, as_footprint
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .coefficients import (
     _check_supported,
@@ -25,6 +24,7 @@ from .coefficients import (
     expected_power,
     jitter_variance,
 )
+from .sky_spectra import FieldSpectra, field_spectra
 from .windows import _HitSpread, _inverse_hits
 
 if TYPE_CHECKING:
@@ -102,25 +102,6 @@ def _block_sums(hn, obs, weight, parent, nblock):
             sum_re[parent[i]] += weight[i] * h.real
             sum_im[parent[i]] += weight[i] * h.imag
     return power, sum_re, sum_im
-
-
-def field_spectra(theory, lmax, fwhm_arcmin):
-    """Beam-smoothed spectra of the sky.
-
-    Parameters
-    ----------
-    theory : boresight.cosmology.Spectra
-    lmax : int
-    fwhm_arcmin : float
-
-    Returns
-    -------
-    tt, ee, bb : numpy.ndarray, shape (lmax + 1,)
-        [muK^2].
-    """
-    tt, ee, bb, _ = theory.total(lmax=lmax)
-    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)
-    return tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2
 
 
 class Term(NamedTuple):
@@ -213,68 +194,6 @@ def _gain_and_beam(coefs, beam, beam_cl, t2_mean):
         )
         out.append(abs(coefs.t2) ** 2 * tt + cross + beam_power(v, beam_cl))
     return out
-
-
-class FieldSpectra(NamedTuple):
-    """Beam-smoothed spectra of the fields a prediction scales [muK^2]: TT, EE + BB (the h_4 P*
-    term) and EE, (lmax + 1,) each, as full-sky equivalents (pseudo-C_ell / <w^2>); the maps'
-    own pseudo-C_ell EE, BB, EB through the mask, (3, lmax + 1) (the h_0 term,
-    :func:`signal_bb`); and, for the beam terms (:func:`beam_spectra`), TT, EE, BB, TE through
-    the apodized mask, (4, lmax + 1). ``read`` keeps, per window, the EE, BB, EB of the sky as the
-    hits read it (windowed, then masked), made on first use by :func:`residual_pseudo_bb`."""
-
-    tt: np.ndarray
-    pol: np.ndarray
-    ee: np.ndarray
-    masked: np.ndarray | None = None
-    apodized: np.ndarray | None = None
-    read: dict | None = None
-
-
-BEAM_APODIZATION_DEG = 2.0  #: apodization of the mask for the beam terms' local spectra
-
-
-def local_cl(
-    sky: Sky,
-    mask: np.ndarray,
-    lmax: int,
-    *,
-    nthreads: int = 0,
-    beams: bool = False,
-    analysis: str = "auto",
-) -> FieldSpectra:
-    """Beam-smoothed TT, EE + BB and EE of one sky inside a mask: pseudo-C_ell / <w^2>.
-
-    Feeding these to :func:`systematic_cl` instead of the theory removes the patch's sample variance
-    when a prediction is compared with a simulation of that sky.
-
-    Parameters
-    ----------
-    sky : boresight.sky.Sky
-    mask : numpy.ndarray, shape (npix,)
-    lmax : int
-    nthreads : int
-    beams : bool
-        Also TT, EE, BB, TE through the apodized mask, for beam systematics (one more analysis).
-    analysis : str
-        :func:`boresight.harmonics.map2alm`'s analysis, as the simulated maps'.
-
-    Returns
-    -------
-    FieldSpectra
-    """
-    from ..masks import apodize
-
-    mask = np.asarray(mask, dtype=np.float64)
-    pseudo = pseudo_spectra(sky.maps, mask, lmax, nthreads=nthreads, analysis=analysis)
-    cl = pseudo / np.mean(mask**2)
-    masked = pseudo[[1, 2, 4]]
-    if not beams:
-        return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, read={})
-    smooth = mask * apodize((mask > 0).astype(np.float64), BEAM_APODIZATION_DEG)
-    apodized = pseudo_spectra(sky.maps, smooth, lmax, nthreads=nthreads, analysis=analysis)[:4]
-    apodized /= np.mean(smooth**2)
-    return FieldSpectra(cl[0], cl[1] + cl[2], cl[1], masked, apodized, read={})
 
 
 def systematic_cl(

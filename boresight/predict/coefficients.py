@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from ..constants import DEG
-from ..instrument import Instrument
+from ..instrument import BEAM_KEYS, LIMITS, UNITS, Instrument, Spread, Systematics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -150,7 +150,6 @@ def jitter_variance(systematics: Systematics, coefs: Coefficients, expected: boo
     -------
     float
     """
-    from ..instrument import Spread
 
     jitter = systematics.dg_jitter
     if expected and isinstance(jitter, Spread):
@@ -198,7 +197,6 @@ def expected_power(
     -------
     ExpectedPower
     """
-    from ..instrument import BEAM_KEYS, LIMITS, UNITS, Spread
 
     shared = ("dg_repeat",) + BEAM_KEYS["a"] + BEAM_KEYS["b"]
     if any(isinstance(getattr(systematics, k), Spread) for k in shared):
@@ -273,7 +271,6 @@ def supports(instrument: Instrument | None, rotations_deg: Sequence[float] = (0.
     -------
     bool
     """
-    from ..instrument import Systematics
 
     return abs(coefficients(Systematics(), instrument, rotations_deg).m4) < M4_TOLERANCE
 

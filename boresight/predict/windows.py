@@ -10,6 +10,8 @@ import healpy as hp
 import numba
 import numpy as np
 
+from ..kernels.cpu import generate_hits
+
 SPREAD_PIXELS = 1 << 16  #: pixels whose hit pairs sample the window of hits spread over pixels
 
 
@@ -30,7 +32,6 @@ def hit_spread_window(nside: int, band: int) -> np.ndarray:
     -------
     numpy.ndarray, shape (band + 1,)
     """
-    from ..kernels.cpu import generate_hits
 
     npix = 12 * nside**2
     pixels = np.unique(np.linspace(0, npix - 1, min(npix, SPREAD_PIXELS)).astype(np.int64))
@@ -111,7 +112,6 @@ def interpolation_window(
     -------
     pair, point : numpy.ndarray, shape (band + 1,)
     """
-    from ..kernels.cpu import generate_hits
 
     npix = 12 * nside**2
     pixels = np.unique(np.linspace(0, npix - 1, min(npix, SPREAD_PIXELS // 4)).astype(np.int64))

@@ -40,7 +40,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from .. import validation
-from ..io import tomllib
+from ..io import atomic_path, tomllib, write_text
 from ..validation import ScheduleError
 from .model import CES, CES_LIMITS, Schedule, Site
 
@@ -463,7 +463,6 @@ def write(schedule: Schedule, path: str | os.PathLike) -> None:
     schedule : boresight.schedule.Schedule
     path : str or os.PathLike
     """
-    from ..io import atomic_path, write_text
 
     if not str(path).lower().endswith(".ecsv"):
         write_text(path, text(schedule))

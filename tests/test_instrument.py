@@ -1,4 +1,4 @@
-"""Polarisation-angle errors, gain drift, gain jitter and focal planes (issue 14): the engine's
+"""Polarisation-angle errors, gain drift, gain jitter and focal planes: the engine's
 sample-by-sample pair differences against the analytic coefficients of boresight.predict."""
 
 from dataclasses import replace
@@ -6,7 +6,7 @@ from dataclasses import replace
 import healpy as hp
 import numpy as np
 import pytest
-from conftest import rel_max
+from helpers import rel_max
 
 from boresight import config, coupling, engine, masks, predict, sky, spectra
 from boresight.instrument import Instrument, Spread, Systematics
@@ -284,76 +284,6 @@ def test_bad_focal_planes_are_config_errors(table, match):
         config.parse_study({"sky": {"nside": 16, "lmax": 47}, "instrument": table})
 
 
-def test_suppression_map_end_to_end(tmp_path):
-    """`boresight suppression` at Nside 64: the table says which terms rotation cures (gain and
-    leak at 0/90, drift at 0/180), which it cannot touch (angle errors: exactly 1), and that white
-    jitter only halves with twice the samples; the prediction agrees where it applies."""
-    import csv
-
-    from boresight import cli
-
-    out = tmp_path / "sup"
-    assert cli.main(["-q", "suppression", "--out", str(out), "--nside", "64"]) == 0
-    rows = {
-        (r["systematic"], r["rotations_deg"]): r
-        for r in csv.DictReader(open(out / "suppression.csv"))
-    }
-    band = "ell_30_99"
-    sup = {k: float(r[f"suppression_sim_{band}"]) for k, r in rows.items()}
-    pred = {k: float(r[f"suppression_pred_{band}"]) for k, r in rows.items()}
-    for sched in ("0/45", "0/90", "0/180"):
-        assert sup["angle", sched] == pytest.approx(1.0, rel=1e-9)
-        assert pred["angle", sched] == pytest.approx(1.0, rel=1e-9)
-        assert sup["gain jitter", sched] == pytest.approx(2.0, rel=0.25)  # 2x samples, scatter
-    assert sup["gain", "0/90"] > 1e3 and sup["leak", "0/90"] > 1e10
-    assert sup["gain drift", "0/180"] > 1e10 and sup["gain drift", "0/90"] == pytest.approx(
-        1, rel=0.05
-    )
-    assert sup["gain", "0/45"] == pytest.approx(pred["gain", "0/45"], rel=0.1)
-    assert (out / "suppression.png").is_file() and "cancels" in (out / "suppression.md").read_text()
-
-
-def test_expected_focal_plane_power_is_coherent_plus_rms2_over_n():
-    """A linear term's power over the draws is |mean x <e^{2ia}>|^2 + rms^2 / N exactly: 0.5 mu^2 +
-    rms^2 / 2 for the paper's two pairs, and so on for uniform planes of N pairs."""
-    paper = predict.expected_power(Systematics(dg=Spread(0.02, 0.01)))
-    assert paper.t2 == pytest.approx(0.5 * 0.02**2 + 0.01**2 / 2, rel=1e-12)
-    for n in (4, 16, 64):
-        inst = Instrument("uniform", n)
-        power = predict.expected_power(Systematics(leak=Spread(0.3, 0.01)), inst)
-        coherent = abs(0.3 * np.mean(np.exp(2j * inst.pair_angles_rad))) ** 2
-        assert power.s2 == pytest.approx(coherent + 0.01**2 / n, rel=1e-12)
-
-
-@pytest.mark.parametrize("n", [4, 16])
-def test_expected_power_is_the_mean_over_many_focal_planes(n):
-    """Gauss-Hermite expectation against the mean of 1500 drawn focal planes (an independent route:
-    the per-pair draws of rng.normal_array), within 4 standard errors, for every term."""
-    inst = Instrument("uniform", n)
-    table = dict(
-        dg=Spread(0.005, 0.01),
-        pol_angle_deg=Spread(0.5, 1.0),
-        nonortho_deg=Spread(0.0, 1.0),
-        rho_arcmin=Spread(0.1, 0.05),
-        chi_deg=Spread(10.0, 30.0),
-    )
-    power = predict.expected_power(Systematics(**table), inst)
-    draws = [predict.coefficients(Systematics(**table, seed=s), inst) for s in range(1500)]
-    samples = {
-        "t2": [abs(c.t2) ** 2 for c in draws],
-        "g1": [abs(c.g1) ** 2 for c in draws],
-        "g3": [abs(c.g3) ** 2 for c in draws],
-        "p4": [abs(c.p4) ** 2 for c in draws],
-        "re_p0": [c.p0.real for c in draws],
-        "im_p0_2": [c.p0.imag**2 for c in draws],
-        "im_p0": [c.p0.imag for c in draws],
-        "re_im_p0": [c.p0.real * c.p0.imag for c in draws],
-    }
-    for name, x in samples.items():
-        error = np.std(x) / np.sqrt(len(x))
-        assert abs(getattr(power, name) - np.mean(x)) < 4 * error, name
-
-
 def test_expected_cl_falls_as_one_over_n_and_equals_a_fixed_plane_without_scatter(small_sky):
     mask = masks.survey_mask("deep", 64)
     h, _ = engine.scan_moments(SyntheticScan(**CENTRED), 64)
@@ -381,3 +311,16 @@ def small_sky_theory():
     from boresight.cosmology import load_spectra
 
     return load_spectra()
+
+
+@pytest.mark.parametrize(
+    "kwargs, field", [(dict(rho_arcmin=-0.1), "rho_arcmin"), (dict(dg=(0.1, np.inf)), "dg")]
+)
+def test_bad_systematics(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        Systematics(**kwargs)
+
+
+def test_systematics_length_must_match_pairs():
+    with pytest.raises(ValueError, match="3 pairs"):
+        Systematics(dg=(0.1, 0.2)).per_pair(Instrument((0, 45, 90)).n_pairs)

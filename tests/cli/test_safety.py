@@ -1,9 +1,7 @@
-"""Nothing lost, nothing silent (issue 17): one test per numbered defect, each of which failed
+"""Nothing lost, nothing silent: one test per numbered defect, each of which failed
 before the fix. Bad input ends in exit 2 with one line naming the key or file, before any work;
 output directories that boresight did not create are never removed."""
 
-import json
-import logging
 import os
 import re
 import signal
@@ -13,6 +11,7 @@ import sys
 import healpy as hp
 import numpy as np
 import pytest
+from helpers import CSV_HEADER, STUDY, sweep_file, toast_text
 
 from boresight import engine, io, sweep
 from boresight.cli import main
@@ -22,32 +21,9 @@ from boresight.schedule import (
     CES,
     Schedule,
     ScheduleError,
-    Site,
-    is_schedule,
     load_schedule,
-    schedule_format,
     write_schedule,
 )
-
-STUDY = """
-[sky]
-nside = 16
-lmax = 47
-fwhm_arcmin = 240.0
-[scan]
-n_phi = 3
-range_rad = 0.5
-rotations_deg = [0.0, 90.0]
-[systematics]
-dg = [0.01, -0.01]
-[mask]
-survey = "wide"
-[output]
-lmax = 40
-n_bands = 3
-"""
-CSV_HEADER = "start_unix,duration_s,elevation_deg,az_centre_deg,az_throw_deg,speed_deg_s\n"
-CSV_ROW = "1790028800,60,50,133.6,60,1\n"
 
 
 @pytest.fixture
@@ -178,68 +154,7 @@ def test_simulate_samples_rejects_bad_pointing(small_sky):
 # 3. Stale sweeps --------------------------------------------------------------------------------
 
 
-def _sweep(tmp_path, parameters='pbr_angle_deg = [0, 90]\n"sky.seed" = [1]'):
-    (tmp_path / "study.toml").write_text(STUDY)
-    path = tmp_path / "sweep.toml"
-    path.write_text(f'base = "study.toml"\n[parameters]\n{parameters}\n')
-    return str(path)
-
-
-def test_editing_the_base_config_recomputes_every_point(tmp_path, caplog):
-    path = _sweep(tmp_path)
-    out = tmp_path / "out"
-    first = sweep.run_sweep(path, out, scheduler="serial")
-    (tmp_path / "study.toml").write_text(STUDY.replace("0.01, -0.01", "0.05, -0.05"))
-    with pytest.raises(FileExistsError, match="another sweep"):
-        sweep.run_sweep(path, out, scheduler="serial")
-    with caplog.at_level(logging.INFO, logger="boresight.sweep"):
-        again = sweep.run_sweep(path, out, scheduler="serial", force=True)
-    assert "0 already done" in caplog.records[0].getMessage()
-    # The residual is quadratic in dg at no rotation: 25 times larger.
-    ratio = again[0]["residual_auto_bb"] / first[0]["residual_auto_bb"]
-    assert abs(ratio / 25 - 1) < 1e-6  # exact up to rounding: the same sky and scan
-
-
 # 4. Corrupt sweep state -------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    "damage",
-    [
-        lambda text: text[: len(text) // 2],  # truncated by a kill
-        lambda text: json.dumps({**json.loads(text), "rows": []}),
-        lambda text: json.dumps({k: v for k, v in json.loads(text).items() if k != "rows"}),
-    ],
-)
-def test_corrupt_point_file_is_named_and_repaired(tmp_path, damage):
-    path = _sweep(tmp_path)
-    out = tmp_path / "out"
-    sweep.run_sweep(path, out, scheduler="serial")
-    whole = (out / "results.csv").read_text()
-    victim = sorted((out / "points").glob("*.json"))[0]
-    victim.write_text(damage(victim.read_text()))
-    with pytest.raises(ConfigError, match=victim.name):
-        sweep.run_sweep(path, out, scheduler="serial")
-    sweep.run_sweep(path, out, scheduler="serial", repair=True)
-    assert (out / "results.csv").read_text() == whole
-
-
-def test_truncated_sweep_json_is_repaired_or_forced(tmp_path, caplog):
-    path = _sweep(tmp_path)
-    out = tmp_path / "out"
-    sweep.run_sweep(path, out, scheduler="serial")
-    whole = (out / "results.csv").read_text()
-    marker = out / "sweep.json"
-    marker.write_text(marker.read_text()[:20])
-    with pytest.raises(FileExistsError, match="unreadable"):
-        sweep.run_sweep(path, out, scheduler="serial")
-    with caplog.at_level(logging.INFO, logger="boresight.sweep"):
-        sweep.run_sweep(path, out, scheduler="serial", repair=True)
-    assert "2 already done" in caplog.records[0].getMessage()
-    assert (out / "results.csv").read_text() == whole
-    marker.write_text("{")
-    sweep.run_sweep(path, out, scheduler="serial", force=True)
-    assert (out / "results.csv").read_text() == whole
 
 
 # 5. Silent NaN results --------------------------------------------------------------------------
@@ -343,7 +258,7 @@ def test_memory_estimate_refuses_before_allocating(tmp_path, monkeypatch, capsys
 
 
 def test_bad_worker_counts_empty_config_and_zero_resolution(tmp_path, capsys):
-    path = _sweep(tmp_path)
+    path = sweep_file(tmp_path)
     for workers in ("0", "-1"):
         assert main(["sweep", path, "--out", str(tmp_path / "o"), "--workers", workers]) == 2
         assert "--workers" in _error(capsys)
@@ -407,50 +322,6 @@ def test_gpu_backend_without_cupy_is_a_config_error(tmp_path, capsys):
     assert "boresight[gpu]" in _error(capsys)
 
 
-@pytest.mark.parametrize(
-    "text, where",
-    [
-        ("start_unix,duration_s,elevation_deg,az_centre_deg\n1790028800,60,50,133\n", "missing"),
-        (CSV_HEADER.replace("\n", ",colour\n") + CSV_ROW.replace("\n", ",red\n"), "colour"),
-        (CSV_HEADER + "1790028800,60,50\n", "line 2"),
-        (CSV_HEADER + "2026-01-01,60,50,133.6,60,1\n", "start_unix"),
-    ],
-)
-def test_bad_csv_schedules_name_the_row(tmp_path, text, where):
-    path = tmp_path / "s.csv"
-    path.write_text(text)
-    with pytest.raises(ScheduleError, match=where):
-        load_schedule(path)
-
-
-@pytest.mark.parametrize(
-    "text, where",
-    [
-        (
-            "[[ces]]\nstart_unix = 1\nduration_s = 60\nelevation_deg = 50\naz_centre_deg = 1\n"
-            "az_throw_deg = 10\ncolour = 1\n",
-            "colour",
-        ),
-        (
-            "[[ces]]\nstart_unix = 2026-01-01T00:00:00\nduration_s = 60\nelevation_deg = 50\n"
-            "az_centre_deg = 1\naz_throw_deg = 10\n",
-            "start_unix",
-        ),
-        (
-            "repeat_boresight = [0, 90]\n[[ces]]\nstart_unix = 1\nduration_s = 60\n"
-            "elevation_deg = 50\naz_centre_deg = 1\naz_throw_deg = 10\n",
-            "repeat_boresight",
-        ),
-        ("this is = not [toml", "not valid TOML"),
-    ],
-)
-def test_bad_toml_schedules_name_the_key(tmp_path, text, where):
-    path = tmp_path / "s.toml"
-    path.write_text(text)
-    with pytest.raises(ScheduleError, match=where):
-        load_schedule(path)
-
-
 def test_sweep_file_errors_are_one_line(tmp_path, capsys, monkeypatch):
     (tmp_path / "study.toml").write_text(STUDY.replace("lmax = 40", "lmax = 30"))
     out = tmp_path / "o"
@@ -463,7 +334,7 @@ def test_sweep_file_errors_are_one_line(tmp_path, capsys, monkeypatch):
         (tmp_path / "sweep.toml").write_text(text)
         assert main(["sweep", str(tmp_path / "sweep.toml"), "--out", str(out)]) == 2
         assert key in _error(capsys)
-    path = _sweep(tmp_path)
+    path = sweep_file(tmp_path)
     (tmp_path / "file").write_text("")
     assert main(["sweep", path, "--out", str(tmp_path / "file"), "--scheduler", "serial"]) == 2
     assert "not a directory" in _error(capsys)
@@ -524,7 +395,7 @@ def test_sigterm_is_handled_like_ctrl_c(tmp_path, study_file):
 
 
 def test_interrupted_sweep_says_what_it_kept(tmp_path, capsys, monkeypatch):
-    path = _sweep(tmp_path)
+    path = sweep_file(tmp_path)
     calls = []
 
     def interrupt_second(*args):
@@ -577,21 +448,9 @@ def test_writes_stay_inside_out(tmp_path, study_file):
 # Nothing lost: special files, permissions, TOAST rows, formats ----------------------------------
 
 
-def _toast_text(tmp_path, name="in.txt", site="atacama", patch="deep"):
-    from boresight.schedule import toast
-
-    def ces(patch):
-        return (CES(1.79e9, 600.0, 50.0, 120.0, 20.0, 1.0, 0.0, 2.0, patch, 0, 0),)
-
-    schedule = Schedule(ces(patch), Site(-22.96, -67.79, 5200.0, site, "sat"), 5.0)
-    path = tmp_path / name  # a clean TOAST file to export from
-    path.write_text(toast.text(Schedule(ces("deep"), Site(), 5.0)))
-    return schedule, path
-
-
 def test_export_refuses_a_fifo_and_leaves_it_alone(tmp_path, capsys):
     """--force onto a FIFO (or a device) would rename a regular file onto it."""
-    _, src = _toast_text(tmp_path)
+    _, src = toast_text(tmp_path)
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)
     assert main(["export-schedule", str(src), "--out", str(fifo), "--force"]) == 2
@@ -617,7 +476,7 @@ def test_outputs_respect_the_umask(tmp_path, study_file, umask, file_mode, dir_m
             assert out.stat().st_mode & 0o777 == dir_mode
             modes = {p.name: p.stat().st_mode & 0o777 for p in out.iterdir() if p.is_file()}
             assert set(modes.values()) == {file_mode}, modes
-        _, src = _toast_text(tmp_path)
+        _, src = toast_text(tmp_path)
         target = tmp_path / "t.txt"
         target.write_text("old")
         os.chmod(target, 0o644 & ~umask)
@@ -638,7 +497,7 @@ def test_outputs_respect_the_umask(tmp_path, study_file, umask, file_mode, dir_m
 def test_export_refuses_names_toast_would_not_read_back(tmp_path, capsys, site, patch, message):
     """TOAST's readers skip every line holding "SPECIAL" and strip the fields' spaces: such a
     schedule exported 2 rows and read back 1 with exit 0. Now it is refused, and writes nothing."""
-    schedule, _ = _toast_text(tmp_path, site=site, patch=patch)
+    schedule, _ = toast_text(tmp_path, site=site, patch=patch)
     src = tmp_path / "s.toml"
     write_schedule(schedule.repeated([0.0, 90.0]), src, "toml")
     assert main(["-q", "export-schedule", str(src), "--out", str(tmp_path / "out.txt")]) == 2
@@ -650,7 +509,7 @@ def test_every_exported_schedule_reads_back_whole(tmp_path):
     """Text and ECSV exports read back with every row, by boresight and by TOAST's own reader."""
     from boresight.schedule import toast
 
-    schedule, _ = _toast_text(tmp_path, site="Cerro Toco", patch="deep field-2")
+    schedule, _ = toast_text(tmp_path, site="Cerro Toco", patch="deep field-2")
     schedule = schedule.repeated([0.0, 45.0, 90.0])
     for name in ("out.txt", "out.ecsv"):
         toast.write(schedule, tmp_path / name)
@@ -664,29 +523,6 @@ def test_every_exported_schedule_reads_back_whole(tmp_path):
         theirs = GroundSchedule()
         theirs.read(str(tmp_path / name))
         assert len(theirs.scans) == 3 and theirs.site_name == "Cerro Toco"
-
-
-def test_formats_are_told_apart_by_content_not_comments(tmp_path):
-    """A TOML study or schedule whose first comment mentions "Site" is TOML; a TOAST file with a
-    UTF-8 byte-order mark is TOAST's; a TOML file with one reads."""
-    from boresight.config import load_study
-
-    study = tmp_path / "study.toml"
-    study.write_text("# Site: Atacama, a study of the deep field\n" + STUDY)
-    assert not is_schedule(str(study)) and load_study(str(study)).sky.nside == 16
-    schedule, toast_path = _toast_text(tmp_path)
-    toml_schedule = tmp_path / "schedule.toml"
-    write_schedule(schedule, toml_schedule, "toml")
-    toml_schedule.write_text("# Site | Telescope | lat | lon | alt\n" + toml_schedule.read_text())
-    assert schedule_format(str(toml_schedule)) == "toml"
-    assert load_schedule(str(toml_schedule)).ces == schedule.ces
-    bom = tmp_path / "bom.txt"
-    bom.write_bytes(b"\xef\xbb\xbf" + toast_path.read_bytes())
-    assert schedule_format(str(bom)) == "toast"
-    assert load_schedule(str(bom)).ces == load_schedule(str(toast_path)).ces
-    study_bom = tmp_path / "study_bom.toml"
-    study_bom.write_bytes(b"\xef\xbb\xbf" + STUDY.encode())
-    assert load_study(str(study_bom)).sky.nside == 16
 
 
 # Messages that name the thing, before any work -------------------------------------------------
@@ -763,7 +599,7 @@ def test_a_toast_row_at_an_impossible_elevation_says_why(tmp_path, capsys):
     does not hold (SimGround's 1 deg/s on the sky is 114.6 deg/s of the mount there)."""
     from boresight.schedule import toast
 
-    _, good = _toast_text(tmp_path)
+    _, good = toast_text(tmp_path)
     text = good.read_text().splitlines()
     row = text[-1].split(" | ")
     for el, message in (
@@ -778,34 +614,10 @@ def test_a_toast_row_at_an_impossible_elevation_says_why(tmp_path, capsys):
         assert f"{bad}, line {len(text)}" in str(info.value)
 
 
-def test_ecsv_units_and_passes_are_checked_by_column(tmp_path):
-    """A wrong unit named neither the file nor the column; a fractional pass was cut short."""
-    from boresight.schedule import toast
-
-    schedule, _ = _toast_text(tmp_path)
-    path = tmp_path / "s.ecsv"
-    toast.write(schedule, path)
-    text = path.read_text()
-    wrong_unit = tmp_path / "unit.ecsv"
-    wrong_unit.write_text(text.replace("{name: el, unit: deg", "{name: el, unit: m", 1))
-    with pytest.raises(ScheduleError, match=rf"{wrong_unit}, column el: .*needs deg"):
-        toast.read(wrong_unit)
-    fraction = tmp_path / "pass.ecsv"
-    header = [line for line in text.splitlines() if line.startswith("#")]
-    body = [line for line in text.splitlines() if not line.startswith("#")]
-    fields = body[1].rsplit(" ", 2)
-    body[1] = " ".join([fields[0], "1.5", fields[2]])
-    header = [h.replace("{name: scan_index, datatype: int64}", "{name: scan_index, datatype: "
-                        "float64}") for h in header]  # fmt: skip
-    fraction.write_text("\n".join(header + body) + "\n")
-    with pytest.raises(ScheduleError, match=r"row 1: the pass 1.5 is not an integer"):
-        toast.read(fraction)
-
-
 def test_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path, capsys):
     """A missing directory of an output file and a 300-character prefix failed after the work,
     naming a staging file; so did an output directory whose name is too long."""
-    _, src = _toast_text(tmp_path)
+    _, src = toast_text(tmp_path)
     assert main(["-q", "export-schedule", str(src), "--out", str(tmp_path / "no" / "s.txt")]) == 2
     assert "directory of the output file" in _error(capsys) and not (tmp_path / "no").exists()
     args = ["-q", "scan-stats", str(src), "--nside", "16", "--format", "so"]

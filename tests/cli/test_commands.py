@@ -1,16 +1,17 @@
-"""The command line end to end, and its handling of bad input (issue 4)."""
+"""The command line end to end, and its handling of bad input."""
 
 import csv
-import os
 
 import healpy as hp
 import numpy as np
 import pytest
+from helpers import T0, toast_schedule
 
-from boresight import paper
+from boresight import cli, paper
 from boresight.cli import main
-
-EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples")
+from boresight.schedule import (
+    toast,
+)
 
 
 def test_reproduce_quick_end_to_end(tmp_path):
@@ -127,14 +128,6 @@ def test_predict_and_scan_stats(tmp_path, capsys):
     assert np.max(np.abs(re_h2[re_h2 != hp.UNSEEN])) < 1e-15
 
 
-@pytest.mark.parametrize("name", ["gain_deep.toml", "pointing_wide.toml"])
-def test_examples_are_valid(name):
-    from boresight.config import load_study
-
-    study = load_study(os.path.join(EXAMPLES, name))
-    assert study.scan.rotations_deg[0] == 0.0
-
-
 def test_log_holds_only_boresight_lines(tmp_path, caplog):
     """healpy's graticule logs its spacing at INFO: the CLI's log shows boresight's lines only
     (the control, with every logger at INFO, shows the line the test looks for)."""
@@ -151,3 +144,42 @@ def test_log_holds_only_boresight_lines(tmp_path, caplog):
     with caplog.at_level(logging.INFO):  # the control: every logger at INFO
         plots.footprint_figure(np.ones(12 * 16**2), "t", tmp_path / "f")
     assert any("interval between parallels" in r.getMessage() for r in caplog.records)
+
+
+def test_compare_scans_cli(tmp_path):
+    from boresight.cli import main
+
+    (tmp_path / "s.toml").write_text(
+        "sample_rate_hz = 2.0\nrepeat_boresight_deg = [0.0, 90.0]\n"
+        + "".join(
+            f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 1800\n"
+            f"elevation_deg = 50\naz_centre_deg = {134 if i % 2 else 226}\n"
+            "az_throw_deg = 60\n"
+            for i in range(4)
+        )
+    )
+    out = tmp_path / "cmp"
+    assert (
+        main(["-q", "compare-scans", str(tmp_path / "s.toml"), "--out", str(out), "--nside", "32"])
+        == 0
+    )
+    assert (out / "compare.png").exists() and (out / "scan_maps.fits").exists()
+    lines = (out / "scan_stats.csv").read_text().splitlines()
+    real, twin = (dict(zip(lines[0].split(","), line.split(","))) for line in lines[1:])
+    # A 90 deg repeat cancels h_2 in the real scan and in its twin alike.
+    assert float(real["mean_abs_h2_sq"]) < 1e-25 and float(twin["mean_abs_h2_sq"]) < 1e-25
+    assert (
+        main(["-q", "compare-scans", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "x")])
+        == 2
+    )
+
+
+def test_export_schedule_cli(tmp_path, capsys):
+    src = tmp_path / "in.txt"
+    toast.write(toast_schedule(), src)
+    out = tmp_path / "out.txt"
+    assert cli.main(["export-schedule", str(src), "--out", str(out)]) == 0
+    assert "SimGround(" in capsys.readouterr().out
+    assert out.read_text() == src.read_text()
+    assert cli.main(["export-schedule", str(src), "--out", str(out)]) == 2  # exists
+    assert cli.main(["export-schedule", str(src), "--out", str(out), "--force"]) == 0

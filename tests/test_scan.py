@@ -2,7 +2,6 @@ import numpy as np
 import pytest
 
 from boresight import engine
-from boresight.instrument import Instrument, Systematics
 from boresight.scan import SyntheticScan, paper_scan
 
 
@@ -56,16 +55,3 @@ def test_paper_scans():
     assert paper_scan("wide").n_phi == 2 and paper_scan("wide").range_rad == 0.169
     with pytest.raises(ValueError, match="survey"):
         paper_scan("medium")
-
-
-@pytest.mark.parametrize(
-    "kwargs, field", [(dict(rho_arcmin=-0.1), "rho_arcmin"), (dict(dg=(0.1, np.inf)), "dg")]
-)
-def test_bad_systematics(kwargs, field):
-    with pytest.raises(ValueError, match=field):
-        Systematics(**kwargs)
-
-
-def test_systematics_length_must_match_pairs():
-    with pytest.raises(ValueError, match="3 pairs"):
-        Systematics(dg=(0.1, 0.2)).per_pair(Instrument((0, 45, 90)).n_pairs)

@@ -1,4 +1,4 @@
-"""Kills at random moments (issue 17): a run killed with SIGKILL and run again gives the output of
+"""Kills at random moments: a run killed with SIGKILL and run again gives the output of
 an uninterrupted run, and leaves nothing behind (no staging or replaced directories)."""
 
 import random

@@ -9,14 +9,14 @@ import json
 import healpy as hp
 import numpy as np
 import pytest
+from helpers import toast_schedule, toast_text
 
-from boresight import cli, pointing, scanstats, so_maps
+from boresight import cli, pointing, scanstats
 from boresight.schedule import (
     CES,
     ScanMotion,
     Schedule,
     ScheduleError,
-    Site,
     is_schedule,
     load_schedule,
     toast,
@@ -292,19 +292,11 @@ def test_a_fresh_toast_schedule_runs_end_to_end(toast_files, tmp_path):
 # --- without TOAST -------------------------------------------------------------------------------
 
 
-def _schedule():
-    ces = (
-        CES(9.466848e8 + 3000.5, 600.0, 50.0, 355.0, 20.0, 1.5, -45.0, 3.0, "field a", 2, 1),
-        CES(9.466848e8 + 4000.0, 450.0, 60.0, 120.0, 10.0, 1.5, 30.0, 3.0, "b", 3, 0),
-    )
-    return Schedule(ces, Site(-22.9, -67.8, 5190.0, "chajnantor", "sat1"), 5.0)
-
-
 @pytest.mark.parametrize("name", ["s.txt", "s.ecsv"])
 def test_written_schedules_read_back_to_the_same_pointing(tmp_path, name):
     """boresight -> TOAST file -> boresight keeps every CES (the repeats as rows, the azimuth range
     across north kept whole) and so the pointing, with the motion supplied on reading."""
-    schedule = _schedule().repeated([0.0, 90.0])
+    schedule = toast_schedule().repeated([0.0, 90.0])
     toast.write(schedule, tmp_path / name)
     assert is_schedule(str(tmp_path / name))
     motion = ScanMotion(1.5, rate_on_sky=False, accel_deg_s2=1.0, sample_rate_hz=5.0)
@@ -340,7 +332,7 @@ def test_scan_motion_and_simground_settings():
     assert settings["fix_rate_on_sky"] is True
     assert settings["scan_rate_az"] == pytest.approx(0.5, rel=1e-12)
     assert settings["scan_accel_az"] == pytest.approx(2.0, rel=1e-12)
-    _, notes = toast.simground_settings(_schedule())
+    _, notes = toast.simground_settings(toast_schedule())
     assert notes == []  # equal mount speeds: the rate is the mount's
     mixed = Schedule((ces[0], CES(0.0, 60.0, 50.0, 0.0, 10.0, 3.0)))
     _, notes = toast.simground_settings(mixed)
@@ -374,41 +366,25 @@ def test_bad_toast_schedules_name_the_line(tmp_path, text, message):
         load_schedule(str(path))
 
 
-def test_so_layout_round_trip_and_convention(tmp_path):
-    """scan-stats --format so writes (-1)^n h_n as cos/sin maps, 0 where unobserved; reading
-    them back gives boresight's h_n; and a uniform psi = 180 deg + a in boresight's convention is
-    exp(i n a) in SO's."""
-    schedule = _schedule()
-    schedule_path = tmp_path / "s.txt"
-    toast.write(schedule, schedule_path)
-    out = tmp_path / "so"
-    assert cli.main(["-q", "scan-stats", str(schedule_path), "--out", str(out), "--nside", "32",
-                     "--format", "so", "--prefix", "p"]) == 0  # fmt: skip
-    stats = scanstats.characterise_schedule(load_schedule(str(schedule_path)), 32)
-    seen = stats.observed
-    hits = hp.read_map(out / "p_hits.fits")
-    np.testing.assert_array_equal(hits, stats.hits)
-    for n in range(1, 5):
-        cos = hp.read_map(out / f"p_cos_{n}.fits", dtype=np.float64)
-        assert np.all(cos[~seen] == 0)
-        np.testing.assert_allclose(cos[seen], (-1) ** n * stats.h[n, seen].real, atol=1e-14)
-        np.testing.assert_allclose(so_maps.read(out, "p", n), stats.h[n], atol=1e-14)
-    a = 0.3
-    h = np.exp(1j * np.arange(5) * (np.pi + a))[:, None] * np.ones((5, 12))
-    so_maps.write(tmp_path, "u", h, np.ones(12))
-    for n in range(1, 5):
-        got = hp.read_map(tmp_path / f"u_cos_{n}.fits") + 1j * hp.read_map(
-            tmp_path / f"u_sin_{n}.fits"
-        )
-        np.testing.assert_allclose(got, np.exp(1j * n * a), atol=1e-14)
+def test_ecsv_units_and_passes_are_checked_by_column(tmp_path):
+    """A wrong unit named neither the file nor the column; a fractional pass was cut short."""
+    from boresight.schedule import toast
 
-
-def test_export_schedule_cli(tmp_path, capsys):
-    src = tmp_path / "in.txt"
-    toast.write(_schedule(), src)
-    out = tmp_path / "out.txt"
-    assert cli.main(["export-schedule", str(src), "--out", str(out)]) == 0
-    assert "SimGround(" in capsys.readouterr().out
-    assert out.read_text() == src.read_text()
-    assert cli.main(["export-schedule", str(src), "--out", str(out)]) == 2  # exists
-    assert cli.main(["export-schedule", str(src), "--out", str(out), "--force"]) == 0
+    schedule, _ = toast_text(tmp_path)
+    path = tmp_path / "s.ecsv"
+    toast.write(schedule, path)
+    text = path.read_text()
+    wrong_unit = tmp_path / "unit.ecsv"
+    wrong_unit.write_text(text.replace("{name: el, unit: deg", "{name: el, unit: m", 1))
+    with pytest.raises(ScheduleError, match=rf"{wrong_unit}, column el: .*needs deg"):
+        toast.read(wrong_unit)
+    fraction = tmp_path / "pass.ecsv"
+    header = [line for line in text.splitlines() if line.startswith("#")]
+    body = [line for line in text.splitlines() if not line.startswith("#")]
+    fields = body[1].rsplit(" ", 2)
+    body[1] = " ".join([fields[0], "1.5", fields[2]])
+    header = [h.replace("{name: scan_index, datatype: int64}", "{name: scan_index, datatype: "
+                        "float64}") for h in header]  # fmt: skip
+    fraction.write_text("\n".join(header + body) + "\n")
+    with pytest.raises(ScheduleError, match=r"row 1: the pass 1.5 is not an integer"):
+        toast.read(fraction)

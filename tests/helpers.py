@@ -1,0 +1,138 @@
+"""What several test files share: the repository's paths, comparison helpers, Hypothesis
+strategies of configs and schedules, and small input files."""
+
+from pathlib import Path
+
+import numpy as np
+from hypothesis import HealthCheck, settings
+from hypothesis import strategies as st
+
+from boresight.schedule import (
+    CES,
+    Schedule,
+    Site,
+    toast,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+
+
+def rel_max(a, b):
+    """Largest |a - b| relative to the largest |b|."""
+    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / np.max(np.abs(b)))
+
+
+T0 = 1.79e9  # 2026-09-21, inside the IERS tables astropy ships
+
+
+CENTRED = dict(n_phi=4, range_rad=0.9, in_pixel="centre", seed=3)
+
+
+FUZZ = settings(
+    max_examples=150,
+    derandomize=True,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+
+
+def mostly(valid, invalid):
+    """Nine draws in ten from ``valid``: a study with several fields then still runs often."""
+    return st.integers(0, 9).flatmap(lambda k: invalid if k == 9 else valid)
+
+
+numbers = st.one_of(
+    st.integers(-(2**65), 2**65),
+    st.sampled_from([0, 1, 2, 3, 4, 8, 16, -1, 2**31]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0.0, 0.5, 1e-300, 1e300, -0.0]),
+)
+
+
+scalars = st.one_of(numbers, st.booleans(), st.text(max_size=8), st.just("junk.fits"))
+
+
+values = st.one_of(
+    scalars,
+    st.lists(scalars, max_size=4),
+    st.dictionaries(st.text(max_size=3), scalars, max_size=2),
+)
+
+
+cells = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.integers(-10, 2 * 10**9).map(str),
+    st.sampled_from(["", "2026-01-01", "x", "1e400", "50", "60", "1790028800"]),
+)
+
+
+VALID_CES = {
+    "start_unix": st.floats(1.7e9, 1.8e9),
+    "duration_s": st.floats(1, 60),
+    "elevation_deg": st.floats(30, 70),
+    "az_centre_deg": st.floats(-360, 360),
+    "az_throw_deg": st.floats(0, 360),
+    "speed_deg_s": st.floats(0.1, 3),
+    "boresight_deg": st.floats(-180, 180),
+    "turnaround_s": st.floats(0, 10),
+}
+
+
+ces_values = st.one_of(numbers, st.just("2026-01-01"), st.sampled_from([1, 50.0, 10.0, 1790028800]))
+
+
+FUZZ_STUDY = (
+    '[sky]\nnside = 16\nlmax = 47\n[mask]\nsurvey = "wide"\n[output]\nlmax = 40\nn_bands = 3\n'
+)
+
+
+STUDY = """
+[sky]
+nside = 16
+lmax = 47
+fwhm_arcmin = 240.0
+[scan]
+n_phi = 3
+range_rad = 0.5
+rotations_deg = [0.0, 90.0]
+[systematics]
+dg = [0.01, -0.01]
+[mask]
+survey = "wide"
+[output]
+lmax = 40
+n_bands = 3
+"""
+
+
+CSV_HEADER = "start_unix,duration_s,elevation_deg,az_centre_deg,az_throw_deg,speed_deg_s\n"
+
+
+CSV_ROW = "1790028800,60,50,133.6,60,1\n"
+
+
+def sweep_file(tmp_path, parameters='pbr_angle_deg = [0, 90]\n"sky.seed" = [1]'):
+    (tmp_path / "study.toml").write_text(STUDY)
+    path = tmp_path / "sweep.toml"
+    path.write_text(f'base = "study.toml"\n[parameters]\n{parameters}\n')
+    return str(path)
+
+
+def toast_text(tmp_path, name="in.txt", site="atacama", patch="deep"):
+
+    def ces(patch):
+        return (CES(1.79e9, 600.0, 50.0, 120.0, 20.0, 1.0, 0.0, 2.0, patch, 0, 0),)
+
+    schedule = Schedule(ces(patch), Site(-22.96, -67.79, 5200.0, site, "sat"), 5.0)
+    path = tmp_path / name  # a clean TOAST file to export from
+    path.write_text(toast.text(Schedule(ces("deep"), Site(), 5.0)))
+    return schedule, path
+
+
+def toast_schedule():
+    ces = (
+        CES(9.466848e8 + 3000.5, 600.0, 50.0, 355.0, 20.0, 1.5, -45.0, 3.0, "field a", 2, 1),
+        CES(9.466848e8 + 4000.0, 450.0, 60.0, 120.0, 10.0, 1.5, 30.0, 3.0, "b", 3, 0),
+    )
+    return Schedule(ces, Site(-22.9, -67.8, 5190.0, "chajnantor", "sat1"), 5.0)

@@ -1,0 +1,45 @@
+"""Figures: written as PNG and PDF, the residual's sign shown, and a notebook's matplotlib backend
+left as it was (the command line alone asks for Agg)."""
+
+import subprocess
+import sys
+
+import healpy as hp
+import matplotlib.image
+import numpy as np
+from helpers import ROOT
+
+from boresight import plots
+
+
+def test_importing_the_plots_leaves_the_backend_alone():
+    code = (
+        "import matplotlib; matplotlib.use('svg'); import boresight.plots; "
+        "print(matplotlib.get_backend())"
+    )
+    env = {"PATH": "", "PYTHONPATH": str(ROOT)}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
+    assert out.stdout.strip() == "svg"
+
+
+def test_a_spectrum_figure_is_a_png_and_a_pdf(tmp_path):
+    bands = [
+        dict(ell_lo=lo, ell_hi=lo + 9, residual_bb=(-1) ** i * 10.0**-i, predicted_bb=10.0**-i)
+        for i, lo in enumerate(range(20, 120, 10))
+    ]
+    plots.spectrum_figure(bands, tmp_path / "residual")
+    assert (tmp_path / "residual.pdf").read_bytes().startswith(b"%PDF")
+    image = matplotlib.image.imread(tmp_path / "residual.png")
+    assert image.shape[0] > 100 and image.std() > 0  # something is drawn
+
+
+def test_a_map_figure_shows_one_panel_per_map(tmp_path):
+    m = np.arange(12 * 8**2, dtype=float)
+    m[:100] = hp.UNSEEN
+    plots.map_figure([m, -m], ["a", "b"], tmp_path / "maps.png")
+    one = tmp_path / "one.png"
+    plots.map_figure([m], ["a"], one)
+    two = matplotlib.image.imread(tmp_path / "maps.png")
+    assert two.shape[1] == 2 * matplotlib.image.imread(one).shape[1]
