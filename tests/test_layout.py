@@ -204,6 +204,18 @@ def test_every_command_has_an_end_to_end_test():
     assert [c.NAME for c in commands.ALL if f'"{c.NAME}"' not in text] == []
 
 
+def test_the_architecture_page_draws_these_layers():
+    """docs/architecture.md's table of layers is LAYERS: the picture a reader sees is the one
+    the imports are held to."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    drawn = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 2 and cells[0] in LAYERS:
+            drawn[cells[0]] = {m.split(".")[0] for m in re.findall(r"`([\w.]+)`", cells[1])}
+    assert drawn == {name: modules for name, modules in LAYERS.items()}
+
+
 def test_the_architecture_page_names_every_module():
     text = (ROOT / "docs" / "architecture.md").read_text()
     short = {m.removeprefix("boresight.") for m in MODULES if m != "boresight"}
