@@ -28,6 +28,7 @@ from .frames import to_frame
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
+    from .focalplane import FocalPlane
     from .schedule import Schedule
 
 UNIX_EPOCH_JD = frames.UNIX_EPOCH_JD
@@ -186,6 +187,66 @@ def _ces_pointing(k0, n, chunk, terms):
     return theta, phi, psi, turning
 
 
+@numba.njit(inline="always")
+def offset_sample(z, r, phi, c, s, v):
+    """A detector's direction and crossing angle from its boresight's.
+
+    The detector sits at ``v`` in the focal plane (:meth:`boresight.focalplane.FocalPlane.vectors`:
+    its direction and orientation in TOAST's boresight frame, whose x axis points away from the
+    zenith, towards -(c, s)). The crossing angle is that of the focal plane's "up" axis carried to
+    the detector, in boresight's convention (TOAST's psi + pi).
+
+    Parameters
+    ----------
+    z, r, phi : float
+        cos(theta), sin(theta) and longitude of the boresight.
+    c, s : float
+        cos and sin of the boresight's crossing angle, the boresight angle included.
+    v : numpy.ndarray, shape (6,)
+
+    Returns
+    -------
+    z, r, phi, c, s : float
+        The same of the detector.
+    """
+    cp, sp = np.cos(phi), np.sin(phi)
+    # the focal plane's axes in the boresight's (e_theta, e_phi): x = -(c, s), y = (s, -c)
+    a, b = -v[0] * c + v[1] * s, -v[0] * s - v[1] * c
+    nx = v[2] * r * cp + a * z * cp - b * sp
+    ny = v[2] * r * sp + a * z * sp + b * cp
+    nz = v[2] * z - a * r
+    a, b = -v[3] * c + v[4] * s, -v[3] * s - v[4] * c
+    ox = v[5] * r * cp + a * z * cp - b * sp
+    oy = v[5] * r * sp + a * z * sp + b * cp
+    oz = v[5] * z - a * r
+    rn = max(np.sqrt(nx * nx + ny * ny), 1e-300)
+    # the orientation against the detector's (e_theta, e_phi), turned by pi
+    c_det = -(nz * (ox * nx + oy * ny) / rn - rn * oz)
+    s_det = -(oy * nx - ox * ny) / rn
+    norm = np.sqrt(c_det * c_det + s_det * s_det)
+    return nz, rn, np.arctan2(ny, nx), c_det / norm, s_det / norm
+
+
+@numba.njit(parallel=True, cache=True)
+def _ces_detector_pointing(k0, n, chunk, terms, vectors):
+    """theta, phi, psi [rad] of each detector at ``vectors`` (m, 6), (m, n), and the turnaround
+    flag (n,), of samples k0..k0+n-1 of a CES."""
+    m = vectors.shape[0]
+    theta = np.empty((m, n))
+    phi = np.empty((m, n))
+    psi = np.empty((m, n))
+    turning = np.empty(n, dtype=np.bool_)
+    cb, sb = np.cos(chunk[10]), np.sin(chunk[10])
+    for i in numba.prange(n):
+        z, r, ph, c, s, turning[i] = sample_pointing(k0 + i, chunk, terms)
+        c, s = c * cb - s * sb, c * sb + s * cb
+        for d in range(m):
+            zd, rd, phi[d, i], cd, sd = offset_sample(z, r, ph, c, s, vectors[d])
+            theta[d, i] = np.arctan2(rd, zd)
+            psi[d, i] = np.arctan2(sd, cd)
+    return theta, phi, psi, turning
+
+
 #: the scalars of a CES chunk: start [unix s], rate [Hz], azimuth centre, throw [rad], speed
 #: [rad/s], turnaround [s], elevation [rad], UT1 Julian date of the Unix epoch, longitude, latitude,
 #: boresight angle [rad]
@@ -265,4 +326,32 @@ def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple
         if schedule.turnarounds == "exclude":
             keep = ~turning
             theta, phi, psi = theta[keep], phi[keep], psi[keep]
+        yield theta, phi, psi
+
+
+def detector_pointing(
+    schedule: Schedule, focalplane: FocalPlane, chunk_samples: int = 1 << 20
+) -> Iterator[tuple]:
+    """The pointing of every pair of a focal plane over a whole schedule, chunk by chunk: the
+    boresight's (:func:`pointing`) carried to each pair's place, the boresight angle turning the
+    focal plane about the boresight as TOAST's ``PointingDetectorSimple`` does.
+
+    Parameters
+    ----------
+    schedule : Schedule
+    focalplane : boresight.focalplane.FocalPlane
+    chunk_samples : int
+        Detector-samples per chunk (at least one sample of every pair).
+
+    Yields
+    ------
+    theta, phi, psi : numpy.ndarray, shape (n_pairs, <= chunk_samples / n_pairs)
+        Each pair's colatitude, longitude and crossing angle [rad] in ``schedule.frame``.
+    """
+    vectors = focalplane.vectors()
+    for args in chunk_arguments(schedule, max(1, chunk_samples // focalplane.n_pairs)):
+        theta, phi, psi, turning = _ces_detector_pointing(*args, vectors)
+        if schedule.turnarounds == "exclude":
+            keep = ~turning
+            theta, phi, psi = theta[:, keep], phi[:, keep], psi[:, keep]
         yield theta, phi, psi

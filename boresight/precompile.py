@@ -104,6 +104,14 @@ KERNELS = {
         Kernel("design", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
         Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
         Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
+        Kernel("scanstats", "ces_hits_pairs", (*_CHUNK, nt.int64, nt.int64, nt.bool_, _F2), 2.4),
+        Kernel(
+            "scanstats",
+            "_bin_pairs",
+            (nt.int64[:, ::1], _F2, _F2, nt.complex128[:, :, ::1], nt.int64[:, ::1], nt.int64),
+            1.0,
+        ),
+        Kernel("pointing", "_ces_detector_pointing", (*_CHUNK, _F2), 2.4),
         Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
         Kernel("kernels.pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel(
@@ -127,6 +135,7 @@ _JOBS = {
         ("interpolate_interleaved", "accumulate_scatter"),
     ),
     "schedule-stats": (("ces_hits", "_bin", "_runs"), ()),
+    "focalplane-stats": (("ces_hits_pairs", "_bin", "_bin_pairs", "_runs"), ()),
 }
 
 
@@ -135,9 +144,10 @@ def kernels_for(job: str, backend: str = "cpu", pointing: bool = False) -> list[
 
     Parameters
     ----------
-    job : {"study", "design", "validation", "schedule-stats"}
+    job : {"study", "design", "validation", "schedule-stats", "focalplane-stats"}
         A study's simulation and prediction (``simulate``, ``reproduce``); ``design``'s search;
-        its TOD simulation of a schedule's own samples; ``scan-stats`` of a schedule.
+        its TOD simulation of a schedule's own samples; ``scan-stats`` of a schedule, on the
+        boresight or over a focal plane.
     backend : {"cpu", "gpu"}
         The engine's backend: the GPU runs its own kernels.
     pointing : bool

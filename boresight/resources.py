@@ -269,6 +269,8 @@ def schedule_estimate(
     systematics: Systematics | None = None,
     instrument: Instrument | None = None,
     fwhm_arcmin: float = 0.0,
+    pointed_pairs: int = 0,
+    pair_maps: int = 0,
 ) -> Estimate:
     """The estimate of a schedule's job: ``schedule-stats``, ``compare-scans``, ``design``.
 
@@ -286,6 +288,10 @@ def schedule_estimate(
         TOD simulations of the whole schedule (with and without the systematic each count).
     systematics, instrument, fwhm_arcmin
         The TOD simulations' beams, if any.
+    pointed_pairs : int
+        Pairs of a focal plane pointed each from its own place (0: the boresight alone).
+    pair_maps : int
+        Per-pair maps held at once (:func:`boresight.scanstats.pair_blocks`).
 
     Returns
     -------
@@ -299,8 +305,11 @@ def schedule_estimate(
         parts["beams"] = beam_bytes(
             systematics, instrument or Instrument(), fwhm_arcmin, lmax, cubes=True
         )
+    if pair_maps:
+        parts["pair maps"] = 88.0 * 12 * nside**2 * pair_maps  # sums (5 complex) and hits
+        parts["chunk"] *= 28.0 / 48.0  # pixel, cos, sin, angle bin per pair-sample
     samples = float(schedule.n_samples)
-    seconds = samples / SAMPLE_RATES["pointing"]
+    seconds = samples * max(1, pointed_pairs) / SAMPLE_RATES["pointing"]
     if job == "design":
         seconds += samples / SAMPLE_RATES["moments"]
     seconds += tod_runs * samples * n_pairs / SAMPLE_RATES["tod"]

@@ -19,12 +19,13 @@ import numpy as np
 from . import interrupts
 from .engine import check_samples
 from .kernels.pixels import ang2pix_array, zphi2pix
-from .pointing import chunk_arguments, sample_pointing
+from .pointing import chunk_arguments, offset_sample, sample_pointing
 from .scan import SyntheticScan
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
+    from .focalplane import FocalPlane
     from .schedule import Schedule
 
 
@@ -93,6 +94,48 @@ def ces_hits(k0, n, chunk, terms, nside, nbins, exclude_turnarounds):
         sin_psi[i] = c * sb + s * cb
         angle_bin[i] = _angle_bin(cos_psi[i], sin_psi[i], nbins)
     return pix, cos_psi, sin_psi, angle_bin
+
+
+@numba.njit(parallel=True, cache=True)
+def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vectors):
+    """:func:`ces_hits` of each pair of a focal plane at ``vectors`` (m, 6)
+    (:func:`boresight.pointing.offset_sample`): arrays (m, n)."""
+    m = vectors.shape[0]
+    pix = np.empty((m, n), dtype=np.int64)
+    cos_psi = np.empty((m, n))
+    sin_psi = np.empty((m, n))
+    angle_bin = np.empty((m, n), dtype=np.int32)
+    cb, sb = np.cos(chunk[10]), np.sin(chunk[10])
+    for i in numba.prange(n):
+        z, r, phi, c, s, turning = sample_pointing(k0 + i, chunk, terms)
+        c, s = c * cb - s * sb, c * sb + s * cb
+        for d in range(m):
+            zd, rd, phd, cd, sd = offset_sample(z, r, phi, c, s, vectors[d])
+            pix[d, i] = -1 if exclude_turnarounds and turning else zphi2pix(nside, zd, rd, phd)
+            cos_psi[d, i], sin_psi[d, i] = cd, sd
+            angle_bin[d, i] = _angle_bin(cd, sd, nbins)
+    return pix, cos_psi, sin_psi, angle_bin
+
+
+@numba.njit(parallel=True, cache=True)
+def _bin_pairs(pixels, cos_psi, sin_psi, sums, hits, nparts):
+    """Add each pair's samples (m, n) to its own per-pixel sums of exp(i n psi), (m, npix, N_MAX
+    + 1), and counts (m, npix); threads own (pair, pixel range) blocks, as in :func:`_bin`."""
+    m, npix = hits.shape
+    for task in numba.prange(m * nparts):
+        d, part = task // nparts, task % nparts
+        lo = part * npix // nparts
+        hi = (part + 1) * npix // nparts
+        for k in range(pixels.shape[1]):
+            p = pixels[d, k]
+            if p < lo or p >= hi:
+                continue
+            hits[d, p] += 1
+            c, s = cos_psi[d, k], sin_psi[d, k]
+            re, im = 1.0, 0.0
+            for n in range(sums.shape[2]):
+                sums[d, p, n] += complex(re, im)
+                re, im = re * c - im * s, re * s + im * c
 
 
 @numba.njit(parallel=True, cache=True)
@@ -219,31 +262,55 @@ class ScanStats:
         )
 
 
+class _Accumulator:
+    """Per-pixel sums of exp(i n psi), counts and angle bitmaps, filled chunk by chunk."""
+
+    def __init__(self, nside, tolerance_deg):
+        if not 0 < tolerance_deg <= 180:
+            raise ValueError(f"tolerance_deg must be in (0, 180], got {tolerance_deg}")
+        npix = 12 * nside**2
+        self.tolerance_deg = tolerance_deg
+        self.nbins = int(round(360.0 / tolerance_deg))
+        self.occupancy = np.zeros((npix, (self.nbins + _WORD - 1) // _WORD), dtype=np.uint64)
+        self.sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: a cache line
+        self.hits = np.zeros(npix, dtype=np.int64)
+
+    def add(self, pixels, cos_psi, sin_psi, angle_bin):
+        interrupts.check()
+        _bin(
+            pixels,
+            cos_psi,
+            sin_psi,
+            angle_bin,
+            self.sums,
+            self.hits,
+            self.occupancy,
+            numba.get_num_threads(),
+        )
+
+    def stats(self):
+        hits = self.hits
+        observed = np.flatnonzero(hits)
+        h = np.zeros((N_MAX + 1, hits.size), dtype=np.complex128)
+        h[:, observed] = (self.sums[observed] / hits[observed, None]).T
+        n_distinct, range_bins, centre_bin = _runs(self.occupancy, self.nbins, observed)
+        width = 2 * np.pi / self.nbins
+        return ScanStats(
+            hits=hits,
+            h=h,
+            n_distinct=n_distinct,
+            range_rad=range_bins * width,
+            centre_rad=np.mod(centre_bin * width, 2 * np.pi),
+            tolerance_deg=self.tolerance_deg,
+        )
+
+
 def _stats(nside, tolerance_deg, binned_chunks):
     """ScanStats from chunks of (pixels, cos psi, sin psi, angle bins) for nbins bins."""
-    if not 0 < tolerance_deg <= 180:
-        raise ValueError(f"tolerance_deg must be in (0, 180], got {tolerance_deg}")
-    npix = 12 * nside**2
-    nbins = int(round(360.0 / tolerance_deg))
-    occupancy = np.zeros((npix, (nbins + _WORD - 1) // _WORD), dtype=np.uint64)
-    sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: one cache line
-    hits = np.zeros(npix, dtype=np.int64)
-    for chunk in binned_chunks(nbins):
-        interrupts.check()
-        _bin(*chunk, sums, hits, occupancy, numba.get_num_threads())
-    observed = np.flatnonzero(hits)
-    h = np.zeros((N_MAX + 1, npix), dtype=np.complex128)
-    h[:, observed] = (sums[observed] / hits[observed, None]).T
-    n_distinct, range_bins, centre_bin = _runs(occupancy, nbins, observed)
-    width = 2 * np.pi / nbins
-    return ScanStats(
-        hits=hits,
-        h=h,
-        n_distinct=n_distinct,
-        range_rad=range_bins * width,
-        centre_rad=np.mod(centre_bin * width, 2 * np.pi),
-        tolerance_deg=tolerance_deg,
-    )
+    acc = _Accumulator(nside, tolerance_deg)
+    for chunk in binned_chunks(acc.nbins):
+        acc.add(*chunk)
+    return acc.stats()
 
 
 def characterise(sample_chunks: Iterable, nside: int, tolerance_deg: float = 1.0) -> ScanStats:
@@ -307,3 +374,134 @@ def characterise_schedule(
                 bar.update(args[1])
 
     return _stats(nside, tolerance_deg, binned)
+
+
+@dataclass(frozen=True)
+class FocalPlaneStats:
+    """Per-pixel statistics of a focal plane's scan, RING maps (npix,).
+
+    Parameters
+    ----------
+    combined : ScanStats
+        Every pair's samples binned together, as the map-maker combines them: hits N = sum_i N_i
+        and h_n = sum_i N_i h_{n,i} / N, the hit-weighted mean over pairs.
+    sum_sq : numpy.ndarray, float64, shape (N_MAX + 1, npix)
+        sum_i N_i^2 |h_{n,i}|^2: with N^2 the weight of a systematic scattered from pair to pair.
+    focalplane : boresight.focalplane.FocalPlane
+    pair_weights : numpy.ndarray, float64, shape (n_pairs, N_MAX + 1)
+        Per pair, sum_p N_i |h_{n,i}|^2 over pixels (n = 0: its hits).
+    pair_hits : numpy.ndarray, int64, shape (n_pairs, npix), or None
+        Each pair's hits N_i, where asked.
+    pair_h : numpy.ndarray, complex128, shape (n_pairs, N_MAX + 1, npix), or None
+        Each pair's h_{n,i}, where asked.
+    """
+
+    combined: ScanStats
+    sum_sq: np.ndarray
+    focalplane: FocalPlane
+    pair_weights: np.ndarray
+    pair_hits: np.ndarray | None = None
+    pair_h: np.ndarray | None = None
+
+    def scattered(self) -> np.ndarray:
+        """sum_i N_i^2 |h_{n,i}|^2 / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
+        (number of pairs) of a pixel, and for a focal plane on the axis it is |h_n|^2 / n_pairs."""
+        hits = self.combined.hits
+        return np.where(hits > 0, self.sum_sq / np.maximum(hits, 1) ** 2, 0.0)
+
+    def pair_means(self) -> list[dict]:
+        """Per pair: its name, distance from the boresight [deg], hits and hit-weighted
+        <|h_n|^2> = sum_p N_i |h_{n,i}|^2 / sum_p N_i over its pixels (n = 1..N_MAX)."""
+        rows = []
+        for i, name in enumerate(self.focalplane.names):
+            row = {"pair": name, "radius_deg": float(self.focalplane.radius_deg[i])}
+            row["hits"] = int(self.pair_weights[i, 0])
+            for n in range(1, N_MAX + 1):
+                row[f"abs_h{n}_sq"] = float(self.pair_weights[i, n] / self.pair_weights[i, 0])
+            rows.append(row)
+        return rows
+
+
+#: per-pair maps held at once while summing a focal plane's scattered weights [bytes]
+PAIR_BLOCK_BYTES = 1 << 30
+
+
+def pair_blocks(n_pairs: int, nside: int, *, per_pair: bool = False) -> list[range]:
+    """The blocks of pairs :func:`characterise_focalplane` streams the schedule for: all pairs at
+    once when their maps are kept, else as many as :data:`PAIR_BLOCK_BYTES` holds."""
+    per = 12 * nside**2 * (16 * (N_MAX + 1) + 8)
+    size = n_pairs if per_pair else max(1, min(n_pairs, PAIR_BLOCK_BYTES // per))
+    return [range(a, min(a + size, n_pairs)) for a in range(0, n_pairs, size)]
+
+
+def characterise_focalplane(
+    schedule: Schedule,
+    focalplane: FocalPlane,
+    nside: int,
+    tolerance_deg: float = 1.0,
+    chunk_samples: int = 1 << 20,
+    *,
+    per_pair: bool = False,
+    progress: bool = False,
+) -> FocalPlaneStats:
+    """Statistics of a schedule seen by every pair of a focal plane, each from its own place
+    (:func:`boresight.pointing.detector_pointing`, fused into the binning).
+
+    Pairs are streamed in blocks (:func:`pair_blocks`), so memory holds one block's maps, not one
+    per pair; the combined maps and the scattered weights add over blocks.
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+    focalplane : boresight.focalplane.FocalPlane
+    nside : int
+    tolerance_deg : float
+    chunk_samples : int
+        Detector-samples per chunk.
+    per_pair : bool
+        Keep each pair's hits and h_n.
+    progress : bool
+
+    Returns
+    -------
+    FocalPlaneStats
+    """
+    from tqdm.auto import tqdm
+
+    exclude = schedule.turnarounds == "exclude"
+    vectors = focalplane.vectors()
+    npix = 12 * nside**2
+    combined = _Accumulator(nside, tolerance_deg)
+    sum_sq = np.zeros((N_MAX + 1, npix))
+    weights = np.zeros((focalplane.n_pairs, N_MAX + 1))
+    pair_hits = np.zeros((focalplane.n_pairs, npix), dtype=np.int64) if per_pair else None
+    pair_h = np.zeros((focalplane.n_pairs, N_MAX + 1, npix), complex) if per_pair else None
+    blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair)
+    total = schedule.n_samples * focalplane.n_pairs
+    nparts = numba.get_num_threads()
+    with tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar:
+        for block in blocks:
+            v = np.ascontiguousarray(vectors[block.start : block.stop])
+            sums = np.zeros((len(block), npix, N_MAX + 1), dtype=np.complex128)
+            hits = np.zeros((len(block), npix), dtype=np.int64)
+            per_chunk = max(1, chunk_samples // len(block))
+            for args in chunk_arguments(schedule, per_chunk):
+                pix, c, s, b = ces_hits_pairs(*args, nside, combined.nbins, exclude, v)
+                combined.add(pix.ravel(), c.ravel(), s.ravel(), b.ravel())
+                _bin_pairs(pix, c, s, sums, hits, nparts)
+                bar.update(args[1] * len(block))
+            power = sums.real**2 + sums.imag**2  # N_i^2 |h_{n,i}|^2, (pairs, npix, n)
+            sum_sq += np.sum(power, axis=0).T
+            weights[block.start : block.stop] = np.sum(power / np.maximum(hits, 1)[..., None], 1)
+            if per_pair:
+                pair_hits[block.start : block.stop] = hits
+                h = sums / np.maximum(hits, 1)[:, :, None]
+                pair_h[block.start : block.stop] = np.swapaxes(h, 1, 2)
+    return FocalPlaneStats(
+        combined=combined.stats(),
+        sum_sq=sum_sq,
+        focalplane=focalplane,
+        pair_weights=weights,
+        pair_hits=pair_hits,
+        pair_h=pair_h,
+    )

@@ -7,6 +7,7 @@ import argparse
 import logging
 import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
@@ -24,12 +25,14 @@ from .. import (
     so_maps,
 )
 from ..config import Study, as_dict, load_study
+from ..focalplane import load_focalplane
 from ..schedule import is_schedule, load_schedule
 from ..sky import SkyConfig
 from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
+    from ..focalplane import FocalPlane
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -62,12 +65,18 @@ class Layout:
             raise ConfigError(f"--format {self.format!r}; allowed: {FORMATS}")
         if not self.prefix or not all(c.isalnum() or c in "_-." for c in self.prefix):
             raise ConfigError(f"--prefix {self.prefix!r} must be letters, digits, '_', '-' or '.'")
-        longest = len(os.fsencode(f"{self.prefix}_cos_4.fits"))
-        if longest > io.MAX_NAME_BYTES:
-            raise ConfigError(
-                f"--prefix is {len(self.prefix)} characters: its files' names would be {longest} "
-                f"bytes, at most {io.MAX_NAME_BYTES} are allowed"
-            )
+        self.check_names([self.prefix])
+
+    @staticmethod
+    def check_names(prefixes) -> None:
+        """Refuse file-name prefixes whose files' names would exceed what a file system takes."""
+        for prefix in prefixes:
+            longest = len(os.fsencode(f"{prefix}_hits.fits"))
+            if longest > io.MAX_NAME_BYTES:
+                raise ConfigError(
+                    f"--prefix: the files of {prefix!r} would have {longest}-byte names, at most "
+                    f"{io.MAX_NAME_BYTES} are allowed"
+                )
 
     @property
     def convention(self) -> str:
@@ -143,10 +152,19 @@ def run_schedule(
     layout: Layout = Layout(),
     frame: str | None = None,
     turnarounds: str | None = None,
+    focalplane: FocalPlane | None = None,
+    per_detector: bool = False,
     progress: bool = False,
     checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """:func:`run` for a CES schedule file (boresight's TOML or CSV, or TOAST's).
+
+    With a focal plane every pair is pointed from its own place; the h_n maps are then the focal
+    plane's combination (all pairs' samples binned together), ``hn_scatter.fits`` holds the
+    scattered weights sum_i N_i^2 |h_{n,i}|^2 / N^2 and ``pairs.csv`` each pair's hit-weighted
+    <|h_n|^2>. ``per_detector`` (SO layout) also writes sotodlib's per-detector files
+    ``{prefix}_{det}_cos_{n}.fits``, ``_sin_{n}`` and ``_hits``, with psi as sotodlib's ``Hn``
+    computes it (TOAST's psi less the detector's polarisation angle).
 
     Parameters
     ----------
@@ -161,6 +179,10 @@ def run_schedule(
     frame, turnarounds : str, optional
         The sky frame of the maps and what the turnarounds' samples do
         (:class:`boresight.schedule.Schedule`; default: the file's).
+    focalplane : boresight.focalplane.FocalPlane, optional
+        Default: every pair on the boresight.
+    per_detector : bool
+        Write each detector's maps (SO layout, with a focal plane).
     progress : bool
         Show a progress bar over the schedule's samples.
     checks : boresight.resources.Checks
@@ -170,19 +192,31 @@ def run_schedule(
     list of dict
         As :func:`run`.
     """
+    if per_detector and (focalplane is None or layout.format != "so"):
+        raise ConfigError("--per-detector needs --focalplane and --format so")
+    if per_detector:
+        layout.check_names(
+            f"{layout.prefix}_{det}" for pair in focalplane.detectors for det in pair
+        )
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     try:
         SkyConfig(nside=nside, lmax=2 * nside)
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside: {err}") from None
     io.check_output_dir(out_dir, force, [schedule_path])
-    estimate = resources.schedule_estimate("schedule-stats", schedule, nside)
+    pairs = 0 if focalplane is None else focalplane.n_pairs
+    blocks = scanstats.pair_blocks(pairs, nside, per_pair=per_detector) if pairs else []
+    estimate = resources.schedule_estimate(
+        "schedule-stats",
+        schedule,
+        nside,
+        pointed_pairs=pairs,
+        pair_maps=max((len(b) for b in blocks), default=0) + (pairs if per_detector else 0),
+    )
     resources.require(estimate, checks)
     timer = provenance.Timer(log)
-    precompile.precompile(precompile.kernels_for("schedule-stats"), timer=timer)
-    with timer("characterise the schedule"):
-        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg, progress=progress)
-    maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
+    job = "schedule-stats" if focalplane is None else "focalplane-stats"
+    precompile.precompile(precompile.kernels_for(job), timer=timer)
     config = {
         "schedule": schedule_path,
         "nside": nside,
@@ -190,10 +224,52 @@ def run_schedule(
         "turnarounds": schedule.turnarounds,
         "tolerance_deg": tolerance_deg,
     }
-    return _write(out_dir, maps, scanstats.N_MAX, [schedule_path], force, layout, config, estimate)
+    inputs = [schedule_path]
+    with timer("characterise the schedule"):
+        if focalplane is None:
+            stats = scanstats.characterise_schedule(
+                schedule, nside, tolerance_deg, progress=progress
+            )
+            planes = None
+        else:
+            planes = scanstats.characterise_focalplane(
+                schedule, focalplane, nside, tolerance_deg, per_pair=per_detector, progress=progress
+            )
+            stats = planes.combined
+            config["focalplane"] = focalplane.source
+            if Path(focalplane.source).is_file():
+                inputs.append(focalplane.source)
+    maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
+    return _write(
+        out_dir, maps, scanstats.N_MAX, inputs, force, layout, config, estimate, planes=planes
+    )
 
 
-def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate):
+def _write_focalplane(stage, planes, layout, frame):
+    """The scattered weights, each pair's means and, where kept, each detector's SO maps."""
+    scattered = planes.scattered()
+    observed = planes.combined.hits > 0
+    io.write_maps(
+        stage / "hn_scatter.fits",
+        [np.where(observed, scattered[n], hp.UNSEEN) for n in range(scanstats.N_MAX + 1)],
+        [f"SCATTER_H{n}" for n in range(scanstats.N_MAX + 1)],
+        [""] * (scanstats.N_MAX + 1),
+        comments=["sum over pairs of N_i^2 |h_n,i|^2 / N^2 (n = 0: sum N_i^2 / N^2)"],
+        frame=frame,
+    )
+    rows = planes.pair_means()
+    io.write_csv(stage / "pairs.csv", rows, list(rows[0]))
+    if planes.pair_h is None:
+        return
+    fp = planes.focalplane
+    n = np.arange(scanstats.N_MAX + 1)[:, None]
+    for i, pair in enumerate(fp.detectors):
+        for det, offset in zip(pair, np.radians(fp.hn_offset_deg[i])):
+            h = planes.pair_h[i] * np.exp(1j * n * offset)  # sotodlib's Hn psi: + gamma - pol
+            so_maps.write(stage, f"{layout.prefix}_{det}", h, planes.pair_hits[i], frame=frame)
+
+
+def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate, *, planes=None):
     """The survey means, the h_n maps in the layout, the scan maps, a figure and the manifest. In
     the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi convention (odd h_n
     change sign); the manifest's ``psi_convention`` says which."""
@@ -242,6 +318,8 @@ def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate):
             frame=frame,
         )
         io.write_csv(stage / "hn_summary.csv", rows, list(rows[0]))
+        if planes is not None:
+            _write_focalplane(stage, planes, layout, frame)
         plots.map_figure(
             [np.where(obs, np.abs(h[n]) ** 2, hp.UNSEEN) for n in (1, 2)],
             ["|h_1|^2", "|h_2|^2"],
@@ -273,6 +351,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "TOAST's psi convention (odd h_n change sign)",
     )
     parser.add_argument("--prefix", default="hn", help="file name prefix of --format so")
+    parser.add_argument(
+        "--focalplane",
+        help="point every pair from its place: TOAST's focal-plane HDF5, a CSV/TOML table "
+        "(name, xi_deg, eta_deg, gamma_deg), 'hexagon:N:WIDTH_DEG' or 'axis' (the default)",
+    )
+    parser.add_argument(
+        "--per-detector",
+        action="store_true",
+        help="with --focalplane and --format so: each detector's maps, as sotodlib's Hn writes",
+    )
     _common.motion_flags(parser)
     _common.pointing_flags(parser)
 
@@ -287,11 +375,15 @@ def main(args: argparse.Namespace) -> int:
             motion=_common.motion(args),
             force=args.force,
             layout=layout,
+            focalplane=load_focalplane(args.focalplane) if args.focalplane else None,
+            per_detector=args.per_detector,
             progress=_common.progress(args),
             checks=_common.checks(args),
             **_common.pointing(args),
         )
     else:
+        if args.focalplane or args.per_detector:
+            raise ConfigError("--focalplane and --per-detector need a schedule, not a study")
         rows = run(
             load_study(args.config),
             args.out,
