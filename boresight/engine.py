@@ -8,6 +8,7 @@ chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
 
 from __future__ import annotations
 
+import copy
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,13 +23,16 @@ from .kernels import get_backend
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
 from .mapmaking import RCOND_MIN, Maps, solve
+from .pointing import detector_pointing
 from .sky import MAX_NSIDE
 from .threads import numba_threads
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
+    from .focalplane import FocalPlane
     from .scan import SyntheticScan
+    from .schedule import Schedule
     from .sky import Sky
 
 
@@ -78,11 +82,12 @@ def check_samples(
     Parameters
     ----------
     theta, phi, psi : array_like, shape (n,)
-        Colatitude in [0, pi], longitude and crossing angle [rad], all finite.
+        Colatitude in [0, pi], longitude (any turn) and crossing angle [rad], all finite.
 
     Returns
     -------
     theta, phi, psi : numpy.ndarray, float64, shape (n,)
+        phi in [0, 2 pi).
 
     Raises
     ------
@@ -99,6 +104,8 @@ def check_samples(
         raise ValueError("phi and psi must be finite (a sample has NaN or infinite pointing)")
     if not ((theta >= 0) & (theta <= np.pi)).all():
         raise ValueError("theta must lie in [0, pi] (a sample has NaN or out-of-range pointing)")
+    if phi.size and not (0.0 <= phi.min() and phi.max() < 2 * np.pi):
+        phi = np.mod(phi, 2 * np.pi)  # the kernels' interpolation takes [0, 2 pi)
     return theta, phi, psi
 
 
@@ -403,6 +410,18 @@ class _Binner:
 
         return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
+    def for_pair(self, i):
+        """This binner for pair i alone: its angle and its own drawn parameters."""
+        one = copy.copy(self)
+        keep = slice(i, i + 1)
+        one.ang, one.rho, one.chi = self.ang[keep], self.rho[keep], self.chi[keep]
+        one.leak, one.jitter = self.leak[keep], self.jitter[keep]
+        one.response = np.ascontiguousarray(self.response[:, keep])
+        if self.beams is not None:
+            one.pair_beams = self.pair_beams[keep]
+            one.angle_a, one.angle_b = self.angle_a[keep], self.angle_b[keep]
+        return one
+
     def scatter(self, pixels, theta, phi, psi, normal, seed, first):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal``; the
         jitter of hit h is keyed by (seed, first + h)."""
@@ -466,6 +485,70 @@ def simulate_samples(
             binner.scatter(pix, theta, phi, psi, normal, systematics.seed, first)
             first += pix.size
     q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
+    seen = np.flatnonzero(hits)
+    return Maps(sky.nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
+
+
+def simulate_focalplane(
+    sky: Sky,
+    schedule: Schedule,
+    focalplane: FocalPlane,
+    systematics: Systematics = Systematics(),
+    *,
+    evaluation: str = "interp",
+    leak_template: np.ndarray | None = None,
+    nthreads: int = 0,
+    backend: str = "cpu",
+    rcond_min: float = RCOND_MIN,
+    chunk_samples: int = 1 << 20,
+    progress: bool = False,
+) -> Maps:
+    """Maps from every pair of a focal plane on a schedule, each pair on its own samples
+    (:func:`boresight.pointing.detector_pointing`), all binned into one map as the map-maker
+    combines them.
+
+    Pair i has the focal plane's angle and the systematics' i-th draw (as pair i of
+    ``Instrument(pair_angles_deg=focalplane.pair_angles_deg)``); the jitter of its sample k is
+    keyed by (seed, i x samples + k), so nothing depends on the chunks.
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    schedule : boresight.schedule.Schedule
+    focalplane : boresight.focalplane.FocalPlane
+    systematics : boresight.instrument.Systematics
+    evaluation, leak_template, nthreads, backend, rcond_min
+        As in :func:`simulate`.
+    chunk_samples : int
+        Pair-samples per chunk of pointing.
+    progress : bool
+
+    Returns
+    -------
+    boresight.mapmaking.Maps
+        Hits count pair-samples.
+    """
+    instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)
+    binner = _Binner(
+        sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
+    )
+    pairs = [binner.for_pair(i) for i in range(focalplane.n_pairs)]
+    normal = binner.kernels.zeros((12 * sky.nside**2, 5))
+    first = 0
+    total = schedule.n_samples * focalplane.n_pairs
+    with (
+        numba_threads(nthreads),
+        tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar,
+    ):
+        for theta, phi, psi in detector_pointing(schedule, focalplane, chunk_samples):
+            for i, one in enumerate(pairs):
+                interrupts.check()
+                pix = ang2pix_array(sky.nside, theta[i], phi[i])
+                key = i * schedule.n_samples + first
+                one.scatter(pix, theta[i], phi[i], psi[i], normal, systematics.seed, key)
+            first += theta.shape[1]
+            bar.update(theta.size)
+    q, u, rcond, hits = _maps_from(binner.kernels, normal, 1, rcond_min)
     seen = np.flatnonzero(hits)
     return Maps(sky.nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
 

@@ -188,7 +188,7 @@ def _ces_pointing(k0, n, chunk, terms):
 
 
 @numba.njit(inline="always")
-def offset_sample(z, r, phi, c, s, v):
+def offset_sample(z, r, cp, sp, c, s, v):
     """A detector's direction and crossing angle from its boresight's.
 
     The detector sits at ``v`` in the focal plane (:meth:`boresight.focalplane.FocalPlane.vectors`:
@@ -198,8 +198,10 @@ def offset_sample(z, r, phi, c, s, v):
 
     Parameters
     ----------
-    z, r, phi : float
-        cos(theta), sin(theta) and longitude of the boresight.
+    z, r : float
+        cos(theta) and sin(theta) of the boresight.
+    cp, sp : float
+        cos and sin of its longitude.
     c, s : float
         cos and sin of the boresight's crossing angle, the boresight angle included.
     v : numpy.ndarray, shape (6,)
@@ -209,7 +211,6 @@ def offset_sample(z, r, phi, c, s, v):
     z, r, phi, c, s : float
         The same of the detector.
     """
-    cp, sp = np.cos(phi), np.sin(phi)
     # the focal plane's axes in the boresight's (e_theta, e_phi): x = -(c, s), y = (s, -c)
     a, b = -v[0] * c + v[1] * s, -v[0] * s - v[1] * c
     nx = v[2] * r * cp + a * z * cp - b * sp
@@ -224,7 +225,7 @@ def offset_sample(z, r, phi, c, s, v):
     c_det = -(nz * (ox * nx + oy * ny) / rn - rn * oz)
     s_det = -(oy * nx - ox * ny) / rn
     norm = np.sqrt(c_det * c_det + s_det * s_det)
-    return nz, rn, np.arctan2(ny, nx), c_det / norm, s_det / norm
+    return nz, rn, np.arctan2(ny, nx) % (2 * np.pi), c_det / norm, s_det / norm
 
 
 @numba.njit(parallel=True, cache=True)
@@ -240,8 +241,9 @@ def _ces_detector_pointing(k0, n, chunk, terms, vectors):
     for i in numba.prange(n):
         z, r, ph, c, s, turning[i] = sample_pointing(k0 + i, chunk, terms)
         c, s = c * cb - s * sb, c * sb + s * cb
+        cp, sp = np.cos(ph), np.sin(ph)
         for d in range(m):
-            zd, rd, phi[d, i], cd, sd = offset_sample(z, r, ph, c, s, vectors[d])
+            zd, rd, phi[d, i], cd, sd = offset_sample(z, r, cp, sp, c, s, vectors[d])
             theta[d, i] = np.arctan2(rd, zd)
             psi[d, i] = np.arctan2(sd, cd)
     return theta, phi, psi, turning

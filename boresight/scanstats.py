@@ -109,8 +109,9 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
     for i in numba.prange(n):
         z, r, phi, c, s, turning = sample_pointing(k0 + i, chunk, terms)
         c, s = c * cb - s * sb, c * sb + s * cb
+        cp, sp = np.cos(phi), np.sin(phi)
         for d in range(m):
-            zd, rd, phd, cd, sd = offset_sample(z, r, phi, c, s, vectors[d])
+            zd, rd, phd, cd, sd = offset_sample(z, r, cp, sp, c, s, vectors[d])
             pix[d, i] = -1 if exclude_turnarounds and turning else zphi2pix(nside, zd, rd, phd)
             cos_psi[d, i], sin_psi[d, i] = cd, sd
             angle_bin[d, i] = _angle_bin(cd, sd, nbins)

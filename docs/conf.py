@@ -49,37 +49,43 @@ def _cell(value):
     return "" if value is None else str(value)
 
 
-def performance_tables(results=RESULTS):
-    """Markdown of every benchmark table, each with its machine, date and versions."""
-    out = []
-    files = sorted(results.glob("*.json"))
-    if not files:
-        return "No benchmark has written its table yet: run a script of `bench/`.\n"
-    for path in files:
-        data = json.loads(path.read_text())
-        machine, versions = data["machine"], data["versions"]
-        out += [
-            f"## {data['title']}",
-            "",
-            f"`bench/results/{path.name}`: {data['date']}, {machine['cpu']}, "
-            f"{machine['cores']} cores, {machine['memory_gib']} GiB; boresight "
-            f"{versions['boresight']}, numba {versions['numba']}, ducc0 {versions['ducc0']}.",
-            "",
-            "| " + " | ".join(data["columns"]) + " |",
-            "|" + "---|" * len(data["columns"]),
-        ]
-        out += [
-            "| " + " | ".join(_cell(row.get(c)) for c in data["columns"]) + " |"
-            for row in data["rows"]
-        ]
-        out += ["", data["notes"], ""] if data.get("notes") else [""]
+def table_markdown(path):
+    """Markdown of one benchmark's table, with its machine, date and versions."""
+    data = json.loads(path.read_text())
+    machine, versions = data["machine"], data["versions"]
+    out = [
+        f"## {data['title']}",
+        "",
+        f"`bench/results/{path.name}`: {data['date']}, {machine['cpu']}, "
+        f"{machine['cores']} cores, {machine['memory_gib']} GiB; boresight "
+        f"{versions['boresight']}, numba {versions['numba']}, ducc0 {versions['ducc0']}.",
+        "",
+        "| " + " | ".join(data["columns"]) + " |",
+        "|" + "---|" * len(data["columns"]),
+    ]
+    out += [
+        "| " + " | ".join(_cell(row.get(c)) for c in data["columns"]) + " |" for row in data["rows"]
+    ]
+    out += ["", data["notes"], ""] if data.get("notes") else [""]
     return "\n".join(out)
 
 
+def performance_tables(results=RESULTS):
+    """Markdown of every benchmark table, each with its machine, date and versions."""
+    files = sorted(results.glob("*.json"))
+    if not files:
+        return "No benchmark has written its table yet: run a script of `bench/`.\n"
+    return "\n".join(table_markdown(path) for path in files)
+
+
 def _write_performance(app):
+    """The performance page's tables, and each table alone (``_generated/<name>.md``) for the
+    guide's pages to include."""
     target = HERE / "_generated" / "performance_tables.md"
     target.parent.mkdir(exist_ok=True)
     target.write_text(performance_tables())
+    for path in sorted(RESULTS.glob("*.json")):
+        (target.parent / f"{path.stem}.md").write_text(table_markdown(path))
 
 
 def setup(app):

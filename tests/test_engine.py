@@ -189,3 +189,38 @@ def test_moments_rotation_closed_form():
                 np.cos(n * alpha * DEG / 2) ** 2,
                 rtol=1e-12,
             )
+
+
+def test_longitudes_of_any_turn_give_the_same_maps(small_sky):
+    """Samples whose phi lies in (-pi, pi] or a turn further give the maps of phi in [0, 2 pi):
+    the interpolation, and detector B's offset, take [0, 2 pi)."""
+    from helpers import toast_schedule
+
+    from boresight import pointing
+
+    theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(toast_schedule())))
+    sy = Systematics(dg=0.01, rho_arcmin=1.0)
+    a = engine.simulate_samples(small_sky, [(theta, phi, psi)], Instrument(), sy)
+    for shifted in (np.where(phi > np.pi, phi - 2 * np.pi, phi), phi + 4 * np.pi):
+        b = engine.simulate_samples(small_sky, [(theta, shifted, psi)], Instrument(), sy)
+        np.testing.assert_array_equal(a.pixels, b.pixels)
+        assert np.max(np.abs(a.q_obs - b.q_obs)) < 1e-9 and np.max(np.abs(a.u_obs - b.u_obs)) < 1e-9
+
+
+def test_a_focal_plane_on_the_axis_simulates_as_the_boresight(small_sky):
+    """Pairs on the axis, each on its own (equal) samples, give the maps of the shared stream; the
+    chunks do not matter; and each pair draws the systematics of pair i of the instrument."""
+    from helpers import toast_schedule
+
+    from boresight import focalplane, pointing
+
+    schedule = toast_schedule()
+    sy = Systematics(dg={"mean": 0.0, "rms": 0.01}, rho_arcmin=(0.5, 1.0), dg_jitter=0.0, seed=4)
+    a = engine.simulate_samples(small_sky, pointing.pointing(schedule), Instrument(), sy)
+    fp = focalplane.on_axis((0.0, 45.0))
+    b = engine.simulate_focalplane(small_sky, schedule, fp, sy)
+    c = engine.simulate_focalplane(small_sky, schedule, fp, sy, chunk_samples=999)
+    np.testing.assert_array_equal(a.pixels, b.pixels)
+    np.testing.assert_array_equal(2 * a.hits_obs, b.hits_obs)  # pair-samples
+    assert np.max(np.abs(a.q_obs - b.q_obs)) < 1e-12 and np.max(np.abs(a.u_obs - b.u_obs)) < 1e-12
+    assert np.max(np.abs(b.q_obs - c.q_obs)) < 1e-12 and np.max(np.abs(b.u_obs - c.u_obs)) < 1e-12

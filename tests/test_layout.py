@@ -31,6 +31,7 @@ LAYERS = {
         "cosmology",
         "sky",
         "instrument",
+        "focalplane",
         "beams",
         "scan",
         "frames",

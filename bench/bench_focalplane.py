@@ -1,0 +1,154 @@
+"""Focal-plane throughput: detector-samples per second of pointing every pair from its own place
+and binning its hits and h_n (n = 0..4), against TOAST 3's chain for the same detectors on the
+same schedule: SimGround + PointingDetectorSimple + PixelsHealpix, then the per-detector binning
+of sotodlib's Hn (numpy's bincount of exp(i n psi)). Like for like: one core each (numba's
+threads and TOAST's OpenMP at 1), boresight also on every core. Then the scale target: 1,094
+detectors (TOAST's 547-pixel hexagon) over a day at 20 Hz.
+
+A detector-sample is one detector's sample; a pair's two detectors share their pointing, which
+boresight computes once and TOAST twice.
+
+Usage: python bench/bench_focalplane.py [NSIDE]
+"""
+
+import os
+import sys
+import tempfile
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # TOAST's kernels on one core, set before import
+
+import numba
+import numpy as np
+from _table import report
+
+from boresight import focalplane, scanstats
+from boresight.schedule import CES, Schedule
+from boresight.schedule import toast as toast_files
+
+RATE = 20.0
+CES_DAY = tuple(
+    CES(
+        start_unix=1.79e9 + i * 3600,
+        duration_s=3300,
+        elevation_deg=50,
+        az_centre_deg=134 if i % 2 else 226,
+        az_throw_deg=60,
+        boresight_deg=45.0 * (i % 3),
+    )
+    for i in range(24)
+)
+
+
+def _boresight(schedule, fp, nside, threads):
+    numba.set_num_threads(threads)
+    t0 = time.perf_counter()
+    scanstats.characterise_focalplane(schedule, fp, nside)
+    return time.perf_counter() - t0
+
+
+def _toast(schedule, n_pix, nside):
+    """Seconds of TOAST's chain over the schedule for its n_pix hexagon, and its detectors."""
+    import toast as toast_
+    import toast.ops
+    from astropy import units as u
+    from toast import qarray
+    from toast.instrument import GroundSite, Telescope
+    from toast.instrument_sim import fake_hexagon_focalplane
+    from toast.schedule import GroundSchedule
+
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "schedule.txt")
+        toast_files.write(schedule, path)
+        theirs = GroundSchedule()
+        theirs.read(path)
+    fp = fake_hexagon_focalplane(n_pix=n_pix, width=35 * u.deg, sample_rate=RATE * u.Hz)
+    site = GroundSite(theirs.site_name, theirs.site_lat, theirs.site_lon, theirs.site_alt)
+    t0 = time.perf_counter()
+    data = toast_.Data(toast_.mpi.Comm())
+    toast_.ops.SimGround(
+        telescope=Telescope("sat", focalplane=fp, site=site), schedule=theirs
+    ).apply(data)
+    detector = toast_.ops.PointingDetectorSimple()
+    toast_.ops.PixelsHealpix(nside=nside, detector_pointing=detector).apply(data)
+    npix = 12 * nside**2
+    hits, sums = np.zeros(npix), np.zeros((5, npix), complex)
+    samples = 0
+    for ob in data.obs:
+        for det in ob.local_detectors:
+            pix = np.asarray(ob.detdata["pixels"][det])
+            _, _, psi = qarray.to_iso_angles(ob.detdata["quats"][det])
+            psi = psi - fp[det]["pol_angle"].to_value(u.rad)
+            hits += np.bincount(pix, minlength=npix)
+            for n in range(5):
+                w = np.exp(1j * n * psi)
+                sums[n] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
+            samples += pix.size
+    return time.perf_counter() - t0, samples
+
+
+def main(nside):
+    cores = numba.get_num_threads()
+    short = Schedule(CES_DAY[:2], sample_rate_hz=RATE)
+    fp = focalplane.hexagon(37, 35.0)
+    detectors = 2 * fp.n_pairs
+    _boresight(Schedule(CES_DAY[:1], sample_rate_hz=1.0), fp, nside, cores)  # compile
+    rows = []
+    n_det = short.n_samples * detectors
+    for threads in (1, cores):
+        t = _boresight(short, fp, nside, threads)
+        rows.append(
+            dict(
+                code=f"boresight, {threads} core{'s' * (threads > 1)}",
+                detectors=detectors,
+                detector_samples=n_det,
+                seconds=t,
+                per_core_per_s=n_det / t / threads,
+            )
+        )
+    try:
+        t, samples = _toast(short, 37, nside)
+    except ImportError:
+        t = samples = None
+    if t is not None:
+        rows.append(
+            dict(
+                code="TOAST 3, 1 core",
+                detectors=detectors,
+                detector_samples=samples,
+                seconds=t,
+                per_core_per_s=samples / t,
+            )
+        )
+        for row in rows[:-1]:
+            row["ratio_to_toast"] = row["per_core_per_s"] / rows[-1]["per_core_per_s"]
+    big = focalplane.hexagon(547, 35.0)
+    day = Schedule(CES_DAY, sample_rate_hz=RATE)
+    t = _boresight(day, big, nside, cores)
+    n_big = day.n_samples * 2 * big.n_pairs
+    rows.append(
+        dict(
+            code=f"boresight, {cores} cores: a day",
+            detectors=2 * big.n_pairs,
+            detector_samples=n_big,
+            seconds=t,
+            per_core_per_s=n_big / t / cores,
+        )
+    )
+    report(
+        "focalplane",
+        f"Focal-plane pointing + binning of hits and h_n, Nside {nside}, {RATE:g} Hz",
+        ["code", "detectors", "detector_samples", "seconds", "per_core_per_s", "ratio_to_toast"],
+        rows,
+        notes=(
+            "Two CESs of 55 min for TOAST's 37-pixel, 35 deg hexagon; then a day of 24 CESs for "
+            "its 547-pixel hexagon. TOAST: SimGround (pyephem), PointingDetectorSimple, "
+            "PixelsHealpix and numpy binning as sotodlib's Hn, OMP_NUM_THREADS=1. boresight: "
+            "scanstats.characterise_focalplane (hits, h_n, crossing-angle bitmaps and the "
+            "scattered sums), pointing computed once per pair."
+        ),
+    )
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 64)
