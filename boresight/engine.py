@@ -517,8 +517,10 @@ def simulate_focalplane(
     schedule : boresight.schedule.Schedule
     focalplane : boresight.focalplane.FocalPlane
     systematics : boresight.instrument.Systematics
-    evaluation, leak_template, nthreads, backend, rcond_min
+    evaluation, leak_template, nthreads, rcond_min
         As in :func:`simulate`.
+    backend : {"cpu"}
+        The GPU backend does not take a focal plane yet.
     chunk_samples : int
         Pair-samples per chunk of pointing.
     progress : bool
@@ -528,6 +530,8 @@ def simulate_focalplane(
     boresight.mapmaking.Maps
         Hits count pair-samples.
     """
+    if backend != "cpu":
+        raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend

@@ -111,7 +111,6 @@ KERNELS = {
             (nt.int64[:, ::1], _F2, _F2, nt.complex128[:, :, ::1], nt.int64[:, ::1], nt.int64),
             1.0,
         ),
-        Kernel("pointing", "_ces_detector_pointing", (*_CHUNK, _F2), 2.4),
         Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
         Kernel("kernels.pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel(

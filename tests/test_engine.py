@@ -224,3 +224,14 @@ def test_a_focal_plane_on_the_axis_simulates_as_the_boresight(small_sky):
     np.testing.assert_array_equal(2 * a.hits_obs, b.hits_obs)  # pair-samples
     assert np.max(np.abs(a.q_obs - b.q_obs)) < 1e-12 and np.max(np.abs(a.u_obs - b.u_obs)) < 1e-12
     assert np.max(np.abs(b.q_obs - c.q_obs)) < 1e-12 and np.max(np.abs(b.u_obs - c.u_obs)) < 1e-12
+
+
+def test_a_focal_plane_on_the_gpu_is_refused_clearly(small_sky):
+    from helpers import toast_schedule
+
+    from boresight import focalplane
+
+    with pytest.raises(ValueError, match="backend 'gpu': a focal plane's TOD runs on the CPU"):
+        engine.simulate_focalplane(
+            small_sky, toast_schedule(), focalplane.on_axis(), Systematics(), backend="gpu"
+        )

@@ -10,12 +10,12 @@ import pytest
 from boresight import precompile
 from boresight.schedule import Schedule, load_schedule
 
-JOBS = ("study", "design", "validation", "schedule-stats")
+JOBS = ("study", "design", "validation", "schedule-stats", "focalplane-stats")
 
 EVERY_JOB_ON_REGISTERED_KERNELS = r"""
 import sys
 from pathlib import Path
-from boresight import paper, precompile
+from boresight import focalplane, paper, precompile
 from boresight.commands import design, scan_stats
 from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 tmp = Path(sys.argv[1])
@@ -34,6 +34,9 @@ write_schedule(Schedule(ces, base.site, 1.0), tmp / "s.toml", "toml")
 )
 design.run(str(tmp / "b.toml"), str(tmp / "s.toml"), str(tmp / "d"))
 scan_stats.run_schedule(str(tmp / "s.toml"), str(tmp / "h"), nside=16)
+scan_stats.run_schedule(
+    str(tmp / "s.toml"), str(tmp / "f"), nside=16, focalplane=focalplane.hexagon(7, 10.0)
+)
 for kernel in precompile.KERNELS.values():  # another argument type would add a signature
     assert kernel.dispatcher.signatures in ([], [kernel.signature]), kernel.name
     assert kernel.name in asked or not kernel.dispatcher.signatures, kernel.name  # called late
@@ -46,7 +49,9 @@ def test_the_jobs_name_every_registered_kernel():
     assert named == set(precompile.KERNELS)
     assert "offset_points" not in precompile.kernels_for("validation", "cpu", pointing=False)
     assert "accumulate" not in precompile.kernels_for("study", "gpu", pointing=True)
-    with pytest.raises(ValueError, match="allowed: study, design, validation, schedule-stats"):
+    with pytest.raises(
+        ValueError, match="allowed: study, design, validation, schedule-stats, focalplane-stats"
+    ):
         precompile.kernels_for("sweep")
 
 

@@ -50,7 +50,9 @@ The package, in the order a prediction is made:
 * :mod:`~boresight.predict.maps`: the map-level prediction, ``delta_p``;
 * :mod:`~boresight.predict.cl`: the C_ell-level prediction, ``systematic_cl`` and
   ``residual_pseudo_bb``;
-* :mod:`~boresight.predict.bias`: delta_r and the reference curves.
+* :mod:`~boresight.predict.bias`: delta_r and the reference curves;
+* :mod:`~boresight.predict.focalplane`: the map-level prediction and its expectation (coherent
+  and scattered) for pairs off the axis, each with its own h_n.
 """
 
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra

@@ -14,7 +14,7 @@ from boresight.schedule import load_schedule
 from boresight.sky import SkyConfig, make_sky
 
 NSIDE, LMAX = 32, 64
-EDGES = np.arange(40, LMAX + 1, 8)  #: bands of 40 <= ell <= 2 Nside
+EDGES = np.array([40, 48, 56, LMAX + 1])  #: bands of 40 <= ell <= 2 Nside
 
 
 def _bb(footprint, dp):
