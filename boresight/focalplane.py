@@ -61,11 +61,11 @@ class FocalPlane:
         Each pair's name.
     detectors : tuple of (str, str)
         The names of each pair's detectors A and B.
-    xi_deg, eta_deg : numpy.ndarray, shape (n_pairs,)
+    xi_deg, eta_deg : numpy.ndarray, shape (pairs,)
         The pair's offset from the boresight in TOAST/SO's projected coordinates [deg].
-    gamma_deg : numpy.ndarray, shape (n_pairs,)
+    gamma_deg : numpy.ndarray, shape (pairs,)
         Detector A's polarisation orientation gamma [deg]: the pair's angle.
-    hn_offset_deg : numpy.ndarray, shape (n_pairs, 2)
+    hn_offset_deg : numpy.ndarray, shape (pairs, 2)
         gamma less the polarisation angle TOAST states (its ``pol_angle``), per detector A and B
         [deg]: what sotodlib's ``Hn`` psi adds to the pair's crossing angle.
     source : str
@@ -100,7 +100,7 @@ class FocalPlane:
         return bool(np.all(self.xi_deg == 0) and np.all(self.eta_deg == 0))
 
     def vectors(self) -> np.ndarray:
-        """Each pair's direction and orientation in the boresight's frame, (n_pairs, 6): the z and
+        """Each pair's direction and orientation in the boresight's frame, (pairs, 6): the z and
         x axes of ``xieta_to_quat(xi, eta, 0)`` (TOAST's detector frame at gamma = 0), for
         :func:`boresight.pointing.detector_pointing`."""
         return xieta_vectors(self.xi_deg * DEG, self.eta_deg * DEG)
@@ -132,7 +132,7 @@ def xieta_vectors(xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
     -------
     numpy.ndarray, shape (n, 6)
         Direction (-eta, -xi, cos rho) and orientation (1 - eta^2 / (1 + cos rho),
-        -xi eta / (1 + cos rho), eta), with sin rho = |(xi, eta)|: the rotation about the axis
+        -xi eta / (1 + cos rho), eta), with sin rho = ``|(xi, eta)|``: the rotation about the axis
         perpendicular to the offset, which carries the boresight to the detector.
     """
     xi, eta = np.asarray(xi, dtype=np.float64), np.asarray(eta, dtype=np.float64)

@@ -387,13 +387,13 @@ class FocalPlaneStats:
         Every pair's samples binned together, as the map-maker combines them: hits N = sum_i N_i
         and h_n = sum_i N_i h_{n,i} / N, the hit-weighted mean over pairs.
     sum_sq : numpy.ndarray, float64, shape (N_MAX + 1, npix)
-        sum_i N_i^2 |h_{n,i}|^2: with N^2 the weight of a systematic scattered from pair to pair.
+        sum_i N_i^2 ``|h_{n,i}|^2``: with N^2 the weight of a systematic scattered from pair to pair.
     focalplane : boresight.focalplane.FocalPlane
-    pair_weights : numpy.ndarray, float64, shape (n_pairs, N_MAX + 1)
-        Per pair, sum_p N_i |h_{n,i}|^2 over pixels (n = 0: its hits).
-    pair_hits : numpy.ndarray, int64, shape (n_pairs, npix), or None
+    pair_weights : numpy.ndarray, float64, shape (pairs, N_MAX + 1)
+        Per pair, sum_p N_i ``|h_{n,i}|^2`` over pixels (n = 0: its hits).
+    pair_hits : numpy.ndarray, int64, shape (pairs, npix), or None
         Each pair's hits N_i, where asked.
-    pair_h : numpy.ndarray, complex128, shape (n_pairs, N_MAX + 1, npix), or None
+    pair_h : numpy.ndarray, complex128, shape (pairs, N_MAX + 1, npix), or None
         Each pair's h_{n,i}, where asked.
     """
 
@@ -405,14 +405,14 @@ class FocalPlaneStats:
     pair_h: np.ndarray | None = None
 
     def scattered(self) -> np.ndarray:
-        """sum_i N_i^2 |h_{n,i}|^2 / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
-        (number of pairs) of a pixel, and for a focal plane on the axis it is |h_n|^2 / n_pairs."""
+        """sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
+        (number of pairs) of a pixel, and for a focal plane on the axis it is ``|h_n|^2`` / n_pairs."""
         hits = self.combined.hits
         return np.where(hits > 0, self.sum_sq / np.maximum(hits, 1) ** 2, 0.0)
 
     def pair_means(self) -> list[dict]:
         """Per pair: its name, distance from the boresight [deg], hits and hit-weighted
-        <|h_n|^2> = sum_p N_i |h_{n,i}|^2 / sum_p N_i over its pixels (n = 1..N_MAX)."""
+        <``|h_n|^2``> = sum_p N_i ``|h_{n,i}|^2`` / sum_p N_i over its pixels (n = 1..N_MAX)."""
         rows = []
         for i, name in enumerate(self.focalplane.names):
             row = {"pair": name, "radius_deg": float(self.focalplane.radius_deg[i])}
@@ -491,7 +491,7 @@ def characterise_focalplane(
                 combined.add(pix.ravel(), c.ravel(), s.ravel(), b.ravel())
                 _bin_pairs(pix, c, s, sums, hits, nparts)
                 bar.update(args[1] * len(block))
-            power = sums.real**2 + sums.imag**2  # N_i^2 |h_{n,i}|^2, (pairs, npix, n)
+            power = sums.real**2 + sums.imag**2  # N_i^2 |h_n,i|^2, (pairs, npix, n)
             sum_sq += np.sum(power, axis=0).T
             weights[block.start : block.stop] = np.sum(power / np.maximum(hits, 1)[..., None], 1)
             if per_pair:

@@ -357,3 +357,18 @@ def test_per_detector_so_maps_match_toasts_own_hn(toast_run, tmp_path):
         np.testing.assert_allclose(cos[seen] + 1j * sin[seen], expected, atol=1e-6)  # float32
     rows = (out / "pairs.csv").read_text().splitlines()
     assert rows[0].startswith("pair,radius_deg,hits,abs_h1_sq") and len(rows) == 4
+
+
+def test_per_detector_files_refuse_names_no_file_can_take(tmp_path, capsys):
+    from helpers import toast_schedule
+
+    from boresight.schedule import write_schedule
+
+    write_schedule(toast_schedule(), tmp_path / "s.toml", "toml")
+    path = _write_table(tmp_path / "fp.csv", ["a/1A,0,0,0", "a/1B,0,0,90"], TABLE)
+    args = ["scan-stats", str(tmp_path / "s.toml"), "--focalplane", str(path), "--format", "so"]
+    args += ["--per-detector", "--out", str(tmp_path / "out"), "--nside", "16"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    assert "detector 'a/1A'" in err and "cannot name a file" in err
+    assert not (tmp_path / "out").exists()

@@ -67,14 +67,19 @@ class Layout:
             raise ConfigError(f"--prefix {self.prefix!r} must be letters, digits, '_', '-' or '.'")
         self.check_names([self.prefix])
 
-    @staticmethod
-    def check_names(prefixes) -> None:
-        """Refuse file-name prefixes whose files' names would exceed what a file system takes."""
+    def check_names(self, prefixes) -> None:
+        """Refuse file-name prefixes (the layout's, or one per detector) whose files' names would
+        exceed what a file system takes."""
         for prefix in prefixes:
-            longest = len(os.fsencode(f"{prefix}_hits.fits"))
+            longest = len(os.fsencode(f"{prefix}_cos_4.fits"))
             if longest > io.MAX_NAME_BYTES:
+                what = (
+                    f"is {len(self.prefix)} characters"
+                    if prefix == self.prefix
+                    else (f"with the detector name {prefix[len(self.prefix) + 1 :]!r}")
+                )
                 raise ConfigError(
-                    f"--prefix: the files of {prefix!r} would have {longest}-byte names, at most "
+                    f"--prefix {what}: its files' names would be {longest} bytes, at most "
                     f"{io.MAX_NAME_BYTES} are allowed"
                 )
 
@@ -161,8 +166,8 @@ def run_schedule(
 
     With a focal plane every pair is pointed from its own place; the h_n maps are then the focal
     plane's combination (all pairs' samples binned together), ``hn_scatter.fits`` holds the
-    scattered weights sum_i N_i^2 |h_{n,i}|^2 / N^2 and ``pairs.csv`` each pair's hit-weighted
-    <|h_n|^2>. ``per_detector`` (SO layout) also writes sotodlib's per-detector files
+    scattered weights sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 and ``pairs.csv`` each pair's hit-weighted
+    <``|h_n|^2``>. ``per_detector`` (SO layout) also writes sotodlib's per-detector files
     ``{prefix}_{det}_cos_{n}.fits``, ``_sin_{n}`` and ``_hits``, with psi as sotodlib's ``Hn``
     computes it (TOAST's psi less the detector's polarisation angle).
 
@@ -195,9 +200,14 @@ def run_schedule(
     if per_detector and (focalplane is None or layout.format != "so"):
         raise ConfigError("--per-detector needs --focalplane and --format so")
     if per_detector:
-        layout.check_names(
-            f"{layout.prefix}_{det}" for pair in focalplane.detectors for det in pair
-        )
+        names = [det for pair in focalplane.detectors for det in pair]
+        for det in names:
+            if not all(c.isalnum() or c in "_-." for c in det):
+                raise ConfigError(
+                    f"--per-detector: detector {det!r} of {focalplane.source} cannot name a file: "
+                    "letters, digits, '_', '-' and '.' only"
+                )
+        layout.check_names(f"{layout.prefix}_{det}" for det in names)
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     try:
         SkyConfig(nside=nside, lmax=2 * nside)

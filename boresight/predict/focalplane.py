@@ -6,7 +6,7 @@ moments h_n,i and its own coefficient shares (:func:`pair_shares`)::
 
   Y = sum_i (N_i / N) [t2_i h_2,i T + s2_i h_2,i S + g1_i h_1,i G + g3_i h_3,i G*
                        + p0_i P + p4_i h_4,i P*]
-  dP = (Y - H_4 Y*) / (1 - |H_4|^2),   H_4 = sum_i (N_i / N) m4_i h_4,i
+  dP = (Y - H_4 Y*) / (1 - ``|H_4|^2``),   H_4 = sum_i (N_i / N) m4_i h_4,i
 
 (:func:`delta_p`), which is :func:`boresight.predict.delta_p` when every pair shares one h_n.
 dP is real-linear in each pair's gain, leak and pointing amplitude. Over pairs drawn
