@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from . import interrupts
+from . import interrupts, tasks
 from .engine import check_samples
 from .kernels.pixels import ang2pix_array, zphi2pix
 from .pointing import chunk_arguments, offset_sample, sample_pointing
@@ -276,6 +276,16 @@ class _Accumulator:
         self.sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: a cache line
         self.hits = np.zeros(npix, dtype=np.int64)
 
+    #: blocks merged so far (:meth:`merge`)
+    merged = 0
+
+    def merge(self, other):
+        """Add another accumulator's samples: sums and counts add, bitmaps join."""
+        self.sums += other.sums
+        self.hits += other.hits
+        self.occupancy |= other.occupancy
+        self.merged += 1
+
     def add(self, pixels, cos_psi, sin_psi, angle_bin):
         interrupts.check()
         _bin(
@@ -435,6 +445,34 @@ def pair_blocks(n_pairs: int, nside: int, *, per_pair: bool = False) -> list[ran
     return [range(a, min(a + size, n_pairs)) for a in range(0, n_pairs, size)]
 
 
+def _block_stats(schedule, vectors, nside, tolerance_deg, chunk_samples, per_pair, update=None):
+    """One block of pairs at ``vectors`` (m, 6) over the whole schedule: its combined sums
+    (an :class:`_Accumulator`), its share of ``sum_sq`` and its pairs' weights, and where asked
+    its pairs' hits and h_n. An independent task (:mod:`boresight.tasks`)."""
+    exclude = schedule.turnarounds == "exclude"
+    npix, m = 12 * nside**2, vectors.shape[0]
+    acc = _Accumulator(nside, tolerance_deg)
+    sums = np.zeros((m, npix, N_MAX + 1), dtype=np.complex128)
+    hits = np.zeros((m, npix), dtype=np.int64)
+    nparts = numba.get_num_threads()
+    for args in chunk_arguments(schedule, max(1, chunk_samples // m)):
+        pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors)
+        acc.add(pix.ravel(), c.ravel(), s.ravel(), b.ravel())
+        _bin_pairs(pix, c, s, sums, hits, nparts)
+        if update is not None:
+            update(args[1] * m)
+    power = sums.real**2 + sums.imag**2  # N_i^2 |h_n,i|^2, (pairs, npix, n)
+    out = {
+        "combined": acc,
+        "sum_sq": np.sum(power, axis=0).T,
+        "weights": np.sum(power / np.maximum(hits, 1)[..., None], axis=1),
+    }
+    if per_pair:
+        out["hits"] = hits
+        out["h"] = np.swapaxes(sums / np.maximum(hits, 1)[:, :, None], 1, 2)
+    return out
+
+
 def characterise_focalplane(
     schedule: Schedule,
     focalplane: FocalPlane,
@@ -443,13 +481,17 @@ def characterise_focalplane(
     chunk_samples: int = 1 << 20,
     *,
     per_pair: bool = False,
+    scheduler: str | None = "serial",
+    workers: int = 2,
     progress: bool = False,
 ) -> FocalPlaneStats:
     """Statistics of a schedule seen by every pair of a focal plane, each from its own place
     (:func:`boresight.pointing.detector_pointing`, fused into the binning).
 
     Pairs are streamed in blocks (:func:`pair_blocks`), so memory holds one block's maps, not one
-    per pair; the combined maps and the scattered weights add over blocks.
+    per pair. The blocks are independent tasks, run in this process or on Dask
+    (:mod:`boresight.tasks`); their sums add in block order, so the result is the same wherever
+    they run.
 
     Parameters
     ----------
@@ -461,6 +503,10 @@ def characterise_focalplane(
         Detector-samples per chunk.
     per_pair : bool
         Keep each pair's hits and h_n.
+    scheduler : str, optional
+        "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
+        scheduler's address.
+    workers : int
     progress : bool
 
     Returns
@@ -469,35 +515,46 @@ def characterise_focalplane(
     """
     from tqdm.auto import tqdm
 
-    exclude = schedule.turnarounds == "exclude"
     vectors = focalplane.vectors()
     npix = 12 * nside**2
+    blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair)
+    total = schedule.n_samples * focalplane.n_pairs
     combined = _Accumulator(nside, tolerance_deg)
     sum_sq = np.zeros((N_MAX + 1, npix))
     weights = np.zeros((focalplane.n_pairs, N_MAX + 1))
     pair_hits = np.zeros((focalplane.n_pairs, npix), dtype=np.int64) if per_pair else None
     pair_h = np.zeros((focalplane.n_pairs, N_MAX + 1, npix), complex) if per_pair else None
-    blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair)
-    total = schedule.n_samples * focalplane.n_pairs
-    nparts = numba.get_num_threads()
+    pending = {}
     with tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar:
-        for block in blocks:
-            v = np.ascontiguousarray(vectors[block.start : block.stop])
-            sums = np.zeros((len(block), npix, N_MAX + 1), dtype=np.complex128)
-            hits = np.zeros((len(block), npix), dtype=np.int64)
-            per_chunk = max(1, chunk_samples // len(block))
-            for args in chunk_arguments(schedule, per_chunk):
-                pix, c, s, b = ces_hits_pairs(*args, nside, combined.nbins, exclude, v)
-                combined.add(pix.ravel(), c.ravel(), s.ravel(), b.ravel())
-                _bin_pairs(pix, c, s, sums, hits, nparts)
-                bar.update(args[1] * len(block))
-            power = sums.real**2 + sums.imag**2  # N_i^2 |h_n,i|^2, (pairs, npix, n)
-            sum_sq += np.sum(power, axis=0).T
-            weights[block.start : block.stop] = np.sum(power / np.maximum(hits, 1)[..., None], 1)
-            if per_pair:
-                pair_hits[block.start : block.stop] = hits
-                h = sums / np.maximum(hits, 1)[:, :, None]
-                pair_h[block.start : block.stop] = np.swapaxes(h, 1, 2)
+        serial = scheduler == "serial"
+
+        def finish(i, result):
+            pending[i] = result
+            if not serial:
+                bar.update(schedule.n_samples * len(blocks[i]))
+            while combined.merged in pending:  # in block order: the sums' rounding is fixed
+                k = combined.merged
+                part, block = pending.pop(k), blocks[k]
+                combined.merge(part["combined"])
+                sum_sq[...] += part["sum_sq"]
+                weights[block.start : block.stop] = part["weights"]
+                if per_pair:
+                    pair_hits[block.start : block.stop] = part["hits"]
+                    pair_h[block.start : block.stop] = part["h"]
+
+        arguments = [
+            (
+                schedule,
+                np.ascontiguousarray(vectors[b.start : b.stop]),
+                nside,
+                tolerance_deg,
+                chunk_samples,
+                per_pair,
+                bar.update if serial else None,
+            )
+            for b in blocks
+        ]
+        tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
     return FocalPlaneStats(
         combined=combined.stats(),
         sum_sq=sum_sq,

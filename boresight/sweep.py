@@ -28,14 +28,13 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from . import __version__, coupling, interrupts, io, masks, predict, residual, resources
+from . import __version__, coupling, interrupts, io, masks, predict, residual, resources, tasks
 from .config import parse_study, read_toml
 from .cosmology import load_spectra
 from .validation import ConfigError, OutputExistsError
 
 log = logging.getLogger(__name__)
 
-CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
 #: the columns of a point's rows
 POINT_COLUMNS = ("ell_lo", "ell_hi", *residual.Residual.COLUMNS, "delta_r", "predicted_delta_r")
 
@@ -328,10 +327,9 @@ def run_sweep(
         The table's rows, in sweep order.
     """
     base, base_dir, points = load_sweep(path)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ConfigError(f"--workers = {workers!r}; allowed: an integer >= 1")
+    tasks.check_workers(workers)
     if scheduler != "serial":
-        _dask()  # before anything is written
+        tasks.dask("sweeps")  # before anything is written
     out = io.check_output_path(out_dir, [path, base_dir])
     keys = [point_key(base, base_dir, p) for p in points]
     spec_id = {"sweep": os.path.abspath(path), "points": points, "keys": keys}
@@ -362,11 +360,14 @@ def run_sweep(
         bar.update(1)
 
     try:
-        if scheduler == "serial":
-            for p, key in todo:
-                finish(p, key, run_point(base, base_dir, p))
-        elif todo:
-            _run_dask(todo, base, base_dir, scheduler, workers, finish)
+        if todo:
+            tasks.run(
+                run_point,
+                [(base, base_dir, p) for p, _ in todo],
+                lambda i, rows: finish(*todo[i], rows),
+                scheduler=scheduler,
+                workers=workers,
+            )
     except KeyboardInterrupt as err:  # the command line's Interrupted, or a notebook's Ctrl-C
         stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
         stop.kept = f"finished points are kept in {out_dir}; re-run to resume"
@@ -395,50 +396,6 @@ def _estimate(base, base_dir, todo, scheduler, workers):
         sum(e.seconds for e in each) / share,
         sum(e.samples for e in each),
     )
-
-
-def _dask():
-    try:
-        from dask import distributed
-    except ImportError:
-        raise ConfigError(
-            "sweeps on Dask need: pip install 'boresight[dask]' (or use --scheduler serial)"
-        ) from None
-    return distributed
-
-
-def _run_dask(todo, base, base_dir, scheduler, workers, finish):
-    distributed = _dask()
-    cluster = None
-    if scheduler is None:
-        cluster = distributed.LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-        )
-    try:
-        client = distributed.Client(
-            cluster if cluster is not None else scheduler, timeout=CONNECT_TIMEOUT
-        )
-    except (OSError, TimeoutError) as err:
-        raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None
-    try:
-        futures = {
-            client.submit(run_point, base, base_dir, p, pure=False): (p, key) for p, key in todo
-        }
-        running = set(futures)
-        while running:
-            interrupts.check()
-            try:
-                done, running = distributed.wait(
-                    running, timeout=interrupts.POLL_SECONDS, return_when="FIRST_COMPLETED"
-                )
-            except TimeoutError:  # distributed's own, a TimeoutError
-                continue
-            for fut in done:
-                finish(*futures[fut], fut.result())
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def write_tables(out: Path, points: list[dict], keys: list[str], bands: dict) -> list[dict]:

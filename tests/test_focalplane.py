@@ -372,3 +372,22 @@ def test_per_detector_files_refuse_names_no_file_can_take(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "detector 'a/1A'" in err and "cannot name a file" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_scan_stats_runs_a_focal_planes_blocks_on_a_local_cluster(tmp_path):
+    """--scheduler local writes the maps --scheduler serial writes."""
+    pytest.importorskip("dask.distributed")
+    from helpers import toast_schedule
+
+    from boresight.schedule import write_schedule
+
+    write_schedule(toast_schedule(), tmp_path / "s.toml", "toml")
+    maps = {}
+    for scheduler in ("serial", "local"):
+        out = tmp_path / scheduler
+        args = ["-q", "scan-stats", str(tmp_path / "s.toml"), "--out", str(out)]
+        args += ["--nside", "16", "--focalplane", "hexagon:7:10", "--scheduler", scheduler]
+        assert cli.main(args) == 0
+        maps[scheduler] = [hp.read_map(out / name) for name in ("hn_maps.fits", "hn_scatter.fits")]
+    for a, b in zip(maps["serial"], maps["local"]):
+        np.testing.assert_array_equal(a, b)

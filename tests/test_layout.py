@@ -21,6 +21,7 @@ LAYERS = {
         "data",
         "validation",
         "interrupts",
+        "tasks",
         "threads",
         "io",
         "provenance",

@@ -124,3 +124,20 @@ def test_rotation_cancels_h2_only_on_the_axis():
     turned = turned.pair_means()
     assert turned[0]["abs_h2_sq"] < 1e-20 < 0.5 < fixed[0]["abs_h2_sq"]
     assert turned[1]["abs_h2_sq"] > 0.3 * fixed[1]["abs_h2_sq"]
+
+
+def test_focal_plane_blocks_on_dask_give_the_serial_result_to_the_bit(monkeypatch):
+    """Blocks of pairs as tasks on a local Dask cluster add up in block order: the same result
+    as in this process, whichever worker finishes first."""
+    pytest.importorskip("dask.distributed")
+    schedule = _hexagon_schedule()
+    fp = focalplane.hexagon(7, 30.0)
+    monkeypatch.setattr(scanstats, "PAIR_BLOCK_BYTES", 3 * 12 * 32**2 * 88)  # 3 pairs a block
+    assert len(scanstats.pair_blocks(7, 32)) == 3
+    serial = scanstats.characterise_focalplane(schedule, fp, 32)
+    dask = scanstats.characterise_focalplane(schedule, fp, 32, scheduler=None, workers=2)
+    np.testing.assert_array_equal(dask.combined.hits, serial.combined.hits)
+    np.testing.assert_array_equal(dask.combined.h, serial.combined.h)
+    np.testing.assert_array_equal(dask.combined.n_distinct, serial.combined.n_distinct)
+    np.testing.assert_array_equal(dask.sum_sq, serial.sum_sq)
+    np.testing.assert_array_equal(dask.pair_weights, serial.pair_weights)

@@ -159,6 +159,8 @@ def run_schedule(
     turnarounds: str | None = None,
     focalplane: FocalPlane | None = None,
     per_detector: bool = False,
+    scheduler: str | None = "serial",
+    workers: int = 2,
     progress: bool = False,
     checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
@@ -188,6 +190,10 @@ def run_schedule(
         Default: every pair on the boresight.
     per_detector : bool
         Write each detector's maps (SO layout, with a focal plane).
+    scheduler : str, optional
+        Where a focal plane's blocks of pairs run: "serial" (this process), None (a local Dask
+        cluster of ``workers`` processes) or a Dask scheduler's address.
+    workers : int
     progress : bool
         Show a progress bar over the schedule's samples.
     checks : boresight.resources.Checks
@@ -243,7 +249,14 @@ def run_schedule(
             planes = None
         else:
             planes = scanstats.characterise_focalplane(
-                schedule, focalplane, nside, tolerance_deg, per_pair=per_detector, progress=progress
+                schedule,
+                focalplane,
+                nside,
+                tolerance_deg,
+                per_pair=per_detector,
+                scheduler=scheduler,
+                workers=workers,
+                progress=progress,
             )
             stats = planes.combined
             config["focalplane"] = focalplane.source
@@ -367,6 +380,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(name, xi_deg, eta_deg, gamma_deg), 'hexagon:N:WIDTH_DEG' or 'axis' (the default)",
     )
     parser.add_argument(
+        "--scheduler",
+        default="serial",
+        help="with --focalplane: run its blocks of pairs on Dask, 'local' for a local cluster or "
+        "a scheduler's address (default: serial, in this process)",
+    )
+    parser.add_argument("--workers", type=int, default=2, help="local cluster worker processes")
+    parser.add_argument(
         "--per-detector",
         action="store_true",
         help="with --focalplane and --format so: each detector's maps, as sotodlib's Hn writes",
@@ -387,6 +407,8 @@ def main(args: argparse.Namespace) -> int:
             layout=layout,
             focalplane=load_focalplane(args.focalplane) if args.focalplane else None,
             per_detector=args.per_detector,
+            scheduler=None if args.scheduler == "local" else args.scheduler,
+            workers=args.workers,
             progress=_common.progress(args),
             checks=_common.checks(args),
             **_common.pointing(args),

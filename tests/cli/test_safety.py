@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from helpers import CSV_HEADER, STUDY, sweep_file, toast_text
 
-from boresight import engine, io, sweep
+from boresight import engine, io, sweep, tasks
 from boresight.cli import main
 from boresight.config import ConfigError, parse_study
 from boresight.scan import SyntheticScan
@@ -338,18 +338,18 @@ def test_sweep_file_errors_are_one_line(tmp_path, capsys, monkeypatch):
     (tmp_path / "file").write_text("")
     assert main(["sweep", path, "--out", str(tmp_path / "file"), "--scheduler", "serial"]) == 2
     assert "not a directory" in _error(capsys)
-    real_dask = sweep._dask
+    real_dask = tasks.dask
 
-    def no_dask():
-        raise ConfigError("sweeps on Dask need: pip install 'boresight[dask]'")
+    def no_dask(what):
+        raise ConfigError(f"{what} on Dask needs: pip install 'boresight[dask]'")
 
-    monkeypatch.setattr(sweep, "_dask", no_dask)
+    monkeypatch.setattr(tasks, "dask", no_dask)
     assert main(["sweep", path, "--out", str(out)]) == 2
-    assert "boresight[dask]" in _error(capsys)
+    assert "sweeps on Dask needs: pip install 'boresight[dask]'" in _error(capsys)
     assert not out.exists()  # checked before sweep.json is written
-    monkeypatch.setattr(sweep, "_dask", real_dask)
+    monkeypatch.setattr(tasks, "dask", real_dask)
     pytest.importorskip("dask.distributed")
-    monkeypatch.setattr(sweep, "CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr(tasks, "CONNECT_TIMEOUT", "1s")
     assert main(["sweep", path, "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"]) == 2
     assert "cannot reach the Dask scheduler" in _error(capsys)
 
