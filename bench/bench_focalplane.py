@@ -11,6 +11,7 @@ boresight computes once and TOAST twice.
 Usage: python bench/bench_focalplane.py [NSIDE]
 """
 
+import dataclasses
 import os
 import sys
 import tempfile
@@ -21,23 +22,15 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # TOAST's kernels on one core, se
 import numba
 import numpy as np
 from _table import report
+from bench_ground import CES as DAY
 
 from boresight import focalplane, scanstats
-from boresight.schedule import CES, Schedule
+from boresight.schedule import Schedule
 from boresight.schedule import toast as toast_files
 
 RATE = 20.0
-CES_DAY = tuple(
-    CES(
-        start_unix=1.79e9 + i * 3600,
-        duration_s=3300,
-        elevation_deg=50,
-        az_centre_deg=134 if i % 2 else 226,
-        az_throw_deg=60,
-        boresight_deg=45.0 * (i % 3),
-    )
-    for i in range(24)
-)
+#: bench_ground's day of 24 CESs, the boresight stepping 0, 45, 90 deg from CES to CES
+CES_DAY = tuple(dataclasses.replace(c, boresight_deg=45.0 * (i % 3)) for i, c in enumerate(DAY))
 
 
 def _boresight(schedule, fp, nside, threads):
