@@ -221,11 +221,15 @@ def offset_sample(z, r, cp, sp, c, s, v):
     oy = v[5] * r * sp + a * z * sp + b * cp
     oz = v[5] * z - a * r
     rn = max(np.sqrt(nx * nx + ny * ny), 1e-300)
-    # the orientation against the detector's (e_theta, e_phi), turned by pi
-    c_det = -(nz * (ox * nx + oy * ny) / rn - rn * oz)
-    s_det = -(oy * nx - ox * ny) / rn
-    norm = np.sqrt(c_det * c_det + s_det * s_det)
-    return nz, rn, np.arctan2(ny, nx) % (2 * np.pi), c_det / norm, s_det / norm
+    # the orientation against the detector's (e_theta, e_phi), turned by pi: a unit vector, as o
+    # is a rotated unit vector perpendicular to n
+    inv = 1.0 / rn
+    c_det = rn * oz - nz * (ox * nx + oy * ny) * inv
+    s_det = (ox * ny - oy * nx) * inv
+    phi = np.arctan2(ny, nx)
+    if phi < 0:
+        phi += 2 * np.pi
+    return nz, rn, phi, c_det, s_det
 
 
 @numba.njit(parallel=True, cache=True)

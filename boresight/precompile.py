@@ -108,7 +108,8 @@ KERNELS = {
         Kernel(
             "scanstats",
             "_bin_pairs",
-            (nt.int64[:, ::1], _F2, _F2, nt.complex128[:, :, ::1], nt.int64[:, ::1], nt.int64),
+            (nt.int64[:, ::1], _F2, _F2, nt.int32[:, ::1], _C2, _I1, _U2)
+            + (nt.complex128[:, :, ::1], nt.int64[:, ::1], nt.int64),
             1.0,
         ),
         Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
@@ -134,7 +135,7 @@ _JOBS = {
         ("interpolate_interleaved", "accumulate_scatter"),
     ),
     "schedule-stats": (("ces_hits", "_bin", "_runs"), ()),
-    "focalplane-stats": (("ces_hits_pairs", "_bin", "_bin_pairs", "_runs"), ()),
+    "focalplane-stats": (("ces_hits_pairs", "_bin_pairs", "_runs"), ()),
 }
 
 

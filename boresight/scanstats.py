@@ -36,7 +36,10 @@ _WORD = 64
 @numba.njit(inline="always")
 def _angle_bin(c, s, nbins):
     """Bin of the angle whose (cos, sin) is (c, s) among nbins bins on [0, 2 pi)."""
-    return int((np.arctan2(s, c) % (2 * np.pi)) / (2 * np.pi) * nbins) % nbins
+    a = np.arctan2(s, c)
+    if a < 0:  # what a % (2 pi) gives for a in [-pi, 0), without the float modulo
+        a += 2 * np.pi
+    return int(a / (2 * np.pi) * nbins) % nbins
 
 
 @numba.njit(parallel=True, cache=True)
@@ -119,24 +122,33 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
 
 
 @numba.njit(parallel=True, cache=True)
-def _bin_pairs(pixels, cos_psi, sin_psi, sums, hits, nparts):
-    """Add each pair's samples (m, n) to its own per-pixel sums of exp(i n psi), (m, npix, N_MAX
-    + 1), and counts (m, npix); threads own (pair, pixel range) blocks, as in :func:`_bin`."""
+def _bin_pairs(
+    pixels, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, nparts
+):
+    """:func:`_bin` of every pair's samples (m, n) together, and each pair's own per-pixel sums
+    (m, npix, N_MAX + 1) and counts (m, npix), in one pass: each thread owns a range of pixel
+    indices and walks the pairs in turn, so the combined sums add in the order :func:`_bin` of
+    the pairs' samples one after another would, and no two threads write one pixel."""
     m, npix = hits.shape
-    for task in numba.prange(m * nparts):
-        d, part = task // nparts, task % nparts
+    for part in numba.prange(nparts):
         lo = part * npix // nparts
         hi = (part + 1) * npix // nparts
-        for k in range(pixels.shape[1]):
-            p = pixels[d, k]
-            if p < lo or p >= hi:
-                continue
-            hits[d, p] += 1
-            c, s = cos_psi[d, k], sin_psi[d, k]
-            re, im = 1.0, 0.0
-            for n in range(sums.shape[2]):
-                sums[d, p, n] += complex(re, im)
-                re, im = re * c - im * s, re * s + im * c
+        for d in range(m):
+            for k in range(pixels.shape[1]):
+                p = pixels[d, k]
+                if p < lo or p >= hi:
+                    continue
+                hits[d, p] += 1
+                acc_hits[p] += 1
+                c, s = cos_psi[d, k], sin_psi[d, k]
+                re, im = 1.0, 0.0
+                for n in range(sums.shape[2]):
+                    z = complex(re, im)
+                    sums[d, p, n] += z
+                    acc_sums[p, n] += z
+                    re, im = re * c - im * s, re * s + im * c
+                b = angle_bin[d, k]
+                occupancy[p, b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
 
 
 @numba.njit(parallel=True, cache=True)
@@ -457,8 +469,8 @@ def _block_stats(schedule, vectors, nside, tolerance_deg, chunk_samples, per_pai
     nparts = numba.get_num_threads()
     for args in chunk_arguments(schedule, max(1, chunk_samples // m)):
         pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors)
-        acc.add(pix.ravel(), c.ravel(), s.ravel(), b.ravel())
-        _bin_pairs(pix, c, s, sums, hits, nparts)
+        interrupts.check()
+        _bin_pairs(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, nparts)
         if update is not None:
             update(args[1] * m)
     power = sums.real**2 + sums.imag**2  # N_i^2 |h_n,i|^2, (pairs, npix, n)
