@@ -62,7 +62,8 @@ class FocalPlane:
     detectors : tuple of (str, str)
         The names of each pair's detectors A and B.
     xi_deg, eta_deg : numpy.ndarray, shape (pairs,)
-        The pair's offset from the boresight in TOAST/SO's projected coordinates [deg].
+        The pair's offset from the boresight: TOAST/SO's projected coordinates xi, eta (sine-like,
+        xi^2 + eta^2 = sin^2 of the distance), given in degrees (xi [rad] x 180 / pi).
     gamma_deg : numpy.ndarray, shape (pairs,)
         Detector A's polarisation orientation gamma [deg]: the pair's angle.
     hn_offset_deg : numpy.ndarray, shape (pairs, 2)
@@ -91,11 +92,11 @@ class FocalPlane:
 
     @property
     def radius_deg(self) -> np.ndarray:
-        """Each pair's angular distance from the boresight [deg], (n_pairs,)."""
+        """Each pair's angular distance from the boresight [deg], (pairs,)."""
         return np.degrees(np.arcsin(np.hypot(self.xi_deg * DEG, self.eta_deg * DEG)))
 
     @property
-    def on_axis(self) -> bool:
+    def is_on_axis(self) -> bool:
         """Whether every pair sits on the boresight."""
         return bool(np.all(self.xi_deg == 0) and np.all(self.eta_deg == 0))
 

@@ -228,7 +228,7 @@ def test_csv_and_toml_tables_pair_by_name_or_column(tmp_path):
     assert toml_fp.names == ("p",) and toml_fp.detectors == (("left", "right"),)
     assert toml_fp.gamma_deg[0] == 135.0 and toml_fp.xi_deg[0] == 5.0
     assert focalplane.load_focalplane("hexagon:7:10").n_pairs == 7
-    assert focalplane.load_focalplane("axis").on_axis
+    assert focalplane.load_focalplane("axis").is_on_axis
 
 
 @pytest.mark.parametrize(
