@@ -226,6 +226,37 @@ def spectrum_figure(bands: list[dict], path_stem: str | os.PathLike) -> None:
     _save(fig, path_stem)
 
 
+#: the lowest <|h_n|^2> the pairs' figure draws: below it a moment has cancelled to rounding
+PAIRS_FLOOR = 1e-6
+
+
+def pairs_figure(rows: list[dict], path_stem: str | os.PathLike) -> None:
+    """Each pair's hit-weighted ``<|h_n|^2>`` (n = 1..4) against its distance from the boresight:
+    what a rotation leaves off the axis.
+
+    Parameters
+    ----------
+    rows : list of dict
+        pairs.csv rows (:meth:`boresight.scanstats.FocalPlaneStats.pair_means`).
+    path_stem : pathlib.Path
+    """
+    radius = np.array([r["radius_deg"] for r in rows])
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    for n, colour in zip(range(1, 5), ("tab:blue", "tab:orange", "tab:green", "tab:red")):
+        values = np.array([r[f"abs_h{n}_sq"] for r in rows])
+        low = values < PAIRS_FLOOR  # cancelled to rounding: drawn open, on the floor
+        ax.plot(radius[~low], values[~low], "o", color=colour, ms=4, label=f"n = {n}")
+        ax.plot(radius[low], np.full(low.sum(), PAIRS_FLOOR), "o", mfc="none", color=colour, ms=5)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=0.5 * PAIRS_FLOOR)
+    ax.set_title(f"open: below {PAIRS_FLOOR:g} (cancelled)", fontsize=8)
+    ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(_power_of_ten))
+    ax.set_xlabel("distance from the boresight [deg]")
+    ax.set_ylabel("hit-weighted <|h_n|\u00b2> of the pair")
+    ax.legend(fontsize=8)
+    _save(fig, path_stem, ("png",))
+
+
 def _band_centres(rows):
     return np.array([0.5 * (r["ell_lo"] + r["ell_hi"]) for r in rows])
 

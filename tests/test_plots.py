@@ -43,3 +43,19 @@ def test_a_map_figure_shows_one_panel_per_map(tmp_path):
     plots.map_figure([m], ["a"], one)
     two = matplotlib.image.imread(tmp_path / "maps.png")
     assert two.shape[1] == 2 * matplotlib.image.imread(one).shape[1]
+
+
+def test_a_pairs_figure_draws_every_moment_against_the_radius(tmp_path):
+    rows = [
+        dict(
+            pair=f"D{i}",
+            radius_deg=2.0 * i,
+            hits=100,
+            **{f"abs_h{n}_sq": 0.1 * n + 0.01 * i for n in range(1, 5)},
+        )
+        for i in range(7)
+    ]
+    rows[0]["abs_h2_sq"] = 0.0  # a cancelled moment stays on the log axis
+    plots.pairs_figure(rows, tmp_path / "pairs")
+    image = matplotlib.image.imread(tmp_path / "pairs.png")
+    assert image.shape[0] > 100 and image.std() > 0

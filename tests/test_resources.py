@@ -19,7 +19,8 @@ FACTOR = 1.5  #: the estimate may be this much above or below the measured peak
 #: (bench_memory.py runs every command at 64, 128, 256 and 512)
 CASES = [
     *((c, 64) for c in ("simulate", "simulate (beams)", "predict", "scan-stats (schedule)",
-                        "compare-scans", "design", "suppression", "reproduce")),
+                        "scan-stats (focal plane)", "compare-scans", "design", "suppression",
+                        "reproduce")),
     *((c, 256) for c in ("simulate", "predict (beams)", "scan-stats", "compare-scans")),
     ("predict", 512),
 ]  # fmt: skip

@@ -168,8 +168,8 @@ def run_schedule(
 
     With a focal plane every pair is pointed from its own place; the h_n maps are then the focal
     plane's combination (all pairs' samples binned together), ``hn_scatter.fits`` holds the
-    scattered weights sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 and ``pairs.csv`` each pair's hit-weighted
-    <``|h_n|^2``>. ``per_detector`` (SO layout) also writes sotodlib's per-detector files
+    scattered weights sum_i N_i^2 ``|h_{n,i}|^2`` / N^2, and ``pairs.csv`` and ``pairs.png`` each
+    pair's hit-weighted <``|h_n|^2``> (against its distance from the boresight). ``per_detector`` (SO layout) also writes sotodlib's per-detector files
     ``{prefix}_{det}_cos_{n}.fits``, ``_sin_{n}`` and ``_hits``, with psi as sotodlib's ``Hn``
     computes it (TOAST's psi less the detector's polarisation angle).
 
@@ -282,6 +282,7 @@ def _write_focalplane(stage, planes, layout, frame):
     )
     rows = planes.pair_means()
     io.write_csv(stage / "pairs.csv", rows, list(rows[0]))
+    plots.pairs_figure(rows, stage / "pairs")
     if planes.pair_h is None:
         return
     fp = planes.focalplane
