@@ -288,15 +288,11 @@ class _Accumulator:
         self.sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: a cache line
         self.hits = np.zeros(npix, dtype=np.int64)
 
-    #: blocks merged so far (:meth:`merge`)
-    merged = 0
-
     def merge(self, other):
         """Add another accumulator's samples: sums and counts add, bitmaps join."""
         self.sums += other.sums
         self.hits += other.hits
         self.occupancy |= other.occupancy
-        self.merged += 1
 
     def add(self, pixels, cos_psi, sin_psi, angle_bin):
         interrupts.check()
@@ -438,9 +434,10 @@ class FocalPlaneStats:
         rows = []
         for i, name in enumerate(self.focalplane.names):
             row = {"pair": name, "radius_deg": float(self.focalplane.radius_deg[i])}
-            row["hits"] = int(self.pair_weights[i, 0])
-            for n in range(1, N_MAX + 1):
-                row[f"abs_h{n}_sq"] = float(self.pair_weights[i, n] / self.pair_weights[i, 0])
+            hits = self.pair_weights[i, 0]
+            row["hits"] = int(hits)
+            for n in range(1, N_MAX + 1):  # NaN for a pair that saw nothing
+                row[f"abs_h{n}_sq"] = float(self.pair_weights[i, n] / hits) if hits else np.nan
             rows.append(row)
         return rows
 
@@ -473,15 +470,16 @@ def _block_stats(schedule, vectors, nside, tolerance_deg, chunk_samples, per_pai
         _bin_pairs(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, nparts)
         if update is not None:
             update(args[1] * m)
-    power = sums.real**2 + sums.imag**2  # N_i^2 |h_n,i|^2, (pairs, npix, n)
-    out = {
-        "combined": acc,
-        "sum_sq": np.sum(power, axis=0).T,
-        "weights": np.sum(power / np.maximum(hits, 1)[..., None], axis=1),
-    }
+    sum_sq, weights = np.zeros((npix, N_MAX + 1)), np.zeros((m, N_MAX + 1))
+    for d in range(m):  # one pair's (npix, N_MAX + 1) at a time: no block-sized temporaries
+        power = sums[d].real ** 2 + sums[d].imag ** 2  # N_i^2 |h_n,i|^2
+        sum_sq += power
+        weights[d] = np.sum(power / np.maximum(hits[d], 1)[:, None], axis=0)
+        if per_pair:
+            sums[d] /= np.maximum(hits[d], 1)[:, None]  # h_n,i in place
+    out = {"combined": acc, "sum_sq": sum_sq.T, "weights": weights}
     if per_pair:
-        out["hits"] = hits
-        out["h"] = np.swapaxes(sums / np.maximum(hits, 1)[:, :, None], 1, 2)
+        out["hits"], out["h"] = hits, np.swapaxes(sums, 1, 2)
     return out
 
 
@@ -534,9 +532,8 @@ def characterise_focalplane(
     combined = _Accumulator(nside, tolerance_deg)
     sum_sq = np.zeros((N_MAX + 1, npix))
     weights = np.zeros((focalplane.n_pairs, N_MAX + 1))
-    pair_hits = np.zeros((focalplane.n_pairs, npix), dtype=np.int64) if per_pair else None
-    pair_h = np.zeros((focalplane.n_pairs, N_MAX + 1, npix), complex) if per_pair else None
-    pending = {}
+    kept = {}  # with per_pair there is one block, whose maps are kept as they are
+    pending, merged = {}, [0]
     with tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar:
         serial = scheduler == "serial"
 
@@ -544,15 +541,14 @@ def characterise_focalplane(
             pending[i] = result
             if not serial:
                 bar.update(schedule.n_samples * len(blocks[i]))
-            while combined.merged in pending:  # in block order: the sums' rounding is fixed
-                k = combined.merged
-                part, block = pending.pop(k), blocks[k]
+            while merged[0] in pending:  # in block order: the sums' rounding is fixed
+                part, block = pending.pop(merged[0]), blocks[merged[0]]
                 combined.merge(part["combined"])
                 sum_sq[...] += part["sum_sq"]
                 weights[block.start : block.stop] = part["weights"]
                 if per_pair:
-                    pair_hits[block.start : block.stop] = part["hits"]
-                    pair_h[block.start : block.stop] = part["h"]
+                    kept.update(pair_hits=part["hits"], pair_h=part["h"])
+                merged[0] += 1
 
         arguments = [
             (
@@ -572,6 +568,6 @@ def characterise_focalplane(
         sum_sq=sum_sq,
         focalplane=focalplane,
         pair_weights=weights,
-        pair_hits=pair_hits,
-        pair_h=pair_h,
+        pair_hits=kept.get("pair_hits"),
+        pair_h=kept.get("pair_h"),
     )

@@ -235,3 +235,20 @@ def test_a_focal_plane_on_the_gpu_is_refused_clearly(small_sky):
         engine.simulate_focalplane(
             small_sky, toast_schedule(), focalplane.on_axis(), Systematics(), backend="gpu"
         )
+
+
+def test_a_focal_plane_on_the_axis_with_beams_simulates_as_the_boresight():
+    """Each pair's own detector beams (for_pair's slices of the beam terms) as in the shared
+    stream."""
+    from helpers import toast_schedule
+
+    from boresight import focalplane, pointing
+    from boresight.sky import SkyConfig, make_sky
+
+    sky = make_sky(SkyConfig(nside=32, lmax=95, fwhm_arcmin=120.0, seed=7))
+    schedule = toast_schedule()
+    sy = Systematics(ellipticity_b=(0.05, 0.02), dfwhm_a_arcmin=(2.0, -1.0), dg=(0.01, 0.0))
+    a = engine.simulate_samples(sky, pointing.pointing(schedule), Instrument(), sy)
+    b = engine.simulate_focalplane(sky, schedule, focalplane.on_axis((0.0, 45.0)), sy)
+    assert np.max(np.abs(a.q_obs)) > 0.1  # the beams leak
+    assert np.max(np.abs(a.q_obs - b.q_obs)) < 1e-12 and np.max(np.abs(a.u_obs - b.u_obs)) < 1e-12

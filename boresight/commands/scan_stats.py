@@ -227,7 +227,7 @@ def run_schedule(
         schedule,
         nside,
         pointed_pairs=pairs,
-        pair_maps=max((len(b) for b in blocks), default=0) + (pairs if per_detector else 0),
+        pair_maps=max((len(b) for b in blocks), default=0),  # with per_detector: every pair
     )
     resources.require(estimate, checks)
     timer = provenance.Timer(log)

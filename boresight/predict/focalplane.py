@@ -81,13 +81,19 @@ def _fields(sky, systematics, template, spread, nthreads):
     return fields
 
 
-def _y(stats, shares, fields):
-    """Y of coefficient shares (n_pairs,) per term: the h_0 term's moment is 1 where seen."""
-    weights = stats.pair_hits / np.maximum(stats.combined.hits, 1)
+def _weights(stats):
+    """Each pair's share of a pixel's hits, N_i / N, (pairs, npix)."""
+    return stats.pair_hits / np.maximum(stats.combined.hits, 1)
+
+
+def _y(stats, weights, shares, fields, pairs=slice(None)):
+    """Y of coefficient shares (pairs,) per term, over ``pairs`` (a slice; default all): the h_0
+    term's moment is 1 where seen."""
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     for name, n in TERMS:
         if name in fields:
-            y += fields[name] * np.einsum("i,ip,ip->p", shares[name], weights, stats.pair_h[:, n])
+            h = stats.pair_h[pairs, n]
+            y += fields[name] * np.einsum("i,ip,ip->p", shares[name][pairs], weights[pairs], h)
     return y
 
 
@@ -97,8 +103,7 @@ def _solve(y, h4):
     return np.where(ok, (y - h4 * np.conj(y)) / np.where(ok, det, 1.0), 0.0)
 
 
-def _h4(stats, shares):
-    weights = stats.pair_hits / np.maximum(stats.combined.hits, 1)
+def _h4(stats, weights, shares):
     return np.einsum("i,ip,ip->p", shares["m4"], weights, stats.pair_h[:, 4])
 
 
@@ -137,7 +142,8 @@ def delta_p(
     _check(stats, systematics)
     shares = pair_shares(systematics.per_pair(stats.focalplane.n_pairs), stats.focalplane)
     fields = _fields(sky, systematics, template, spread, nthreads)
-    return _solve(_y(stats, shares, fields), _h4(stats, shares))
+    weights = _weights(stats)
+    return _solve(_y(stats, weights, shares, fields), _h4(stats, weights, shares))
 
 
 def _at_means(systematics, n_pairs):
@@ -200,20 +206,20 @@ def expected_leak_bb(
     params, drawn = _at_means(systematics, fp.n_pairs)
     fields = _fields(sky, systematics, template, spread, nthreads)
     shares = pair_shares(params, fp)
-    h4 = _h4(stats, shares)
+    weights = _weights(stats)
+    h4 = _h4(stats, weights, shares)
 
     def bb(y):
         d = _solve(y, h4)[footprint.pixels]
         b = footprint.alm(np.array([d.real, d.imag]), lmax, 2, nthreads=nthreads)[1]
         return harmonics.alm2cl(b)
 
-    coherent = bb(_y(stats, shares, fields))
+    coherent = bb(_y(stats, weights, shares, fields))
     scattered = np.zeros(lmax + 1)
     for field, rms in drawn:
         unit = params._asdict()
-        unit[field] = params._asdict()[field] + 1.0
+        unit[field] = unit[field] + 1.0
         delta = {k: v - shares[k] for k, v in pair_shares(type(params)(**unit), fp).items()}
-        for i in range(fp.n_pairs):
-            one = {k: np.where(np.arange(fp.n_pairs) == i, v, 0) for k, v in delta.items()}
-            scattered += rms**2 * bb(_y(stats, one, fields))
+        for i in range(fp.n_pairs):  # a unit of the parameter on pair i alone
+            scattered += rms**2 * bb(_y(stats, weights, delta, fields, slice(i, i + 1)))
     return coherent, scattered
