@@ -11,21 +11,23 @@ S_n,u exp(i n a_u). So the h_n of any assignment is
 
     h_n(p) = sum_u S_n,u(p) exp(i n a_u) / hits(p),
 
-and the hits do not depend on the angles. The prediction of :mod:`boresight.predict` is linear in
-the survey means ``<|h_n|^2>`` and their coherent parts, and the bias delta_r is linear in the
-predicted pseudo-C_BB, so the predicted delta_r of an assignment is
+and the hits do not depend on the angles. The design objective, the exact expected delta_r of
+these h_n maps, and its search are in :mod:`boresight.design_expectation`. Here is also the
+paper's slowly-varying-h_n approximation of it, which ``boresight design`` reports beside:
+linear in the survey means ``<|h_n|^2>`` and their coherent parts,
 
     delta_r = const + sum_n (alpha_n ``<|h_n|^2>`` + beta_n coh_n),
 
-with alpha_n, beta_n and const computed once from the budget (:class:`Objective`). One evaluation
-is linear in the units' stored pixel entries, and changing one unit's angle touches only its own
-pixels, which makes coordinate descent over the units cheap (:func:`optimise`).
+with alpha_n, beta_n and const computed once from the budget (:class:`Objective`). It misses the
+power that a real schedule's striped h_n carry across scales: 0.42 against a simulated 0.65 for
+the stepped strategy of the deep example (``bench/results/design_validation.json``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import healpy as hp
@@ -43,8 +45,6 @@ from .schedule import Schedule
 from .validation import option
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from .cosmology import Spectra
     from .instrument import Systematics
     from .noise import SurveyNoise
@@ -67,11 +67,15 @@ class DesignOptions:
     change_cost : float
         Added to delta_r for each change of angle between consecutive units (time order).
     sweeps : int
-        Most passes of coordinate descent over the units.
+        Most passes of coordinate descent over the units, per start.
+    restarts : int
+        Random starts besides the best baseline; the best end point is kept.
     seed : int
-        Order of the units in each pass, and the random baseline.
+        Order of the units in each pass, the random starts and the random baseline.
     nside : int
         Resolution of the h_n maps and the prediction.
+    validation_skies : int
+        Sky realisations of the TOD check of every strategy.
 
     The beam of the sky the systematics act on is the instrument's, ``[noise] fwhm_arcmin``.
     """
@@ -81,9 +85,11 @@ class DesignOptions:
     )
     group: str = option("ces", "one angle per: ces, day or pass", (str,), GROUPS)
     change_cost: float = option(0.0, "delta_r added per change of angle", (int, float))
-    sweeps: int = option(8, "most coordinate-descent passes", (int,))
+    sweeps: int = option(8, "most coordinate-descent passes per start", (int,))
+    restarts: int = option(4, "random starts besides the best baseline", (int,))
     seed: int = option(0, "seed of the unit order and the random baseline", (int,))
     nside: int = option(128, "resolution of the h_n maps", (int,))
+    validation_skies: int = option(4, "sky realisations of the TOD check", (int,))
 
     def __post_init__(self):
         angles = validation.numbers_array("design.angles_deg", self.angles_deg, -3600.0, 3600.0)
@@ -94,6 +100,8 @@ class DesignOptions:
             raise ValueError(f"group must be one of {GROUPS}, got {self.group!r}")
         validation.number("change_cost", self.change_cost, 0.0, 1e6)
         validation.integer("sweeps", self.sweeps, 1, 1000)
+        validation.integer("restarts", self.restarts, 0, 1000)
+        validation.integer("validation_skies", self.validation_skies, 1, 1000)
         validation.integer("seed", self.seed, 0)
         validation.integer("nside", self.nside, 16, 2048)
         if self.nside & (self.nside - 1):
@@ -272,8 +280,6 @@ class Objective:
     const : float
         The angle-independent part that is not leaked power (the gain's common rescaling of the
         signal).
-    change_cost : float
-        Added per change of angle between consecutive units.
     template : numpy.ndarray
         Pseudo-C_BB of tensors at r = 1 over the observed pixels.
     coupling : boresight.coupling.Coupling
@@ -287,7 +293,6 @@ class Objective:
     alpha: np.ndarray
     beta: np.ndarray
     const: float
-    change_cost: float
     template: np.ndarray
     coupling: object
     leaked_const: float = 0.0
@@ -333,14 +338,6 @@ class Objective:
             + sum(self.alpha[n] * powers[n][0] + self.beta[n] * powers[n][1] for n in self.terms)
         )
 
-    def changes(self, angles_deg: np.ndarray) -> int:
-        """Changes of angle between consecutive units."""
-        return int(np.sum(np.diff(np.asarray(angles_deg, dtype=float)) != 0))
-
-    def __call__(self, angles_deg: np.ndarray) -> float:
-        """The optimiser's objective: delta_r + change_cost x changes."""
-        return self.delta_r(angles_deg) + self.change_cost * self.changes(angles_deg)
-
 
 def objective(
     moments: UnitMoments,
@@ -348,7 +345,6 @@ def objective(
     theory: Spectra,
     fwhm_arcmin: float,
     *,
-    change_cost: float = 0.0,
     nthreads: int = 0,
     instrument: Instrument | None = None,
 ) -> Objective:
@@ -368,7 +364,6 @@ def objective(
     systematics : boresight.instrument.Systematics
     theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
-    change_cost : float
     nthreads : int
     instrument : boresight.instrument.Instrument, optional
         The focal plane (default: the paper's Q/U pairs).
@@ -420,9 +415,7 @@ def objective(
         variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * cl_tt)
         inverse_samples = np.mean(1.0 / (moments.hits * coefs.n_samples))
         leaked_const += 0.5 * omega_pix * jitter_var * variance_t * inverse_samples * white_unit
-    return Objective(
-        moments, alpha, beta, float(const), change_cost, template, couplings, float(leaked_const)
-    )
+    return Objective(moments, alpha, beta, float(const), template, couplings, float(leaked_const))
 
 
 def drawn(systematics: Systematics) -> bool:
@@ -456,120 +449,13 @@ class Design:
         sweep, objective, moves (accepted in that sweep), after each sweep; sweep 0 is the start.
     interrupted : boresight.interrupts.Interrupted, optional
         What stopped the search (Ctrl-C or SIGTERM); ``angles_deg`` is then the best found until
-        then.
+        then (:func:`boresight.design_expectation.search`).
     """
 
     angles_deg: np.ndarray
     value: float
     history: list
     interrupted: interrupts.Interrupted | None = None
-
-
-def optimise(
-    obj: Objective,
-    allowed_deg: tuple,
-    start_deg: np.ndarray,
-    *,
-    sweeps: int = 8,
-    seed: int = 0,
-    progress: Callable | None = None,
-) -> Design:
-    """Coordinate descent: each unit in turn takes the allowed angle that lowers the objective
-    most, the others held; passes repeat until one changes nothing.
-
-    Each trial is evaluated incrementally on the unit's own pixel entries and the blocks they
-    touch. The unit order of each pass is a permutation drawn from ``seed``, so the result is
-    deterministic.
-
-    Parameters
-    ----------
-    obj : Objective
-    allowed_deg : tuple of float
-    start_deg : numpy.ndarray, shape (n_units,)
-    sweeps : int
-    seed : int
-    progress : callable, optional
-        Called with the number of units done after each unit.
-
-    Returns
-    -------
-    Design
-    """
-    m = obj.moments
-    angles = np.array(start_deg, dtype=float)
-    allowed = np.asarray(allowed_deg, dtype=float)
-    terms = obj.terms
-    h = m.h(angles)
-    blocks = {
-        n: np.bincount(obj.parent, h[n].real) + 1j * np.bincount(obj.parent, h[n].imag)
-        for n in terms
-    }
-    n_obs = m.pixels.size
-    value = obj(angles)
-    history = [dict(sweep=0, objective=value, moves=0)]
-    rng = np.random.default_rng(seed)
-    unit_blocks = [
-        np.unique(obj.parent[m.index[lo:hi]], return_inverse=True)
-        for lo, hi in zip(m.offsets[:-1], m.offsets[1:])
-    ]
-    try:
-        for sweep in range(1, sweeps + 1):
-            moves = 0
-            for u in rng.permutation(m.n_units):
-                interrupts.check()
-                lo, hi = m.offsets[u], m.offsets[u + 1]
-                idx, inv_hits = m.index[lo:hi], 1.0 / m.hits[m.index[lo:hi]]
-                ublk, local = unit_blocks[u]
-                change = np.zeros(allowed.size)
-                steps = {}
-                for n in terms:
-                    s = m.sums[n - 1, lo:hi] * inv_hits
-                    step = s[None, :] * (
-                        np.exp(1j * n * allowed * DEG)[:, None] - np.exp(1j * n * angles[u] * DEG)
-                    )
-                    new = h[n][idx][None, :] + step
-                    d_total = np.sum(np.abs(new) ** 2 - np.abs(h[n][idx]) ** 2, axis=1) / n_obs
-                    d_blocks = np.stack(
-                        [
-                            np.bincount(local, row.real, ublk.size)
-                            + 1j * np.bincount(local, row.imag, ublk.size)
-                            for row in step
-                        ]
-                    )
-                    old_b = blocks[n][ublk]
-                    d_coh = (
-                        np.sum(
-                            (np.abs(old_b + d_blocks) ** 2 - np.abs(old_b) ** 2)
-                            / obj.block_weight[ublk],
-                            axis=1,
-                        )
-                        / n_obs
-                    )
-                    change += obj.alpha[n] * d_total + obj.beta[n] * d_coh
-                    steps[n] = (step, d_blocks)
-                if obj.change_cost:  # only the changes to and from the neighbouring units move
-                    near = [angles[v] for v in (u - 1, u + 1) if 0 <= v < m.n_units]
-                    count = np.array([sum(a != b for b in near) for a in allowed])
-                    change += obj.change_cost * (count - sum(angles[u] != b for b in near))
-                best = int(np.argmin(change))
-                if change[best] < -1e-15 * max(abs(value), 1e-300) and allowed[best] != angles[u]:
-                    for n in terms:
-                        step, d_blocks = steps[n]
-                        h[n][idx] += step[best]
-                        blocks[n][ublk] += d_blocks[best]
-                    angles[u] = allowed[best]
-                    value += change[best]
-                    moves += 1
-                if progress is not None:
-                    progress(1)
-            value = obj(angles)  # re-anchor: no drift from the incremental sums
-            history.append(dict(sweep=sweep, objective=value, moves=moves))
-            if moves == 0:
-                break
-    except KeyboardInterrupt as err:  # the command line's Interrupted, or a notebook's Ctrl-C
-        stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
-        return Design(angles, obj(angles), history, interrupted=stop)
-    return Design(angles, value, history)
 
 
 def baselines(n_units: int, allowed_deg: tuple, seed: int = 0) -> dict[str, np.ndarray]:
@@ -647,6 +533,8 @@ def load_budget(path: str) -> Budget:
         table = raw.get(name, {})
         if not isinstance(table, dict):
             raise ConfigError(f"budget {path}: [{name}] must be a table")
+        if name == "noise" and isinstance(table.get("nl_bb_file"), str):  # beside the budget
+            table = {**table, "nl_bb_file": str(Path(path).parent / table["nl_bb_file"])}
         if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
             table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
         try:

@@ -58,6 +58,15 @@ class SurveyNoise:
         1/f knee in ell (0: white).
     alpha : float
         1/f slope in ell.
+    nl_bb_file : str, optional
+        Instead: a table of N_ell^BB [muK^2] of the beam-deconvolved B map, two columns (ell,
+        N_ell; whitespace or commas, ``#`` comments), linearly interpolated in ell; for example
+        an experiment's published noise curve with its foreground residuals folded in.
+    sigma_r : float, optional
+        Instead: sigma(r) itself, > 0, for example a published forecast's.
+
+    The built-in white + 1/f model has no foregrounds, no filtering and no delensing residual: it
+    gives a smaller sigma(r) than published forecasts (docs/guide/design.md says by how much).
     """
 
     fsky: float
@@ -68,6 +77,8 @@ class SurveyNoise:
     years: float | None = None
     ell_knee: float = 0.0
     alpha: float = 2.0
+    nl_bb_file: str | None = None
+    sigma_r: float | None = None
 
     def __post_init__(self):
         validation.number("noise fsky", self.fsky, 1e-6, 1.0)
@@ -75,11 +86,22 @@ class SurveyNoise:
         validation.number("noise ell_knee", self.ell_knee, 0.0, 1e4)
         validation.number("noise alpha", self.alpha, 0.0, 10.0)
         detector = (self.net_uk_sqrt_s, self.n_detectors, self.years)
-        if (self.depth_uk_arcmin is None) == all(x is None for x in detector):
+        given = [
+            self.depth_uk_arcmin is not None,
+            any(x is not None for x in detector),
+            self.nl_bb_file is not None,
+            self.sigma_r is not None,
+        ]
+        if sum(given) != 1:
             raise ValueError(
-                "noise needs either depth_uk_arcmin, or net_uk_sqrt_s, n_detectors and years"
+                "noise needs exactly one of depth_uk_arcmin; net_uk_sqrt_s, n_detectors and "
+                "years; nl_bb_file; sigma_r"
             )
-        if self.depth_uk_arcmin is not None:
+        if self.sigma_r is not None:
+            validation.number("noise sigma_r", self.sigma_r, 1e-12, 1e3)
+        elif self.nl_bb_file is not None:
+            object.__setattr__(self, "_table", _read_nl(self.nl_bb_file))
+        elif self.depth_uk_arcmin is not None:
             validation.number("noise depth_uk_arcmin", self.depth_uk_arcmin, 1e-6, 1e6)
         else:
             if any(x is None for x in detector):
@@ -89,8 +111,15 @@ class SurveyNoise:
             validation.number("noise years", self.years, 1e-9, 1e3)
 
     @property
+    def has_spectrum(self) -> bool:
+        """Whether N_ell is known (everything but a given sigma_r)."""
+        return self.sigma_r is None
+
+    @property
     def depth(self) -> float:
-        """Polarisation map depth [muK arcmin]."""
+        """Polarisation map depth [muK arcmin] (of a white-noise model only)."""
+        if self.nl_bb_file is not None or self.sigma_r is not None:
+            raise ValueError("a noise given as nl_bb_file or sigma_r has no map depth")
         if self.depth_uk_arcmin is not None:
             return float(self.depth_uk_arcmin)
         seconds = self.years * YEAR_S
@@ -114,6 +143,18 @@ class SurveyNoise:
             N_ell [muK^2]; ell = 0, 1 hold the ell = 2 value's white level.
         """
         ell = np.arange(lmax + 1, dtype=float)
+        if self.sigma_r is not None:
+            raise ValueError("a noise given as sigma_r has no N_ell")
+        if self.nl_bb_file is not None:
+            table_ell, table_nl = self._table
+            if lmax > table_ell[-1]:
+                raise ValueError(
+                    f"noise nl_bb_file {self.nl_bb_file}: N_ell reaches ell = {table_ell[-1]:g}, "
+                    f"the bands need {lmax}"
+                )
+            out = np.interp(ell, table_ell, table_nl)
+            out[:2] = out[2] if lmax >= 2 else out[:2]
+            return out
         white = (self.depth * ARCMIN) ** 2
         knee = np.ones_like(ell)
         if self.ell_knee > 0:
@@ -121,6 +162,32 @@ class SurveyNoise:
             knee[:2] = knee[2]
         beam = hp.gauss_beam(self.fwhm_arcmin * ARCMIN, lmax=lmax)
         return white * knee / beam**2
+
+
+def _read_nl(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """(ell, N_ell) of a noise table, checked: increasing ell from <= 2, N_ell > 0, finite."""
+    try:
+        text = open(path).read()
+    except OSError as err:
+        raise ValueError(f"noise nl_bb_file {path}: {err.strerror}") from None
+    rows = []
+    for number, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].replace(",", " ").split()
+        if not line:
+            continue
+        try:
+            ell, nl = (float(x) for x in line[:2])
+        except ValueError:
+            raise ValueError(
+                f"noise nl_bb_file {path}, line {number}: two numbers (ell, N_ell) expected"
+            ) from None
+        rows.append((ell, nl))
+    table = np.array(rows, dtype=float).reshape(-1, 2)
+    if table.shape[0] < 2 or table[0, 0] > 2 or np.any(np.diff(table[:, 0]) <= 0):
+        raise ValueError(f"noise nl_bb_file {path}: ell must increase from 2 or below")
+    if not np.all(np.isfinite(table)) or np.any(table[:, 1] <= 0):
+        raise ValueError(f"noise nl_bb_file {path}: N_ell must be finite and > 0")
+    return table[:, 0], table[:, 1]
 
 
 def band_fisher(
@@ -177,5 +244,8 @@ def sigma_r(
     Returns
     -------
     float
+        The given sigma(r) where the noise states it.
     """
+    if noise.sigma_r is not None:
+        return float(noise.sigma_r)
     return float(1.0 / np.sqrt(np.sum(band_fisher(noise, theory, edges, r=r, a_lens=a_lens))))

@@ -360,8 +360,13 @@ def design_figure(
     for i, (name, cl) in enumerate(curves.items()):
         style = dict(lw=2.5, color="black") if name == "optimised" else dict(lw=1, color=f"C{i}")
         ax.plot(ell[keep], np.abs(cl[keep]), label=name, **style)
-    white = fsky * (noise.depth * ARCMIN) ** 2
-    ax.axhline(white, color="grey", ls=":", label=f"noise ({noise.depth:.3g} \u03bcK\u2032)")
+    if noise.nl_bb_file is not None:  # the table's N_ell through the beam and the sky fraction
+        beam = hp.gauss_beam(noise.fwhm_arcmin * ARCMIN, lmax=coupling.lmax)
+        nl = fsky * noise.n_ell(coupling.lmax) * beam**2
+        ax.plot(ell[keep], nl[keep], color="grey", ls=":", label="noise (nl_bb_file)")
+    elif noise.has_spectrum:
+        white = fsky * (noise.depth * ARCMIN) ** 2
+        ax.axhline(white, color="grey", ls=":", label=f"noise ({noise.depth:.3g} \u03bcK\u2032)")
     for r, ls in ((sigma_r, "--"), (10 * sigma_r, "-.")):
         ref = predict.reference_bb(coupling, theory, noise.fwhm_arcmin, nside, r=r)
         ax.plot(ell[keep], ref[keep], "k", ls=ls, lw=1, label=f"r = {r:.2g}")

@@ -102,6 +102,8 @@ KERNELS = {
         Kernel("predict.cl", "_block_sums", (_C1, _I1, _F1, _I1, nt.int64), 0.9),
         Kernel("scanstats", "ces_hits", (*_CHUNK, nt.int64, nt.int64, nt.bool_), 2.2),
         Kernel("design", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
+        Kernel("predict.field_products", "_recurse", (_F1, *[nt.int64] * 3, _F1, _F2), 0.6),
+        Kernel("design_expectation", "_apply", (_F3, _I1, _F1, _C2, nt.int64, nt.int64, _C2), 0.6),
         Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
         Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
         Kernel("scanstats", "ces_hits_pairs", (*_CHUNK, nt.int64, nt.int64, nt.bool_, _F2), 2.4),
@@ -129,7 +131,7 @@ _JOBS = {
         ("_legendre_sums", "_delta_p", "_response", "_inside", "_block_sums"),
         ("accumulate", "interpolate_interleaved", "generate_hits", "moments"),
     ),
-    "design": (("ces_hits", "_rotate_and_sum"), ()),
+    "design": (("ces_hits", "_rotate_and_sum", "_recurse", "_apply"), ()),
     "validation": (
         ("_ces_pointing", "ang2pix_array", "_response"),
         ("interpolate_interleaved", "accumulate_scatter"),

@@ -7,6 +7,7 @@ import pytest
 from boresight import cli, cosmology, design, predict, scanstats
 from boresight.commands import design as design_command
 from boresight.config import ConfigError
+from boresight.design_expectation import exact_objective, search
 from boresight.instrument import Instrument, Spread, Systematics
 from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 
@@ -100,63 +101,16 @@ def test_units_follow_the_schedule(schedule, moments):
     assert designed.repeat_boresight_deg == (0.0,) and len(designed.ces) == moments.n_units
 
 
-def test_optimiser_descends_deterministically_and_beats_baselines(moments, theory):
-    obj = design.objective(moments, BUDGET, theory, 30.0)
-    runs = [
-        design.optimise(obj, ALLOWED, np.zeros(moments.n_units), sweeps=6, seed=4) for _ in range(2)
-    ]
-    np.testing.assert_array_equal(runs[0].angles_deg, runs[1].angles_deg)
-    found = runs[0]
-    values = [h["objective"] for h in found.history]
-    assert all(b <= a + 1e-15 for a, b in zip(values, values[1:]))
-    assert found.value == pytest.approx(obj(found.angles_deg), rel=1e-12)  # incremental = direct
-    for name, angles in design.baselines(moments.n_units, ALLOWED).items():
-        assert found.value < obj.delta_r(angles), name
-
-
 def test_gain_alone_is_cancelled_by_90_degree_pairs(moments, theory):
-    """The design rule: with a gain error only, the optimum over {0, 90} makes h_2 vanish (each
+    """The design rule: with a gain error only, the search over {0, 90} makes h_2 vanish (each
     CES and its repeat at 0 and 90 deg), leaving the h_4 E-to-B term."""
     gain = Systematics(dg=(0.01, -0.01))
-    obj = design.objective(moments, gain, theory, 30.0)
-    assert obj.terms == [2, 4]
-    found = design.optimise(obj, (0.0, 90.0), np.zeros(moments.n_units), sweeps=10, seed=1)
+    obj = exact_objective(moments, gain, theory, 30.0)
+    found = search(obj, (0.0, 90.0), np.zeros(moments.n_units), sweeps=10, seed=1)
     h = moments.h(found.angles_deg)
     assert np.mean(np.abs(h[2]) ** 2) < 1e-20
-    assert found.value == pytest.approx(obj.alpha[4] * np.mean(np.abs(h[4]) ** 2)
-                                        + obj.beta[4] * obj.powers(h)[4][1], rel=1e-9)  # fmt: skip
-
-
-def test_change_cost_and_interrupt(moments, theory):
-    """A change cost keeps the angles fixed when it outweighs every gain; an interrupt returns
-    the best assignment so far."""
-    obj = design.objective(moments, BUDGET, theory, 30.0, change_cost=1e3)
-    found = design.optimise(obj, ALLOWED, np.zeros(moments.n_units), sweeps=3)
-    assert obj.changes(found.angles_deg) == 0
-    free = design.optimise(
-        design.objective(moments, BUDGET, theory, 30.0),
-        ALLOWED,
-        np.zeros(moments.n_units),
-        sweeps=6,
-    )
-    costly = design.objective(moments, BUDGET, theory, 30.0, change_cost=0.1)
-    found = design.optimise(costly, ALLOWED, np.zeros(moments.n_units), sweeps=6)
-    values = [h["objective"] for h in found.history]  # re-evaluated directly after each pass
-    assert all(b <= a + 1e-12 for a, b in zip(values, values[1:]))
-    assert costly.changes(found.angles_deg) < costly.changes(free.angles_deg)
-    obj = design.objective(moments, BUDGET, theory, 30.0)
-    calls = []
-
-    def stop_after_five(_):
-        calls.append(1)
-        if len(calls) == 5:
-            raise KeyboardInterrupt
-
-    found = design.optimise(
-        obj, ALLOWED, np.zeros(moments.n_units), sweeps=3, progress=stop_after_five
-    )
-    assert found.interrupted and found.value == pytest.approx(obj(found.angles_deg))
-    assert found.value <= obj(np.zeros(moments.n_units))
+    for angles in design.baselines(moments.n_units, (0.0, 90.0)).values():
+        assert found.value <= obj.delta_r(angles) + 1e-12
 
 
 def _budget(tmp_path, nside=NSIDE, **tables):
@@ -204,21 +158,31 @@ def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
 
 
 def test_design_command_on_the_deep_example(tmp_path):
-    """The check: gain + pointing + ellipticity budget on examples/schedule_deep_sat.toml
-    at Nside 128.
-    The optimised schedule's predicted delta_r is below every baseline's, and the TOD simulation
-    confirms the prediction within 15 % for the optimised and the unrotated schedule."""
+    """The check: the gain + pointing + ellipticity budget of examples/budget_deep_sat.toml on
+    examples/schedule_deep_sat.toml, at Nside 64 with 2 skies per strategy (the bench runs the
+    example itself, with 16). The optimised schedule's predicted delta_r is below every
+    baseline's, and for every strategy the TOD's mean total and leaked delta_r follow the
+    prediction within 20 % or 3 standard errors (two skies of one patch scatter by about 10 %,
+    and their standard error is itself uncertain)."""
     import csv
 
+    budget = tmp_path / "budget.toml"
+    text = open("examples/budget_deep_sat.toml").read().replace("nside = 128", "nside = 64")
+    budget.write_text(text + "restarts = 1\nvalidation_skies = 2\n")
     out = tmp_path / "d"
-    args = ["examples/budget_deep_sat.toml", "examples/schedule_deep_sat.toml", "--out", str(out)]
+    args = [str(budget), "examples/schedule_deep_sat.toml", "--out", str(out)]
     assert cli.main(["-q", "design", *args]) == 0
     rows = {
         r["strategy"]: float(r["delta_r"]) for r in csv.DictReader(open(out / "strategies.csv"))
     }
     assert min(rows, key=rows.get) == "optimised" and len(rows) == 7
-    for row in csv.DictReader(open(out / "validation.csv")):
-        assert float(row["ratio"]) == pytest.approx(1.0, abs=0.15), row
+    checked = list(csv.DictReader(open(out / "validation.csv")))
+    assert {r["strategy"] for r in checked} == set(rows)
+    for row in checked:
+        for key in ("", "leaked_"):
+            sim, pred = float(row[f"simulated_{key}delta_r"]), float(row[f"predicted_{key}delta_r"])
+            se = float(row[f"simulated_{key}delta_r_se"])
+            assert abs(sim - pred) < max(0.2 * abs(pred), 3 * se), (row["strategy"], key)
     designed = load_schedule(str(out / "schedule_designed.toml"))
     assert len(designed.ces) == 48 and designed.site == load_schedule(args[1]).site
     assert (out / "design.png").stat().st_size > 0 and (out / "hn_before_after.png").is_file()
@@ -244,7 +208,7 @@ def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, mo
     so in the manifest), skips the TOD check and exits 130."""
     import json
 
-    original = design.optimise
+    original = search
     calls = []
 
     def interrupting(*args, **kwargs):
@@ -255,7 +219,7 @@ def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, mo
 
         return original(*args, **{**kwargs, "progress": stop})
 
-    monkeypatch.setattr(design_command, "optimise", interrupting)
+    monkeypatch.setattr(design_command, "search", interrupting)
     src = tmp_path / "s.toml"
     write_schedule(schedule, str(src), "toml")
     out = tmp_path / "d"

@@ -44,7 +44,7 @@ LAYERS = {
     "engine": {"evaluation", "mapmaking", "engine"},
     "analysis": {"spectra", "coupling", "predict", "scanstats"},
     "job": {"config", "transforms", "residual", "resources"},
-    "studies": {"design", "suppression", "paper", "sweep"},
+    "studies": {"design", "design_expectation", "suppression", "paper", "sweep"},
     "outputs": {"report", "plots", "so_maps"},
     "commands": {"commands"},
     "cli": {"cli"},

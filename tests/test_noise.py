@@ -80,11 +80,59 @@ def test_sigma_r_matches_the_scatter_of_simulated_estimates():
         (dict(depth_uk_arcmin=-1.0), "depth_uk_arcmin"),
         (dict(net_uk_sqrt_s=-300.0, n_detectors=10, years=1.0), "net_uk_sqrt_s"),
         (dict(net_uk_sqrt_s=300.0, n_detectors=10), "all of"),
-        (dict(depth_uk_arcmin=2.0, net_uk_sqrt_s=300.0, n_detectors=10, years=1.0), "either"),
-        (dict(), "either"),
+        (dict(depth_uk_arcmin=2.0, net_uk_sqrt_s=300.0, n_detectors=10, years=1.0), "exactly one"),
+        (dict(), "exactly one"),
+        (dict(depth_uk_arcmin=2.0, sigma_r=0.003), "exactly one"),
+        (dict(sigma_r=-0.1), "sigma_r"),
+        (dict(nl_bb_file="/nonexistent/nl.txt"), "nl_bb_file"),
         (dict(depth_uk_arcmin=float("nan")), "depth_uk_arcmin"),
     ],
 )
 def test_bad_noise_is_one_clear_error(kwargs, message):
     with pytest.raises((ValueError, TypeError), match=message):
         noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, **kwargs)
+
+
+def _table(tmp_path, rows, name="nl.txt"):
+    path = tmp_path / name
+    path.write_text("# ell  N_ell [muK^2]\n" + "\n".join(f"{a}, {b}" for a, b in rows) + "\n")
+    return str(path)
+
+
+def test_a_noise_table_of_the_white_model_gives_its_sigma_r(tmp_path, theory):
+    """N_ell read from a table (every second ell, interpolated) of the white + 1/f model gives
+    that model's sigma(r): the table route against the formula (tolerance: the interpolation's
+    error on a curve this smooth)."""
+    model = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, depth_uk_arcmin=3.0, ell_knee=50.0)
+    ell = np.arange(0, 402, 2)
+    rows = [(int(e), v) for e, v in zip(ell, model.n_ell(401)[ell])]
+    table = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, nl_bb_file=_table(tmp_path, rows))
+    edges = np.array([30, 301])
+    assert noise.sigma_r(table, theory, edges) == pytest.approx(
+        noise.sigma_r(model, theory, edges), rel=2e-3
+    )
+    on_table = ell[(ell >= 2) & (ell <= 300)]  # ell < 2 hold the ell = 2 value in both
+    np.testing.assert_allclose(table.n_ell(300)[on_table], model.n_ell(300)[on_table])
+    with pytest.raises(ValueError, match="reaches ell = 400"):
+        table.n_ell(500)
+
+
+def test_a_given_sigma_r_is_the_yardstick(theory):
+    given = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, sigma_r=0.003)
+    assert noise.sigma_r(given, theory, np.array([30, 301])) == 0.003
+    assert not given.has_spectrum
+    with pytest.raises(ValueError, match="no N_ell"):
+        given.n_ell(100)
+
+
+@pytest.mark.parametrize(
+    "rows, message",
+    [
+        ([(2, 1e-5)], "increase"),
+        ([(5, 1e-5), (10, 1e-5)], "increase"),
+        ([(2, 1e-5), (3, -1.0)], "> 0"),
+    ],
+)
+def test_a_bad_noise_table_is_one_clear_error(tmp_path, rows, message):
+    with pytest.raises(ValueError, match=message):
+        noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, nl_bb_file=_table(tmp_path, rows))

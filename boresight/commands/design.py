@@ -13,9 +13,10 @@ import numpy as np
 
 from .. import interrupts, io, plots, precompile, provenance, resources
 from ..cosmology import load_spectra
-from ..design import baselines, drawn, load_budget, objective, optimise, unit_moments
+from ..design import baselines, load_budget, objective, unit_moments
+from ..design_expectation import exact_objective, search
 from ..noise import sigma_r
-from ..predict import R_RANGE, Prediction, delta_r, residual_pseudo_bb
+from ..predict import R_RANGE, delta_r, expected_residual
 from ..residual import residual
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..sky import SkyConfig, make_sky
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NAME = "design"
+N_STRATEGIES = 7  #: the baselines and the optimised one
 HELP = "choose the boresight angles of a schedule against a systematics budget"
 #: the designed schedule's file name ending, by the input's format
 SUFFIX = {"toml": ".toml", "csv": ".csv", "toast": ".txt"}
@@ -88,7 +90,8 @@ def run(
         schedule,
         opts.nside,
         n_pairs=budget.instrument.n_pairs,
-        tod_runs=4 if validate else 0,  # the designed and the unrotated schedule, each twice
+        # every strategy on every sky, each with and without the systematics
+        tod_runs=2 * N_STRATEGIES * opts.validation_skies if validate else 0,
         systematics=budget.systematics,
         instrument=budget.instrument,
         fwhm_arcmin=budget.noise.fwhm_arcmin,
@@ -103,7 +106,7 @@ def run(
     with timer("per-unit spin moments"):
         moments = unit_moments(schedule, opts.nside, opts.group)
     with timer("objective"):
-        obj = objective(
+        obj = exact_objective(
             moments,
             budget.systematics,
             theory,
@@ -111,6 +114,10 @@ def run(
             change_cost=opts.change_cost,
             instrument=budget.instrument,
         )
+        white = objective(  # the paper's white-h_n approximation, reported beside
+            moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
+            instrument=budget.instrument,
+        )  # fmt: skip
     sigma = sigma_r(budget.noise, theory, np.array([R_RANGE[0], R_RANGE[1] + 1]))
     strategies = baselines(moments.n_units, opts.angles_deg, opts.seed)
     allowed = set(opts.angles_deg)
@@ -126,7 +133,7 @@ def run(
         moments.pixels.size,
         sigma,
     )
-    if not obj.terms:
+    if not white.terms:
         log.info(
             "the budget's systematics do not depend on the boresight angles (h_0 and white "
             "terms only): every schedule has the same predicted delta_r"
@@ -135,13 +142,15 @@ def run(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=opts.sweeps * moments.n_units, desc="design", unit="unit")
-    with timer("coordinate descent"):
-        found = optimise(
+        total = (opts.restarts + 1) * opts.sweeps * moments.n_units
+        bar = tqdm(total=total, desc="design", unit="unit")
+    with timer("search"):
+        found = search(
             obj,
             opts.angles_deg,
             start,
             sweeps=opts.sweeps,
+            restarts=opts.restarts,
             seed=opts.seed,
             progress=bar.update if bar else None,
         )
@@ -152,12 +161,13 @@ def run(
     for name, angles in strategies.items():
         h = moments.h(angles)
         h_maps[name] = h
-        dr = obj.delta_r_of(h)
+        dr = obj.delta_r(angles)
         rows.append(
             dict(
                 strategy=name,
                 delta_r=dr,
                 delta_r_over_sigma_r=dr / sigma,
+                delta_r_white_approximation=white.delta_r_of(h),
                 changes=obj.changes(angles),
                 **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(h[n]) ** 2)) for n in range(1, 5)},
             )
@@ -166,25 +176,14 @@ def run(
     validation, stopped, checked = [], found.interrupted, "skipped"
     if validate and stopped is None:
         try:
-            with timer("TOD simulation of the designed and unrotated schedules"):
-                predicted = {row["strategy"]: row["delta_r"] for row in rows}
-                validation = _validate(budget, moments, obj, schedule, strategies, predicted)
+            with timer("TOD simulation of every strategy"):
+                validation = _validate(budget, moments, obj, schedule, strategies, theory)
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
     mask = moments.mask
-    prediction = Prediction(theory, obj.coupling, budget.noise.fwhm_arcmin)
     curves = {
-        name: residual_pseudo_bb(
-            moments.full_sky(h),
-            mask,
-            prediction,
-            budget.systematics,
-            instrument=budget.instrument,
-            crossings=moments.full_sky(moments.hits),
-            expected=drawn(budget.systematics),
-        )
-        for name, h in h_maps.items()
+        name: _expected(budget, moments, obj, h, theory).residual for name, h in h_maps.items()
     }
     designed = moments.schedule(schedule, found.angles_deg)
     fmt = schedule_format(schedule_path)
@@ -203,10 +202,10 @@ def run(
         if validation:
             io.write_csv(stage / "validation.csv", validation, list(validation[0]))
         plots.design_figure(
-            curves, obj, budget.noise, sigma, theory=theory, path_stem=stage / "design"
+            curves, white, budget.noise, sigma, theory=theory, path_stem=stage / "design"
         )
         # the moment of the largest angle-dependent term (h_2 where every term is h_0 or white)
-        dominant = max(obj.terms, key=lambda n: obj.alpha[n] + obj.beta[n], default=2)
+        dominant = max(white.terms, key=lambda n: white.alpha[n] + white.beta[n], default=2)
         plots.map_figure(
             [
                 np.where(
@@ -253,38 +252,63 @@ def run(
     )
 
 
-def _validate(budget, moments, obj, schedule, strategies, predicted):
-    """Simulated against predicted delta_r of the designed and the unrotated schedule.
+def _expected(budget, moments, obj, h, theory):
+    """The exact expected residual of observed-pixel h_n (:func:`boresight.predict.
+    expected_residual`) at the objective's band limits, the hits spread as the schedule's."""
+    return expected_residual(
+        moments.full_sky(h),
+        moments.mask,
+        budget.systematics,
+        theory,
+        budget.noise.fwhm_arcmin,
+        lmax=obj.lmax,
+        band=obj.band,
+        instrument=budget.instrument,
+        hits=moments.full_sky(moments.hits),
+    )
+
+
+def _validate(budget, moments, obj, schedule, strategies, theory):
+    """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
-    samples, at the design's Nside with lmax = 2 Nside; its delta_r is that of the leaked power
-    (the prediction's quantity) and, for reference, of the whole residual with its cross term.
-    A budget with {mean, rms} parameters simulates one draw of its focal plane (``seed``), which
-    scatters about the predicted expectation.
+    samples, at the design's Nside with lmax = 2 Nside, on ``validation_skies`` sky realisations
+    (and, for {mean, rms} parameters, as many draws of the focal plane, seeded alike). Like is
+    compared with like: the total residual C_BB(sys) - C_BB(no sys) with the predicted total,
+    the leaked power <dB, dB> with the predicted leaked power; each mean with its standard error.
     """
     nside, lmax = moments.nside, 2 * moments.nside
-    sky = make_sky(SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=budget.noise.fwhm_arcmin))
+    skies = budget.design.validation_skies
     out = []
-    for name in ("optimised", "none"):
-        scan = moments.schedule(schedule, strategies[name])
-        job = residual(
-            sky,
-            scan,
-            budget.systematics,
-            moments.mask,
-            lmax,
-            instrument=budget.instrument,
-        )
-        simulated = delta_r(job.auto, obj.template) + obj.const
-        out.append(
-            dict(
-                strategy=name,
-                predicted_delta_r=predicted[name],
-                simulated_delta_r=simulated,
-                simulated_delta_r_with_cross_term=delta_r(job.total, obj.template),
-                ratio=simulated / predicted[name] if predicted[name] else float("nan"),
+    for name, angles in strategies.items():
+        scan = moments.schedule(schedule, angles)
+        expected = _expected(budget, moments, obj, moments.h(angles), theory)
+        total, leaked = [], []
+        for seed in range(skies):
+            sky = make_sky(
+                SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=budget.noise.fwhm_arcmin, seed=seed)
             )
-        )
+            systematics = dataclasses.replace(budget.systematics, seed=seed)
+            job = residual(sky, scan, systematics, moments.mask, lmax, instrument=budget.instrument)
+            total.append(delta_r(job.total, obj.template))
+            leaked.append(delta_r(job.auto, obj.template))
+        row = dict(strategy=name, skies=skies)
+        for key, values, cl in (
+            ("", total, expected.residual),
+            ("leaked_", leaked, expected.leaked),
+        ):
+            predicted = delta_r(cl, obj.template)
+            mean = float(np.mean(values))
+            se = float(np.std(values, ddof=1) / np.sqrt(skies)) if skies > 1 else float("nan")
+            row.update(
+                {
+                    f"predicted_{key}delta_r": predicted,
+                    f"simulated_{key}delta_r": mean,
+                    f"simulated_{key}delta_r_se": se,
+                    f"{key}ratio": mean / predicted if predicted else float("nan"),
+                }
+            )
+        out.append(row)
     return out
 
 

@@ -50,6 +50,10 @@ The package, in the order a prediction is made:
 * :mod:`~boresight.predict.maps`: the map-level prediction, ``delta_p``;
 * :mod:`~boresight.predict.cl`: the C_ell-level prediction, ``systematic_cl`` and
   ``residual_pseudo_bb``;
+* :mod:`~boresight.predict.field_products`: the exact expected pseudo-C_ell of fixed spin
+  weights times the sky's Gaussian fields (any h_n, no white approximation);
+* :mod:`~boresight.predict.expectation`: that expectation for a schedule's own h_n maps, the
+  leaked power and the total residual with its cross terms (``expected_residual``);
 * :mod:`~boresight.predict.bias`: delta_r and the reference curves;
 * :mod:`~boresight.predict.focalplane`: the map-level prediction and its expectation (coherent
   and scattered) for pairs off the axis, each with its own h_n.
@@ -69,10 +73,12 @@ from .cl import (
 )
 from .coefficients import (
     M4_TOLERANCE,
+    MOMENT_NAMES,
     N_MAX,
     QUADRATURE_NODES,
     Coefficients,
     ExpectedPower,
+    coefficient_moments,
     coefficients,
     expected_coefficients,
     expected_power,
@@ -80,6 +86,7 @@ from .coefficients import (
     rotation_suppression,
     supports,
 )
+from .expectation import ExpectedResidual, LeakModel, expected_residual, leak_model
 from .maps import delta_p
 from .sky_spectra import BEAM_APODIZATION_DEG, FieldSpectra, field_spectra, local_cl
 from .windows import SPREAD_PIXELS, hit_spread_window, interpolation_window, pixel_window
@@ -89,13 +96,16 @@ __all__ = [
     "BEAM_N_MAX",
     "COHERENT_BLOCK",
     "M4_TOLERANCE",
+    "MOMENT_NAMES",
     "N_MAX",
     "QUADRATURE_NODES",
     "R_RANGE",
     "SPREAD_PIXELS",
     "Coefficients",
     "ExpectedPower",
+    "ExpectedResidual",
     "FieldSpectra",
+    "LeakModel",
     "PixelBlocks",
     "Prediction",
     "Term",
@@ -103,15 +113,18 @@ __all__ = [
     "beam_h0_bb",
     "beam_power",
     "beam_spectra",
+    "coefficient_moments",
     "coefficients",
     "delta_p",
     "delta_r",
     "expected_coefficients",
     "expected_power",
+    "expected_residual",
     "field_spectra",
     "hit_spread_window",
     "interpolation_window",
     "jitter_variance",
+    "leak_model",
     "leak_terms",
     "local_cl",
     "pixel_window",

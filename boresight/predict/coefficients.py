@@ -198,6 +198,38 @@ def expected_power(
     ExpectedPower
     """
 
+    terms, weight, n = _node_terms(systematics, instrument, rotations_deg)
+
+    def moments(f):
+        f = f.reshape(n, -1)
+        return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight, (f.real * f.imag) @ weight
+
+    out, means = {}, {}
+    for name in ("t2", "s2", "g1", "g3", "p4", "p0"):
+        mean, re2, im2, reim = moments(terms[name])
+        means[name] = complex(np.mean(mean))
+        re, im = np.mean(mean.real), np.mean(mean.imag)
+        out[name] = (
+            abs(np.mean(mean)) ** 2 + np.sum(re2 + im2 - np.abs(mean) ** 2) / n**2,
+            re**2 + np.sum(re2 - mean.real**2) / n**2,
+            im**2 + np.sum(im2 - mean.imag**2) / n**2,
+            re * im + np.sum(reim - mean.real * mean.imag) / n**2,
+        )
+    p0 = out.pop("p0")
+    return ExpectedPower(
+        t2_mean=means["t2"],
+        **{name: float(v[0]) for name, v in out.items()},
+        re_p0=means["p0"].real,
+        im_p0=means["p0"].imag,
+        re_p0_2=float(p0[1]),
+        im_p0_2=float(p0[2]),
+        re_im_p0=float(p0[3]),
+    )
+
+
+def _node_terms(systematics, instrument, rotations_deg):
+    """Each coefficient's share from every pair at the Gauss-Hermite nodes of its drawn
+    parameters: (terms, node weights (n_nodes,), n_pairs); terms[name] is (n_pairs x n_nodes,)."""
     shared = ("dg_repeat",) + BEAM_KEYS["a"] + BEAM_KEYS["b"]
     if any(isinstance(getattr(systematics, k), Spread) for k in shared):
         raise ValueError(
@@ -231,31 +263,45 @@ def expected_power(
         systematics.per_repeat(alpha.size),
     )
 
-    def moments(f):
-        f = f.reshape(n, -1)
-        return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight, (f.real * f.imag) @ weight
+    return terms, weight, n
 
-    out, means = {}, {}
-    for name in ("t2", "s2", "g1", "g3", "p4", "p0"):
-        mean, re2, im2, reim = moments(terms[name])
-        means[name] = complex(np.mean(mean))
-        re, im = np.mean(mean.real), np.mean(mean.imag)
-        out[name] = (
-            abs(np.mean(mean)) ** 2 + np.sum(re2 + im2 - np.abs(mean) ** 2) / n**2,
-            re**2 + np.sum(re2 - mean.real**2) / n**2,
-            im**2 + np.sum(im2 - mean.imag**2) / n**2,
-            re * im + np.sum(reim - mean.real * mean.imag) / n**2,
-        )
-    p0 = out.pop("p0")
-    return ExpectedPower(
-        t2_mean=means["t2"],
-        **{name: float(v[0]) for name, v in out.items()},
-        re_p0=means["p0"].real,
-        im_p0=means["p0"].imag,
-        re_p0_2=float(p0[1]),
-        im_p0_2=float(p0[2]),
-        re_im_p0=float(p0[3]),
-    )
+
+MOMENT_NAMES = ("t2", "s2", "g1", "g3", "p4", "p0")  #: the coefficients of coefficient_moments
+
+
+def coefficient_moments(
+    systematics: Systematics,
+    instrument: Instrument | None = None,
+    rotations_deg: Sequence[float] = (0.0,),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mean and second moments of the coefficients over the pairs' random draws.
+
+    With c the mean over N independent pairs of their shares F_m, E[c c^H] = E c (E c)^H
+    + sum_m Cov(F_m) / N^2, and the same for E[c c^T]; what a leak's exact expectation, bilinear
+    in the coefficients, needs (:func:`boresight.predict.expected_leak`). Numbers enter as
+    themselves (no variance).
+
+    Parameters
+    ----------
+    systematics, instrument, rotations_deg
+        As :func:`expected_power`.
+
+    Returns
+    -------
+    mean : numpy.ndarray, complex128, shape (6,)
+        E c of :data:`MOMENT_NAMES`.
+    second, pseudo : numpy.ndarray, complex128, shape (6, 6)
+        E[c c^H] and E[c c^T].
+    """
+    terms, weight, n = _node_terms(systematics, instrument, rotations_deg)
+    shares = np.stack([terms[name].reshape(n, -1) for name in MOMENT_NAMES])  # (6, n, nodes)
+    mean_m = shares @ weight  # (6, n): each pair's E F_m
+    mean = mean_m.mean(axis=1)
+    outer = np.einsum("imq,jmq,q->ij", shares, np.conj(shares), weight)
+    plain = np.einsum("imq,jmq,q->ij", shares, shares, weight)
+    second = np.outer(mean, np.conj(mean)) + (outer - mean_m @ np.conj(mean_m).T) / n**2
+    pseudo = np.outer(mean, mean) + (plain - mean_m @ mean_m.T) / n**2
+    return mean, second, pseudo
 
 
 def supports(instrument: Instrument | None, rotations_deg: Sequence[float] = (0.0,)) -> bool:

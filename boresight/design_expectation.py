@@ -1,0 +1,491 @@
+"""The design objective: the exact expected delta_r of an angle assignment, and its search.
+
+:func:`boresight.predict.expected_residual` is bilinear in the weights' spectra, and delta_r is
+linear in the pseudo-C_BB, so per budget one set of kernels gives (:func:`boresight.predict.
+field_products.bb_kernels`)
+
+    delta_r = const + sum_jj' sum_lm omega_jj'(l) Re(a_j,lm conj(a_j',lm)),
+
+with a_j the (E, B) alm of w h_n (j = (n, E or B)). A unit's share of w h_n is w S_n,u / hits at
+angle 0, whose (E, B) alm are computed once; at angle a it turns by n a, (E, B) -> (E cos na -
+B sin na, E sin na + B cos na), so the alm are linear in (cos n a_u, sin n a_u). Changing one
+unit (or two) changes delta_r by a linear term in the current omega a, which costs O(nalm) per
+unit visited, plus a quadratic term from an 8 x 8 matrix per unit made once. Nothing assumes h_n
+white: on a real schedule's striped h_n the paper's approximation (:class:`boresight.design.
+Objective`) can rank strategies wrongly.
+
+The search (:func:`search`) is coordinate descent with moves of one unit and of two consecutive
+units (a slot's rising and setting CESs), from the best of the baselines and from random
+restarts, the best kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import healpy as hp
+import numba
+import numpy as np
+
+from . import coupling, interrupts, predict
+from .constants import DEG
+from .design import Design
+from .predict import field_products as fp
+from .scanstats import N_MAX
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from .cosmology import Spectra
+    from .design import UnitMoments
+    from .instrument import Instrument, Systematics
+
+#: (E, B) rows of Y_n = i X_n: the unit's alm turned by a quarter of a period of n a
+_QUARTER = np.array([[0.0, -1.0], [1.0, 0.0]])
+#: the most assignments :func:`search` enumerates rather than descends (3^10)
+EXHAUSTIVE_LIMIT = 59049
+
+
+@dataclass
+class ExactObjective:
+    """The exact expected total-residual delta_r of an assignment (module docstring).
+
+    Parameters
+    ----------
+    moments : boresight.design.UnitMoments
+    form : QuadraticForm
+        omega, j = 2 n + (0 for E, 1 for B), n = 0..N_MAX.
+    fixed : numpy.ndarray, complex128, shape (2, nalm)
+        The (E, B) alm of the h_0 terms' weight (the mask).
+    unit_alm : numpy.ndarray, complex128, shape (n_units, N_MAX, 2, nalm)
+        Each unit's (E, B) alm of w S_n,u / hits at angle 0, n = 1..N_MAX.
+    const : float
+        The angle-independent delta_r of the in-pixel scatter.
+    change_cost : float
+    template : numpy.ndarray
+        Pseudo-C_BB of tensors at r = 1 over the mask.
+    lmax, band : int
+    """
+
+    moments: UnitMoments
+    form: QuadraticForm
+    fixed: np.ndarray
+    unit_alm: np.ndarray
+    const: float
+    change_cost: float
+    template: np.ndarray
+    lmax: int
+    band: int
+
+    @property
+    def n_units(self) -> int:
+        return self.unit_alm.shape[0]
+
+    def alm(self, angles_deg: np.ndarray) -> np.ndarray:
+        """a_j (J, nalm) of an assignment."""
+        a = np.asarray(angles_deg, dtype=float) * DEG
+        out = np.zeros((2 * (N_MAX + 1), self.fixed.shape[1]), dtype=np.complex128)
+        out[:2] = self.fixed
+        for n in range(1, N_MAX + 1):
+            c, s = np.cos(n * a), np.sin(n * a)
+            e, b = self.unit_alm[:, n - 1, 0], self.unit_alm[:, n - 1, 1]
+            out[2 * n] = c @ e - s @ b
+            out[2 * n + 1] = s @ e + c @ b
+        return out
+
+    def value_of(self, alm: np.ndarray) -> float:
+        """delta_r of a_j (J, nalm)."""
+        return self.const + self.form.value(alm)
+
+    def delta_r(self, angles_deg: np.ndarray) -> float:
+        """The expected delta_r of the total residual, without the change cost."""
+        return self.value_of(self.alm(angles_deg))
+
+    def changes(self, angles_deg: np.ndarray) -> int:
+        """Changes of angle between consecutive units."""
+        return int(np.sum(np.diff(np.asarray(angles_deg, dtype=float)) != 0))
+
+    def __call__(self, angles_deg: np.ndarray) -> float:
+        """The search's objective: delta_r + change_cost x changes."""
+        return self.delta_r(angles_deg) + self.change_cost * self.changes(angles_deg)
+
+
+def exact_objective(
+    moments: UnitMoments,
+    systematics: Systematics,
+    theory: Spectra,
+    fwhm_arcmin: float,
+    *,
+    change_cost: float = 0.0,
+    instrument: Instrument | None = None,
+    lmax: int | None = None,
+    nthreads: int = 0,
+) -> ExactObjective:
+    """The exact expected delta_r objective of a budget over a schedule's units.
+
+    Parameters
+    ----------
+    moments : boresight.design.UnitMoments
+    systematics, theory, fwhm_arcmin, instrument
+        As :func:`boresight.predict.expected_residual`; the hits spread over their pixels as
+        the schedule's do (``moments.hits``).
+    change_cost : float
+    lmax : int, optional
+        The pseudo-spectra's and the sky's band limit (default 2 Nside); the weights' alm reach
+        2 lmax, and memory goes as n_units x 8 x 2 lmax^2 complex numbers.
+    nthreads : int
+
+    Returns
+    -------
+    ExactObjective
+    """
+    nside = moments.nside
+    lmax = 2 * nside if lmax is None else int(lmax)
+    band, lw = lmax, 2 * lmax
+    mask = moments.mask
+    hits = moments.full_sky(moments.hits)
+    model = predict.leak_model(
+        systematics, theory, fwhm_arcmin, band, nside, instrument=instrument, hits=hits,
+        with_sky=True,
+    )  # fmt: skip
+    if any(abs(n) > N_MAX for n in model.n):
+        model = _within(model, N_MAX)
+    couplings = coupling.mask_coupling(mask, lmax, nthreads)
+    template = predict.tensor_template(couplings, theory, fwhm_arcmin, nside)
+    weight_l = np.zeros(lmax + 1)
+    lo, hi = predict.R_RANGE[0], min(predict.R_RANGE[1], lmax)
+    weight_l[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
+    kappa_w, kappa_v = fp.bb_kernels(
+        model.n, model.fields, model.sky_cl, weight_l, second=model.second, pseudo=model.pseudo
+    )
+    form = _form(model.n, kappa_w, kappa_v, lw)
+    alone = fp.bb_kernels((0,), model.fields[-1:], model.sky_cl, weight_l)
+    sky_alm = fp.weight_alm(fp.Weight(0, mask + 0j, None), lw, nthreads)
+    sky_form = _form((0,), *alone, lw)
+    const = model.scatter(mask) * float(np.sum(weight_l)) - sky_form.value(_padded(sky_alm))
+    unit_alm = _unit_alm(moments, mask, lw, nthreads)
+    return ExactObjective(
+        moments, form, sky_alm, unit_alm, const, change_cost, template, lmax, band
+    )
+
+
+def _within(model, n_max):
+    """The model without terms beyond h_n_max (the beams' h_5, h_6 that the units do not hold)."""
+    keep = [k for k, n in enumerate(model.n) if abs(n) <= n_max]
+    return model._replace(
+        n=tuple(model.n[k] for k in keep),
+        fields=tuple(model.fields[k] for k in keep),
+        readings=tuple(model.readings[k] for k in keep),
+        second=model.second[np.ix_(keep, keep)],
+        pseudo=model.pseudo[np.ix_(keep, keep)],
+    )
+
+
+def _form(ns, kappa_w, kappa_v, lw):
+    """omega of the terms' kernels: W and V are sums over (p, q) of the real cross spectra of the
+    (E, B) alm times alpha_p conj(alpha'_q) or alpha_p alpha'_q (the spin's sign pair,
+    :func:`boresight.predict.field_products.weight_cross_spectra`), symmetrised."""
+    j_count = 2 * (N_MAX + 1)
+    lam = np.zeros((j_count, j_count, lw + 1))
+    for k, n in enumerate(ns):
+        pk = fp._pair(n)
+        for kp, npr in enumerate(ns):
+            pkp = fp._pair(npr)
+            for p in (0, 1):
+                for q in (0, 1):
+                    value = (
+                        kappa_w[k, kp] * pk[p] * np.conj(pkp[q]) - kappa_v[k, kp] * pk[p] * pkp[q]
+                    )
+                    lam[2 * abs(n) + p, 2 * abs(npr) + q] += value.real
+    return QuadraticForm(0.5 * (lam + lam.transpose(1, 0, 2)), lw)
+
+
+def _padded(alm):
+    """(2, nalm) h_0 alm as (J, nalm) with the other rows zero."""
+    out = np.zeros((2 * (N_MAX + 1), alm.shape[1]), dtype=np.complex128)
+    out[:2] = alm
+    return out
+
+
+class QuadraticForm:
+    """sum_jj' sum_lm omega_jj'(l) Re(a_j,lm conj(b_j',lm)), omega = lam_jj'(l) (1 or 2) / (2l + 1)
+    for m = 0 or m > 0 (a cross spectrum's sum over -l..l), held as lam (J, J, lw + 1)."""
+
+    def __init__(self, lam: np.ndarray, lw: int):
+        self.lam = np.ascontiguousarray(lam)
+        ell, m = hp.Alm.getlm(lw)
+        self.ell = ell.astype(np.int64)
+        self.factor = np.where(m > 0, 2.0, 1.0) / (2 * ell + 1.0)
+
+    def apply(self, x: np.ndarray, rows: range | None = None) -> np.ndarray:
+        """omega x (J, nalm) of x (J, nalm) complex, from the rows of x in ``rows`` (all)."""
+        rows = range(x.shape[0]) if rows is None else rows
+        out = np.zeros_like(x)
+        _apply(self.lam, self.ell, self.factor, x, rows.start, rows.stop, out)
+        return out
+
+    def value(self, x: np.ndarray) -> float:
+        """sum Re(x conj(omega x))."""
+        g = self.apply(x)
+        return float(np.sum(x.real * g.real + x.imag * g.imag))
+
+    def block(self, a: np.ndarray, b: np.ndarray, rows_a, rows_b) -> np.ndarray:
+        """[r, t, p, q] = sum_i omega_{rows_a[p], rows_b[q]}(i) Re(a_r,i conj b_t,i) for a, b
+        (2, nalm)."""
+        prod = (a[:, None].real * b[None].real + a[:, None].imag * b[None].imag) * self.factor
+        per_l = np.stack([np.bincount(self.ell, p, self.lam.shape[2]) for p in prod.reshape(4, -1)])
+        lam = self.lam[np.ix_(rows_a, rows_b)]  # (2, 2, lw + 1)
+        return (per_l @ lam.reshape(4, -1).T).reshape(2, 2, 2, 2)
+
+
+@numba.njit(cache=True)
+def _apply(lam, ell, factor, x, lo, hi, out):
+    """out[j, i] = factor[i] sum_{lo <= k < hi} lam[j, k, ell[i]] x[k, i]."""
+    for i in range(x.shape[1]):
+        li = ell[i]
+        for j in range(out.shape[0]):
+            acc = 0j
+            for k in range(lo, hi):
+                acc += lam[j, k, li] * x[k, i]
+            out[j, i] = acc * factor[i]
+
+
+def _unit_alm(moments, mask, lw, nthreads):
+    """(n_units, N_MAX, 2, nalm): the (E, B) alm of w S_n,u / hits of each unit at angle 0."""
+    m = moments
+    out = np.zeros((m.n_units, N_MAX, 2, hp.Alm.getsize(lw)), dtype=np.complex128)
+    inverse = mask[m.pixels] / m.hits
+    for u in range(m.n_units):
+        interrupts.check()
+        lo, hi = m.offsets[u], m.offsets[u + 1]
+        pix = m.pixels[m.index[lo:hi]]
+        for n in range(1, N_MAX + 1):
+            weight = np.zeros(12 * m.nside**2, dtype=np.complex128)
+            weight[pix] = m.sums[n - 1, lo:hi] * inverse[m.index[lo:hi]]
+            out[u, n - 1] = fp.weight_alm(fp.Weight(n, weight, None), lw, nthreads)
+    return out
+
+
+class _State:
+    """The search's running a_j and g = omega a, with each unit's quadratic blocks."""
+
+    def __init__(self, obj: ExactObjective, angles_deg):
+        self.obj = obj
+        self.angles = np.array(angles_deg, dtype=float)
+        self.a = obj.alm(self.angles)
+        self.g = obj.form.apply(self.a)
+        self.value = obj.value_of(self.a)
+
+    def steps(self, u, allowed_deg):
+        """(c, s) (n_allowed, N_MAX): cos and sin of n a' minus those of the current angle."""
+        n = np.arange(1, N_MAX + 1)
+        new = np.asarray(allowed_deg)[:, None] * DEG * n
+        old = self.angles[u] * DEG * n
+        return np.cos(new) - np.cos(old), np.sin(new) - np.sin(old)
+
+    def linear(self, u):
+        """2 Re <X_n, g> and 2 Re <Y_n, g> (2, N_MAX) of unit u."""
+        base = self.obj.unit_alm[u].view(np.float64)  # (N_MAX, 2, 2 nalm): Re, Im interleaved
+        g = self.g[2:].view(np.float64).reshape(N_MAX, 2, -1)
+        inner = base @ g.transpose(0, 2, 1)  # [n, r, p] = Re sum_i base[n, r] conj(g[n, p])
+        x = inner[:, 0, 0] + inner[:, 1, 1]  # X_n: (E, B) rows are the unit's (E, B)
+        y = -inner[:, 1, 0] + inner[:, 0, 1]  # Y_n: (E, B) rows are (-B, E)
+        return 2 * np.array([x, y])
+
+    def apply(self, u, c, s, angle):
+        """Move unit u: c, s (N_MAX,) of its step."""
+        base = self.obj.unit_alm[u]
+        delta = np.zeros_like(self.a)
+        for n in range(1, N_MAX + 1):
+            e, b = base[n - 1]
+            delta[2 * n] = c[n - 1] * e - s[n - 1] * b
+            delta[2 * n + 1] = s[n - 1] * e + c[n - 1] * b
+        self.a += delta
+        self.g += self.obj.form.apply(delta, range(2, delta.shape[0]))  # h_0 rows never move
+        self.angles[u] = angle
+
+
+def _blocks(obj: ExactObjective, u: int, v: int) -> np.ndarray:
+    """Q (2, N_MAX, 2, N_MAX): sum_jj' omega Re(A_j conj B_j') of unit u's vectors A in {X_n,
+    Y_n} against unit v's; the quadratic term of a move is c^T Q c over its (c, s)."""
+    bu, bv = obj.unit_alm[u], obj.unit_alm[v]  # (N_MAX, 2, nalm)
+    rows = (np.eye(2), _QUARTER)  # X: p from r by identity; Y: by the quarter turn
+    out = np.zeros((2, N_MAX, 2, N_MAX))
+    for n in range(N_MAX):
+        for m in range(N_MAX):
+            rows_n, rows_m = [2 * n + 2, 2 * n + 3], [2 * m + 2, 2 * m + 3]
+            g = obj.form.block(bu[n], bv[m], rows_n, rows_m)  # [r, t, p, q]
+            for ia, ma in enumerate(rows):
+                for ib, mb in enumerate(rows):
+                    out[ia, n, ib, m] = np.einsum("pr,qt,rtpq->", ma, mb, g)
+    return out
+
+
+def exhaustive(obj: ExactObjective, allowed_deg: tuple) -> Design:
+    """The global optimum by enumeration, for small problems (:data:`EXHAUSTIVE_LIMIT`).
+
+    With t_u = (cos n a_u, sin n a_u) the assignment's delta_r is the quadratic
+    const + 2 sum_u L_u . t_u + sum_uv t_u^T Q_uv t_v, with L_u unit u's vectors against omega
+    times the h_0 terms' alm and Q_uv its blocks (:func:`_blocks`) for every pair of units, so
+    every assignment costs O(n_units^2) once those are made.
+    """
+    allowed = np.asarray(allowed_deg, dtype=float)
+    u_count = obj.n_units
+    fixed = obj.form.apply(_padded(obj.fixed))  # omega a_0 of the h_0 rows
+    zero = _State.__new__(_State)  # its linear() against omega a_0
+    zero.obj, zero.g = obj, np.ascontiguousarray(fixed)
+    lin = np.array([zero.linear(u) for u in range(u_count)])  # 2 Re<A, omega a_0>: (U, 2, N)
+    q = np.array([[_blocks(obj, u, v) for v in range(u_count)] for u in range(u_count)])
+    n = np.arange(1, N_MAX + 1)
+    t = np.stack([np.cos(np.outer(allowed * DEG, n)), np.sin(np.outer(allowed * DEG, n))], 1)
+    choices = np.array(np.meshgrid(*([np.arange(allowed.size)] * u_count), indexing="ij"))
+    choices = choices.reshape(u_count, -1).T  # (M, U)
+    vec = t[choices]  # (M, U, 2, N)
+    value = obj.const + obj.form.value(_padded(obj.fixed))
+    value = value + np.einsum("muan,uan->m", vec, lin)
+    value = value + np.einsum("muan,uvanbk,mvbk->m", vec, q, vec, optimize=True)
+    angles = allowed[choices]
+    cost = np.array([obj.change_cost * obj.changes(a) for a in angles]) if obj.change_cost else 0
+    total = value + cost
+    best = int(np.argmin(total))
+    return Design(
+        angles[best],
+        float(total[best]),
+        [dict(start=0, sweep=0, objective=float(total[best]), moves=0)],
+    )
+
+
+def search(
+    obj: ExactObjective,
+    allowed_deg: tuple,
+    start_deg: np.ndarray,
+    *,
+    sweeps: int = 8,
+    restarts: int = 4,
+    seed: int = 0,
+    progress: Callable | None = None,
+    exhaustive_limit: int = EXHAUSTIVE_LIMIT,
+) -> Design:
+    """The best assignment found by coordinate descent with one- and two-unit moves, or by
+    enumeration (:func:`exhaustive`) where there are at most ``exhaustive_limit`` assignments.
+
+    From ``start_deg`` and from ``restarts`` random assignments of the allowed angles: each pass
+    visits the units in an order drawn from ``seed`` and moves a unit, then it and the next unit
+    together, to the allowed angles that lower the objective most; passes repeat until one
+    changes nothing or ``sweeps`` are done. The best end point is kept.
+
+    Parameters
+    ----------
+    obj : ExactObjective
+    allowed_deg : tuple of float
+    start_deg : numpy.ndarray, shape (n_units,)
+    sweeps, restarts, seed : int
+    progress : callable, optional
+        Called with 1 after each unit visited.
+    exhaustive_limit : int
+
+    Returns
+    -------
+    Design
+        ``history`` has one row per pass: start, sweep, objective, moves.
+    """
+    allowed = np.asarray(allowed_deg, dtype=float)
+    if allowed.size**obj.n_units <= exhaustive_limit:
+        return exhaustive(obj, allowed_deg)
+    rng = np.random.default_rng(seed)
+    single = [_blocks(obj, u, u) for u in range(obj.n_units)]
+    cross = [_blocks(obj, u, u + 1) for u in range(obj.n_units - 1)]
+    starts = [np.array(start_deg, dtype=float)] + [
+        rng.choice(allowed, obj.n_units) for _ in range(restarts)
+    ]
+    best, history = None, []
+    try:
+        for k, start in enumerate(starts):
+            state = _State(obj, start)
+            history.append(dict(start=k, sweep=0, objective=obj(state.angles), moves=0))
+            for sweep in range(1, sweeps + 1):
+                moves = _sweep(obj, state, allowed, single, cross, rng, progress)
+                history.append(dict(start=k, sweep=sweep, objective=obj(state.angles), moves=moves))
+                if moves == 0:
+                    break
+            value = obj(state.angles)  # re-anchored: no drift from the running sums
+            if best is None or value < best.value:
+                best = Design(state.angles.copy(), value, history)
+    except KeyboardInterrupt as err:  # the command line's Interrupted, or a notebook's Ctrl-C
+        stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
+        if best is None:
+            best = Design(state.angles.copy(), obj(state.angles), history)
+        best.interrupted = stop
+    best.history = history
+    return best
+
+
+def _sweep(obj, state, allowed, single, cross, rng, progress):
+    """One pass of one- and two-unit moves; the number of moves accepted."""
+    moves = 0
+    tol = 1e-12 * max(abs(state.value), 1e-300)
+    for u in rng.permutation(obj.n_units):
+        interrupts.check()
+        c, s = state.steps(u, allowed)  # (n_allowed, N_MAX)
+        step = np.stack([c, s], axis=1)  # (n_allowed, 2, N_MAX)
+        lin = np.einsum("kan,an->k", step, state.linear(u))
+        quad = np.einsum("kan,anbm,kbm->k", step, single[u], step)
+        change = lin + quad + _cost(obj, state.angles, u, allowed)
+        best = int(np.argmin(change))
+        if change[best] < -tol and allowed[best] != state.angles[u]:
+            state.apply(u, c[best], s[best], allowed[best])
+            state.value += lin[best] + quad[best]
+            moves += 1
+        if u + 1 < obj.n_units:
+            moves += _pair_move(obj, state, allowed, single, cross[u], u, tol)
+        if progress is not None:
+            progress(1)
+    return moves
+
+
+def _pair_move(obj, state, allowed, single, q_uv, u, tol):
+    """Move units u and u + 1 together to the pair of allowed angles that lowers the objective
+    most; 1 if it moved."""
+    v = u + 1
+    cu, su = state.steps(u, allowed)
+    cv, sv = state.steps(v, allowed)
+    step_u, step_v = np.stack([cu, su], axis=1), np.stack([cv, sv], axis=1)
+    lin_u = np.einsum("kan,an->k", step_u, state.linear(u))
+    lin_v = np.einsum("kan,an->k", step_v, state.linear(v))
+    quad_u = np.einsum("kan,anbm,kbm->k", step_u, single[u], step_u)
+    quad_v = np.einsum("kan,anbm,kbm->k", step_v, single[v], step_v)
+    both = 2 * np.einsum("kan,anbm,lbm->kl", step_u, q_uv, step_v)
+    gain = (lin_u + quad_u)[:, None] + (lin_v + quad_v)[None, :] + both
+    change = gain + _pair_cost(obj, state.angles, u, allowed)
+    i, j = np.unravel_index(int(np.argmin(change)), change.shape)
+    if change[i, j] >= -tol or (allowed[i] == state.angles[u] and allowed[j] == state.angles[v]):
+        return 0
+    state.apply(u, cu[i], su[i], allowed[i])
+    state.apply(v, cv[j], sv[j], allowed[j])  # each step is from the unit's own current angle
+    state.value += gain[i, j]
+    return 1
+
+
+def _cost(obj, angles, u, allowed):
+    """The change cost's change (n_allowed,) of moving unit u to each allowed angle."""
+    if not obj.change_cost:
+        return np.zeros(allowed.size)
+    near = [angles[v] for v in (u - 1, u + 1) if 0 <= v < angles.size]
+    count = np.array([sum(a != b for b in near) for a in allowed])
+    return obj.change_cost * (count - sum(angles[u] != b for b in near))
+
+
+def _pair_cost(obj, angles, u, allowed):
+    """The change cost's change (n_allowed, n_allowed) of moving units u and u + 1."""
+    if not obj.change_cost:
+        return np.zeros((allowed.size, allowed.size))
+    v = u + 1
+    before = obj.changes(angles[max(u - 1, 0) : v + 2])
+    out = np.zeros((allowed.size, allowed.size))
+    trial = angles.copy()
+    for i, a in enumerate(allowed):
+        for j, b in enumerate(allowed):
+            trial[u], trial[v] = a, b
+            out[i, j] = obj.changes(trial[max(u - 1, 0) : v + 2]) - before
+    return obj.change_cost * out

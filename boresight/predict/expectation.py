@@ -1,0 +1,304 @@
+"""The exact expected residual of a schedule's own h_n maps over the sky's realisations.
+
+The map-maker's spurious polarisation (:func:`boresight.predict.delta_p`) is, per pixel,
+
+    dP = t2 h_2 T + s2 h_2 S + g1 h_1 grad T + g3 h_3 conj(grad T) + p4 h_4 P* + p0 P
+         + sum_n h_n G_n (beams),
+
+a sum of weights w c_k h_{n_k} times the sky's fields, so its expected masked pseudo-C_BB is the
+bilinear sum of :mod:`boresight.predict.field_products`, with no assumption on how h_n varies.
+The paper's C_ell-level prediction (:func:`boresight.predict.residual_pseudo_bb`) takes h_n as
+white plus a coherent part; this one does not, which is what a real schedule's striped h_n needs.
+Adding the sky's own P (coefficient 1) gives the cross terms with its E and B (TE, EE): the total
+residual, pseudo-C_BB(P + dP) - pseudo-C_BB(P), against the leaked power pseudo-C_BB(dP) alone.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple
+
+import healpy as hp
+import numpy as np
+
+from ..constants import ARCMIN
+from . import field_products as fp
+from .beam_fields import beam_filters
+from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients
+from .windows import hit_spread_window, interpolation_window
+
+if TYPE_CHECKING:
+    from ..cosmology import Spectra
+    from ..instrument import Instrument, Systematics
+
+#: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`
+_TERMS = {
+    "t2": (2, "temperature"),
+    "s2": (2, "template"),
+    "g1": (1, "gradient"),
+    "g3": (3, "conjugate gradient"),
+    "p4": (4, "conjugate polarisation"),
+    "p0": (0, "polarisation"),
+}
+
+
+class ExpectedResidual(NamedTuple):
+    """Expected masked pseudo-C_BB [muK^2], (lmax + 1,) each: the leaked power
+    pseudo-C_BB(dP), and the residual pseudo-C_BB(P + dP) - pseudo-C_BB(P) with its cross terms
+    with the sky."""
+
+    leaked: np.ndarray
+    residual: np.ndarray
+
+
+def _fields(window, gradient_window):
+    """The sky's fields by name, to one band."""
+    return {
+        "temperature": fp.temperature(window),
+        "template": fp.temperature(window),
+        "gradient": fp.gradient(gradient_window),
+        "conjugate gradient": fp.gradient(gradient_window, conjugate=True),
+        "conjugate polarisation": fp.polarisation(window, conjugate=True),
+        "polarisation": fp.polarisation(window),
+    }
+
+
+class LeakModel(NamedTuple):
+    """The terms of the spurious polarisation: term k is w h_{n_k} c_k F_k (h_{-n} = conj h_n).
+
+    Parameters
+    ----------
+    n : tuple of int
+        Each term's moment; its weight's spin.
+    fields : tuple of boresight.predict.field_products.SkyField
+    second, pseudo : numpy.ndarray, complex128, shape (K, K)
+        E[c c^H] and E[c c^T] over the focal plane's draws (1 for the beams' terms, whose filters
+        carry their coefficients, and for the sky's own P where included).
+    readings : tuple of _Reading
+        How the hits read each term's field.
+    sky_cl : numpy.ndarray, shape (4, band + 1)
+        The beam-smoothed TT, EE, BB, TE [muK^2].
+    with_sky : bool
+        Whether the last term is the sky's own P.
+    """
+
+    n: tuple
+    fields: tuple
+    second: np.ndarray
+    pseudo: np.ndarray
+    readings: tuple
+    sky_cl: np.ndarray
+    with_sky: bool = False
+
+    @property
+    def n_leak(self) -> int:
+        """The terms of the leak (all but the sky's P)."""
+        return len(self.n) - int(self.with_sky)
+
+    def scatter(self, mask: np.ndarray) -> float:
+        """The white pseudo-C_BB [muK^2] of the hits' departures from their pixels' means, of the
+        h_0 terms (the sky's own P scatters alike with and without the systematics: not a leak).
+        Terms with n != 0 weigh each departure by exp(i n psi), which the rotations that null
+        h_n cancel sample by sample (a 0/180 repeat nulls the pointing's scatter with its h_1):
+        left out, at 0.2 % of the unrotated deep example's pointing delta_r."""
+        return sum(
+            self.readings[k].scatter(self.fields[k], self.sky_cl, self.second[k, k].real, mask)
+            for k in range(self.n_leak)
+            if self.n[k] == 0
+        )
+
+
+def leak_model(
+    systematics: Systematics,
+    theory: Spectra,
+    fwhm_arcmin: float,
+    band: int,
+    nside: int,
+    *,
+    n_max: int = 4,
+    instrument: Instrument | None = None,
+    hits: np.ndarray | None = None,
+    with_sky: bool = False,
+) -> LeakModel:
+    """The leak's terms of a budget (:func:`expected_residual` says how each enters).
+
+    Parameters
+    ----------
+    systematics, theory, fwhm_arcmin, instrument, hits
+        As :func:`expected_residual`.
+    band, nside : int
+        The sky's band limit; the maps' resolution.
+    n_max : int
+        The highest moment the beams' terms may use.
+    with_sky : bool
+        Add the sky's own P (coefficient 1) as the last term.
+
+    Returns
+    -------
+    LeakModel
+    """
+    if abs(coefficients(systematics, instrument).m4) > 1e-9:
+        raise ValueError("the exact expectation needs pairs whose 4 x angles cancel (m_4 = 0)")
+    value, exact = (_Reading(hits, nside, band, kind) for kind in ("value", "exact"))
+    tt, ee, bb, te = theory.total(lmax=band)
+    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=band, pol=True)
+    sky_cl = np.array([tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2,
+                       te * beam[:, 0] * beam[:, 1]])  # fmt: skip
+    fields = _fields(value.window, exact.window)
+    mean, second, pseudo = coefficient_moments(systematics, instrument)
+    kept = [k for k, name in enumerate(MOMENT_NAMES) if _kept(name, systematics)]
+    names = [MOMENT_NAMES[k] for k in kept]
+    ns = [_TERMS[name][0] for name in names]
+    field_list = [fields[_TERMS[name][1]] for name in names]
+    read = [exact if "gradient" in _TERMS[name][1] else value for name in names]
+    second, pseudo, mean = second[np.ix_(kept, kept)], pseudo[np.ix_(kept, kept)], mean[kept]
+    extra = 0
+    if systematics.has_beams:
+        filters = beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, band, n_max=n_max)
+        for n, filt in filters.items():
+            if np.any(filt):
+                ns.append(n)
+                field_list.append(fp.SkyField(2 - n, filt * exact.window))  # n > 2: conj(H_n)
+                read.append(exact)
+                extra += 1
+    if with_sky:
+        ns.append(0)
+        field_list.append(fields["polarisation"])
+        read.append(value)
+        extra += 1
+    second, pseudo, mean = _with_fixed(second, pseudo, mean, extra)
+    return LeakModel(tuple(ns), tuple(field_list), second, pseudo, tuple(read), sky_cl, with_sky)
+
+
+def expected_residual(
+    h: np.ndarray,
+    mask: np.ndarray,
+    systematics: Systematics,
+    theory: Spectra,
+    fwhm_arcmin: float,
+    *,
+    lmax: int,
+    band: int | None = None,
+    instrument: Instrument | None = None,
+    hits: np.ndarray | None = None,
+    nthreads: int = 0,
+) -> ExpectedResidual:
+    """The exact expected leaked and total residual pseudo-C_BB of a schedule's h_n maps.
+
+    Parameters given as {mean, rms} enter by their moments over the focal plane's draws
+    (:func:`boresight.predict.coefficient_moments`): the coherent part through the mean
+    coefficients and the scattered part through their variance over N pairs. The beams enter
+    by their filters (:func:`boresight.predict.beam_filters`) to the moments ``h`` holds. The
+    leak's template is the sky's T. The map-maker's h_4 coupling must vanish (m_4 = 0,
+    :func:`boresight.predict.supports`).
+
+    Parameters
+    ----------
+    h : numpy.ndarray, complex, shape (n_max + 1, npix)
+        h_0..h_n_max (n_max >= 4) of the schedule (0 off the footprint).
+    mask : numpy.ndarray, shape (npix,)
+        The analysis mask (RING).
+    systematics : boresight.instrument.Systematics
+    theory : boresight.cosmology.Spectra
+    fwhm_arcmin : float
+        The sky's beam.
+    lmax : int
+        The pseudo-spectra's band limit.
+    band : int, optional
+        The sky's band limit (default lmax).
+    instrument : boresight.instrument.Instrument, optional
+    hits : numpy.ndarray, shape (npix,), optional
+        Samples per pixel, for hits spread over their pixels as a schedule's are, read as the
+        engine reads them (bilinear interpolation of the maps, the beams' fields exactly): each
+        field's pixel mean takes its window (:class:`_Reading`) and, for the h_0 terms, each
+        hit's departure from it adds white power of variance sigma_in^2 / N_hits per pixel
+        (:meth:`LeakModel.scatter`). Default: every field read at the pixel centres (exact).
+    nthreads : int
+
+    Returns
+    -------
+    ExpectedResidual
+    """
+    band = lmax if band is None else band
+    n_max = h.shape[0] - 1
+    if n_max < 4:
+        raise ValueError(f"h must hold h_0..h_4 at least, got {h.shape[0]} moments")
+    nside = hp.npix2nside(h.shape[1])
+    model = leak_model(
+        systematics, theory, fwhm_arcmin, band, nside, n_max=n_max, instrument=instrument,
+        hits=hits, with_sky=True,
+    )  # fmt: skip
+    lw = lmax + band
+    alms = {}
+    for n in set(abs(n) for n in model.n):  # h_-n's weight has the (E, B) of h_n's conjugate
+        alms[n] = fp.weight_alm(fp.Weight(n, mask * h[n], None), lw, nthreads)
+    spins, fields = list(model.n), list(model.fields)
+    term_alms = [alms[abs(n)] for n in spins]
+    k = model.n_leak  # the sky's P is the last term
+    total = fp.expected_pseudo_cl_alm(
+        term_alms, spins, fields, model.sky_cl, lmax, second=model.second, pseudo=model.pseudo
+    ).bb
+    leaked = fp.expected_pseudo_cl_alm(
+        term_alms[:k], spins[:k], fields[:k], model.sky_cl, lmax,
+        second=model.second[:k, :k], pseudo=model.pseudo[:k, :k],
+    ).bb  # fmt: skip
+    alone = fp.expected_pseudo_cl_alm(term_alms[k:], spins[k:], fields[k:], model.sky_cl, lmax).bb
+    scatter = model.scatter(mask)
+    return ExpectedResidual(leaked + scatter, total - alone + scatter)
+
+
+def _kept(name, systematics):
+    """Whether the coefficient's term is on."""
+    if name == "s2":
+        return systematics.has_leak
+    if name in ("g1", "g3"):
+        return systematics.has_pointing
+    return True
+
+
+def _with_fixed(second, pseudo, mean, extra):
+    """The moments with ``extra`` deterministic coefficients of 1 appended (the beams' terms,
+    whose filters carry their coefficients, and the sky's P): E[c c'^*] = E c for those."""
+    k = mean.size
+    out_mean = np.concatenate([mean, np.ones(extra)])
+    out_second = np.outer(out_mean, np.conj(out_mean))
+    out_pseudo = np.outer(out_mean, out_mean)
+    out_second[:k, :k], out_pseudo[:k, :k] = second, pseudo
+    return out_second, out_pseudo, out_mean
+
+
+class _Reading:
+    """How the hits read a kind of field: "value" (bilinear interpolation of the maps: T, P,
+    the leak's template) or "exact" (the beams' fields, evaluated at the hit, and the pointing's
+    gradient: the engine's f(x + rho) - f(x) of the interpolated maps follows the TOD with the
+    exact reading's window, where :func:`interpolation_window`'s gradient window was measured 1.4x
+    too low in the TOD's leaked power, docs/conventions.md). ``window`` (band + 1,) is the amplitude window of
+    the pixel mean, the square root of the pair window of
+    :func:`boresight.predict.interpolation_window` or :func:`boresight.predict.hit_spread_window`;
+    1 at pixel centres (``hits`` None)."""
+
+    def __init__(self, hits, nside, band, kind):
+        self.hits = hits
+        if hits is None:
+            self.window, self.point = np.ones(band + 1), np.ones(band + 1)
+            return
+        if kind == "exact":
+            pair, self.point = hit_spread_window(nside, band), np.ones(band + 1)
+        else:
+            pair, self.point = interpolation_window(nside, band)
+        self.pair = pair
+        self.window = np.sqrt(pair)
+
+    def scatter(self, field, sky_cl, power, mask):
+        """The white pseudo-C_BB (a number) of a term of E``|c|^2`` = ``power`` from each hit's
+        departure from its pixel's mean: Omega_pix / 2 <w^2 / N_hits> sigma_in^2, sigma_in^2 =
+        sum_l (2l + 1) / 4 pi C^FF_l (point - pair) of the unwindowed field."""
+        if self.hits is None:
+            return 0.0
+        window = np.where(self.window > 0, self.window, 1.0)
+        unwindowed = fp.SkyField(field.spin, field.filters / window)
+        c, _ = fp.field_cross_spectra([unwindowed], sky_cl)
+        ell = np.arange(c.shape[-1])
+        sigma2 = np.sum((2 * ell + 1) / (4 * np.pi) * c[0, 0].real * (self.point - self.pair))
+        seen = self.hits > 0
+        inverse = np.sum(mask[seen] ** 2 / self.hits[seen]) / mask.size
+        return 0.5 * (4 * np.pi / mask.size) * inverse * sigma2 * power
