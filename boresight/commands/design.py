@@ -173,18 +173,18 @@ def run(
             )
         )
     require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
+    with timer("expected residual of every strategy"):
+        expected = {name: _expected(budget, moments, obj, h, theory) for name, h in h_maps.items()}
     validation, stopped, checked = [], found.interrupted, "skipped"
     if validate and stopped is None:
         try:
             with timer("TOD simulation of every strategy"):
-                validation = _validate(budget, moments, obj, schedule, strategies, theory)
+                validation = _validate(budget, moments, obj, schedule, strategies, expected)
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
     mask = moments.mask
-    curves = {
-        name: _expected(budget, moments, obj, h, theory).residual for name, h in h_maps.items()
-    }
+    curves = {name: e.residual for name, e in expected.items()}
     designed = moments.schedule(schedule, found.angles_deg)
     fmt = schedule_format(schedule_path)
     with io.staged_dir(out_dir, force, inputs) as stage:
@@ -268,21 +268,21 @@ def _expected(budget, moments, obj, h, theory):
     )
 
 
-def _validate(budget, moments, obj, schedule, strategies, theory):
+def _validate(budget, moments, obj, schedule, strategies, expected):
     """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
     samples, at the design's Nside with lmax = 2 Nside, on ``validation_skies`` sky realisations
     (and, for {mean, rms} parameters, as many draws of the focal plane, seeded alike). Like is
     compared with like: the total residual C_BB(sys) - C_BB(no sys) with the predicted total,
-    the leaked power <dB, dB> with the predicted leaked power; each mean with its standard error.
+    the leaked power <dB, dB> with the predicted leaked power (``expected``, per strategy); each
+    mean with its standard error.
     """
     nside, lmax = moments.nside, 2 * moments.nside
     skies = budget.design.validation_skies
     out = []
     for name, angles in strategies.items():
         scan = moments.schedule(schedule, angles)
-        expected = _expected(budget, moments, obj, moments.h(angles), theory)
         total, leaked = [], []
         for seed in range(skies):
             sky = make_sky(
@@ -294,8 +294,8 @@ def _validate(budget, moments, obj, schedule, strategies, theory):
             leaked.append(delta_r(job.auto, obj.template))
         row = dict(strategy=name, skies=skies)
         for key, values, cl in (
-            ("", total, expected.residual),
-            ("leaked_", leaked, expected.leaked),
+            ("", total, expected[name].residual),
+            ("leaked_", leaked, expected[name].leaked),
         ):
             predicted = delta_r(cl, obj.template)
             mean = float(np.mean(values))

@@ -23,7 +23,7 @@ import numpy as np
 from ..constants import ARCMIN
 from . import field_products as fp
 from .beam_fields import beam_filters
-from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients
+from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients, jitter_variance
 from .windows import hit_spread_window, interpolation_window
 
 if TYPE_CHECKING:
@@ -79,6 +79,9 @@ class LeakModel(NamedTuple):
         The beam-smoothed TT, EE, BB, TE [muK^2].
     with_sky : bool
         Whether the last term is the sky's own P.
+    jitter : float
+        <sigma^2> / n_samples of the gain jitter, which adds white noise of variance
+        jitter sigma_T^2 / N_hits per pixel whatever the angles (0: none).
     """
 
     n: tuple
@@ -88,6 +91,7 @@ class LeakModel(NamedTuple):
     readings: tuple
     sky_cl: np.ndarray
     with_sky: bool = False
+    jitter: float = 0.0
 
     @property
     def n_leak(self) -> int:
@@ -100,11 +104,25 @@ class LeakModel(NamedTuple):
         Terms with n != 0 weigh each departure by exp(i n psi), which the rotations that null
         h_n cancel sample by sample (a 0/180 repeat nulls the pointing's scatter with its h_1):
         left out, at 0.2 % of the unrotated deep example's pointing delta_r."""
-        return sum(
+        scatter = sum(
             self.readings[k].scatter(self.fields[k], self.sky_cl, self.second[k, k].real, mask)
             for k in range(self.n_leak)
             if self.n[k] == 0
         )
+        return scatter + self._jitter(mask)
+
+    def _jitter(self, mask):
+        """The gain jitter's white pseudo-C_BB: Omega_pix / 2 <w^2 jitter sigma_T^2 / N_hits>."""
+        if not self.jitter:
+            return 0.0
+        hits = self.readings[0].hits
+        if hits is None:
+            raise ValueError("a gain jitter's prediction needs the hits per pixel")
+        ell = np.arange(self.sky_cl.shape[1])
+        variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * self.sky_cl[0])
+        seen = hits > 0
+        inverse = np.sum(mask[seen] ** 2 / hits[seen]) / mask.size
+        return 0.5 * (4 * np.pi / mask.size) * self.jitter * variance_t * inverse
 
 
 def leak_model(
@@ -166,7 +184,11 @@ def leak_model(
         read.append(value)
         extra += 1
     second, pseudo, mean = _with_fixed(second, pseudo, mean, extra)
-    return LeakModel(tuple(ns), tuple(field_list), second, pseudo, tuple(read), sky_cl, with_sky)
+    coefs = coefficients(systematics, instrument)
+    jitter = jitter_variance(systematics, coefs, expected=True) / coefs.n_samples
+    return LeakModel(
+        tuple(ns), tuple(field_list), second, pseudo, tuple(read), sky_cl, with_sky, jitter
+    )
 
 
 def expected_residual(

@@ -231,3 +231,26 @@ def _resize(alm, lmax_in, lmax_out):
     ell, m = hp.Alm.getlm(lmax_in)
     out[:, hp.Alm.getidx(lmax_out, ell, m)] = alm
     return out
+
+
+def test_the_kernels_give_a_weighted_sum_of_the_expectation():
+    """bb_kernels' linear form in the weights' spectra equals sum_L weight_L <C~^BB_L> of the
+    spectra themselves, for random weights of every kind of term and random coefficients'
+    moments."""
+    lmax, band = 12, 6
+    rng = np.random.default_rng(RNG_SEED + 2)
+    terms = _terms(band)
+    spins = [s for s, _ in terms]
+    fields = [f for _, f in terms]
+    alms = [_random_alm(lmax + band, rng, s) for s in spins]
+    c = rng.normal(size=len(spins)) + 1j * rng.normal(size=len(spins))
+    second, pseudo = np.outer(c, np.conj(c)), np.outer(c, c)
+    cl = _sky_cl(band)
+    weight_l = rng.normal(size=lmax + 1)
+    weight_l[:2] = 0.0
+    bb = fp.expected_pseudo_cl_alm(alms, spins, fields, cl, lmax, second=second, pseudo=pseudo).bb
+    kappa_w, kappa_v = fp.bb_kernels(spins, fields, cl, weight_l, second=second, pseudo=pseudo)
+    w, v = fp.weight_cross_spectra(alms, spins, lmax + band)
+    value = np.real(np.sum(kappa_w * w) - np.sum(kappa_v * v))
+    # one quadrature summed two ways: rounding only
+    assert value == pytest.approx(np.sum(weight_l * bb), rel=1e-10)
