@@ -92,6 +92,14 @@ def _short(tmp):
     return path
 
 
+def _ratio(simulated, predicted):
+    """simulated / predicted, or "-" where the prediction is zero or far below the TOD's noise
+    (a residual that the strategy cancels)."""
+    if abs(predicted) < 1e-12:
+        return "-"
+    return f"{simulated / predicted:.3f}"
+
+
 def validation(skies):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -129,10 +137,10 @@ def validation(skies):
                             strategy=v["strategy"],
                             simulated=f"{sim:.4g} +- {se:.2g}",
                             predicted=f"{pred:.4g}",
-                            ratio=f"{sim / pred:.3f}",
+                            ratio=_ratio(sim, pred),
                             within=f"{abs(sim - pred) / max(se, 1e-300):.1f} se",
                             white_approximation=f"{white[v['strategy']]:.4g}",
-                            white_ratio=f"{sim / white[v['strategy']]:.3f}",
+                            white_ratio=_ratio(sim, white[v["strategy"]]),
                         )
                     )
     report(
