@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, NamedTuple
 
 import ducc0
@@ -319,9 +320,9 @@ class _Quadrature:
         second = np.ones((k, k)) if second is None else np.asarray(second)
         pseudo = np.ones((k, k)) if pseudo is None else np.asarray(pseudo)
         n_nodes = self.lw + 1
-        self.x = np.cos(ducc0.misc.GL_thetas(n_nodes))
+        self.tables = _gl_tables(n_nodes)
+        self.x = self.tables.x
         self.nodes = ducc0.misc.GL_weights(n_nodes, 1) / (2 * np.pi)
-        self.tables = _Tables(self.x)
         self.lw_norm = 2 * np.arange(self.lw + 1) + 1.0
         band_norm = 2 * np.arange(band + 1) + 1.0
         c_cl, d_cl = field_cross_spectra(fields, sky_cl)
@@ -337,6 +338,13 @@ class _Quadrature:
         for i, s in enumerate(self.spins):
             for j, sp in enumerate(self.spins):
                 yield i, j, s, sp
+
+
+@lru_cache(maxsize=2)
+def _gl_tables(n_nodes: int) -> _Tables:
+    """The Wigner d tables on n Gauss-Legendre nodes, kept for the next expectation of the same
+    band limits (a design's strategies, a residual's leaked and total parts)."""
+    return _Tables(np.cos(ducc0.misc.GL_thetas(n_nodes)))
 
 
 class _Tables:
