@@ -1,8 +1,8 @@
 """The design objective: the exact expected delta_r of an angle assignment, and its search.
 
 :func:`boresight.predict.expected_residual` is bilinear in the weights' spectra, and delta_r is
-linear in the pseudo-C_BB, so per budget one set of kernels gives (:func:`boresight.predict.
-field_products.bb_kernels`)
+linear in the pseudo-C_BB, so per budget one set of kernels gives
+(:func:`boresight.predict.field_products.bb_kernels`)
 
     delta_r = const + sum_jj' sum_lm omega_jj'(l) Re(a_j,lm conj(a_j',lm)),
 
@@ -11,12 +11,13 @@ angle 0, whose (E, B) alm are computed once; at angle a it turns by n a, (E, B) 
 B sin na, E sin na + B cos na), so the alm are linear in (cos n a_u, sin n a_u). Changing one
 unit (or two) changes delta_r by a linear term in the current omega a, which costs O(nalm) per
 unit visited, plus a quadratic term from an 8 x 8 matrix per unit made once. Nothing assumes h_n
-white: on a real schedule's striped h_n the paper's approximation (:class:`boresight.design.
-Objective`) can rank strategies wrongly.
+white: on a real schedule's striped h_n the paper's approximation
+(:class:`boresight.design.Objective`) can rank strategies wrongly.
 
-The search (:func:`search`) is coordinate descent with moves of one unit and of two consecutive
-units (a slot's rising and setting CESs), from the best of the baselines and from random
-restarts, the best kept.
+The search (:func:`search`) enumerates every assignment where there are at most 3^10
+(:func:`exhaustive`); beyond, it is coordinate descent with moves of one unit and of two
+consecutive units (a slot's rising and setting CESs), from the best of the baselines and from
+random restarts, the best kept.
 """
 
 from __future__ import annotations

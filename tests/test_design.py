@@ -157,6 +157,7 @@ def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
         design.load_budget(_budget(tmp_path, **tables))
 
 
+@pytest.mark.xdist_group("timing")  # not beside the signals test (its latency)
 def test_design_command_on_the_deep_example(tmp_path):
     """The check: the gain + pointing + ellipticity budget of examples/budget_deep_sat.toml on
     examples/schedule_deep_sat.toml, at Nside 64 with 2 skies per strategy (the bench runs the

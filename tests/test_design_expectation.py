@@ -116,6 +116,7 @@ def test_change_cost_and_interrupt(moments, theory):
     assert found.interrupted and found.value == pytest.approx(obj(found.angles_deg))
 
 
+@pytest.mark.xdist_group("timing")  # not beside the signals test (its latency)
 def test_the_prediction_is_the_mean_of_tod_skies(schedule, moments, obj, theory):
     """The TOD engine on the schedule's own samples, 8 skies per strategy: the mean total
     residual's delta_r equals the prediction within 5 % or 2.5 standard errors."""

@@ -140,6 +140,9 @@ def _interrupted_run(args, delay, signum, capsys):
     return code, err, returned - sent[0]
 
 
+#: the latency test and the heaviest design tests share one worker: a signal's latency is not
+#: measured while the other worker runs a design's TOD check on the same two cores
+@pytest.mark.xdist_group("timing")
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_signals_at_random_moments_end_cleanly(command, inputs, tmp_path, capsys):
     out = tmp_path / "out"
