@@ -57,7 +57,7 @@ def run(
     (``design.png``/``.pdf``), ``|h_n|^2`` maps before and after (``hn_before_after.png``), and
     with ``validate`` a TOD simulation of the budget on the designed and the unrotated schedule
     (``validation.csv``). Ctrl-C or SIGTERM during the search keeps the best schedule found so
-    far, during the validation the finished design without it; the manifest says which, and the
+    far (without the figures), during the validation the finished design without it; the manifest says which, and the
     :class:`boresight.interrupts.Interrupted` raised after the outputs are written says what was
     kept.
 
@@ -173,8 +173,10 @@ def run(
             )
         )
     require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
-    with timer("expected residual of every strategy"):
-        expected = {name: _expected(budget, moments, obj, h, theory) for name, h in h_maps.items()}
+    expected = {}  # an interrupted search writes its best schedule at once, without the figures
+    if found.interrupted is None:
+        with timer("expected residual of every strategy"):
+            expected = {n: _expected(budget, moments, obj, h, theory) for n, h in h_maps.items()}
     validation, stopped, checked = [], found.interrupted, "skipped"
     if validate and stopped is None:
         try:
@@ -183,14 +185,13 @@ def run(
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
-    mask = moments.mask
     curves = {name: e.residual for name, e in expected.items()}
     designed = moments.schedule(schedule, found.angles_deg)
     fmt = schedule_format(schedule_path)
     with io.staged_dir(out_dir, force, inputs) as stage:
         write_schedule(designed, stage / f"schedule_designed{SUFFIX[fmt]}", fmt)
         io.write_csv(stage / "strategies.csv", rows, list(rows[0]))
-        io.write_csv(stage / "history.csv", found.history, ["sweep", "objective", "moves"])
+        io.write_csv(stage / "history.csv", found.history, ["start", "sweep", "objective", "moves"])
         io.write_csv(
             stage / "units.csv",
             [
@@ -201,24 +202,8 @@ def run(
         )
         if validation:
             io.write_csv(stage / "validation.csv", validation, list(validation[0]))
-        plots.design_figure(
-            curves, white, budget.noise, sigma, theory=theory, path_stem=stage / "design"
-        )
-        # the moment of the largest angle-dependent term (h_2 where every term is h_0 or white)
-        dominant = max(white.terms, key=lambda n: white.alpha[n] + white.beta[n], default=2)
-        plots.map_figure(
-            [
-                np.where(
-                    mask > 0,
-                    np.abs(moments.full_sky(h_maps[k][dominant])) ** 2,
-                    hp.UNSEEN,
-                )
-                for k in ("none", "optimised")
-            ],
-            [f"|h_{dominant}|^2, no rotation", f"|h_{dominant}|^2, optimised"],
-            stage / "hn_before_after.png",
-            unit="",
-        )
+        if curves:
+            _figures(curves, white, budget, sigma, theory, moments, h_maps, stage)
         io.write_json(
             stage / "manifest.json",
             provenance.manifest(
@@ -250,6 +235,21 @@ def run(
         angles_deg=found.angles_deg,
         validation=validation,
     )
+
+
+def _figures(curves, white, budget, sigma, theory, moments, h_maps, stage):
+    """design.png (every strategy's expected residual) and hn_before_after.png."""
+    plots.design_figure(
+        curves, white, budget.noise, sigma, theory=theory, path_stem=stage / "design"
+    )
+    # the moment of the largest angle-dependent term (h_2 where every term is h_0 or white)
+    dominant = max(white.terms, key=lambda n: white.alpha[n] + white.beta[n], default=2)
+    maps = [
+        np.where(moments.mask > 0, np.abs(moments.full_sky(h_maps[k][dominant])) ** 2, hp.UNSEEN)
+        for k in ("none", "optimised")
+    ]
+    names = [f"|h_{dominant}|^2, no rotation", f"|h_{dominant}|^2, optimised"]
+    plots.map_figure(maps, names, stage / "hn_before_after.png", unit="")
 
 
 def _expected(budget, moments, obj, h, theory):
