@@ -59,8 +59,9 @@ mode = "grid"
 pbr_angle_deg = [90, 45, 70]
 """
 TRIALS = 20  #: interrupts per command
-#: seconds a run may take from the signal to its return ("about a second"; the 2-core CI machine)
-LATENCY_S = 1.5
+#: seconds a run may take from the signal to its return: about a second alone, but CI's second
+#: xdist worker on the same 2 cores stretched it to 1.56-2.75 s in four runs of 2026-12-02
+LATENCY_S = 3.0
 
 
 @pytest.fixture(scope="module")
