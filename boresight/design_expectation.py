@@ -80,7 +80,7 @@ class ExactObjective:
     band: int
 
     @property
-    def n_units(self) -> int:
+    def unit_count(self) -> int:
         return self.unit_alm.shape[0]
 
     def alm(self, angles_deg: np.ndarray) -> np.ndarray:
@@ -150,7 +150,7 @@ def exact_objective(
         systematics, theory, fwhm_arcmin, band, nside, instrument=instrument, hits=hits,
         with_sky=True,
     )  # fmt: skip
-    if any(abs(n) > N_MAX for n in model.n):
+    if any(abs(n) > N_MAX for n in model.term_n):
         model = _within(model, N_MAX)
     couplings = coupling.mask_coupling(mask, lmax, nthreads)
     template = predict.tensor_template(couplings, theory, fwhm_arcmin, nside)
@@ -158,9 +158,9 @@ def exact_objective(
     lo, hi = predict.R_RANGE[0], min(predict.R_RANGE[1], lmax)
     weight_l[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
     kappa_w, kappa_v = fp.bb_kernels(
-        model.n, model.fields, model.sky_cl, weight_l, second=model.second, pseudo=model.pseudo
+        model.term_n, model.fields, model.sky_cl, weight_l, second=model.second, pseudo=model.pseudo
     )
-    form = _form(model.n, kappa_w, kappa_v, lw)
+    form = _form(model.term_n, kappa_w, kappa_v, lw)
     alone = fp.bb_kernels((0,), model.fields[-1:], model.sky_cl, weight_l)
     sky_alm = fp.weight_alm(fp.Weight(0, mask + 0j, None), lw, nthreads)
     sky_form = _form((0,), *alone, lw)
@@ -173,9 +173,9 @@ def exact_objective(
 
 def _within(model, n_max):
     """The model without terms beyond h_n_max (the beams' h_5, h_6 that the units do not hold)."""
-    keep = [k for k, n in enumerate(model.n) if abs(n) <= n_max]
+    keep = [k for k, n in enumerate(model.term_n) if abs(n) <= n_max]
     return model._replace(
-        n=tuple(model.n[k] for k in keep),
+        term_n=tuple(model.term_n[k] for k in keep),
         fields=tuple(model.fields[k] for k in keep),
         readings=tuple(model.readings[k] for k in keep),
         second=model.second[np.ix_(keep, keep)],
@@ -332,7 +332,7 @@ def exhaustive(obj: ExactObjective, allowed_deg: tuple) -> Design:
     every assignment costs O(n_units^2) once those are made.
     """
     allowed = np.asarray(allowed_deg, dtype=float)
-    u_count = obj.n_units
+    u_count = obj.unit_count
     fixed = obj.form.apply(_padded(obj.fixed))  # omega a_0 of the h_0 rows
     zero = _State.__new__(_State)  # its linear() against omega a_0
     zero.obj, zero.g = obj, np.ascontiguousarray(fixed)
@@ -392,13 +392,13 @@ def search(
         ``history`` has one row per pass: start, sweep, objective, moves.
     """
     allowed = np.asarray(allowed_deg, dtype=float)
-    if allowed.size**obj.n_units <= exhaustive_limit:
+    if allowed.size**obj.unit_count <= exhaustive_limit:
         return exhaustive(obj, allowed_deg)
     rng = np.random.default_rng(seed)
-    single = [_blocks(obj, u, u) for u in range(obj.n_units)]
-    cross = [_blocks(obj, u, u + 1) for u in range(obj.n_units - 1)]
+    single = [_blocks(obj, u, u) for u in range(obj.unit_count)]
+    cross = [_blocks(obj, u, u + 1) for u in range(obj.unit_count - 1)]
     starts = [np.array(start_deg, dtype=float)] + [
-        rng.choice(allowed, obj.n_units) for _ in range(restarts)
+        rng.choice(allowed, obj.unit_count) for _ in range(restarts)
     ]
     best, history = None, []
     try:
@@ -426,7 +426,7 @@ def _sweep(obj, state, allowed, single, cross, rng, progress):
     """One pass of one- and two-unit moves; the number of moves accepted."""
     moves = 0
     tol = 1e-12 * max(abs(state.value), 1e-300)
-    for u in rng.permutation(obj.n_units):
+    for u in rng.permutation(obj.unit_count):
         interrupts.check()
         c, s = state.steps(u, allowed)  # (n_allowed, N_MAX)
         step = np.stack([c, s], axis=1)  # (n_allowed, 2, N_MAX)
@@ -438,7 +438,7 @@ def _sweep(obj, state, allowed, single, cross, rng, progress):
             state.apply(u, c[best], s[best], allowed[best])
             state.value += lin[best] + quad[best]
             moves += 1
-        if u + 1 < obj.n_units:
+        if u + 1 < obj.unit_count:
             moves += _pair_move(obj, state, allowed, single, cross[u], u, tol)
         if progress is not None:
             progress(1)

@@ -67,7 +67,7 @@ class LeakModel(NamedTuple):
 
     Parameters
     ----------
-    n : tuple of int
+    term_n : tuple of int
         Each term's moment; its weight's spin.
     fields : tuple of boresight.predict.field_products.SkyField
     second, pseudo : numpy.ndarray, complex128, shape (K, K)
@@ -84,7 +84,7 @@ class LeakModel(NamedTuple):
         jitter sigma_T^2 / N_hits per pixel whatever the angles (0: none).
     """
 
-    n: tuple
+    term_n: tuple
     fields: tuple
     second: np.ndarray
     pseudo: np.ndarray
@@ -96,7 +96,7 @@ class LeakModel(NamedTuple):
     @property
     def n_leak(self) -> int:
         """The terms of the leak (all but the sky's P)."""
-        return len(self.n) - int(self.with_sky)
+        return len(self.term_n) - int(self.with_sky)
 
     def scatter(self, mask: np.ndarray) -> float:
         """The white pseudo-C_BB [muK^2] of the hits' departures from their pixels' means, of the
@@ -107,7 +107,7 @@ class LeakModel(NamedTuple):
         scatter = sum(
             self.readings[k].scatter(self.fields[k], self.sky_cl, self.second[k, k].real, mask)
             for k in range(self.n_leak)
-            if self.n[k] == 0
+            if self.term_n[k] == 0
         )
         return scatter + self._jitter(mask)
 
@@ -251,9 +251,9 @@ def expected_residual(
     )  # fmt: skip
     lw = lmax + band
     alms = {}
-    for n in set(abs(n) for n in model.n):  # h_-n's weight has the (E, B) of h_n's conjugate
+    for n in set(abs(n) for n in model.term_n):  # h_-n's weight has the (E, B) of h_n's conjugate
         alms[n] = fp.weight_alm(fp.Weight(n, mask * h[n], None), lw, nthreads)
-    spins, fields = list(model.n), list(model.fields)
+    spins, fields = list(model.term_n), list(model.fields)
     term_alms = [alms[abs(n)] for n in spins]
     k = model.n_leak  # the sky's P is the last term
     total = fp.expected_pseudo_cl_alm(

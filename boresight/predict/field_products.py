@@ -365,8 +365,9 @@ class _Tables:
 
 def wigner_d(m: int, mp: int, lmax: int, x: np.ndarray) -> np.ndarray:
     """Wigner's d^l_{m m'}(theta) for l = 0..lmax at x = cos(theta), (lmax + 1, n), zero below
-    max(|m|, |m'|): d^l_{m m'} = <l m| exp(-i theta J_y) |l m'> (Varshalovich's convention, in
-    which d^1_10 = -sin(theta) / sqrt(2)), by the three-term recursion in l."""
+    max(abs(m), abs(m')), in Varshalovich's convention (the matrix element of exp(-i theta J_y)
+    between the states l m and l m'; d^1_10 = -sin(theta) / sqrt(2)), by the three-term
+    recursion in l."""
     x = np.ascontiguousarray(x, dtype=np.float64)
     out = np.zeros((lmax + 1, x.size))
     l0 = max(abs(m), abs(mp))
