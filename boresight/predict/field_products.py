@@ -49,7 +49,7 @@ SKY = ("T", "E", "B")  #: the sky's fields, in the order of a field's filters
 class SkyField:
     """A Gaussian field of the sky, linear in its T, E, B harmonic coefficients.
 
-    ``filters`` give the spin-|t| field's own coefficients, sum_X filters[X, l] a^X_lm over the
+    ``filters`` give the spin-abs(t) field's own coefficients, sum_X filters[X, l] a^X_lm over the
     sky's T, E, B (healpy's sign: for |t| > 0 they are -(E_F + i B_F)). A negative ``spin`` is
     the conjugate of that field (the P* of the h_4 term, the conjugate gradient of the h_3 term,
     the beams' G_n of n > 2). Spin 0 is a complex scalar, Re from E_F and Im from B_F.
@@ -78,7 +78,7 @@ class SkyField:
         return (-1.0) ** self.spin * np.conj(self.filters)
 
     def alm(self, sky_alm: np.ndarray) -> np.ndarray:
-        """(E_F, B_F) (2, nalm) of the spin-|t| field from the sky's T, E, B alm (3, nalm):
+        """(E_F, B_F) (2, nalm) of the spin-abs(t) field from the sky's T, E, B alm (3, nalm):
         -(Re, Im) of the filtered sum for |t| > 0 (as ``_beam_field``), (Re, Im) at spin 0."""
         ell = hp.Alm.getlm(harmonics.alm_lmax(sky_alm.shape[-1]))[0]
         keep = ell <= self.band
@@ -136,7 +136,7 @@ class PseudoSpectra(NamedTuple):
 def _pair(spin: int) -> tuple:
     """(alpha, beta): a spin-s field's own coefficients are alpha E + beta B of its (E, B) alm, in
     healpy's sign (-(E + i B) for s > 0; E + i B for a complex scalar). A negative spin is the
-    conjugate of the spin-|s| field, whose coefficients are (-1)^s (-(E - i B))."""
+    conjugate of the spin-abs(s) field, whose coefficients are (-1)^s (-(E - i B))."""
     if spin == 0:
         return 1.0, 1j
     if spin > 0:
@@ -146,7 +146,7 @@ def _pair(spin: int) -> tuple:
 
 
 def weight_alm(weight: Weight, lmax: int, nthreads: int = 0) -> np.ndarray:
-    """The weight's (E, B) of its spin |s| to ``lmax``, (2, nalm): of g, or of conj(g) where
+    """The weight's (E, B) of its spin abs(s) to ``lmax``, (2, nalm): of g, or of conj(g) where
     s < 0; with the HEALPix ring weights' single pass, as for a mask's own spectrum
     (:func:`boresight.coupling.mask_spectrum`)."""
     g = np.asarray(weight.map)
