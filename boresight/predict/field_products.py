@@ -50,7 +50,7 @@ class SkyField:
     """A Gaussian field of the sky, linear in its T, E, B harmonic coefficients.
 
     ``filters`` give the spin-abs(t) field's own coefficients, sum_X filters[X, l] a^X_lm over the
-    sky's T, E, B (healpy's sign: for |t| > 0 they are -(E_F + i B_F)). A negative ``spin`` is
+    sky's T, E, B (healpy's sign: for abs(t) > 0 they are -(E_F + i B_F)). A negative ``spin`` is
     the conjugate of that field (the P* of the h_4 term, the conjugate gradient of the h_3 term,
     the beams' G_n of n > 2). Spin 0 is a complex scalar, Re from E_F and Im from B_F.
 
@@ -79,7 +79,7 @@ class SkyField:
 
     def alm(self, sky_alm: np.ndarray) -> np.ndarray:
         """(E_F, B_F) (2, nalm) of the spin-abs(t) field from the sky's T, E, B alm (3, nalm):
-        -(Re, Im) of the filtered sum for |t| > 0 (as ``_beam_field``), (Re, Im) at spin 0."""
+        -(Re, Im) of the filtered sum for abs(t) > 0 (as ``_beam_field``), (Re, Im) at spin 0."""
         ell = hp.Alm.getlm(harmonics.alm_lmax(sky_alm.shape[-1]))[0]
         keep = ell <= self.band
         total = np.zeros(sky_alm.shape[-1], dtype=np.complex128)
