@@ -37,6 +37,7 @@ import numpy as np
 from . import coupling, interrupts, predict, validation
 from .config import ConfigError, build_section, check_systematics, read_toml
 from .constants import DEG
+from .focalplane import FocalPlane, load_focalplane
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
 from .noise import SurveyNoise
 from .pointing import chunk_arguments
@@ -497,13 +498,29 @@ class Budget:
     noise : boresight.noise.SurveyNoise
     design : DesignOptions
     instrument : boresight.instrument.Instrument
-        The focal plane (the optional ``[instrument]`` table; default: the paper's Q/U pairs).
+        The pairs (the optional ``[instrument]`` table; default: the paper's Q/U pairs); with a
+        focal plane, the on-axis pairs the search takes (:func:`search_instrument`).
+    focalplane : boresight.focalplane.FocalPlane, optional
+        ``[instrument] focalplane``: a file (beside the budget) or a preset name
+        (:func:`boresight.focalplane.load_focalplane`).
     """
 
     systematics: Systematics
     noise: SurveyNoise
     design: DesignOptions
     instrument: Instrument = Instrument()
+    focalplane: FocalPlane | None = None
+
+
+def search_instrument(focal: FocalPlane) -> Instrument:
+    """The pairs on the axis that the search's objective takes for a focal plane: the focal
+    plane's pairs' angles where their 4 x angles cancel, else as many pairs at uniform angles
+    (the exact expectation on the axis needs m_4 = 0); each strategy is then evaluated on the
+    focal plane itself (:func:`boresight.predict.focalplane.expected_residual`)."""
+    own = Instrument(pair_angles_deg=focal.pair_angles_deg)
+    if predict.supports(own):
+        return own
+    return Instrument(pair_angles_deg="uniform", n_pairs=max(focal.n_pairs, 2))
 
 
 BUDGET_SECTIONS = ("systematics", "noise", "design", "instrument")
@@ -527,7 +544,7 @@ def load_budget(path: str) -> Budget:
         raise ConfigError(f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS}")
     if "noise" not in raw:
         raise ConfigError(f"budget {path}: a [noise] table is required")
-    tables = {}
+    tables, focal = {}, None
     classes = (Systematics, SurveyNoise, DesignOptions, Instrument)
     for name, cls in zip(BUDGET_SECTIONS, classes):
         table = raw.get(name, {})
@@ -537,10 +554,15 @@ def load_budget(path: str) -> Budget:
             table = {**table, "nl_bb_file": str(Path(path).parent / table["nl_bb_file"])}
         if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
             table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
+        if name == "instrument" and "focalplane" in table:
+            focal = _budget_focalplane(path, table)
+            table = {k: v for k, v in table.items() if k != "focalplane"}
         try:
             tables[name] = build_section(name, cls, table)
         except ConfigError as err:
             raise ConfigError(f"budget {path}: {err}") from None
+    if focal is not None:
+        tables["instrument"] = search_instrument(focal)
     sysm, instrument = tables["systematics"], tables["instrument"]
     if not sysm.has_amplitude:
         raise ConfigError(
@@ -560,4 +582,18 @@ def load_budget(path: str) -> Budget:
             raise ValueError("its pairs' 4 x angles must cancel (m_4 = 0), e.g. 'uniform'")
     except ValueError as err:
         raise ConfigError(f"budget {path}: [systematics] / [instrument]: {err}") from None
-    return Budget(**tables)
+    return Budget(**tables, focalplane=focal)
+
+
+def _budget_focalplane(path, table):
+    """``[instrument] focalplane``: a file beside the budget, or a preset name."""
+    spec = table["focalplane"]
+    if not isinstance(spec, str):
+        raise ConfigError(f"budget {path}: [instrument] focalplane must be a file or a preset name")
+    if set(table) - {"focalplane"}:
+        raise ConfigError(
+            f"budget {path}: [instrument] focalplane gives the pairs and their angles: remove "
+            f"{sorted(set(table) - {'focalplane'})}"
+        )
+    beside = Path(path).parent / spec
+    return load_focalplane(str(beside) if beside.is_file() else spec)

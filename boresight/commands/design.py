@@ -6,24 +6,29 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
 import numpy as np
 
-from .. import interrupts, io, plots, precompile, provenance, resources
+from .. import coupling, engine, interrupts, io, plots, precompile, provenance, resources, spectra
 from ..cosmology import load_spectra
-from ..design import baselines, load_budget, objective, unit_moments
+from ..design import baselines, load_budget, objective, search_instrument, unit_moments
 from ..design_expectation import exact_objective, search
+from ..focalplane import load_focalplane
+from ..instrument import Systematics
 from ..noise import sigma_r
-from ..predict import R_RANGE, delta_r, expected_residual
+from ..predict import R_RANGE, delta_r, expected_residual, tensor_template
+from ..predict import focalplane as predict_fp
 from ..residual import residual
+from ..scanstats import characterise_focalplane
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import require_finite
 from . import _common
 
 if TYPE_CHECKING:
+    from ..focalplane import FocalPlane
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -46,6 +51,7 @@ def run(
     progress: bool = False,
     frame: str | None = None,
     turnarounds: str | None = None,
+    focalplane: FocalPlane | None = None,
     checks: resources.Checks = resources.Checks(),
 ) -> dict:
     """Choose a boresight angle per unit of a schedule against a budget.
@@ -72,6 +78,11 @@ def run(
     progress : bool
     frame, turnarounds : str, optional
         Replace the schedule file's (:class:`boresight.schedule.Schedule`).
+    focalplane : boresight.focalplane.FocalPlane, optional
+        Replaces the budget's ``[instrument] focalplane``. The search takes the pairs on the
+        axis (:func:`boresight.design.search_instrument`); every strategy is then evaluated on
+        the focal plane, each pair on its own samples, with the coherent and scattered parts
+        (``strategies.csv``' ``delta_r`` and ``fp_*`` columns), and validated there.
     checks : boresight.resources.Checks
         The memory and time checks to make.
 
@@ -81,6 +92,11 @@ def run(
         sigma_r, the strategies' rows, the designed angles per unit and the validation's rows.
     """
     budget = load_budget(budget_path)
+    if focalplane is not None:
+        budget = dataclasses.replace(
+            budget, focalplane=focalplane, instrument=search_instrument(focalplane)
+        )
+    focal = budget.focalplane
     opts = budget.design
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     inputs = [budget_path, schedule_path]
@@ -89,7 +105,7 @@ def run(
         "design",
         schedule,
         opts.nside,
-        n_pairs=budget.instrument.n_pairs,
+        n_pairs=budget.instrument.n_pairs if focal is None else focal.n_pairs,
         # every strategy on every sky, each with and without the systematics
         tod_runs=2 * N_STRATEGIES * opts.validation_skies if validate else 0,
         systematics=budget.systematics,
@@ -174,14 +190,28 @@ def run(
         )
     require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
     expected = {}  # an interrupted search writes its best schedule at once, without the figures
+    on_sky = _OnSky(moments.mask, obj.template)
     if found.interrupted is None:
         with timer("expected residual of every strategy"):
             expected = {n: _expected(budget, moments, obj, h, theory) for n, h in h_maps.items()}
-    validation, stopped, checked = [], found.interrupted, "skipped"
+    stopped = found.interrupted
+    if focal is not None and stopped is None:
+        try:
+            with timer("every strategy on the focal plane"):
+                expected, on_sky = _on_focalplane(
+                    budget, moments, obj, schedule, strategies, theory
+                )
+        except interrupts.Interrupted as err:  # keep the search, on the axis, without figures
+            stopped, expected = err, {}
+        else:
+            for row, name in zip(rows, strategies):
+                row.update(_focalplane_columns(expected[name], on_sky.template, sigma, row))
+            _log_best(rows)
+    validation, checked = [], "skipped"
     if validate and stopped is None:
         try:
             with timer("TOD simulation of every strategy"):
-                validation = _validate(budget, moments, obj, schedule, strategies, expected)
+                validation = _validate(budget, moments, schedule, strategies, expected, on_sky)
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
@@ -213,8 +243,10 @@ def run(
                     "frame": schedule.frame,
                     "turnarounds": schedule.turnarounds,
                     "design": dataclasses.asdict(budget.design),
+                    "focalplane": None if focal is None else focal.source,
                     "sigma_r": sigma,
                     "search_interrupted": found.interrupted is not None,
+                    "focalplane_evaluated": focal is not None and bool(expected),
                     "validation": checked,
                 },
                 {"design": opts.seed},
@@ -227,6 +259,7 @@ def run(
             f"the best schedule found so far is in {out_dir}"
             if found.interrupted is not None
             else f"the finished design is in {out_dir}, without its TOD validation"
+            + ("" if focal is None or expected else " or its focal-plane evaluation")
         )
         raise stopped
     return dict(
@@ -268,15 +301,87 @@ def _expected(budget, moments, obj, h, theory):
     )
 
 
-def _validate(budget, moments, obj, schedule, strategies, expected):
+class _OnSky(NamedTuple):
+    """The analysis mask the strategies are compared on and the tensor template through it."""
+
+    mask: np.ndarray
+    template: np.ndarray
+
+
+def _on_focalplane(budget, moments, obj, schedule, strategies, theory):
+    """Each strategy's exact expected residual on the focal plane, every pair on its own samples
+    (:func:`boresight.predict.focalplane.expected_residual`), on the boresight's footprint less
+    the pixels whose 2x2 system is near singular in any strategy (one mask for all, and its
+    tensor template)."""
+    nside, focal = moments.nside, budget.focalplane
+    stats = {}
+    keep = moments.mask.copy()
+    for name, angles in strategies.items():
+        interrupts.check()
+        stats[name] = characterise_focalplane(
+            moments.schedule(schedule, angles), focal, nside, per_pair=True
+        )
+        keep *= predict_fp.rcond(stats[name]) >= predict_fp.RCOND_EXPECTATION
+    if not np.any(keep):
+        raise ValueError(
+            "no pixel of the boresight's footprint is well conditioned in every strategy"
+        )
+    template = obj.template
+    if np.any(keep != moments.mask):
+        log.info("focal plane: %d of %d footprint pixels kept (2x2 rcond >= %.2g)",
+                 int(keep.sum()), int(moments.mask.sum()), predict_fp.RCOND_EXPECTATION)  # fmt: skip
+        couplings = coupling.mask_coupling(keep, obj.lmax)
+        template = tensor_template(couplings, theory, budget.noise.fwhm_arcmin, nside)
+    expected = {
+        name: predict_fp.expected_residual(
+            s,
+            keep,
+            budget.systematics,
+            theory,
+            budget.noise.fwhm_arcmin,
+            lmax=obj.lmax,
+            band=obj.band,
+        )  # fmt: skip
+        for name, s in stats.items()
+    }
+    return expected, _OnSky(keep, template)
+
+
+def _focalplane_columns(expected, template, sigma, row):
+    """strategies.csv's focal-plane columns: delta_r becomes the focal plane's, the on-axis
+    search objective's is kept as delta_r_on_axis."""
+    total = delta_r(expected.residual, template)
+    return dict(
+        delta_r=total,
+        delta_r_over_sigma_r=total / sigma,
+        delta_r_on_axis=row["delta_r"],
+        fp_delta_r_coherent=delta_r(expected.coherent.residual, template),
+        fp_delta_r_scattered=delta_r(expected.scattered, template),
+    )
+
+
+def _log_best(rows):
+    """Say where a baseline beats the on-axis search's optimum on the focal plane."""
+    best = min(rows, key=lambda r: r["delta_r"])
+    if best["strategy"] != "optimised":
+        log.warning(
+            "on the focal plane, %r (delta_r = %.3g) beats the on-axis search's optimum "
+            "(%.3g): the search takes every pair on the axis",
+            best["strategy"], best["delta_r"],
+            next(r["delta_r"] for r in rows if r["strategy"] == "optimised"),
+        )  # fmt: skip
+
+
+def _validate(budget, moments, schedule, strategies, expected, on_sky):
     """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
     samples, at the design's Nside with lmax = 2 Nside, on ``validation_skies`` sky realisations
-    (and, for {mean, rms} parameters, as many draws of the focal plane, seeded alike). Like is
-    compared with like: the total residual C_BB(sys) - C_BB(no sys) with the predicted total,
-    the leaked power <dB, dB> with the predicted leaked power (``expected``, per strategy); each
-    mean with its standard error.
+    (and, for {mean, rms} parameters, as many draws of the focal plane, seeded alike); with a
+    focal plane, every pair on its own samples (:func:`boresight.engine.simulate_focalplane`).
+    Like is compared with like: the total residual C_BB(sys) - C_BB(no sys) with the predicted
+    total, the leaked power <dB, dB> with the predicted leaked power (``expected``, per
+    strategy); each mean with its standard error.
     """
     nside, lmax = moments.nside, 2 * moments.nside
     skies = budget.design.validation_skies
@@ -289,15 +394,15 @@ def _validate(budget, moments, obj, schedule, strategies, expected):
                 SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=budget.noise.fwhm_arcmin, seed=seed)
             )
             systematics = dataclasses.replace(budget.systematics, seed=seed)
-            job = residual(sky, scan, systematics, moments.mask, lmax, instrument=budget.instrument)
-            total.append(delta_r(job.total, obj.template))
-            leaked.append(delta_r(job.auto, obj.template))
+            cross, auto = _tod_parts(sky, scan, systematics, budget, on_sky.mask, lmax)
+            total.append(delta_r(cross + auto, on_sky.template))
+            leaked.append(delta_r(auto, on_sky.template))
         row = dict(strategy=name, skies=skies)
         for key, values, cl in (
             ("", total, expected[name].residual),
             ("leaked_", leaked, expected[name].leaked),
         ):
-            predicted = delta_r(cl, obj.template)
+            predicted = delta_r(cl, on_sky.template)
             mean = float(np.mean(values))
             se = float(np.std(values, ddof=1) / np.sqrt(skies)) if skies > 1 else float("nan")
             row.update(
@@ -312,6 +417,19 @@ def _validate(budget, moments, obj, schedule, strategies, expected):
     return out
 
 
+def _tod_parts(sky, scan, systematics, budget, mask, lmax):
+    """The TOD's residual pseudo-C_BB parts (cross with the sky, auto) of one sky."""
+    if budget.focalplane is None:
+        job = residual(sky, scan, systematics, mask, lmax, instrument=budget.instrument)
+        return job.total - job.auto, job.auto
+    maps = [
+        engine.simulate_focalplane(sky, scan, budget.focalplane, s)
+        for s in (Systematics(), systematics)
+    ]
+    ref, sys = (np.array([np.where(m.valid, m.q, 0.0), np.where(m.valid, m.u, 0.0)]) for m in maps)
+    return spectra.residual_bb_parts(sys, ref, mask, lmax)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("budget", help="TOML with [systematics], [noise] and [design] tables")
     parser.add_argument("schedule", help="schedule file (TOML, CSV or TOAST)")
@@ -321,6 +439,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-validate",
         action="store_true",
         help="skip the TOD simulation of the design",
+    )
+    parser.add_argument(
+        "--focalplane",
+        help="a focal plane file (TOAST HDF5, CSV, TOML) or preset (hexagon:N:WIDTH_DEG, axis), "
+        "replacing the budget's [instrument] focalplane",
     )
     _common.motion_flags(parser)
     _common.pointing_flags(parser)
@@ -335,6 +458,7 @@ def main(args: argparse.Namespace) -> int:
         motion=_common.motion(args),
         validate=not args.no_validate,
         progress=_common.progress(args),
+        focalplane=load_focalplane(args.focalplane) if args.focalplane else None,
         checks=_common.checks(args),
         **_common.pointing(args),
     )

@@ -156,18 +156,14 @@ def leak_model(
     """
     if abs(coefficients(systematics, instrument).m4) > 1e-9:
         raise ValueError("the exact expectation needs pairs whose 4 x angles cancel (m_4 = 0)")
-    value, exact = (_Reading(hits, nside, band, kind) for kind in ("value", "exact"))
-    tt, ee, bb, te = theory.total(lmax=band)
-    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=band, pol=True)
-    sky_cl = np.array([tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2,
-                       te * beam[:, 0] * beam[:, 1]])  # fmt: skip
-    fields = _fields(value.window, exact.window)
+    sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)
+    fields, value, exact = read = sky_fields(nside, band, hits=hits)
+    terms = leak_terms(systematics, read)
     mean, second, pseudo = coefficient_moments(systematics, instrument)
-    kept = [k for k, name in enumerate(MOMENT_NAMES) if _kept(name, systematics)]
-    names = [MOMENT_NAMES[k] for k in kept]
-    ns = [_TERMS[name][0] for name in names]
-    field_list = [fields[_TERMS[name][1]] for name in names]
-    read = [exact if "gradient" in _TERMS[name][1] else value for name in names]
+    kept = [k for k, name in enumerate(MOMENT_NAMES) if name in terms]
+    ns = [terms[MOMENT_NAMES[k]][0] for k in kept]
+    field_list = [fields[terms[MOMENT_NAMES[k]][1]] for k in kept]
+    readings = [terms[MOMENT_NAMES[k]][2] for k in kept]
     second, pseudo, mean = second[np.ix_(kept, kept)], pseudo[np.ix_(kept, kept)], mean[kept]
     extra = 0
     if systematics.has_beams:
@@ -176,19 +172,53 @@ def leak_model(
             if np.any(filt):
                 ns.append(n)
                 field_list.append(fp.SkyField(2 - n, filt * exact.window))  # n > 2: conj(H_n)
-                read.append(exact)
+                readings.append(exact)
                 extra += 1
     if with_sky:
         ns.append(0)
         field_list.append(fields["polarisation"])
-        read.append(value)
+        readings.append(value)
         extra += 1
     second, pseudo, mean = _with_fixed(second, pseudo, mean, extra)
     coefs = coefficients(systematics, instrument)
     jitter = jitter_variance(systematics, coefs, expected=True) / coefs.n_samples
     return LeakModel(
-        tuple(ns), tuple(field_list), second, pseudo, tuple(read), sky_cl, with_sky, jitter
+        tuple(ns), tuple(field_list), second, pseudo, tuple(readings), sky_cl, with_sky, jitter
     )
+
+
+def smoothed_spectra(theory: Spectra, fwhm_arcmin: float, band: int) -> np.ndarray:
+    """The sky's TT, EE, BB, TE (4, band + 1) [muK^2], smoothed by the beam."""
+    tt, ee, bb, te = theory.total(lmax=band)
+    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=band, pol=True)
+    return np.array([tt * beam[:, 0] ** 2, ee * beam[:, 1] ** 2, bb * beam[:, 2] ** 2,
+                     te * beam[:, 0] * beam[:, 1]])  # fmt: skip
+
+
+def sky_fields(
+    nside: int, band: int, *, hits: np.ndarray | None = None, evaluation: str = "interpolated"
+) -> tuple:
+    """The sky's fields by kind ("temperature", "template", "gradient", "conjugate gradient",
+    "polarisation", "conjugate polarisation"), each as the hits read it (:class:`_Reading`),
+    and the two readings: of the values (the engine's ``evaluation``, "interpolated" or
+    "exact") and exact."""
+    kinds = ("exact" if evaluation == "exact" else "value", "exact")
+    value, exact = (_Reading(hits, nside, band, kind) for kind in kinds)
+    return _fields(value.window, exact.window), value, exact
+
+
+def leak_terms(systematics: Systematics, read: tuple) -> dict:
+    """The leak's terms a budget switches on, by coefficient name (:data:`MOMENT_NAMES` order):
+    (moment n, the kind of field it multiplies, the field's :class:`_Reading`), from ``read``,
+    the output of :func:`sky_fields`; the pointing's gradient is read exactly, the other fields
+    by value."""
+    _, value, exact = read
+    out = {}
+    for name in MOMENT_NAMES:
+        if _kept(name, systematics):
+            n, kind = _TERMS[name]
+            out[name] = (n, kind, exact if "gradient" in kind else value)
+    return out
 
 
 def expected_residual(

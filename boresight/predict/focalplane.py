@@ -21,19 +21,22 @@ axis each pair keeps its own.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
+import healpy as hp
 import numpy as np
 
 from .. import harmonics
 from ..constants import DEG
-from ..instrument import LIMITS, UNITS, Spread
+from ..instrument import LIMITS, UNITS, Spread, Systematics
 from ..spectra import as_footprint
+from . import field_products as fp_products
 from .coefficients import _pair_terms
+from .expectation import ExpectedResidual, leak_terms, sky_fields, smoothed_spectra
 from .windows import hit_spread_window
 
 if TYPE_CHECKING:
-    from ..instrument import Systematics
+    from ..cosmology import Spectra
     from ..scanstats import FocalPlaneStats
     from ..sky import Sky
 
@@ -223,3 +226,192 @@ def expected_leak_bb(
         for i in range(fp.n_pairs):  # a unit of the parameter on pair i alone
             scattered += rms**2 * bb(_y(stats, weights, delta, fields, slice(i, i + 1)))
     return coherent, scattered
+
+
+#: the field that multiplies a term of dP's conjugate part, H_4 Y*, by the kind of Y's field
+_CONJUGATE = {
+    "temperature": "temperature",
+    "template": "template",
+    "gradient": "conjugate gradient",
+    "conjugate gradient": "gradient",
+    "polarisation": "conjugate polarisation",
+    "conjugate polarisation": "polarisation",
+}
+
+
+#: the least condition (1 - ``|H_4|``) / (1 + ``|H_4|``) of a pixel's 2x2 system that
+#: :func:`expected_residual`'s mask may keep (the engine's rcond; 0.05 is ``|H_4|`` < 0.905):
+#: nearer singular, 1 / (1 - ``|H_4|^2``) spikes that the weights' harmonics cannot hold
+RCOND_EXPECTATION = 0.05
+
+
+def rcond(stats: FocalPlaneStats) -> np.ndarray:
+    """Each pixel's 2x2 condition (1 - ``|H_4|``) / (1 + ``|H_4|``) (npix,), 0 where unseen:
+    the engine's ``rcond`` of the focal plane's combined samples."""
+    focal = stats.focalplane
+    h4 = np.abs(
+        _h4(stats, _weights(stats), pair_shares(Systematics().per_pair(focal.n_pairs), focal))
+    )
+    return np.where(stats.combined.hits > 0, (1 - h4) / (1 + h4), 0.0)
+
+
+class FocalPlaneResidual(NamedTuple):
+    """The expected masked pseudo-C_BB [muK^2], (lmax + 1,) each, of a focal plane over the sky's
+    realisations and the pairs' draws: ``coherent``, the leaked and total residual with every
+    drawn parameter at its mean (:class:`boresight.predict.ExpectedResidual`), and ``scattered``,
+    the leaked power of the draws' departures from their means, which have no cross term with the
+    sky."""
+
+    coherent: ExpectedResidual
+    scattered: np.ndarray
+
+    @property
+    def leaked(self) -> np.ndarray:
+        return self.coherent.leaked + self.scattered
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.coherent.residual + self.scattered
+
+
+def expected_residual(
+    stats: FocalPlaneStats,
+    mask: np.ndarray,
+    systematics: Systematics,
+    theory: Spectra,
+    fwhm_arcmin: float,
+    *,
+    lmax: int,
+    band: int | None = None,
+    evaluation: str | None = "interpolated",
+    nthreads: int = 0,
+) -> FocalPlaneResidual:
+    """The exact expected leaked and total residual pseudo-C_BB of a focal plane's own h_n maps,
+    over the sky's realisations and the pairs' draws: the focal-plane form of
+    :func:`boresight.predict.expected_residual` (docs/conventions.md).
+
+    dP = (Y - H_4 Y*) / (1 - ``|H_4|^2``) is, term by term, a weight times a sky field:
+    (sum_i share_i N_i h_n,i / N) / (1 - ``|H_4|^2``) on the term's field, and minus H_4 times
+    its conjugate on the conjugate field (spin 4 - n). Both are fixed by the schedule, so the
+    expectation over skies is exact (:func:`boresight.predict.field_products.expected_pseudo_cl_alm`),
+    with no condition on the pairs' 4 x angles. Over the pairs' draws dP is real-linear in each
+    drawn parameter: the coherent part is dP at the means, with its cross terms with the sky's own
+    E and B, and the scattered part is rms^2 times the sum over pairs of the leaked power of a unit
+    of the parameter on that pair alone (:func:`expected_leak_bb` for one sky).
+
+    Parameters
+    ----------
+    stats : boresight.scanstats.FocalPlaneStats
+        With the per-pair maps.
+    mask : numpy.ndarray, shape (npix,)
+        The analysis mask (RING), without the pixels whose 2x2 system is near singular
+        (:func:`rcond` below :data:`RCOND_EXPECTATION`).
+    systematics : boresight.instrument.Systematics
+        {mean, rms} of dg, leak and rho_arcmin allowed; no beams or gain jitter yet.
+    theory : boresight.cosmology.Spectra
+    fwhm_arcmin : float
+        The sky's beam.
+    lmax : int
+        The pseudo-spectra's band limit.
+    band : int, optional
+        The sky's band limit (default lmax).
+    evaluation : str or None
+        How the engine reads the sky at a schedule's samples spread over their pixels:
+        "interpolated" (its default) or "exact" (:func:`boresight.engine.simulate_focalplane`),
+        with the h_0 terms' in-pixel scatter (as :func:`boresight.predict.expected_residual` with
+        hits; pairs at one place share their samples' departures, pairs apart do not); None for
+        the fields at the pixel centres, where it is exact.
+    nthreads : int
+
+    Returns
+    -------
+    FocalPlaneResidual
+    """
+    _check(stats, systematics)
+    if systematics.has_jitter:
+        raise ValueError("a gain jitter is not yet predicted for a focal plane")
+    kept = mask != 0
+    if np.any(rcond(stats)[kept] < RCOND_EXPECTATION):
+        raise ValueError(
+            f"the mask keeps {int(np.sum(rcond(stats)[kept] < RCOND_EXPECTATION))} pixels whose "
+            f"2x2 system has rcond < {RCOND_EXPECTATION}: mask them (predict.focalplane.rcond)"
+        )
+    band = lmax if band is None else band
+    nside, lw = hp.npix2nside(mask.size), lmax + band
+    focal = stats.focalplane
+    params, drawn = _at_means(systematics, focal.n_pairs)
+    shares = pair_shares(params, focal)
+    weights = _weights(stats)
+    h4 = _h4(stats, weights, shares)
+    det = 1.0 - np.abs(h4) ** 2
+    inverse = np.where(det > 1e-12, mask / np.where(det > 1e-12, det, 1.0), 0.0)
+    conjugate = bool(np.max(np.abs(h4)) > 1e-12)  # pairs whose 4 x angles cancel: H_4 = 0
+    spread = evaluation is not None
+    read = sky_fields(
+        nside, band, hits=stats.combined.hits if spread else None, evaluation=evaluation or ""
+    )
+    fields, terms = read[0], leak_terms(systematics, read)
+    sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)
+
+    def leak(term_shares, pairs=slice(None)):
+        """The weights' alm, spins and fields of dP for coefficient shares over ``pairs``."""
+        alms, spins, kinds = [], [], []
+        for name, (n, kind, _) in terms.items():
+            y = np.einsum(
+                "i,ip,ip->p", term_shares[name][pairs], weights[pairs], stats.pair_h[pairs, n]
+            )
+            alms.append(
+                fp_products.weight_alm(fp_products.Weight(n, inverse * y, None), lw, nthreads)
+            )
+            spins.append(n)
+            kinds.append(kind)
+            if conjugate:
+                z = -inverse * h4 * np.conj(y)
+                alms.append(
+                    fp_products.weight_alm(fp_products.Weight(4 - n, z, None), lw, nthreads)
+                )
+                spins.append(4 - n)
+                kinds.append(_CONJUGATE[kind])
+        return alms, spins, [fields[k] for k in kinds]
+
+    def bb(alms, spins, term_fields):
+        return fp_products.expected_pseudo_cl_alm(alms, spins, term_fields, sky_cl, lmax).bb
+
+    alms, spins, term_fields = leak(shares)
+    sky = [fp_products.weight_alm(fp_products.Weight(0, mask + 0j, None), lw, nthreads)]
+    sky_terms = ([0], [fields["polarisation"]])
+    scatter = _scatter(stats, terms, fields, sky_cl, mask, shares, params, drawn) if spread else 0
+    leaked = bb(alms, spins, term_fields) + scatter
+    total = bb(alms + sky, spins + sky_terms[0], term_fields + sky_terms[1])
+    residual = total - bb(sky, *sky_terms) + scatter
+    scattered = np.zeros(lmax + 1)
+    for _, rms, delta in _unit_shares(params, drawn, shares, focal):
+        for i in range(focal.n_pairs):
+            scattered += rms**2 * bb(*leak(delta, slice(i, i + 1)))
+    return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
+
+
+def _unit_shares(params, drawn, shares, focal):
+    """Per drawn parameter: its name, rms and each pair's change of shares for a unit of it."""
+    for field, rms in drawn:
+        unit = params._asdict()
+        unit[field] = unit[field] + 1.0
+        moved = pair_shares(type(params)(**unit), focal)
+        yield field, rms, {k: v - shares[k] for k, v in moved.items()}
+
+
+def _scatter(stats, terms, fields, sky_cl, mask, shares, params, drawn):
+    """The h_0 term's in-pixel scatter (:meth:`boresight.predict.LeakModel.scatter`): a pixel's
+    departures add per place in the focal plane, so its power per pair-sample is sum over places
+    of E``|sum_i c_i|^2`` (its pairs' p0) over the number of pairs."""
+    if "p0" not in terms:
+        return 0.0
+    places = np.unique(np.round(stats.focalplane.vectors(), 12), axis=0, return_inverse=True)[1]
+    power = 0.0
+    for g in np.unique(places):
+        at = places.ravel() == g
+        power += abs(np.sum(shares["p0"][at])) ** 2
+        for _, rms, delta in _unit_shares(params, drawn, shares, stats.focalplane):
+            power += rms**2 * np.sum(np.abs(delta["p0"][at]) ** 2)
+    _, kind, reading = terms["p0"]
+    return reading.scatter(fields[kind], sky_cl, power / stats.focalplane.n_pairs, mask)
