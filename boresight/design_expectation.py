@@ -183,22 +183,24 @@ def _within(model, n_max):
     )
 
 
-def _form(ns, kappa_w, kappa_v, lw):
+def _form(ns, kappa_w, kappa_v, lw, rows=None, j_count=2 * (N_MAX + 1)):
     """omega of the terms' kernels: W and V are sums over (p, q) of the real cross spectra of the
     (E, B) alm times alpha_p conj(alpha'_q) or alpha_p alpha'_q (the spin's sign pair,
-    :func:`boresight.predict.field_products.weight_cross_spectra`), symmetrised."""
-    j_count = 2 * (N_MAX + 1)
+    :func:`boresight.predict.field_products.weight_cross_spectra`), symmetrised. Term k's (E, B)
+    are rows 2 rows[k] + (0, 1) of ``j_count`` (default: 2 abs(n), terms of one moment sharing
+    its alm)."""
+    rows = [abs(n) for n in ns] if rows is None else rows
     lam = np.zeros((j_count, j_count, lw + 1))
     for k, n in enumerate(ns):
-        pk = fp._pair(n)
+        pk = fp.spin_pair(n)
         for kp, npr in enumerate(ns):
-            pkp = fp._pair(npr)
+            pkp = fp.spin_pair(npr)
             for p in (0, 1):
                 for q in (0, 1):
                     value = (
                         kappa_w[k, kp] * pk[p] * np.conj(pkp[q]) - kappa_v[k, kp] * pk[p] * pkp[q]
                     )
-                    lam[2 * abs(n) + p, 2 * abs(npr) + q] += value.real
+                    lam[2 * rows[k] + p, 2 * rows[kp] + q] += value.real
     return QuadraticForm(0.5 * (lam + lam.transpose(1, 0, 2)), lw)
 
 

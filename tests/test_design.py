@@ -272,7 +272,11 @@ def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule
     src = tmp_path / "s.toml"
     write_schedule(schedule, str(src), "toml")
     out = tmp_path / "d"
-    budget = _budget(tmp_path, instrument='focalplane = "axis"')
+    budget = _budget(
+        tmp_path,
+        design="nside = 16\nsweeps = 2\nrestarts = 0\nangles_deg = [0.0, 90.0]",
+        instrument='focalplane = "axis"',
+    )
     assert cli.main(["-q", "design", budget, str(src), "--out", str(out), "--no-validate"]) == 0
     rows = list(csv.DictReader(open(out / "strategies.csv")))
     assert len(rows) == 7
@@ -287,8 +291,8 @@ def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, 
     """TOAST's 7-pixel, 20 deg hexagon: every strategy gets the focal plane's delta_r, its
     coherent and scattered parts adding up, beside the on-axis search objective's, and
     validation.csv runs every strategy's TOD on the focal plane (engine.simulate_focalplane)
-    against that prediction. Off the axis the on-axis search's optimum is no longer the best
-    (measured 0.155 against 0/180's 0.106; 0.063 on the axis)."""
+    against that prediction. The search runs on the focal plane's own per-angle moments and ends
+    at or below every baseline it could start from."""
     import csv
 
     src = tmp_path / "s.toml"
@@ -297,7 +301,8 @@ def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, 
     budget = _budget(
         tmp_path,
         systematics="dg = {mean = 0.002, rms = 0.002}\nrho_arcmin = 0.5\nseed = 3",
-        design=f"nside = {NSIDE}\nsweeps = 4\nrestarts = 1\nvalidation_skies = 2",
+        design="nside = 16\nsweeps = 4\nrestarts = 1\nvalidation_skies = 2\n"
+        "angles_deg = [0.0, 45.0, 90.0]",
         instrument='focalplane = "hexagon:7:20"',
     )
     assert cli.main(["-q", "design", budget, str(src), "--out", str(out)]) == 0
@@ -306,13 +311,21 @@ def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, 
         coherent, scattered = float(row["fp_delta_r_coherent"]), float(row["fp_delta_r_scattered"])
         assert coherent > 0 and scattered > 0
         assert abs(coherent + scattered - float(row["delta_r"])) < 1e-12 * coherent
-    assert float(rows["optimised"]["delta_r"]) > 1.5 * float(rows["optimised"]["delta_r_on_axis"])
-    assert min(rows, key=lambda k: float(rows[k]["delta_r"])) != "optimised"
+    # the search on the focal plane's own moments beats every baseline it could start from
+    # (here 0/180 at 0.106 on the focal plane; the on-axis search's optimum there was 0.155)
+    startable = ("none", "paper 0/90", "stepped", "random")  # within the allowed 0, 45, 90
+    best = min(float(rows[k]["delta_r"]) for k in startable)
+    assert float(rows["optimised"]["delta_r"]) <= best
+    history = list(csv.DictReader(open(out / "history.csv")))
+    assert {"round"} <= set(history[0]) and len(history) > 2
     checked = list(csv.DictReader(open(out / "validation.csv")))
     assert {r["strategy"] for r in checked} == set(rows)
     for row in checked:
         assert float(row["predicted_delta_r"]) == float(rows[row["strategy"]]["delta_r"])
-        assert float(row["simulated_delta_r"]) > 0 and float(row["simulated_leaked_delta_r"]) > 0
+        assert (
+            np.isfinite(float(row["simulated_delta_r"]))
+            and float(row["simulated_leaked_delta_r"]) > 0
+        )
 
 
 def test_a_budget_focal_plane_is_checked(tmp_path):

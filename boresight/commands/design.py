@@ -11,14 +11,16 @@ from typing import TYPE_CHECKING, NamedTuple
 import healpy as hp
 import numpy as np
 
-from .. import coupling, engine, interrupts, io, plots, precompile, provenance, resources, spectra
+from .. import engine, interrupts, io, plots, precompile, provenance, resources, spectra
 from ..cosmology import load_spectra
 from ..design import baselines, load_budget, objective, search_instrument, unit_moments
 from ..design_expectation import exact_objective, search
+from ..design_focalplane import Target, exact_delta_r, unit_sums
+from ..design_focalplane import search as focalplane_search
 from ..focalplane import load_focalplane
 from ..instrument import Systematics
 from ..noise import sigma_r
-from ..predict import R_RANGE, delta_r, expected_residual, tensor_template
+from ..predict import R_RANGE, delta_r, expected_residual
 from ..predict import focalplane as predict_fp
 from ..residual import residual
 from ..scanstats import characterise_focalplane
@@ -159,16 +161,20 @@ def run(
         from tqdm import tqdm
 
         total = (opts.restarts + 1) * opts.sweeps * moments.n_units
+        if focal is not None:
+            total = moments.n_units * len(opts.angles_deg) + total
         bar = tqdm(total=total, desc="design", unit="unit")
-    with timer("search"):
-        found = search(
-            obj,
-            opts.angles_deg,
-            start,
-            sweeps=opts.sweeps,
-            restarts=opts.restarts,
-            seed=opts.seed,
-            progress=bar.update if bar else None,
+    tick = bar.update if bar else None
+    on_sky = _OnSky(moments.mask, obj.template)
+    if focal is None:
+        with timer("search"):
+            found = search(
+                obj, opts.angles_deg, start, sweeps=opts.sweeps, restarts=opts.restarts,
+                seed=opts.seed, progress=tick,
+            )  # fmt: skip
+    else:
+        found, expected, on_sky = _search_focalplane(
+            budget, moments, obj, schedule, strategies, startable, theory, timer, tick
         )
     if bar:
         bar.close()
@@ -188,25 +194,25 @@ def run(
                 **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(h[n]) ** 2)) for n in range(1, 5)},
             )
         )
-    require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
-    expected = {}  # an interrupted search writes its best schedule at once, without the figures
-    on_sky = _OnSky(moments.mask, obj.template)
-    if found.interrupted is None:
-        with timer("expected residual of every strategy"):
-            expected = {n: _expected(budget, moments, obj, h, theory) for n, h in h_maps.items()}
     stopped = found.interrupted
-    if focal is not None and stopped is None:
-        try:
-            with timer("every strategy on the focal plane"):
-                expected, on_sky = _on_focalplane(
-                    budget, moments, obj, schedule, strategies, theory
-                )
-        except interrupts.Interrupted as err:  # keep the search, on the axis, without figures
-            stopped, expected = err, {}
-        else:
-            for row, name in zip(rows, strategies):
-                row.update(_focalplane_columns(expected[name], on_sky.template, sigma, row))
-            _log_best(rows)
+    if focal is None:
+        expected = {}  # an interrupted search writes its best schedule at once, without figures
+        if stopped is None:
+            with timer("expected residual of every strategy"):
+                expected = {
+                    n: _expected(budget, moments, obj, h, theory) for n, h in h_maps.items()
+                }
+    else:
+        with timer("the optimised schedule on the focal plane"):
+            target = _target(budget, theory, on_sky, obj)
+            expected["optimised"] = exact_delta_r(
+                moments, schedule, focal, found.angles_deg, target=target
+            )[1]
+        for row, name in zip(rows, strategies):
+            row.update(_focalplane_columns(expected[name], on_sky.template, sigma, row))
+        if stopped is not None:
+            expected = {}
+    require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
     validation, checked = [], "skipped"
     if validate and stopped is None:
         try:
@@ -221,7 +227,8 @@ def run(
     with io.staged_dir(out_dir, force, inputs) as stage:
         write_schedule(designed, stage / f"schedule_designed{SUFFIX[fmt]}", fmt)
         io.write_csv(stage / "strategies.csv", rows, list(rows[0]))
-        io.write_csv(stage / "history.csv", found.history, ["start", "sweep", "objective", "moves"])
+        fields = ["start", "sweep", "objective", "moves"] + (["round"] if focal is not None else [])
+        io.write_csv(stage / "history.csv", found.history, fields)
         io.write_csv(
             stage / "units.csv",
             [
@@ -246,7 +253,6 @@ def run(
                     "focalplane": None if focal is None else focal.source,
                     "sigma_r": sigma,
                     "search_interrupted": found.interrupted is not None,
-                    "focalplane_evaluated": focal is not None and bool(expected),
                     "validation": checked,
                 },
                 {"design": opts.seed},
@@ -259,7 +265,6 @@ def run(
             f"the best schedule found so far is in {out_dir}"
             if found.interrupted is not None
             else f"the finished design is in {out_dir}, without its TOD validation"
-            + ("" if focal is None or expected else " or its focal-plane evaluation")
         )
         raise stopped
     return dict(
@@ -308,48 +313,57 @@ class _OnSky(NamedTuple):
     template: np.ndarray
 
 
+def _search_focalplane(budget, moments, obj, schedule, strategies, startable, theory, timer, tick):
+    """The search on the focal plane (:func:`boresight.design_focalplane.search`) from the best
+    baseline there; every baseline's exact expectation on the mask they share."""
+    opts, focal = budget.design, budget.focalplane
+    with timer("every baseline on the focal plane"):
+        expected, on_sky = _on_focalplane(budget, moments, obj, schedule, strategies, theory)
+    exact = {n: delta_r(e.residual, on_sky.template) for n, e in expected.items()}
+    start = (
+        strategies[min(startable, key=lambda n: exact[n] + opts.change_cost * obj.changes(
+            strategies[n]))]
+        if startable
+        else np.full(moments.n_units, opts.angles_deg[0])
+    )  # fmt: skip
+    with timer("per-unit, per-angle moments of every pair"):
+        sums = unit_sums(moments, schedule, focal, opts.angles_deg, progress=tick)
+    with timer("search"):
+        found = focalplane_search(
+            sums, moments, schedule, _target(budget, theory, on_sky, obj), start,
+            change_cost=opts.change_cost, sweeps=opts.sweeps, restarts=opts.restarts,
+            seed=opts.seed, progress=tick,
+        )  # fmt: skip
+    return found, expected, on_sky
+
+
+def _target(budget, theory, on_sky, obj):
+    """The focal-plane search's :class:`boresight.design_focalplane.Target`."""
+    return Target(
+        budget.systematics, theory, budget.noise.fwhm_arcmin, on_sky.mask, on_sky.template,
+        obj.lmax,
+    )  # fmt: skip
+
+
 def _on_focalplane(budget, moments, obj, schedule, strategies, theory):
     """Each strategy's exact expected residual on the focal plane, every pair on its own samples
-    (:func:`boresight.predict.focalplane.expected_residual`), on the boresight's footprint less
-    the pixels whose 2x2 system is near singular in any strategy (one mask for all, and its
-    tensor template)."""
-    nside, focal = moments.nside, budget.focalplane
-    stats = {}
-    keep = moments.mask.copy()
+    (:func:`boresight.predict.focalplane.expected_residual`), on the boresight's footprint."""
+    expected = {}
     for name, angles in strategies.items():
         interrupts.check()
-        stats[name] = characterise_focalplane(
-            moments.schedule(schedule, angles), focal, nside, per_pair=True
+        stats = characterise_focalplane(
+            moments.schedule(schedule, angles), budget.focalplane, moments.nside, per_pair=True
         )
-        keep *= predict_fp.rcond(stats[name]) >= predict_fp.RCOND_EXPECTATION
-    if not np.any(keep):
-        raise ValueError(
-            "no pixel of the boresight's footprint is well conditioned in every strategy"
-        )
-    template = obj.template
-    if np.any(keep != moments.mask):
-        log.info("focal plane: %d of %d footprint pixels kept (2x2 rcond >= %.2g)",
-                 int(keep.sum()), int(moments.mask.sum()), predict_fp.RCOND_EXPECTATION)  # fmt: skip
-        couplings = coupling.mask_coupling(keep, obj.lmax)
-        template = tensor_template(couplings, theory, budget.noise.fwhm_arcmin, nside)
-    expected = {
-        name: predict_fp.expected_residual(
-            s,
-            keep,
-            budget.systematics,
-            theory,
-            budget.noise.fwhm_arcmin,
-            lmax=obj.lmax,
-            band=obj.band,
+        expected[name] = predict_fp.expected_residual(
+            stats, moments.mask, budget.systematics, theory, budget.noise.fwhm_arcmin,
+            lmax=obj.lmax, band=obj.band,
         )  # fmt: skip
-        for name, s in stats.items()
-    }
-    return expected, _OnSky(keep, template)
+    return expected, _OnSky(moments.mask, obj.template)
 
 
 def _focalplane_columns(expected, template, sigma, row):
     """strategies.csv's focal-plane columns: delta_r becomes the focal plane's, the on-axis
-    search objective's is kept as delta_r_on_axis."""
+    objective's is kept as delta_r_on_axis."""
     total = delta_r(expected.residual, template)
     return dict(
         delta_r=total,
@@ -358,18 +372,6 @@ def _focalplane_columns(expected, template, sigma, row):
         fp_delta_r_coherent=delta_r(expected.coherent.residual, template),
         fp_delta_r_scattered=delta_r(expected.scattered, template),
     )
-
-
-def _log_best(rows):
-    """Say where a baseline beats the on-axis search's optimum on the focal plane."""
-    best = min(rows, key=lambda r: r["delta_r"])
-    if best["strategy"] != "optimised":
-        log.warning(
-            "on the focal plane, %r (delta_r = %.3g) beats the on-axis search's optimum "
-            "(%.3g): the search takes every pair on the axis",
-            best["strategy"], best["delta_r"],
-            next(r["delta_r"] for r in rows if r["strategy"] == "optimised"),
-        )  # fmt: skip
 
 
 def _validate(budget, moments, schedule, strategies, expected, on_sky):
@@ -423,7 +425,9 @@ def _tod_parts(sky, scan, systematics, budget, mask, lmax):
         job = residual(sky, scan, systematics, mask, lmax, instrument=budget.instrument)
         return job.total - job.auto, job.auto
     maps = [
-        engine.simulate_focalplane(sky, scan, budget.focalplane, s)
+        engine.simulate_focalplane(
+            sky, scan, budget.focalplane, s, rcond_min=predict_fp.RCOND_EXPECTATION
+        )
         for s in (Systematics(), systematics)
     ]
     ref, sys = (np.array([np.where(m.valid, m.q, 0.0), np.where(m.valid, m.u, 0.0)]) for m in maps)

@@ -133,7 +133,7 @@ class PseudoSpectra(NamedTuple):
     bb: np.ndarray
 
 
-def _pair(spin: int) -> tuple:
+def spin_pair(spin: int) -> tuple:
     """(alpha, beta): a spin-s field's own coefficients are alpha E + beta B of its (E, B) alm, in
     healpy's sign (-(E + i B) for s > 0; E + i B for a complex scalar). A negative spin is the
     conjugate of the spin-abs(s) field, whose coefficients are (-1)^s (-(E - i B))."""
@@ -169,7 +169,7 @@ def weight_cross_spectra(alms: Sequence[np.ndarray], spins: Sequence[int], lmax:
     v = np.zeros_like(w)
     for i in range(k):
         for j in range(i, k):
-            pi_, pj = _pair(spins[i]), _pair(spins[j])
+            pi_, pj = spin_pair(spins[i]), spin_pair(spins[j])
             for p in (0, 1):
                 for q in (0, 1):
                     cl = np.asarray(harmonics.alm2cl(alms[i][p], alms[j][q]))[: lmax + 1]

@@ -149,7 +149,7 @@ def delta_p(
     return _solve(_y(stats, weights, shares, fields), _h4(stats, weights, shares))
 
 
-def _at_means(systematics, n_pairs):
+def at_means(systematics, n_pairs):
     """Each pair's parameters with every drawn one at its mean, and the drawn ones' (name,
     rms in the engine's units)."""
     params = systematics.per_pair(n_pairs)
@@ -206,7 +206,7 @@ def expected_leak_bb(
     _check(stats, systematics)
     footprint = as_footprint(mask)
     fp = stats.focalplane
-    params, drawn = _at_means(systematics, fp.n_pairs)
+    params, drawn = at_means(systematics, fp.n_pairs)
     fields = _fields(sky, systematics, template, spread, nthreads)
     shares = pair_shares(params, fp)
     weights = _weights(stats)
@@ -229,7 +229,7 @@ def expected_leak_bb(
 
 
 #: the field that multiplies a term of dP's conjugate part, H_4 Y*, by the kind of Y's field
-_CONJUGATE = {
+CONJUGATE_FIELD = {
     "temperature": "temperature",
     "template": "template",
     "gradient": "conjugate gradient",
@@ -240,9 +240,16 @@ _CONJUGATE = {
 
 
 #: the least condition (1 - ``|H_4|``) / (1 + ``|H_4|``) of a pixel's 2x2 system that
-#: :func:`expected_residual`'s mask may keep (the engine's rcond; 0.05 is ``|H_4|`` < 0.905):
-#: nearer singular, 1 / (1 - ``|H_4|^2``) spikes that the weights' harmonics cannot hold
+#: :func:`expected_residual` keeps (the engine's rcond; 0.05 is ``|H_4|`` < 0.905): nearer
+#: singular, 1 / (1 - ``|H_4|^2``) spikes that the weights' harmonics cannot hold, so such pixels
+#: are invalid, as in the engine run with ``rcond_min`` = this
 RCOND_EXPECTATION = 0.05
+
+
+def valid(stats: FocalPlaneStats) -> np.ndarray:
+    """The pixels whose 2x2 system :func:`expected_residual` solves (npix,) bool: seen, with
+    :func:`rcond` at least :data:`RCOND_EXPECTATION`."""
+    return (stats.combined.hits > 0) & (rcond(stats) >= RCOND_EXPECTATION)
 
 
 def rcond(stats: FocalPlaneStats) -> np.ndarray:
@@ -304,8 +311,9 @@ def expected_residual(
     stats : boresight.scanstats.FocalPlaneStats
         With the per-pair maps.
     mask : numpy.ndarray, shape (npix,)
-        The analysis mask (RING), without the pixels whose 2x2 system is near singular
-        (:func:`rcond` below :data:`RCOND_EXPECTATION`).
+        The analysis mask (RING). Its pixels whose 2x2 system is near singular (:func:`rcond`
+        below :data:`RCOND_EXPECTATION`) are invalid, 0 in the maps with and without the
+        systematics, as in :func:`boresight.engine.simulate_focalplane` with that ``rcond_min``.
     systematics : boresight.instrument.Systematics
         {mean, rms} of dg, leak and rho_arcmin allowed; no beams or gain jitter yet.
     theory : boresight.cosmology.Spectra
@@ -330,21 +338,15 @@ def expected_residual(
     _check(stats, systematics)
     if systematics.has_jitter:
         raise ValueError("a gain jitter is not yet predicted for a focal plane")
-    kept = mask != 0
-    if np.any(rcond(stats)[kept] < RCOND_EXPECTATION):
-        raise ValueError(
-            f"the mask keeps {int(np.sum(rcond(stats)[kept] < RCOND_EXPECTATION))} pixels whose "
-            f"2x2 system has rcond < {RCOND_EXPECTATION}: mask them (predict.focalplane.rcond)"
-        )
     band = lmax if band is None else band
     nside, lw = hp.npix2nside(mask.size), lmax + band
     focal = stats.focalplane
-    params, drawn = _at_means(systematics, focal.n_pairs)
+    params, drawn = at_means(systematics, focal.n_pairs)
     shares = pair_shares(params, focal)
     weights = _weights(stats)
     h4 = _h4(stats, weights, shares)
-    det = 1.0 - np.abs(h4) ** 2
-    inverse = np.where(det > 1e-12, mask / np.where(det > 1e-12, det, 1.0), 0.0)
+    solved = mask * valid(stats)
+    inverse = solved / np.where(solved != 0, 1.0 - np.abs(h4) ** 2, 1.0)
     conjugate = bool(np.max(np.abs(h4)) > 1e-12)  # pairs whose 4 x angles cancel: H_4 = 0
     spread = evaluation is not None
     read = sky_fields(
@@ -371,27 +373,27 @@ def expected_residual(
                     fp_products.weight_alm(fp_products.Weight(4 - n, z, None), lw, nthreads)
                 )
                 spins.append(4 - n)
-                kinds.append(_CONJUGATE[kind])
+                kinds.append(CONJUGATE_FIELD[kind])
         return alms, spins, [fields[k] for k in kinds]
 
     def bb(alms, spins, term_fields):
         return fp_products.expected_pseudo_cl_alm(alms, spins, term_fields, sky_cl, lmax).bb
 
     alms, spins, term_fields = leak(shares)
-    sky = [fp_products.weight_alm(fp_products.Weight(0, mask + 0j, None), lw, nthreads)]
+    sky = [fp_products.weight_alm(fp_products.Weight(0, solved + 0j, None), lw, nthreads)]
     sky_terms = ([0], [fields["polarisation"]])
-    scatter = _scatter(stats, terms, fields, sky_cl, mask, shares, params, drawn) if spread else 0
+    scatter = _scatter(stats, terms, fields, sky_cl, solved, shares, params, drawn) if spread else 0
     leaked = bb(alms, spins, term_fields) + scatter
     total = bb(alms + sky, spins + sky_terms[0], term_fields + sky_terms[1])
     residual = total - bb(sky, *sky_terms) + scatter
     scattered = np.zeros(lmax + 1)
-    for _, rms, delta in _unit_shares(params, drawn, shares, focal):
+    for _, rms, delta in unit_shares(params, drawn, shares, focal):
         for i in range(focal.n_pairs):
             scattered += rms**2 * bb(*leak(delta, slice(i, i + 1)))
     return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
 
 
-def _unit_shares(params, drawn, shares, focal):
+def unit_shares(params, drawn, shares, focal):
     """Per drawn parameter: its name, rms and each pair's change of shares for a unit of it."""
     for field, rms in drawn:
         unit = params._asdict()
@@ -411,7 +413,7 @@ def _scatter(stats, terms, fields, sky_cl, mask, shares, params, drawn):
     for g in np.unique(places):
         at = places.ravel() == g
         power += abs(np.sum(shares["p0"][at])) ** 2
-        for _, rms, delta in _unit_shares(params, drawn, shares, stats.focalplane):
+        for _, rms, delta in unit_shares(params, drawn, shares, stats.focalplane):
             power += rms**2 * np.sum(np.abs(delta["p0"][at]) ** 2)
     _, kind, reading = terms["p0"]
     return reading.scatter(fields[kind], sky_cl, power / stats.focalplane.n_pairs, mask)
