@@ -1,105 +1,106 @@
-"""The worked design example on a real focal plane: how the rotation strategies rank, and what
-0/90 buys, for TOAST's 37-pixel, 35 deg hexagon against every pair on the axis.
+"""The worked design example on a real focal plane: `boresight design` on the deep example with
+TOAST's 37-pixel, 35 deg hexagon, against the same pairs on the axis.
 
-The deep example schedule (48 units: each CES, once per repeat) at 2 Hz, Nside 64, each of
-design.baselines' strategies. For each, every pair's own h_n (characterise_focalplane), the
-expected leaked pseudo-C_BB over the pairs' draws and over 3 skies of the theory's spectra
-(FWHM 30 arcmin), coherent and scattered (predict.focalplane.expected_leak_bb), and the delta_r
-each fakes over the boresight's footprint (predict.delta_r against the tensor template through
-that mask), for a gain {mean 0, rms 0.01} and a pointing offset {mean 1, rms 0.5} arcmin.
+The deep example schedule at 2 Hz (48 units: each CES, once per repeat), allowed angles 0, 45,
+90 deg, a gain {mean 0, rms 0.01} drawn per pair and a pointing offset {mean 1, rms 0.5} arcmin.
+For each focal plane the command designs on it (boresight.design_focalplane) and reports every
+strategy's exact expected delta_r on it, coherent and scattered, and the mean of SKIES TOD skies
+of it (every pair on its own samples, a new draw of the pairs per sky) with its standard error.
+It also times the design's stages.
 
-This ranks fixed strategies with the focal plane's exact expectation; ``boresight design``'s own
-search still takes every pair on the boresight.
-
-Usage: python bench/bench_focalplane_design.py [NSIDE]
+Usage: python bench/bench_focalplane_design.py [NSIDE] [SKIES]
 """
 
 import dataclasses
+import resource
 import sys
+import tempfile
+import time
 from pathlib import Path
 
-import numpy as np
 from _table import report
 
-from boresight import coupling, focalplane, predict, scanstats
-from boresight.cosmology import load_spectra
-from boresight.design import baselines
-from boresight.instrument import Spread, Systematics
-from boresight.predict import focalplane as predict_fp
-from boresight.schedule import load_schedule
-from boresight.sky import SkyConfig, make_sky
+from boresight import focalplane
+from boresight.commands import design as design_command
+from boresight.schedule import load_schedule, write_schedule
 
-SCHEDULE = Path(__file__).resolve().parent.parent / "examples" / "schedule_deep_sat.toml"
-ALLOWED = (0.0, 45.0, 90.0)
-BUDGET = {
-    "gain": Systematics(dg=Spread(0.0, 0.01), seed=1),
-    "pointing": Systematics(rho_arcmin=Spread(1.0, 0.5), seed=2),
-}
-SKIES = 3
-FWHM_ARCMIN = 30.0
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+BUDGET = (
+    "[systematics]\ndg = {mean = 0.0, rms = 0.01}\nrho_arcmin = {mean = 1.0, rms = 0.5}\nseed = 1\n"
+    "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 30.0\n"
+)
 
 
-def _assigned(schedule, angles):
-    rows = tuple(
-        dataclasses.replace(c, boresight_deg=float(a)) for c, a in zip(schedule.expanded(), angles)
-    )
-    return dataclasses.replace(schedule, ces=rows, repeat_boresight_deg=(0.0,))
-
-
-def main(nside):
-    lmax = 2 * nside
-    theory = load_spectra()
-    schedule = dataclasses.replace(load_schedule(str(SCHEDULE)), sample_rate_hz=2.0)
-    n_units = len(schedule.expanded())
-    fp = focalplane.hexagon(37, 35.0)
-    models = {"focal plane": fp, "on the axis": focalplane.on_axis(fp.pair_angles_deg)}
-    skies = [
-        make_sky(SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=FWHM_ARCMIN, seed=s), theory)
-        for s in range(SKIES)
-    ]
-    # the boresight's footprint: inside it, the whole focal plane passes at every strategy
-    first = scanstats.characterise_schedule(_assigned(schedule, np.zeros(n_units)), nside)
-    mask = (first.hits > 0).astype(float)
-    template = predict.tensor_template(
-        coupling.mask_coupling(mask, lmax), theory, FWHM_ARCMIN, nside
-    )
-    rows = []
-    for name, angles in baselines(n_units, ALLOWED).items():
-        row = dict(strategy=name)
-        for model, plane in models.items():
-            stats = scanstats.characterise_focalplane(
-                _assigned(schedule, angles), plane, nside, per_pair=True
+def main(nside, skies):
+    hexagon = focalplane.hexagon(37, 35.0)
+    planes = {
+        "37-pixel hexagon": hexagon,
+        "the same pairs on the axis": focalplane.on_axis(hexagon.pair_angles_deg),
+    }
+    rows, costs = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        base = load_schedule(str(EXAMPLES / "schedule_deep_sat.toml"))
+        schedule = f"{tmp}/deep_2hz.toml"
+        write_schedule(dataclasses.replace(base, sample_rate_hz=2.0), schedule, "toml")
+        budget = Path(tmp) / "budget.toml"
+        budget.write_text(
+            BUDGET + f"[design]\nnside = {nside}\nangles_deg = [0.0, 45.0, 90.0]\n"
+            f"validation_skies = {skies}\n"
+        )
+        for label, plane in planes.items():
+            t0 = time.perf_counter()
+            result = design_command.run(
+                str(budget), schedule, f"{tmp}/out", force=True, focalplane=plane
             )
-            for case, sy in BUDGET.items():
-                parts = np.mean(
-                    [predict_fp.expected_leak_bb(sky, stats, sy, mask, lmax) for sky in skies],
-                    axis=0,
+            costs.append(
+                dict(
+                    focal_plane=label,
+                    pairs=plane.n_pairs,
+                    nside=nside,
+                    skies=skies,
+                    wall_s=f"{time.perf_counter() - t0:.0f}",
+                    peak_rss_gib=f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.1f}",
                 )
-                coherent, scattered = (predict.delta_r(p, template) for p in parts)
-                key = f"{case} {'fp' if model == 'focal plane' else 'axis'}"
-                row[f"{key} coherent"] = f"{coherent:.3g}"
-                row[f"{key} scattered"] = f"{scattered:.3g}"
-        rows.append(row)
-    columns = ["strategy"] + [
-        f"{case} {m} {part}"
-        for case in BUDGET
-        for m in ("fp", "axis")
-        for part in ("coherent", "scattered")
-    ]
+            )
+            checked = {v["strategy"]: v for v in result["validation"]}
+            for r in result["strategies"]:
+                v = checked[r["strategy"]]
+                sim, se, pred = (
+                    v["simulated_delta_r"],
+                    v["simulated_delta_r_se"],
+                    v["predicted_delta_r"],
+                )
+                rows.append(
+                    dict(
+                        focal_plane=label,
+                        strategy=r["strategy"],
+                        delta_r=f"{r['delta_r']:.4g}",
+                        coherent=f"{r['fp_delta_r_coherent']:.3g}",
+                        scattered=f"{r['fp_delta_r_scattered']:.3g}",
+                        simulated=f"{sim:.4g} +- {se:.2g}",
+                        ratio=f"{sim / pred:.3f}",
+                        within=f"{abs(sim - pred) / max(se, 1e-300):.1f} se",
+                    )
+                )
     report(
         "focalplane_design",
-        f"delta_r of the design strategies, a 37-pixel 35 deg hexagon (fp) against every pair on "
-        f"the axis, Nside {nside}",
-        columns,
+        f"design on the deep example, a 37-pixel 35 deg hexagon against its pairs on the axis, "
+        f"Nside {nside}",
+        list(rows[0]),
         rows,
         notes=(
-            "The deep example's 48 units at 2 Hz; gain {mean 0, rms 0.01} and pointing {mean 1, "
-            "rms 0.5} arcmin drawn per pair; expected over the draws and 3 skies; delta_r over "
-            "the boresight's own footprint (which the whole focal plane crosses) and 30 <= ell "
-            "<= 2 Nside."
+            "The deep example's 48 units at 2 Hz, allowed angles 0/45/90; gain {mean 0, rms "
+            "0.01} and pointing {mean 1, rms 0.5} arcmin drawn per pair. delta_r: the exact "
+            "expectation over skies and draws on that focal plane, with its coherent and "
+            f"scattered parts; simulated: the mean +- standard error over {skies} TOD skies; "
+            "within: |simulated - predicted| in standard errors."
         ),
     )
+    report("focalplane_design_costs", "design on a focal plane: wall time", list(costs[0]), costs)
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 64)
+    main(
+        int(sys.argv[1]) if len(sys.argv) > 1 else 32,
+        int(sys.argv[2]) if len(sys.argv) > 2 else 16,
+    )

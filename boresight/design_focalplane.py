@@ -68,7 +68,7 @@ class UnitSums:
     focalplane: FocalPlane
 
     @property
-    def n_units(self) -> int:
+    def unit_count(self) -> int:
         return len(self.sums)
 
     def choices(self, angles_deg: np.ndarray) -> np.ndarray:
@@ -261,7 +261,7 @@ def linearised(
     solved = mask * ok  # the reference's valid pixels (predict.focalplane.valid)
     inverse = np.where(ok, solved / np.where(ok, hits * (1.0 - np.abs(h4) ** 2), 1.0), 0.0)
     terms = _Terms(systematics, theory, fwhm_arcmin, sums.nside, lmax, template, hits, evaluation)
-    n_units, n_allowed = sums.n_units, sums.allowed_deg.size
+    n_units, n_allowed = sums.unit_count, sums.allowed_deg.size
     rows = 2 * len(terms.spins)
     nalm = fp.weight_alm(fp.Weight(0, np.zeros(npix, dtype=complex), None), terms.lw).shape[1]
     coherent = np.zeros((n_units, n_allowed, rows, nalm), dtype=np.complex128)
@@ -295,7 +295,7 @@ def _pair_alm(sums, i, inverse, h4, terms, nthreads):
     moments = sorted({n for n, _, _ in terms.terms.values()})
     direct, conj = {n: [] for n in moments}, {n: [] for n in moments}
     weight = np.zeros(inverse.size, dtype=np.complex128)
-    for u in range(sums.n_units):
+    for u in range(sums.unit_count):
         for n in moments:
             direct[n].append([])
             conj[n].append([])
