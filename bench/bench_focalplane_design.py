@@ -2,13 +2,15 @@
 TOAST's 37-pixel, 35 deg hexagon, against the same pairs on the axis.
 
 The deep example schedule at 2 Hz (48 units: each CES, once per repeat), allowed angles 0, 45,
-90 deg, a gain {mean 0, rms 0.01} drawn per pair and a pointing offset {mean 1, rms 0.5} arcmin.
+90 deg, a gain {mean 0, rms 0.01} drawn per pair and a pointing offset {mean 1, rms 0.5} arcmin
+(or the gain alone, on the hexagon).
 For each focal plane the command designs on it (boresight.design_focalplane) and reports every
 strategy's exact expected delta_r on it, coherent and scattered, and the mean of SKIES TOD skies
 of it (every pair on its own samples, a new draw of the pairs per sky) with its standard error.
 It also times the design's stages.
 
-Usage: python bench/bench_focalplane_design.py [NSIDE] [SKIES]
+Usage: python bench/bench_focalplane_design.py [NSIDE] [SKIES] [CASE: "gain + pointing" (both
+focal planes) or "gain" (the hexagon)]
 """
 
 import dataclasses
@@ -25,18 +27,18 @@ from boresight.commands import design as design_command
 from boresight.schedule import load_schedule, write_schedule
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-BUDGET = (
-    "[systematics]\ndg = {mean = 0.0, rms = 0.01}\nrho_arcmin = {mean = 1.0, rms = 0.5}\nseed = 1\n"
-    "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 30.0\n"
-)
+SYSTEMATICS = {
+    "gain + pointing": "dg = {mean = 0.0, rms = 0.01}\nrho_arcmin = {mean = 1.0, rms = 0.5}",
+    "gain": "dg = {mean = 0.0, rms = 0.01}",
+}
+NOISE = "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 30.0\n"
 
 
-def main(nside, skies):
+def main(nside, skies, case="gain + pointing"):
     hexagon = focalplane.hexagon(37, 35.0)
-    planes = {
-        "37-pixel hexagon": hexagon,
-        "the same pairs on the axis": focalplane.on_axis(hexagon.pair_angles_deg),
-    }
+    planes = {"37-pixel hexagon": hexagon}
+    if case == "gain + pointing":
+        planes["the same pairs on the axis"] = focalplane.on_axis(hexagon.pair_angles_deg)
     rows, costs = [], []
     with tempfile.TemporaryDirectory() as tmp:
         base = load_schedule(str(EXAMPLES / "schedule_deep_sat.toml"))
@@ -44,7 +46,8 @@ def main(nside, skies):
         write_schedule(dataclasses.replace(base, sample_rate_hz=2.0), schedule, "toml")
         budget = Path(tmp) / "budget.toml"
         budget.write_text(
-            BUDGET + f"[design]\nnside = {nside}\nangles_deg = [0.0, 45.0, 90.0]\n"
+            f"[systematics]\n{SYSTEMATICS[case]}\nseed = 1\n{NOISE}"
+            f"[design]\nnside = {nside}\nangles_deg = [0.0, 45.0, 90.0]\n"
             f"validation_skies = {skies}\n"
         )
         for label, plane in planes.items():
@@ -82,25 +85,33 @@ def main(nside, skies):
                         within=f"{abs(sim - pred) / max(se, 1e-300):.1f} se",
                     )
                 )
+    suffix = "" if case == "gain + pointing" else "_" + case.replace(" ", "_")
     report(
-        "focalplane_design",
-        f"design on the deep example, a 37-pixel 35 deg hexagon against its pairs on the axis, "
-        f"Nside {nside}",
+        "focalplane_design" + suffix,
+        f"design on the deep example for {case}, a 37-pixel 35 deg hexagon"
+        + (" against its pairs on the axis" if len(planes) > 1 else "")
+        + f", Nside {nside}",
         list(rows[0]),
         rows,
         notes=(
-            "The deep example's 48 units at 2 Hz, allowed angles 0/45/90; gain {mean 0, rms "
-            "0.01} and pointing {mean 1, rms 0.5} arcmin drawn per pair. delta_r: the exact "
+            "The deep example's 48 units at 2 Hz, allowed angles 0/45/90; "
+            f"{SYSTEMATICS[case]} drawn per pair. delta_r: the exact "
             "expectation over skies and draws on that focal plane, with its coherent and "
             f"scattered parts; simulated: the mean +- standard error over {skies} TOD skies; "
             "within: |simulated - predicted| in standard errors."
         ),
     )
-    report("focalplane_design_costs", "design on a focal plane: wall time", list(costs[0]), costs)
+    report(
+        "focalplane_design_costs" + suffix,
+        f"design on a focal plane for {case}: wall time",
+        list(costs[0]),
+        costs,
+    )
 
 
 if __name__ == "__main__":
     main(
         int(sys.argv[1]) if len(sys.argv) > 1 else 32,
         int(sys.argv[2]) if len(sys.argv) > 2 else 16,
+        sys.argv[3] if len(sys.argv) > 3 else "gain + pointing",
     )
