@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import numpy as np
@@ -81,9 +81,9 @@ def run(
     frame, turnarounds : str, optional
         Replace the schedule file's (:class:`boresight.schedule.Schedule`).
     focalplane : boresight.focalplane.FocalPlane, optional
-        Replaces the budget's ``[instrument] focalplane``. The search takes the pairs on the
-        axis (:func:`boresight.design.search_instrument`); every strategy is then evaluated on
-        the focal plane, each pair on its own samples, with the coherent and scattered parts
+        Replaces the budget's ``[instrument] focalplane``. The search then runs on the focal
+        plane's own moments (:func:`boresight.design_focalplane.search`), and every strategy is
+        evaluated on it, each pair on its own samples, with the coherent and scattered parts
         (``strategies.csv``' ``delta_r`` and ``fp_*`` columns), and validated there.
     checks : boresight.resources.Checks
         The memory and time checks to make.
@@ -165,7 +165,6 @@ def run(
             total = moments.n_units * len(opts.angles_deg) + total
         bar = tqdm(total=total, desc="design", unit="unit")
     tick = bar.update if bar else None
-    on_sky = _OnSky(moments.mask, obj.template)
     if focal is None:
         with timer("search"):
             found = search(
@@ -173,7 +172,7 @@ def run(
                 seed=opts.seed, progress=tick,
             )  # fmt: skip
     else:
-        found, expected, on_sky = _search_focalplane(
+        found, expected = _search_focalplane(
             budget, moments, obj, schedule, strategies, startable, theory, timer, tick
         )
     if bar:
@@ -204,12 +203,12 @@ def run(
                 }
     else:
         with timer("the optimised schedule on the focal plane"):
-            target = _target(budget, theory, on_sky, obj)
+            target = _target(budget, theory, moments, obj)
             expected["optimised"] = exact_delta_r(
                 moments, schedule, focal, found.angles_deg, target=target
             )[1]
         for row, name in zip(rows, strategies):
-            row.update(_focalplane_columns(expected[name], on_sky.template, sigma, row))
+            row.update(_focalplane_columns(expected[name], obj.template, sigma, row))
         if stopped is not None:
             expected = {}
     require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
@@ -217,7 +216,7 @@ def run(
     if validate and stopped is None:
         try:
             with timer("TOD simulation of every strategy"):
-                validation = _validate(budget, moments, schedule, strategies, expected, on_sky)
+                validation = _validate(budget, moments, obj, schedule, strategies, expected)
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
@@ -306,20 +305,13 @@ def _expected(budget, moments, obj, h, theory):
     )
 
 
-class _OnSky(NamedTuple):
-    """The analysis mask the strategies are compared on and the tensor template through it."""
-
-    mask: np.ndarray
-    template: np.ndarray
-
-
 def _search_focalplane(budget, moments, obj, schedule, strategies, startable, theory, timer, tick):
     """The search on the focal plane (:func:`boresight.design_focalplane.search`) from the best
     baseline there; every baseline's exact expectation on the mask they share."""
     opts, focal = budget.design, budget.focalplane
     with timer("every baseline on the focal plane"):
-        expected, on_sky = _on_focalplane(budget, moments, obj, schedule, strategies, theory)
-    exact = {n: delta_r(e.residual, on_sky.template) for n, e in expected.items()}
+        expected = _on_focalplane(budget, moments, obj, schedule, strategies, theory)
+    exact = {n: delta_r(e.residual, obj.template) for n, e in expected.items()}
     start = (
         strategies[min(startable, key=lambda n: exact[n] + opts.change_cost * obj.changes(
             strategies[n]))]
@@ -330,17 +322,17 @@ def _search_focalplane(budget, moments, obj, schedule, strategies, startable, th
         sums = unit_sums(moments, schedule, focal, opts.angles_deg, progress=tick)
     with timer("search"):
         found = focalplane_search(
-            sums, moments, schedule, _target(budget, theory, on_sky, obj), start,
+            sums, moments, schedule, _target(budget, theory, moments, obj), start,
             change_cost=opts.change_cost, sweeps=opts.sweeps, restarts=opts.restarts,
             seed=opts.seed, progress=tick,
         )  # fmt: skip
-    return found, expected, on_sky
+    return found, expected
 
 
-def _target(budget, theory, on_sky, obj):
+def _target(budget, theory, moments, obj):
     """The focal-plane search's :class:`boresight.design_focalplane.Target`."""
     return Target(
-        budget.systematics, theory, budget.noise.fwhm_arcmin, on_sky.mask, on_sky.template,
+        budget.systematics, theory, budget.noise.fwhm_arcmin, moments.mask, obj.template,
         obj.lmax,
     )  # fmt: skip
 
@@ -358,7 +350,7 @@ def _on_focalplane(budget, moments, obj, schedule, strategies, theory):
             stats, moments.mask, budget.systematics, theory, budget.noise.fwhm_arcmin,
             lmax=obj.lmax, band=obj.band,
         )  # fmt: skip
-    return expected, _OnSky(moments.mask, obj.template)
+    return expected
 
 
 def _focalplane_columns(expected, template, sigma, row):
@@ -374,7 +366,7 @@ def _focalplane_columns(expected, template, sigma, row):
     )
 
 
-def _validate(budget, moments, schedule, strategies, expected, on_sky):
+def _validate(budget, moments, obj, schedule, strategies, expected):
     """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
@@ -396,15 +388,15 @@ def _validate(budget, moments, schedule, strategies, expected, on_sky):
                 SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=budget.noise.fwhm_arcmin, seed=seed)
             )
             systematics = dataclasses.replace(budget.systematics, seed=seed)
-            cross, auto = _tod_parts(sky, scan, systematics, budget, on_sky.mask, lmax)
-            total.append(delta_r(cross + auto, on_sky.template))
-            leaked.append(delta_r(auto, on_sky.template))
+            cross, auto = _tod_parts(sky, scan, systematics, budget, moments.mask, lmax)
+            total.append(delta_r(cross + auto, obj.template))
+            leaked.append(delta_r(auto, obj.template))
         row = dict(strategy=name, skies=skies)
         for key, values, cl in (
             ("", total, expected[name].residual),
             ("leaked_", leaked, expected[name].leaked),
         ):
-            predicted = delta_r(cl, on_sky.template)
+            predicted = delta_r(cl, obj.template)
             mean = float(np.mean(values))
             se = float(np.std(values, ddof=1) / np.sqrt(skies)) if skies > 1 else float("nan")
             row.update(
