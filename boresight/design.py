@@ -37,6 +37,7 @@ import numpy as np
 from . import coupling, interrupts, predict, validation
 from .config import ConfigError, build_section, check_systematics, read_toml
 from .constants import DEG
+from .evaluation import METHODS
 from .focalplane import FocalPlane, load_focalplane
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
 from .noise import SurveyNoise
@@ -77,6 +78,10 @@ class DesignOptions:
         Resolution of the h_n maps and the prediction.
     validation_skies : int
         Sky realisations of the TOD check of every strategy.
+    evaluation : {"interp", "exact"}
+        How the TOD check reads the sky at each sample (the engine's ``evaluation``), and so
+        how the prediction reads it: bilinear interpolation of the maps (fast), or the
+        band-limited sky itself, as a telescope sees it.
 
     The beam of the sky the systematics act on is the instrument's, ``[noise] fwhm_arcmin``.
     """
@@ -91,6 +96,7 @@ class DesignOptions:
     seed: int = option(0, "seed of the unit order and the random baseline", (int,))
     nside: int = option(128, "resolution of the h_n maps", (int,))
     validation_skies: int = option(4, "sky realisations of the TOD check", (int,))
+    evaluation: str = option("interp", "the sky at each sample: interp or exact", (str,), METHODS)
 
     def __post_init__(self):
         angles = validation.numbers_array("design.angles_deg", self.angles_deg, -3600.0, 3600.0)
@@ -103,6 +109,8 @@ class DesignOptions:
         validation.integer("sweeps", self.sweeps, 1, 1000)
         validation.integer("restarts", self.restarts, 0, 1000)
         validation.integer("validation_skies", self.validation_skies, 1, 1000)
+        if self.evaluation not in METHODS:
+            raise ValueError(f"evaluation must be one of {METHODS}, got {self.evaluation!r}")
         validation.integer("seed", self.seed, 0)
         validation.integer("nside", self.nside, 16, 2048)
         if self.nside & (self.nside - 1):

@@ -121,6 +121,7 @@ def exact_objective(
     change_cost: float = 0.0,
     instrument: Instrument | None = None,
     lmax: int | None = None,
+    evaluation: str = "interp",
     nthreads: int = 0,
 ) -> ExactObjective:
     """The exact expected delta_r objective of a budget over a schedule's units.
@@ -135,6 +136,9 @@ def exact_objective(
     lmax : int, optional
         The pseudo-spectra's and the sky's band limit (default 2 Nside); the weights' alm reach
         2 lmax, and memory goes as n_units x 8 x 2 lmax^2 complex numbers.
+    evaluation : {"interp", "exact"}
+        How the engine reads the sky at the samples (:func:`boresight.predict.
+        expected_residual`).
     nthreads : int
 
     Returns
@@ -148,7 +152,7 @@ def exact_objective(
     hits = moments.full_sky(moments.hits)
     model = predict.leak_model(
         systematics, theory, fwhm_arcmin, band, nside, instrument=instrument, hits=hits,
-        with_sky=True,
+        with_sky=True, evaluation=evaluation,
     )  # fmt: skip
     if any(abs(n) > N_MAX for n in model.term_n):
         model = _within(model, N_MAX)

@@ -92,7 +92,9 @@ def _changes(angles_deg):
 
 class Target(NamedTuple):
     """What the delta_r is of: the budget's systematics, the theory and the sky's beam, the
-    analysis mask (npix,) and the tensor template through it (lmax + 1,), and lmax."""
+    analysis mask (npix,) and the tensor template through it (lmax + 1,), lmax, and how the
+    engine reads the sky at the samples (:func:`boresight.predict.focalplane.expected_residual`'s
+    ``evaluation``)."""
 
     systematics: Systematics
     theory: Spectra
@@ -100,6 +102,7 @@ class Target(NamedTuple):
     mask: np.ndarray
     template: np.ndarray
     lmax: int
+    evaluation: str = "interp"
 
 
 def unit_sums(
@@ -193,7 +196,7 @@ class _Terms:
 
     def __init__(self, systematics, theory, fwhm_arcmin, nside, lmax, template, hits, evaluation):
         self.lmax, self.band, self.lw = lmax, lmax, 2 * lmax
-        read = sky_fields(nside, lmax, hits=hits, evaluation=evaluation or "")
+        read = sky_fields(nside, lmax, hits=hits, evaluation=evaluation)
         fields = read[0]
         self.terms = leak_terms(systematics, read)
         spins, kinds = [], []
@@ -224,7 +227,6 @@ def linearised(
     *,
     exact: float,
     change_cost: float = 0.0,
-    evaluation: str | None = "interpolated",
     nthreads: int = 0,
 ) -> DenseForm:
     """The dense quadratic of delta_r with the hits, H_4 and valid pixels of ``reference``
@@ -239,14 +241,13 @@ def linearised(
         The reference's exact expected delta_r (:func:`exact_delta_r`), which ``const`` makes
         the form's value there.
     change_cost : float
-    evaluation, nthreads
-        As :func:`boresight.predict.focalplane.expected_residual`.
+    nthreads : int
 
     Returns
     -------
     DenseForm
     """
-    systematics, theory, fwhm_arcmin, mask, template, lmax = target
+    systematics, theory, fwhm_arcmin, mask, template, lmax, evaluation = target
     focal, npix = sums.focalplane, mask.size
     params, drawn = predict_fp.at_means(systematics, focal.n_pairs)
     shares = predict_fp.pair_shares(params, focal)
@@ -349,7 +350,7 @@ def exact_delta_r(
     )
     expected = predict_fp.expected_residual(
         stats, target.mask, target.systematics, target.theory, target.fwhm_arcmin,
-        lmax=target.lmax,
+        lmax=target.lmax, evaluation=target.evaluation,
     )  # fmt: skip
     return delta_r(expected.residual, target.template), expected
 

@@ -13,13 +13,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import healpy as hp
 import numba
 import numpy as np
 
 from . import interrupts, tasks
 from .engine import check_samples
 from .kernels.pixels import ang2pix_array, zphi2pix
-from .pointing import chunk_arguments, offset_sample, sample_pointing
+from .pointing import chunk_arguments, offset_sample, pointing, sample_pointing
 from .scan import SyntheticScan
 
 if TYPE_CHECKING:
@@ -393,6 +394,53 @@ def characterise_schedule(
                 bar.update(args[1])
 
     return _stats(nside, tolerance_deg, binned)
+
+
+def centroid_moments(
+    schedule: Schedule, nside: int, n_max: int = N_MAX, chunk_samples: int = 1 << 20
+) -> np.ndarray:
+    """The samples' offsets from their pixel centres, weighted as the h_n are.
+
+    delta_j = (n_j - c_p) . e_theta + i (n_j - c_p) . e_phi is sample j's offset [rad] in the
+    tangent plane at its pixel's centre c_p (the spin-1 quantity of
+    :func:`boresight.harmonics.alm2map_gradient`'s frame), so that a field read at the sample is
+    F(c_p) + Re(conj(delta_j) grad F) to first order. Real scans cross a pixel along a few lines,
+    and where they cross depends on the crossing angle: these moments carry what that does to a
+    leak (:func:`boresight.predict.expected_residual`'s ``offsets``).
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+        With its boresight angles and repeats (:func:`boresight.pointing.pointing`).
+    nside, n_max, chunk_samples : int
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (2, n_max + 1, npix)
+        (1/N) sum_j exp(i n psi_j) delta_j and (1/N) sum_j exp(i n psi_j) conj(delta_j), n = 0..
+        n_max (0 where N = 0).
+    """
+    npix = 12 * nside**2
+    sums = np.zeros((2, n_max + 1, npix), dtype=np.complex128)
+    hits = np.zeros(npix)
+    for theta, phi, psi in pointing(schedule, chunk_samples):
+        interrupts.check()
+        pix = hp.ang2pix(nside, theta, phi)
+        c_theta, c_phi = hp.pix2ang(nside, pix)
+        d = hp.ang2vec(theta, phi) - hp.ang2vec(c_theta, c_phi)
+        e_theta = np.array(
+            [np.cos(c_theta) * np.cos(c_phi), np.cos(c_theta) * np.sin(c_phi), -np.sin(c_theta)]
+        )
+        e_phi = np.array([-np.sin(c_phi), np.cos(c_phi), np.zeros_like(c_phi)])
+        delta = np.einsum("ij,ji->i", d, e_theta) + 1j * np.einsum("ij,ji->i", d, e_phi)
+        hits += np.bincount(pix, minlength=npix)
+        spin = np.ones(psi.size, dtype=np.complex128)
+        for n in range(n_max + 1):
+            for k, value in enumerate((delta, np.conj(delta))):
+                w = spin * value
+                sums[k, n] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
+            spin = spin * np.exp(1j * psi)
+    return np.where(hits > 0, sums / np.maximum(hits, 1), 0.0)
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,15 @@ def test_gain_alone_is_cancelled_by_90_degree_pairs(moments, theory):
         assert found.value <= obj.delta_r(angles) + 1e-12
 
 
+def _design(tmp_path, schedule, budget, *args):
+    """Run `boresight design` on ``schedule`` (written as TOML) with ``budget``; its output."""
+    src = tmp_path / "s.toml"
+    write_schedule(schedule, str(src), "toml")
+    out = tmp_path / "d"
+    assert cli.main(["-q", "design", budget, str(src), "--out", str(out), *args]) == 0
+    return out
+
+
 def _budget(tmp_path, nside=NSIDE, **tables):
     text = {
         "systematics": "dg = [0.01, -0.01]\nrho_arcmin = 0.5",
@@ -138,6 +147,7 @@ def _budget(tmp_path, nside=NSIDE, **tables):
         (dict(systematics="ellipticity = 0.01"), "ellipticity"),
         (dict(design="angles_deg = []"), "angles_deg"),
         (dict(design="group = 'week'"), "group"),
+        (dict(design="evaluation = 'nearest'"), "evaluation"),
         (dict(noise=None), "noise"),
         (dict(systematics="dg = 0.0"), "no non-zero"),
         (dict(systematics="ellipticity_b = 0.99"), "ellipticity_b"),
@@ -269,15 +279,12 @@ def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule
     focal-plane expectation reduces to the shared-h_n one."""
     import csv
 
-    src = tmp_path / "s.toml"
-    write_schedule(schedule, str(src), "toml")
-    out = tmp_path / "d"
     budget = _budget(
         tmp_path,
         design="nside = 16\nsweeps = 2\nrestarts = 0\nangles_deg = [0.0, 90.0]",
         instrument='focalplane = "axis"',
     )
-    assert cli.main(["-q", "design", budget, str(src), "--out", str(out), "--no-validate"]) == 0
+    out = _design(tmp_path, schedule, budget, "--no-validate")
     rows = list(csv.DictReader(open(out / "strategies.csv")))
     assert len(rows) == 7
     for row in rows:
@@ -295,9 +302,6 @@ def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, 
     at or below every baseline it could start from."""
     import csv
 
-    src = tmp_path / "s.toml"
-    write_schedule(schedule, str(src), "toml")
-    out = tmp_path / "d"
     budget = _budget(
         tmp_path,
         systematics="dg = {mean = 0.002, rms = 0.002}\nrho_arcmin = 0.5\nseed = 3",
@@ -305,7 +309,7 @@ def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, 
         "angles_deg = [0.0, 45.0, 90.0]",
         instrument='focalplane = "hexagon:7:20"',
     )
-    assert cli.main(["-q", "design", budget, str(src), "--out", str(out)]) == 0
+    out = _design(tmp_path, schedule, budget)
     rows = {r["strategy"]: r for r in csv.DictReader(open(out / "strategies.csv"))}
     for row in rows.values():
         coherent, scattered = float(row["fp_delta_r_coherent"]), float(row["fp_delta_r_scattered"])
@@ -344,3 +348,30 @@ def test_a_budget_focal_plane_is_checked(tmp_path):
                 instrument='focalplane = "hexagon:37:35"')
     )  # fmt: skip
     assert budget.focalplane.n_pairs == 37 and predict.supports(budget.instrument)
+
+
+def test_a_design_read_exactly_validates_with_the_samples_offsets(tmp_path, schedule):
+    """`evaluation = "exact"`: the TOD check reads the band-limited sky at every sample, and
+    the prediction it is checked against carries the samples' offsets from their pixel centres,
+    which raise a pointing leak's prediction above the search's objective (that leaves them
+    out); the manifest records the reading."""
+    import csv
+    import json
+
+    budget = _budget(
+        tmp_path,
+        systematics="rho_arcmin = 3.0\nchi_deg = 30.0",
+        design="nside = 16\nsweeps = 2\nrestarts = 0\nangles_deg = [0.0, 90.0]\n"
+        'validation_skies = 2\nevaluation = "exact"',
+    )
+    out = _design(tmp_path, schedule, budget)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["design"]["evaluation"] == "exact"
+    objective = {
+        r["strategy"]: float(r["delta_r"]) for r in csv.DictReader(open(out / "strategies.csv"))
+    }
+    checked = list(csv.DictReader(open(out / "validation.csv")))
+    assert len(checked) == 7
+    for row in checked:
+        if objective[row["strategy"]] > 1e-3:
+            assert float(row["predicted_delta_r"]) > 1.05 * objective[row["strategy"]]

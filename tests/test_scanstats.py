@@ -141,3 +141,31 @@ def test_focal_plane_blocks_on_dask_give_the_serial_result_to_the_bit(monkeypatc
     np.testing.assert_array_equal(dask.combined.n_distinct, serial.combined.n_distinct)
     np.testing.assert_array_equal(dask.sum_sq, serial.sum_sq)
     np.testing.assert_array_equal(dask.pair_weights, serial.pair_weights)
+
+
+def test_centroid_moments_are_each_samples_place_in_its_pixel():
+    """The offsets of the samples from their pixel centres, weighted by exp(i n psi), against
+    the small-angle offsets (theta - theta_c, sin theta_c (phi - phi_c)) binned by hand: equal
+    to second order in the pixel size, and no larger than a pixel."""
+    import healpy as hp
+
+    nside = 16
+    schedule = _night(rate=1.0, n=2)
+    got = scanstats.centroid_moments(schedule, nside, n_max=2)
+    theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(schedule)))
+    pix = hp.ang2pix(nside, theta, phi)
+    c_theta, c_phi = hp.pix2ang(nside, pix)
+    wrapped = (phi - c_phi + np.pi) % (2 * np.pi) - np.pi
+    delta = (theta - c_theta) + 1j * np.sin(c_theta) * wrapped
+    hits = np.bincount(pix, minlength=12 * nside**2)
+    seen = hits > 0
+    size = hp.nside2resol(nside)
+    for n in range(3):
+        for k, value in enumerate((delta, np.conj(delta))):
+            w = np.exp(1j * n * psi) * value
+            want = np.bincount(pix, w.real, hits.size) + 1j * np.bincount(pix, w.imag, hits.size)
+            want = want[seen] / hits[seen]
+            np.testing.assert_allclose(got[k, n, seen], want, rtol=0, atol=size**2)
+    assert np.abs(got[0, 0]).max() < size
+    assert np.abs(got[0, 0]).max() > 0.05 * size  # the centroids are off the centres
+    assert np.all(got[:, :, ~seen] == 0)

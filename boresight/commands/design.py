@@ -12,6 +12,7 @@ import healpy as hp
 import numpy as np
 
 from .. import engine, interrupts, io, plots, precompile, provenance, resources, spectra
+from ..config import RunOptions
 from ..cosmology import load_spectra
 from ..design import baselines, load_budget, objective, search_instrument, unit_moments
 from ..design_expectation import exact_objective, search
@@ -23,7 +24,7 @@ from ..noise import sigma_r
 from ..predict import R_RANGE, delta_r, expected_residual
 from ..predict import focalplane as predict_fp
 from ..residual import residual
-from ..scanstats import characterise_focalplane
+from ..scanstats import centroid_moments, characterise_focalplane
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import require_finite
@@ -131,6 +132,7 @@ def run(
             budget.noise.fwhm_arcmin,
             change_cost=opts.change_cost,
             instrument=budget.instrument,
+            evaluation=opts.evaluation,
         )
         white = objective(  # the paper's white-h_n approximation, reported beside
             moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
@@ -199,7 +201,8 @@ def run(
         if stopped is None:
             with timer("expected residual of every strategy"):
                 expected = {
-                    n: _expected(budget, moments, obj, h, theory) for n, h in h_maps.items()
+                    n: _expected(budget, moments, obj, schedule, strategies[n], theory)
+                    for n in h_maps
                 }
     else:
         with timer("the optimised schedule on the focal plane"):
@@ -289,11 +292,15 @@ def _figures(curves, white, budget, sigma, theory, moments, h_maps, stage):
     plots.map_figure(maps, names, stage / "hn_before_after.png", unit="")
 
 
-def _expected(budget, moments, obj, h, theory):
-    """The exact expected residual of observed-pixel h_n (:func:`boresight.predict.
-    expected_residual`) at the objective's band limits, the hits spread as the schedule's."""
+def _expected(budget, moments, obj, schedule, angles, theory):
+    """The exact expected residual of an assignment's observed-pixel h_n (:func:`boresight.
+    predict.expected_residual`) at the objective's band limits, the hits spread as the
+    schedule's and read as the design's ``evaluation``; read exactly, with the samples' offsets
+    from their pixel centres (:func:`boresight.scanstats.centroid_moments`)."""
+    exact = budget.design.evaluation == "exact"
+    offsets = centroid_moments(moments.schedule(schedule, angles), moments.nside) if exact else None
     return expected_residual(
-        moments.full_sky(h),
+        moments.full_sky(moments.h(angles)),
         moments.mask,
         budget.systematics,
         theory,
@@ -302,6 +309,8 @@ def _expected(budget, moments, obj, h, theory):
         band=obj.band,
         instrument=budget.instrument,
         hits=moments.full_sky(moments.hits),
+        evaluation=budget.design.evaluation,
+        offsets=offsets,
     )
 
 
@@ -333,7 +342,7 @@ def _target(budget, theory, moments, obj):
     """The focal-plane search's :class:`boresight.design_focalplane.Target`."""
     return Target(
         budget.systematics, theory, budget.noise.fwhm_arcmin, moments.mask, obj.template,
-        obj.lmax,
+        obj.lmax, budget.design.evaluation,
     )  # fmt: skip
 
 
@@ -348,7 +357,7 @@ def _on_focalplane(budget, moments, obj, schedule, strategies, theory):
         )
         expected[name] = predict_fp.expected_residual(
             stats, moments.mask, budget.systematics, theory, budget.noise.fwhm_arcmin,
-            lmax=obj.lmax, band=obj.band,
+            lmax=obj.lmax, band=obj.band, evaluation=budget.design.evaluation,
         )  # fmt: skip
     return expected
 
@@ -370,7 +379,8 @@ def _validate(budget, moments, obj, schedule, strategies, expected):
     """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
-    samples, at the design's Nside with lmax = 2 Nside, on ``validation_skies`` sky realisations
+    samples, read as the design's ``evaluation``, at the design's Nside with lmax = 2 Nside, on
+    ``validation_skies`` sky realisations
     (and, for {mean, rms} parameters, as many draws of the focal plane, seeded alike); with a
     focal plane, every pair on its own samples (:func:`boresight.engine.simulate_focalplane`).
     Like is compared with like: the total residual C_BB(sys) - C_BB(no sys) with the predicted
@@ -413,13 +423,22 @@ def _validate(budget, moments, obj, schedule, strategies, expected):
 
 def _tod_parts(sky, scan, systematics, budget, mask, lmax):
     """The TOD's residual pseudo-C_BB parts (cross with the sky, auto) of one sky."""
+    evaluation = budget.design.evaluation
     if budget.focalplane is None:
-        job = residual(sky, scan, systematics, mask, lmax, instrument=budget.instrument)
+        job = residual(
+            sky, scan, systematics, mask, lmax, instrument=budget.instrument,
+            run=RunOptions(evaluation=evaluation),
+        )  # fmt: skip
         return job.total - job.auto, job.auto
     maps = [
         engine.simulate_focalplane(
-            sky, scan, budget.focalplane, s, rcond_min=predict_fp.RCOND_EXPECTATION
-        )
+            sky,
+            scan,
+            budget.focalplane,
+            s,
+            evaluation=evaluation,
+            rcond_min=predict_fp.RCOND_EXPECTATION,
+        )  # fmt: skip
         for s in (Systematics(), systematics)
     ]
     ref, sys = (np.array([np.where(m.valid, m.q, 0.0), np.where(m.valid, m.u, 0.0)]) for m in maps)

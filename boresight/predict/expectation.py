@@ -21,6 +21,7 @@ import healpy as hp
 import numpy as np
 
 from ..constants import ARCMIN
+from ..evaluation import METHODS
 from . import field_products as fp
 from .beam_fields import beam_filters
 from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients, jitter_variance
@@ -136,6 +137,7 @@ def leak_model(
     instrument: Instrument | None = None,
     hits: np.ndarray | None = None,
     with_sky: bool = False,
+    evaluation: str = "interp",
 ) -> LeakModel:
     """The leak's terms of a budget (:func:`expected_residual` says how each enters).
 
@@ -149,6 +151,8 @@ def leak_model(
         The highest moment the beams' terms may use.
     with_sky : bool
         Add the sky's own P (coefficient 1) as the last term.
+    evaluation : {"interp", "exact"}
+        How the engine reads the values of the sky's fields (:func:`sky_fields`).
 
     Returns
     -------
@@ -157,7 +161,7 @@ def leak_model(
     if abs(coefficients(systematics, instrument).m4) > 1e-9:
         raise ValueError("the exact expectation needs pairs whose 4 x angles cancel (m_4 = 0)")
     sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)
-    fields, value, exact = read = sky_fields(nside, band, hits=hits)
+    fields, value, exact = read = sky_fields(nside, band, hits=hits, evaluation=evaluation)
     terms = leak_terms(systematics, read)
     mean, second, pseudo = coefficient_moments(systematics, instrument)
     kept = [k for k, name in enumerate(MOMENT_NAMES) if name in terms]
@@ -187,6 +191,41 @@ def leak_model(
     )
 
 
+class _OffsetTerms(NamedTuple):
+    """The leak terms' first-order changes across their pixels: each term's weight alm, spin,
+    field, and the leak term whose coefficient it shares."""
+
+    alms: list
+    spins: list
+    fields: list
+    parents: list
+
+
+def _offset_terms(model, offsets, mask, lw, nthreads):
+    """For every leak term k, h_n F: the weights (1/N) sum exp(i n psi) conj(delta) / 2 on d F
+    (spin n - 1) and (1/N) sum exp(i n psi) delta / 2 on dbar F (spin n + 1), h_-n's being the
+    conjugates of h_n's other one."""
+    n_have = offsets.shape[1] - 1
+    out = _OffsetTerms([], [], [], [])
+    for k in range(model.n_leak):
+        n = model.term_n[k]
+        if abs(n) > n_have:
+            raise ValueError(f"offsets hold n <= {n_have}, a term needs {abs(n)}")
+        by_conj, by_delta = (
+            (offsets[1, n], offsets[0, n])
+            if n >= 0
+            else (np.conj(offsets[0, -n]), np.conj(offsets[1, -n]))
+        )
+        for weight, raising in ((by_conj, True), (by_delta, False)):
+            spin = n - 1 if raising else n + 1
+            w = fp.Weight(spin, 0.5 * mask * weight, None)
+            out.alms.append(fp.weight_alm(w, lw, nthreads))
+            out.spins.append(spin)
+            out.fields.append(fp.derivative(model.fields[k], raising=raising))
+            out.parents.append(k)
+    return out
+
+
 def smoothed_spectra(theory: Spectra, fwhm_arcmin: float, band: int) -> np.ndarray:
     """The sky's TT, EE, BB, TE (4, band + 1) [muK^2], smoothed by the beam."""
     tt, ee, bb, te = theory.total(lmax=band)
@@ -196,12 +235,14 @@ def smoothed_spectra(theory: Spectra, fwhm_arcmin: float, band: int) -> np.ndarr
 
 
 def sky_fields(
-    nside: int, band: int, *, hits: np.ndarray | None = None, evaluation: str = "interpolated"
+    nside: int, band: int, *, hits: np.ndarray | None = None, evaluation: str = "interp"
 ) -> tuple:
     """The sky's fields by kind ("temperature", "template", "gradient", "conjugate gradient",
     "polarisation", "conjugate polarisation"), each as the hits read it (:class:`_Reading`),
-    and the two readings: of the values (the engine's ``evaluation``, "interpolated" or
-    "exact") and exact."""
+    and the two readings: of the values (the engine's ``evaluation``, "interp" or "exact") and
+    exact."""
+    if evaluation not in METHODS:
+        raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
     kinds = ("exact" if evaluation == "exact" else "value", "exact")
     value, exact = (_Reading(hits, nside, band, kind) for kind in kinds)
     return _fields(value.window, exact.window), value, exact
@@ -232,6 +273,8 @@ def expected_residual(
     band: int | None = None,
     instrument: Instrument | None = None,
     hits: np.ndarray | None = None,
+    evaluation: str = "interp",
+    offsets: np.ndarray | None = None,
     nthreads: int = 0,
 ) -> ExpectedResidual:
     """The exact expected leaked and total residual pseudo-C_BB of a schedule's h_n maps.
@@ -264,6 +307,19 @@ def expected_residual(
         field's pixel mean takes its window (:class:`_Reading`) and, for the h_0 terms, each
         hit's departure from it adds white power of variance sigma_in^2 / N_hits per pixel
         (:meth:`LeakModel.scatter`). Default: every field read at the pixel centres (exact).
+    evaluation : {"interp", "exact"}
+        The engine's ``evaluation`` of the values of T, P and the leak's template with ``hits``:
+        bilinear interpolation of the maps, or the band-limited sky at each hit; the pointing's
+        gradient is read exactly either way.
+    offsets : numpy.ndarray, complex, shape (2, >= n_max + 1, npix), optional
+        The samples' offsets from their pixel centres weighted as the h_n are
+        (:func:`boresight.scanstats.centroid_moments`), for a sky read exactly at each sample.
+        Each leak term h_n F then gains F's first-order change across the pixel,
+        (conj(delta) d F + delta dbar F) / 2 averaged as h_n is: two more terms of the same
+        coefficient, on F's spin-raising and lowering derivatives
+        (:func:`boresight.predict.field_products.derivative`). A real scan crosses a pixel along
+        a few lines, at places that depend on the crossing angle, and so on structure at the
+        pixel scale a leak reads more than its pixel centre (docs/conventions.md).
     nthreads : int
 
     Returns
@@ -277,7 +333,7 @@ def expected_residual(
     nside = hp.npix2nside(h.shape[1])
     model = leak_model(
         systematics, theory, fwhm_arcmin, band, nside, n_max=n_max, instrument=instrument,
-        hits=hits, with_sky=True,
+        hits=hits, with_sky=True, evaluation=evaluation,
     )  # fmt: skip
     lw = lmax + band
     alms = {}
@@ -286,12 +342,21 @@ def expected_residual(
     spins, fields = list(model.term_n), list(model.fields)
     term_alms = [alms[abs(n)] for n in spins]
     k = model.n_leak  # the sky's P is the last term
+    second, pseudo = model.second, model.pseudo
+    if offsets is not None:
+        extra = _offset_terms(model, offsets, mask, lw, nthreads)
+        rows = list(range(k)) + extra.parents + list(range(k, len(spins)))
+        second, pseudo = second[np.ix_(rows, rows)], pseudo[np.ix_(rows, rows)]
+        spins = spins[:k] + extra.spins + spins[k:]
+        fields = fields[:k] + extra.fields + fields[k:]
+        term_alms = term_alms[:k] + extra.alms + term_alms[k:]
+        k += len(extra.parents)
     total = fp.expected_pseudo_cl_alm(
-        term_alms, spins, fields, model.sky_cl, lmax, second=model.second, pseudo=model.pseudo
+        term_alms, spins, fields, model.sky_cl, lmax, second=second, pseudo=pseudo
     ).bb
     leaked = fp.expected_pseudo_cl_alm(
         term_alms[:k], spins[:k], fields[:k], model.sky_cl, lmax,
-        second=model.second[:k, :k], pseudo=model.pseudo[:k, :k],
+        second=second[:k, :k], pseudo=pseudo[:k, :k],
     ).bb  # fmt: skip
     alone = fp.expected_pseudo_cl_alm(term_alms[k:], spins[k:], fields[k:], model.sky_cl, lmax).bb
     scatter = model.scatter(mask)

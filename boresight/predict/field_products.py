@@ -118,6 +118,33 @@ def polarisation(window: np.ndarray, *, conjugate: bool = False) -> SkyField:
     return SkyField(-2 if conjugate else 2, filters)
 
 
+def derivative(field: SkyField, *, raising: bool) -> SkyField:
+    """The field's covariant derivative that raises its spin by one, d F = -edth F (on T: the
+    gradient of :func:`gradient`), or lowers it, dbar F = -edth-bar F, so that F read at an
+    offset delta = delta_theta + i delta_phi is F + (conj(delta) d F + delta dbar F) / 2 to first
+    order. On spin-s coefficients, edth multiplies by sqrt((l - s)(l + s + 1)) and edth-bar by
+    -sqrt((l + s)(l - s + 1)); a conjugate field takes the other one, conjugated:
+    d conj(F) = conj(dbar F)."""
+    t, phi = field.spin, np.asarray(field.filters, dtype=np.complex128)
+    ell = np.arange(phi.shape[1])
+    if t < 0:  # conj(F_a): d conj(F_a) = conj(dbar F_a), dbar conj(F_a) = conj(d F_a)
+        inner = derivative(SkyField(-t, phi), raising=not raising)
+        return _conjugate(inner)
+    if raising:
+        return SkyField(t + 1, -np.sqrt(np.maximum((ell - t) * (ell + t + 1.0), 0.0)) * phi)
+    if t == 0:  # dbar F = conj(d conj(F)), conj(F) of spin 0 having the conjugate filters
+        return _conjugate(derivative(SkyField(0, np.conj(phi)), raising=True))
+    return SkyField(t - 1, np.sqrt(np.maximum((ell + t) * (ell - t + 1.0), 0.0)) * phi)
+
+
+def _conjugate(field):
+    """conj(F) of a field of spin >= 0: spin -s with F's filters, or for spin 0 the scalar with
+    conjugate filters (the sky's T, E, B being real fields)."""
+    if field.spin == 0:
+        return SkyField(0, np.conj(field.filters))
+    return SkyField(-field.spin, field.filters)
+
+
 class Weight(NamedTuple):
     """A fixed spin-s weight field g (a RING map, complex) and the sky field it multiplies."""
 

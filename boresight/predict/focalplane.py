@@ -290,7 +290,7 @@ def expected_residual(
     *,
     lmax: int,
     band: int | None = None,
-    evaluation: str | None = "interpolated",
+    evaluation: str | None = "interp",
     nthreads: int = 0,
 ) -> FocalPlaneResidual:
     """The exact expected leaked and total residual pseudo-C_BB of a focal plane's own h_n maps,
@@ -325,7 +325,7 @@ def expected_residual(
         The sky's band limit (default lmax).
     evaluation : str or None
         How the engine reads the sky at a schedule's samples spread over their pixels:
-        "interpolated" (its default) or "exact" (:func:`boresight.engine.simulate_focalplane`),
+        "interp" (its default) or "exact" (:func:`boresight.engine.simulate_focalplane`),
         with the h_0 terms' in-pixel scatter (as :func:`boresight.predict.expected_residual` with
         hits; pairs at one place share their samples' departures, pairs apart do not); None for
         the fields at the pixel centres, where it is exact.
@@ -350,7 +350,7 @@ def expected_residual(
     conjugate = bool(np.max(np.abs(h4)) > 1e-12)  # pairs whose 4 x angles cancel: H_4 = 0
     spread = evaluation is not None
     read = sky_fields(
-        nside, band, hits=stats.combined.hits if spread else None, evaluation=evaluation or ""
+        nside, band, hits=stats.combined.hits if spread else None, evaluation=evaluation or "interp"
     )
     fields, terms = read[0], leak_terms(systematics, read)
     sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)

@@ -101,3 +101,17 @@ def test_a_pair_angle_layout_without_m4_cancellation_is_refused(theory, schedule
         predict.expected_residual(
             h, mask, Systematics(dg=0.01), theory, FWHM, lmax=LMAX, instrument=Instrument((0.0,))
         )
+
+
+def test_offsets_of_zero_change_nothing_and_the_wrong_size_is_refused(theory, schedule_h):
+    """Samples at their pixel centres (zero offsets) give the expectation without offsets to
+    rounding; offsets that lack a term's moment are one clear error."""
+    h, mask = schedule_h
+    args = (h, mask, EVERYTHING, theory, FWHM)
+    base = predict.expected_residual(*args, lmax=LMAX)
+    zero = np.zeros((2, 5, mask.size), dtype=complex)
+    same = predict.expected_residual(*args, lmax=LMAX, offsets=zero)
+    np.testing.assert_allclose(same.residual, base.residual, rtol=1e-10, atol=1e-20)
+    np.testing.assert_allclose(same.leaked, base.leaked, rtol=1e-10, atol=1e-20)
+    with pytest.raises(ValueError, match="offsets hold n <= 2"):
+        predict.expected_residual(*args, lmax=LMAX, offsets=zero[:, :3])

@@ -254,3 +254,38 @@ def test_the_kernels_give_a_weighted_sum_of_the_expectation():
     value = np.real(np.sum(kappa_w * w) - np.sum(kappa_v * v))
     # one quadrature summed two ways: rounding only
     assert value == pytest.approx(np.sum(weight_l * bb), rel=1e-10)
+
+
+@pytest.mark.parametrize("field", ["temperature", "gradient", "conjugate gradient", "P", "P*"])
+def test_the_derivatives_are_edth_and_its_conjugate(field):
+    """d T is the gradient of fp.gradient (ducc0's DERIV1) and dbar T its conjugate; on any
+    spin s, dbar d = edth-bar edth = -(l - s)(l + s + 1), the spin-weighted
+    harmonics' identity, and d dbar = edth edth-bar = -(l + s)(l - s + 1), for conjugate fields
+    too."""
+    band = 40
+    ell = np.arange(band + 1)
+    window = np.exp(-ell / 30.0)
+    fields = {
+        "temperature": fp.temperature(window),
+        "gradient": fp.gradient(window),
+        "conjugate gradient": fp.gradient(window, conjugate=True),
+        "P": fp.polarisation(window),
+        "P*": fp.polarisation(window, conjugate=True),
+    }
+    f = fields[field]
+    if field == "temperature":
+        up, down = fp.derivative(f, raising=True), fp.derivative(f, raising=False)
+        assert (up.spin, down.spin) == (1, -1)
+        np.testing.assert_allclose(up.filters, fp.gradient(window).filters, rtol=1e-14)
+        np.testing.assert_allclose(
+            down.coefficients, fp.gradient(window, conjugate=True).coefficients, rtol=1e-14
+        )
+    s = f.spin
+    down_up = fp.derivative(fp.derivative(f, raising=True), raising=False)
+    up_down = fp.derivative(fp.derivative(f, raising=False), raising=True)
+    assert down_up.spin == up_down.spin == s
+    laplacian = -(ell - s) * (ell + s + 1.0)
+    np.testing.assert_allclose(down_up.coefficients, laplacian * f.coefficients, atol=1e-12)
+    np.testing.assert_allclose(
+        up_down.coefficients, -(ell + s) * (ell - s + 1.0) * f.coefficients, atol=1e-12
+    )
