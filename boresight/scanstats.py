@@ -434,12 +434,12 @@ def centroid_moments(
         e_phi = np.array([-np.sin(c_phi), np.cos(c_phi), np.zeros_like(c_phi)])
         delta = np.einsum("ij,ji->i", d, e_theta) + 1j * np.einsum("ij,ji->i", d, e_phi)
         hits += np.bincount(pix, minlength=npix)
-        spin = np.ones(psi.size, dtype=np.complex128)
+        turn, spin = np.exp(1j * psi), np.ones(psi.size, dtype=np.complex128)
         for n in range(n_max + 1):
             for k, value in enumerate((delta, np.conj(delta))):
                 w = spin * value
                 sums[k, n] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
-            spin = spin * np.exp(1j * psi)
+            spin = spin * turn
     return np.where(hits > 0, sums / np.maximum(hits, 1), 0.0)
 
 
