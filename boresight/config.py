@@ -25,6 +25,7 @@ from . import io, validation
 from .beams import pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS
+from .focalplane import focalplane_of_table
 from .harmonics import ANALYSES
 from .instrument import Instrument, Spread, Systematics, response
 from .io import toml_text, tomllib
@@ -184,6 +185,13 @@ SECTIONS = {
 FILE_KEYS = {
     "sky": {"maps": ((str,), "a FITS file with I, Q, U maps (RING) instead of a random sky")},
     "systematics": {"leak_template": ((str,), "a FITS map the additive leak scales")},
+    "instrument": {
+        "focalplane": (
+            (str,),
+            "a focal-plane file (TOAST HDF5, CSV, TOML) or preset ('axis') whose pairs all sit on "
+            "the boresight: its pairs' angles",
+        )
+    },
 }
 
 
@@ -500,6 +508,23 @@ def _tuples(body, keys):
     return {k: tuple(v) if k in keys and isinstance(v, list) else v for k, v in body.items()}
 
 
+def _instrument(table, base):
+    """[instrument]: its own keys, or a focal plane whose pairs all sit on the boresight (a
+    synthetic scan has no pointing to move pairs off it)."""
+    if "focalplane" not in table:
+        return build_section("instrument", Instrument, _tuples(table, ("pair_angles_deg",)))
+    focal = focalplane_of_table(table, base)
+    if not focal.is_on_axis:
+        raise ConfigError(
+            f"[instrument] focalplane {focal.source!r}: its pairs sit up to "
+            f"{np.max(focal.radius_deg):.3g} deg off the boresight, and a study's synthetic scan "
+            "has no pointing to move them there; give the focal plane with a schedule instead "
+            "(scan-stats, compare-scans or design --focalplane, or a budget's [instrument] "
+            "focalplane)"
+        )
+    return Instrument(pair_angles_deg=focal.pair_angles_deg)
+
+
 def parse_study(raw: dict, base: str = ".") -> Study:
     """Validate a study given as a dict (the parsed TOML).
 
@@ -533,9 +558,7 @@ def parse_study(raw: dict, base: str = ".") -> Study:
         if key in scan_raw:
             scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, dtype, npix)
     scan = build_section("scan", SyntheticScan, scan_raw)
-    instrument = build_section(
-        "instrument", Instrument, _tuples(raw.get("instrument", {}), ("pair_angles_deg",))
-    )
+    instrument = _instrument(raw.get("instrument", {}), base)
     sys_raw = dict(raw.get("systematics", {}))
     template = sys_raw.pop("leak_template", None)
     if template is not None:

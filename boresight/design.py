@@ -38,7 +38,7 @@ from . import coupling, interrupts, predict, validation
 from .config import ConfigError, build_section, check_systematics, read_toml
 from .constants import DEG
 from .evaluation import METHODS
-from .focalplane import FocalPlane, load_focalplane
+from .focalplane import FocalPlane, focalplane_of_table
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
 from .noise import SurveyNoise
 from .pointing import chunk_arguments
@@ -563,8 +563,11 @@ def load_budget(path: str) -> Budget:
         if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
             table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
         if name == "instrument" and "focalplane" in table:
-            focal = _budget_focalplane(path, table)
-            table = {k: v for k, v in table.items() if k != "focalplane"}
+            try:
+                focal = focalplane_of_table(table, Path(path).parent)
+            except ConfigError as err:
+                raise ConfigError(f"budget {path}: {err}") from None
+            table = {}
         try:
             tables[name] = build_section(name, cls, table)
         except ConfigError as err:
@@ -591,17 +594,3 @@ def load_budget(path: str) -> Budget:
     except ValueError as err:
         raise ConfigError(f"budget {path}: [systematics] / [instrument]: {err}") from None
     return Budget(**tables, focalplane=focal)
-
-
-def _budget_focalplane(path, table):
-    """``[instrument] focalplane``: a file beside the budget, or a preset name."""
-    spec = table["focalplane"]
-    if not isinstance(spec, str):
-        raise ConfigError(f"budget {path}: [instrument] focalplane must be a file or a preset name")
-    if set(table) - {"focalplane"}:
-        raise ConfigError(
-            f"budget {path}: [instrument] focalplane gives the pairs and their angles: remove "
-            f"{sorted(set(table) - {'focalplane'})}"
-        )
-    beside = Path(path).parent / spec
-    return load_focalplane(str(beside) if beside.is_file() else spec)

@@ -509,3 +509,31 @@ def load_focalplane(spec: str) -> FocalPlane:
             ) from None
         return hexagon(n_pix, width)
     return read_focalplane(spec)
+
+
+def focalplane_of_table(table: dict, base: str | Path) -> FocalPlane:
+    """The focal plane of an ``[instrument]`` table with a ``focalplane`` key (a study's or a
+    budget's): a file beside it (relative to ``base``), else a preset name
+    (:func:`load_focalplane`). It gives the pairs and their angles, so the table holds nothing
+    else.
+
+    Parameters
+    ----------
+    table : dict
+    base : str or pathlib.Path
+        The directory of the file the table came from.
+
+    Returns
+    -------
+    FocalPlane
+    """
+    spec = table["focalplane"]
+    if not isinstance(spec, str):
+        raise FocalPlaneError("[instrument] focalplane must be a file or a preset name")
+    others = sorted(set(table) - {"focalplane"})
+    if others:
+        raise FocalPlaneError(
+            f"[instrument] focalplane gives the pairs and their angles: remove {others}"
+        )
+    beside = Path(base) / spec
+    return load_focalplane(str(beside) if beside.is_file() else spec)

@@ -23,6 +23,7 @@ from . import engine, harmonics, interrupts, pointing, predict, scanstats, spect
 from .config import RunOptions, Study
 from .cosmology import load_spectra
 from .coupling import Coupling, mask_coupling
+from .focalplane import FocalPlane
 from .instrument import Instrument, Systematics
 from .mapmaking import Maps
 from .masks import from_config
@@ -139,6 +140,7 @@ def simulate_maps(
     pixels: np.ndarray | None = None,
     run: RunOptions = RunOptions(),
     leak_template: np.ndarray | None = None,
+    focalplane: FocalPlane | None = None,
     progress: bool = False,
 ) -> Maps:
     """Maps of a synthetic or a real scan.
@@ -156,6 +158,10 @@ def simulate_maps(
     run : boresight.config.RunOptions
     leak_template : numpy.ndarray, optional
         (npix,) template of the additive leak [muK].
+    focalplane : boresight.focalplane.FocalPlane, optional
+        A real schedule seen by every pair of this focal plane from its own place
+        (:func:`boresight.engine.simulate_focalplane`), in place of ``instrument``'s pairs on the
+        boresight.
     progress : bool
 
     Returns
@@ -172,22 +178,33 @@ def simulate_maps(
         leak_template,
         progress,
         zero_qu=False,
+        focalplane=focalplane,
     )
     return maps
 
 
-def _simulate(sky, scan, instrument, systematics, pixels, run, leak_template, progress, zero_qu):
+def _simulate(
+    sky, scan, instrument, systematics, pixels, run, leak_template, progress, zero_qu, focalplane
+):
     """(maps, the maps of Q = U = 0 from the same hits with ``zero_qu``, else None)."""
+    on_samples = dict(
+        evaluation=run.evaluation,
+        leak_template=leak_template,
+        nthreads=run.nthreads,
+        backend=run.backend,
+    )
+    if focalplane is not None:
+        if not isinstance(scan, Schedule):
+            raise ValueError(
+                "a focal plane needs a real schedule: a synthetic scan has no pointing"
+            )
+        maps = engine.simulate_focalplane(
+            sky, scan, focalplane, systematics, progress=progress, **on_samples
+        )
+        return maps, None
     if isinstance(scan, Schedule):
         maps = engine.simulate_samples(
-            sky,
-            pointing.pointing(scan),
-            instrument,
-            systematics,
-            evaluation=run.evaluation,
-            leak_template=leak_template,
-            nthreads=run.nthreads,
-            backend=run.backend,
+            sky, pointing.pointing(scan), instrument, systematics, **on_samples
         )
         return maps, None
     options = dict(pixels=pixels, leak_template=leak_template, progress=progress)
@@ -300,6 +317,7 @@ def simulate_reference(
     *,
     instrument: Instrument = Instrument(),
     run: RunOptions = RunOptions(),
+    focalplane: FocalPlane | None = None,
     transforms: Transforms | None = None,
     progress: bool = False,
 ) -> tuple[Reference, Maps]:
@@ -307,7 +325,7 @@ def simulate_reference(
 
     Parameters
     ----------
-    sky, scan, instrument, run, progress
+    sky, scan, instrument, run, focalplane, progress
         As in :func:`residual`.
     mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
         Weights in [0, 1]; pixels with weight > 0 are simulated.
@@ -328,6 +346,7 @@ def simulate_reference(
         Systematics(),
         pixels=footprint.pixels,
         run=run,
+        focalplane=focalplane,
         progress=progress,
     )
     return reference_from_maps(maps, footprint, lmax, run=run, transforms=transforms), maps
@@ -407,6 +426,7 @@ def residual(
     predict_map: bool = False,
     moments: Moments | None = None,
     leak_template: np.ndarray | None = None,
+    focalplane: FocalPlane | None = None,
     transforms: Transforms | None = None,
     keep_maps: bool = False,
     zero_qu: bool = False,
@@ -440,6 +460,10 @@ def residual(
         share them (the same scan at other rotations); ``scan``'s rotations replace theirs.
     leak_template : numpy.ndarray, optional
         Template map of the additive leak (default: the sky's I).
+    focalplane : boresight.focalplane.FocalPlane, optional
+        Simulate a real schedule with every pair of this focal plane, each from its own place
+        (:func:`simulate_maps`). Its residual is predicted by
+        :func:`boresight.predict.focalplane.expected_residual`, not here: no ``prediction``.
     transforms : Transforms, optional
         Where the transforms run (default: inline).
     keep_maps : bool
@@ -457,6 +481,10 @@ def residual(
     """
     if zero_qu and isinstance(scan, Schedule):
         raise ValueError("zero_qu needs a synthetic scan; simulate sky.without_polarisation()")
+    if focalplane is not None and (prediction is not None or predict_map):
+        raise ValueError(
+            "a focal plane's residual is predicted by predict.focalplane.expected_residual"
+        )
     transforms = Transforms() if transforms is None else transforms
     stages, t0 = {}, time.perf_counter()
     footprint = spectra.as_footprint(mask)
@@ -470,6 +498,7 @@ def residual(
             lmax,
             instrument=instrument,
             run=run,
+            focalplane=focalplane,
             transforms=transforms,
             progress=progress,
         )
@@ -483,6 +512,7 @@ def residual(
         leak_template,
         progress,
         zero_qu,
+        focalplane,
     )
     parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference, footprint, lmax, run)
     stages["simulate"] = time.perf_counter() - t0

@@ -1,11 +1,12 @@
 """What the commands share: the checks a user may skip, the progress bar's switch, and the flags
-of schedule files."""
+of schedule files and focal planes."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
+from ..focalplane import load_focalplane
 from ..frames import FRAMES
 from ..resources import Checks
 from ..schedule import TURNAROUNDS, ScanMotion
@@ -65,3 +66,18 @@ def pointing_flags(parser: argparse.ArgumentParser) -> None:
 def pointing(args: argparse.Namespace) -> dict:
     """The --frame and --turnarounds given (None: the schedule file's)."""
     return dict(frame=args.frame, turnarounds=args.turnarounds)
+
+
+def focalplane_flag(parser: argparse.ArgumentParser, replaces: str = "") -> None:
+    """``--focalplane``: point every pair of a schedule from its place in a focal plane."""
+    parser.add_argument(
+        "--focalplane",
+        help="point every pair from its place: TOAST's focal-plane HDF5, a CSV/TOML table "
+        "(name, xi_deg, eta_deg, gamma_deg, pol_angle_deg), 'hexagon:N:WIDTH_DEG' or 'axis' "
+        f"(the paper's pairs on the boresight, the default){replaces}",
+    )
+
+
+def focalplane(args: argparse.Namespace):
+    """The :class:`boresight.focalplane.FocalPlane` of --focalplane, or None."""
+    return load_focalplane(args.focalplane) if args.focalplane else None

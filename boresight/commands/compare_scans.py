@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-from dataclasses import replace
+from dataclasses import fields, replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import healpy as hp
@@ -21,6 +22,7 @@ from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
+    from ..focalplane import FocalPlane
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -29,6 +31,18 @@ NAME = "compare-scans"
 HELP = "residual B-modes of a CES schedule and its twin"
 #: the systematic each choice of ``systematic`` runs
 SYSTEMATICS = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}
+
+
+def on_focalplane(systematics: Systematics, focalplane: FocalPlane) -> Systematics:
+    """The paper's systematic on a focal plane's pairs: a value given per pair for its Q and U
+    pairs (0 and 45 deg) goes to each pair by its angle, the Q pair's where cos 4 gamma > 0."""
+    q_like = np.cos(4 * np.radians(focalplane.gamma_deg)) > 0
+    per_pair = {}
+    for f in fields(systematics):
+        value = getattr(systematics, f.name)
+        if isinstance(value, tuple) and len(value) == 2:
+            per_pair[f.name] = tuple(float(value[0] if q else value[1]) for q in q_like)
+    return replace(systematics, **per_pair)
 
 
 def run(
@@ -44,6 +58,7 @@ def run(
     motion: ScanMotion | None = None,
     frame: str | None = None,
     turnarounds: str | None = None,
+    focalplane: FocalPlane | None = None,
     checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """The residual B-mode of a real schedule beside its synthetic twin.
@@ -68,6 +83,11 @@ def run(
         For a TOAST schedule: scan rate, acceleration and sample rate.
     frame, turnarounds : str, optional
         Replace the schedule file's (:class:`boresight.schedule.Schedule`).
+    focalplane : boresight.focalplane.FocalPlane, optional
+        The real scans seen by every pair of this focal plane from its own place, binned into one
+        map; the twin takes (N_phi, R) of all its pairs' crossings together, on the paper's Q
+        and U pairs at the axis, and the paper's per-pair values go to its pairs by their angles
+        (:func:`on_focalplane`). Default: the paper's pairs on the boresight.
     checks : boresight.resources.Checks
         The up-front memory and time checks to make.
 
@@ -83,16 +103,28 @@ def run(
         sky_config = SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin: {err}") from None
-    io.check_output_dir(out_dir, force, [schedule_path])
+    inputs = [schedule_path]
+    if focalplane is not None and Path(focalplane.source).is_file():
+        inputs.append(focalplane.source)
+    io.check_output_dir(out_dir, force, inputs)
     # the real scan once and with its repeats, each with and without the systematic
-    estimate = resources.schedule_estimate("compare-scans", schedule, nside, tod_runs=4)
+    pointed = 0 if focalplane is None else focalplane.n_pairs
+    estimate = resources.schedule_estimate(
+        "compare-scans", schedule, nside, tod_runs=4, pointed_pairs=pointed
+    )
     resources.require(estimate, checks)
     timer = provenance.Timer(log)
+
+    def characterise(scan):
+        if focalplane is None:
+            return scanstats.characterise_schedule(scan, nside, tolerance_deg)
+        return scanstats.characterise_focalplane(scan, focalplane, nside, tolerance_deg).combined
+
     with timer("characterise the schedule"):
-        stats = scanstats.characterise_schedule(schedule, nside, tolerance_deg)
+        stats = characterise(schedule)
         # The twin takes (N_phi, R) of one pass of the CES set and repeats it at the schedule's
         # boresight angles, as the paper built its synthetic scans.
-        single = scanstats.characterise_schedule(schedule.single(), nside, tolerance_deg)
+        single = characterise(schedule.single())
         twin = replace(
             single.synthetic_twin(seed=seed),
             rotations_deg=schedule.repeat_boresight_deg,
@@ -108,21 +140,29 @@ def run(
         "twin": twin,
     }
     # Validity depends on the crossing angles alone, so the references fix the common mask.
-    refs = {}
+    refs, focal = {}, {name: focalplane if name.startswith("real") else None for name in cases}
     for name, scan in cases.items():
         with timer(f"reference {name.replace('_', ' ')}"):
-            refs[name] = simulate_maps(sky, scan, Instrument(), Systematics(), pixels=obs)
+            refs[name] = simulate_maps(
+                sky, scan, Instrument(), Systematics(), pixels=obs, focalplane=focal[name]
+            )
     mask = obs.copy()
     for ref in refs.values():
         mask &= ref.valid
     footprint = Footprint(mask.astype(float))
     lmax = 2 * nside
-    curves = {}
+    curves, chosen = {}, SYSTEMATICS[systematic]
     for name, scan in cases.items():
         with timer(f"residual {name.replace('_', ' ')}"):
             reference = reference_from_maps(refs[name], footprint, lmax)
             curves[f"residual_{name}_bb"] = residual(
-                sky, scan, SYSTEMATICS[systematic], footprint, lmax, reference=reference
+                sky,
+                scan,
+                chosen if focal[name] is None else on_focalplane(chosen, focalplane),
+                footprint,
+                lmax,
+                reference=reference,
+                focalplane=focal[name],
             ).total
     rows = band_rows(log_bins(10, lmax, 12), curves)
     require_finite("the residual spectra", list(curves.values()))
@@ -138,7 +178,7 @@ def run(
             },
         ),
     ]
-    with io.staged_dir(out_dir, force, [schedule_path]) as stage:
+    with io.staged_dir(out_dir, force, inputs) as stage:
         io.write_maps(
             stage / "scan_maps.fits",
             [stats.hits, stats.n_distinct, stats.range_rad]
@@ -169,6 +209,7 @@ def run(
                     "systematic": systematic,
                     "fwhm_arcmin": fwhm_arcmin,
                     "tolerance_deg": tolerance_deg,
+                    "focalplane": None if focalplane is None else focalplane.source,
                 },
                 {"sky": seed, "twin": seed},
                 timer.stages,
@@ -185,6 +226,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--nside", type=int, default=128, help="HEALPix Nside (lmax = 2 Nside)")
     parser.add_argument("--systematic", choices=tuple(SYSTEMATICS), default="gain")
     parser.add_argument("--fwhm-arcmin", type=float, default=30.0, help="the sky's beam")
+    _common.focalplane_flag(parser)
     _common.motion_flags(parser)
     _common.pointing_flags(parser)
 
@@ -198,6 +240,7 @@ def main(args: argparse.Namespace) -> int:
         fwhm_arcmin=args.fwhm_arcmin,
         force=args.force,
         motion=_common.motion(args),
+        focalplane=_common.focalplane(args),
         checks=_common.checks(args),
         **_common.pointing(args),
     )

@@ -18,7 +18,6 @@ from ..design import baselines, load_budget, objective, search_instrument, unit_
 from ..design_expectation import exact_objective, search
 from ..design_focalplane import Target, exact_delta_r, unit_sums
 from ..design_focalplane import search as focalplane_search
-from ..focalplane import load_focalplane
 from ..instrument import Systematics
 from ..noise import sigma_r
 from ..predict import R_RANGE, delta_r, expected_residual
@@ -455,11 +454,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="skip the TOD simulation of the design",
     )
-    parser.add_argument(
-        "--focalplane",
-        help="a focal plane file (TOAST HDF5, CSV, TOML) or preset (hexagon:N:WIDTH_DEG, axis), "
-        "replacing the budget's [instrument] focalplane",
-    )
+    _common.focalplane_flag(parser, "; replaces the budget's [instrument] focalplane")
     _common.motion_flags(parser)
     _common.pointing_flags(parser)
 
@@ -473,7 +468,7 @@ def main(args: argparse.Namespace) -> int:
         motion=_common.motion(args),
         validate=not args.no_validate,
         progress=_common.progress(args),
-        focalplane=load_focalplane(args.focalplane) if args.focalplane else None,
+        focalplane=_common.focalplane(args),
         checks=_common.checks(args),
         **_common.pointing(args),
     )

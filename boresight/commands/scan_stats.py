@@ -25,7 +25,6 @@ from .. import (
     so_maps,
 )
 from ..config import Study, as_dict, load_study
-from ..focalplane import load_focalplane
 from ..schedule import is_schedule, load_schedule
 from ..sky import SkyConfig
 from ..validation import ConfigError, require_finite
@@ -375,11 +374,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "TOAST's psi convention (odd h_n change sign)",
     )
     parser.add_argument("--prefix", default="hn", help="file name prefix of --format so")
-    parser.add_argument(
-        "--focalplane",
-        help="point every pair from its place: TOAST's focal-plane HDF5, a CSV/TOML table "
-        "(name, xi_deg, eta_deg, gamma_deg), 'hexagon:N:WIDTH_DEG' or 'axis' (the default)",
-    )
+    _common.focalplane_flag(parser)
     parser.add_argument(
         "--scheduler",
         default="serial",
@@ -406,7 +401,7 @@ def main(args: argparse.Namespace) -> int:
             motion=_common.motion(args),
             force=args.force,
             layout=layout,
-            focalplane=load_focalplane(args.focalplane) if args.focalplane else None,
+            focalplane=_common.focalplane(args),
             per_detector=args.per_detector,
             scheduler=None if args.scheduler == "local" else args.scheduler,
             workers=args.workers,

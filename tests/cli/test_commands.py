@@ -146,10 +146,8 @@ def test_log_holds_only_boresight_lines(tmp_path, caplog):
     assert any("interval between parallels" in r.getMessage() for r in caplog.records)
 
 
-def test_compare_scans_cli(tmp_path):
-    from boresight.cli import main
-
-    (tmp_path / "s.toml").write_text(
+def _four_ces(path):
+    path.write_text(
         "sample_rate_hz = 2.0\nrepeat_boresight_deg = [0.0, 90.0]\n"
         + "".join(
             f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 1800\n"
@@ -158,20 +156,71 @@ def test_compare_scans_cli(tmp_path):
             for i in range(4)
         )
     )
-    out = tmp_path / "cmp"
-    assert (
-        main(["-q", "compare-scans", str(tmp_path / "s.toml"), "--out", str(out), "--nside", "32"])
-        == 0
-    )
-    assert (out / "compare.png").exists() and (out / "scan_maps.fits").exists()
+    return str(path)
+
+
+def _scan_stats(out):
     lines = (out / "scan_stats.csv").read_text().splitlines()
-    real, twin = (dict(zip(lines[0].split(","), line.split(","))) for line in lines[1:])
+    return [dict(zip(lines[0].split(","), line.split(","))) for line in lines[1:]]
+
+
+def test_compare_scans_cli(tmp_path):
+    from boresight.cli import main
+
+    schedule = _four_ces(tmp_path / "s.toml")
+    out = tmp_path / "cmp"
+    assert main(["-q", "compare-scans", schedule, "--out", str(out), "--nside", "32"]) == 0
+    assert (out / "compare.png").exists() and (out / "scan_maps.fits").exists()
+    real, twin = _scan_stats(out)
     # A 90 deg repeat cancels h_2 in the real scan and in its twin alike.
     assert float(real["mean_abs_h2_sq"]) < 1e-25 and float(twin["mean_abs_h2_sq"]) < 1e-25
     assert (
         main(["-q", "compare-scans", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "x")])
         == 2
     )
+
+
+def test_compare_scans_with_a_focal_plane(tmp_path):
+    """The real scans seen by every pair from its place: on the axis, today's numbers; a 10 deg
+    hexagon keeps h_2 through a 0/90 repeat (its pairs move on the sky as the boresight turns),
+    while the twin on the axis still cancels it."""
+    schedule = _four_ces(tmp_path / "s.toml")
+    args = ["-q", "compare-scans", schedule, "--nside", "16"]
+    runs = {}
+    for name, flags in (("boresight", []), ("axis", ["--focalplane", "axis"])):
+        assert main([*args, "--out", str(tmp_path / name), *flags]) == 0
+        with open(tmp_path / name / "compare.csv") as f:
+            runs[name] = list(csv.DictReader(f))
+    for a, b in zip(*runs.values()):
+        for key in a:
+            assert float(a[key]) == pytest.approx(float(b[key]), rel=1e-9, abs=1e-30), key
+    out = tmp_path / "hex"
+    assert main([*args, "--out", str(out), "--focalplane", "hexagon:7:20"]) == 0
+    real, twin = _scan_stats(out)
+    assert float(real["mean_abs_h2_sq"]) > 1e-3 and float(twin["mean_abs_h2_sq"]) < 1e-25
+    manifest = (out / "manifest.json").read_text()
+    assert '"focalplane": "hexagon:7:20"' in manifest
+    bad = ["--out", str(tmp_path / "bad"), "--focalplane", "hexagon:7"]
+    assert main([*args, *bad]) == 2 and not (tmp_path / "bad").exists()
+
+
+def test_a_study_takes_a_focal_plane_on_the_axis_only(tmp_path, capsys):
+    study = tmp_path / "study.toml"
+    (tmp_path / "fp.csv").write_text(
+        "name,xi_deg,eta_deg,gamma_deg,pol_angle_deg\n"
+        "q_A,0,0,0,0\nq_B,0,0,90,90\nu_A,0,0,45,45\nu_B,0,0,135,135\n"
+    )
+    body = "[sky]\nnside = 16\nlmax = 32\n[scan]\nn_phi = 4\n[systematics]\ndg = 0.01\n"
+    rows = {}
+    for name, instrument in (("own", ""), ("file", "focalplane = 'fp.csv'\n")):
+        study.write_text(body + "[instrument]\n" + instrument)
+        assert main(["-q", "predict", str(study)]) == 0
+        rows[name] = capsys.readouterr().out
+    assert rows["own"] == rows["file"] and rows["own"].count("\n") == 34
+    study.write_text(body + "[instrument]\nfocalplane = 'hexagon:7:20'\n")
+    assert main(["-q", "predict", str(study)]) == 2
+    err = capsys.readouterr().err
+    assert "hexagon:7:20" in err and "off the boresight" in err and err.count("\n") == 1
 
 
 def test_export_schedule_cli(tmp_path, capsys):
