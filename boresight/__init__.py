@@ -21,7 +21,7 @@ At the top level (imported on first use, so ``import boresight`` stays light):
   ``ConfigError``.
 
 Public modules: :mod:`~boresight.sky`, :mod:`~boresight.scan`, :mod:`~boresight.schedule`,
-:mod:`~boresight.pointing`, :mod:`~boresight.frames`, :mod:`~boresight.instrument`, :mod:`~boresight.focalplane`,
+:mod:`~boresight.pointing`, :mod:`~boresight.frames`, :mod:`~boresight.instrument`, :mod:`~boresight.focalplane`, :mod:`~boresight.hwp`,
 :mod:`~boresight.beams`, :mod:`~boresight.masks`, :mod:`~boresight.noise`,
 :mod:`~boresight.engine`, :mod:`~boresight.spectra`, :mod:`~boresight.coupling`,
 :mod:`~boresight.predict`, :mod:`~boresight.scanstats`, :mod:`~boresight.config`,

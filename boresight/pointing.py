@@ -24,11 +24,13 @@ import numpy as np
 from . import frames
 from .constants import DEG
 from .frames import to_frame
+from .hwp import chunk_angles
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
     from .focalplane import FocalPlane
+    from .hwp import HWP
     from .schedule import Schedule
 
 UNIX_EPOCH_JD = frames.UNIX_EPOCH_JD
@@ -259,8 +261,8 @@ def _ces_detector_pointing(k0, n, chunk, terms, vectors):
 N_CHUNK = 11
 
 
-def chunk_arguments(schedule, chunk_samples=1 << 20):
-    """Kernel arguments of every chunk of a schedule, in observing order: the CES set in time order,
+def ces_chunks(schedule, chunk_samples=1 << 20):
+    """Every chunk of a schedule with its kernel arguments, in observing order: the CES set in time order,
     once per boresight repeat.
 
     A chunk holds at most ``chunk_samples`` samples and lies in one block of
@@ -275,7 +277,9 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
 
     Yields
     ------
-    tuple
+    repeat, index : int
+        The repeat of the CES set and the CES's place in it.
+    arguments : tuple
         (first sample, samples: int; the CES's scalars, (:data:`N_CHUNK`,) float64; the frame's
         terms at the chunk's middle, (frames.N_TERMS,) float64).
     """
@@ -283,8 +287,8 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
     jd_offset = UNIX_EPOCH_JD + schedule.dut1_s / 86400.0
     rate = schedule.sample_rate_hz
     block = max(1, int(frames.CHUNK_SECONDS * rate))
-    for repeat in schedule.repeat_boresight_deg:
-        for c in schedule.ces:
+    for r, repeat in enumerate(schedule.repeat_boresight_deg):
+        for i, c in enumerate(schedule.ces):
             n = int(c.duration_s * rate)
             chunk = np.array(
                 [
@@ -308,10 +312,18 @@ def chunk_arguments(schedule, chunk_samples=1 << 20):
             for b, t in zip(starts, terms):
                 end = min(b + block, n)
                 for s in range(int(b), end, chunk_samples):
-                    yield s, min(chunk_samples, end - s), chunk, t
+                    yield r, i, (s, min(chunk_samples, end - s), chunk, t)
 
 
-def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple]:
+def chunk_arguments(schedule, chunk_samples=1 << 20):
+    """The kernel arguments of :func:`ces_chunks`, chunk by chunk."""
+    for _, _, arguments in ces_chunks(schedule, chunk_samples):
+        yield arguments
+
+
+def pointing(
+    schedule: Schedule, chunk_samples: int = 1 << 20, *, hwp: HWP | None = None
+) -> Iterator[tuple]:
     """The pointing of a whole schedule, chunk by chunk, in the schedule's frame.
 
     Samples in the turnarounds are left out where the schedule says so.
@@ -320,19 +332,29 @@ def pointing(schedule: Schedule, chunk_samples: int = 1 << 20) -> Iterator[tuple
     ----------
     schedule : Schedule
     chunk_samples : int
+    hwp : boresight.hwp.HWP, optional
+        Also yield its angle at each sample (a continuous or stepped HWP).
 
     Yields
     ------
     theta, phi, psi : numpy.ndarray, shape (<= chunk_samples,)
         Colatitude, longitude and crossing angle [rad] in ``schedule.frame``; the CES set in time
         order, once per boresight repeat.
+    chi : numpy.ndarray, shape (<= chunk_samples,)
+        With ``hwp``: the HWP's angle in the focal plane [rad] (:func:`boresight.hwp.chunk_angles`).
     """
-    for args in chunk_arguments(schedule, chunk_samples):
-        theta, phi, psi, turning = _ces_pointing(*args)
+    for repeat, index, args in ces_chunks(schedule, chunk_samples):
+        out = _ces_pointing(*args)
+        if hwp is not None:
+            out = (
+                *out[:3],
+                chunk_angles(hwp, schedule, repeat, index, first=args[0], n=args[1]),
+                out[3],
+            )
         if schedule.turnarounds == "exclude":
-            keep = ~turning
-            theta, phi, psi = theta[keep], phi[keep], psi[keep]
-        yield theta, phi, psi
+            keep = ~out[-1]
+            out = tuple(x[keep] for x in out)
+        yield out[:-1]
 
 
 def detector_pointing(

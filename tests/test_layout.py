@@ -33,6 +33,7 @@ LAYERS = {
         "sky",
         "instrument",
         "focalplane",
+        "hwp",
         "beams",
         "scan",
         "frames",

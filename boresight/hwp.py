@@ -1,0 +1,159 @@
+"""A half-wave plate (HWP): its angle over a schedule, and what a detector sees through it.
+
+The HWP's angle chi is measured in the focal plane, from its x axis, as TOAST's ``hwp_angle``.
+An ideal HWP reflects the polarisation about its fast axis, so a detector at angle gamma in the
+focal plane (a pair's angle; its partner at gamma + 90 deg) sees the sky as a bare detector at
+2 chi - gamma would:
+
+    d = I + Q cos 2a + U sin 2a,   a = psi - gamma + 2 chi   (a = psi + gamma without a HWP)
+
+with psi boresight's crossing angle (the focal plane's orientation on the sky, COSMO) and Q, U in
+HEALPix's COSMO convention. This is TOAST's ``StokesWeights`` with a HWP (weights (1, cos(2 alpha + 4 chi - 4 gamma), sin(2 alpha + 4 chi - 4 gamma)), with its detector
+angle alpha = psi + gamma - pi); ``tests/test_hwp.py`` checks it against TOAST's to 1e-10.
+
+In spin language the sky's polarisation reaches a pair difference as exp(-2 i a) P, the spin
+(n, m) = (2, -4) of the moments h_{n,m} = <exp(i n psi + i m chi)>
+(:func:`boresight.scanstats.hwp_moments`).
+
+Two kinds of HWP:
+
+* ``continuous``: chi = phase + 2 pi f t, t the sample's unix time (TOAST's ``SimGround`` with
+  ``hwp_rpm`` = 60 f, up to its rounding of each observation's start to a whole sample);
+* ``stepped``: one of ``angles_deg`` per CES, per day or per repeat of the CES set, in turn.
+
+The repeats of a schedule's CES set reuse its times, so a continuous HWP turns through the same
+angles in every repeat.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import DEG
+from .validation import ConfigError
+
+MODES = ("none", "continuous", "stepped")
+#: what a stepped HWP steps with: each CES, each UTC day, each repeat of the CES set
+STEPS = ("ces", "day", "repeat")
+DAY_S = 86400.0
+
+
+@dataclass(frozen=True)
+class HWP:
+    """A half-wave plate.
+
+    Parameters
+    ----------
+    mode : {"none", "continuous", "stepped"}
+    frequency_hz : float
+        A continuous HWP's rotations per second (SO's small-aperture telescopes: 2).
+    phase_deg : float
+        A continuous HWP's angle at unix time 0 [deg].
+    angles_deg : tuple of float
+        A stepped HWP's angles, taken in turn [deg] (default: four steps of 22.5 deg, which
+        cancel exp(4 i chi)).
+    step : {"ces", "day", "repeat"}
+        When a stepped HWP moves to its next angle.
+    """
+
+    mode: str = "none"
+    frequency_hz: float = 2.0
+    phase_deg: float = 0.0
+    angles_deg: tuple = (0.0, 22.5, 45.0, 67.5)
+    step: str = "ces"
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ConfigError(f"hwp {self.mode!r}; allowed: {MODES}")
+        if not (math.isfinite(self.frequency_hz) and self.frequency_hz > 0):
+            raise ConfigError(f"hwp frequency {self.frequency_hz!r} Hz must be finite and > 0")
+        if not math.isfinite(self.phase_deg):
+            raise ConfigError(f"hwp phase {self.phase_deg!r} deg must be finite")
+        angles = tuple(float(a) for a in self.angles_deg)
+        if not angles or not all(math.isfinite(a) for a in angles):
+            raise ConfigError(f"hwp angles {self.angles_deg!r}: one or more finite angles [deg]")
+        object.__setattr__(self, "angles_deg", angles)
+        if self.step not in STEPS:
+            raise ConfigError(f"hwp step {self.step!r}; allowed: {STEPS}")
+
+    @property
+    def present(self) -> bool:
+        return self.mode != "none"
+
+
+def step_index(hwp: HWP, schedule, repeat: int, index: int) -> int:
+    """Which of a stepped HWP's angles CES ``index`` of repeat ``repeat`` takes (before the modulo).
+
+    Parameters
+    ----------
+    hwp : HWP
+    schedule : boresight.schedule.Schedule
+    repeat, index : int
+        The repeat of the CES set and the CES's place in it (time order).
+
+    Returns
+    -------
+    int
+    """
+    if hwp.step == "repeat":
+        return repeat
+    if hwp.step == "ces":
+        return repeat * len(schedule.ces) + index
+    first = math.floor(min(c.start_unix for c in schedule.ces) / DAY_S)
+    days = math.floor(max(c.start_unix for c in schedule.ces) / DAY_S) - first + 1
+    return repeat * days + math.floor(schedule.ces[index].start_unix / DAY_S) - first
+
+
+def chunk_angles(hwp: HWP, schedule, repeat: int, index: int, *, first: int, n: int) -> np.ndarray:
+    """The HWP's angle chi [rad] at samples first .. first + n - 1 of a CES, in [0, 2 pi).
+
+    Parameters
+    ----------
+    hwp : HWP
+        Continuous or stepped.
+    schedule : boresight.schedule.Schedule
+    repeat, index : int
+        As :func:`step_index`.
+    first, n : int
+        The chunk's first sample in its CES, and its samples.
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (n,)
+    """
+    if hwp.mode == "stepped":
+        angle = hwp.angles_deg[step_index(hwp, schedule, repeat, index) % len(hwp.angles_deg)]
+        return np.full(n, (angle * DEG) % (2 * np.pi))
+    if hwp.mode != "continuous":
+        raise ValueError("a HWP angle needs a continuous or a stepped HWP")
+    # the whole turns of the CES's start are taken out first, so that 2 pi f t keeps its digits
+    start = schedule.ces[index].start_unix
+    turns = math.fmod(hwp.frequency_hz * start, 1.0)
+    cycles = turns + hwp.frequency_hz * (first + np.arange(n)) / schedule.sample_rate_hz
+    return (2 * np.pi * cycles + hwp.phase_deg * DEG) % (2 * np.pi)
+
+
+def stokes_weights(psi: np.ndarray, gamma: float, chi: np.ndarray | None = None) -> np.ndarray:
+    """The I, Q, U weights of a detector at angle ``gamma`` in the focal plane, behind an ideal
+    HWP at ``chi`` (module docstring).
+
+    Parameters
+    ----------
+    psi : numpy.ndarray
+        boresight's crossing angle of the focal plane [rad].
+    gamma : float
+        The detector's angle in the focal plane [rad] (a pair's angle, or it + pi / 2).
+    chi : numpy.ndarray, optional
+        The HWP's angle in the focal plane [rad]; None without a HWP.
+
+    Returns
+    -------
+    numpy.ndarray, shape (psi.size, 3)
+        (1, cos 2a, sin 2a): d = I + Q cos 2a + U sin 2a.
+    """
+    psi = np.asarray(psi, dtype=np.float64)
+    a = psi + gamma if chi is None else psi - gamma + 2 * np.asarray(chi)
+    return np.stack([np.ones_like(a), np.cos(2 * a), np.sin(2 * a)], axis=-1)

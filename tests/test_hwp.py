@@ -1,0 +1,198 @@
+"""The half-wave plate: its angles over a schedule, and a detector's I, Q, U weights through it
+against TOAST's own StokesWeights with a continuous and a stepped HWP, on a
+schedule of December 2026. The TOAST tests skip where it is not installed."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from helpers import T0
+
+from boresight import hwp, pointing
+from boresight.hwp import HWP
+from boresight.schedule import CES, Schedule, Site
+from boresight.validation import ConfigError
+
+RATE = 5.0  #: samples per second of the TOAST simulation
+RPM = 88.0  #: the continuous HWP's revolutions per minute there
+SITE = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
+SITE += ["--site-lon", " -67.787", "--site-alt", "5200"]
+PATCH = ["--patch", "deep,1,30,-45,10", "--el-min-deg", "45", "--el-max-deg", "60"]
+PATCH += ["--start", "2026-12-01 03:00:00", "--stop", "2026-12-01 06:00:00"]
+PATCH += ["--ces-max-time-s", "600", "--sun-avoidance-angle-deg", "0"]
+PATCH += ["--moon-avoidance-angle-deg", "0"]
+
+
+def _wrap(x):
+    return (x + np.pi) % (2 * np.pi) - np.pi
+
+
+@pytest.fixture(scope="module")
+def toast_hwp(tmp_path_factory):
+    """TOAST's SimGround with a continuous HWP, its PointingDetectorSimple and StokesWeights
+    (IQU, with the HWP and without) for a 7-pixel hexagon: per observation, its detectors'
+    quaternions, gamma, the HWP angle and both sets of weights."""
+    pytest.importorskip("toast")
+    import toast
+    import toast.ops
+    from astropy import units as u
+    from astropy.utils import iers
+    from toast.instrument import GroundSite, Telescope
+    from toast.instrument_sim import fake_hexagon_focalplane
+    from toast.schedule import GroundSchedule
+    from toast.schedule_sim_ground import run_scheduler
+
+    iers.conf.auto_download = False
+    iers.conf.auto_max_age = None
+    d = tmp_path_factory.mktemp("toast_hwp")
+    run_scheduler(opts=[*SITE, *PATCH, "--out", str(d / "schedule.txt")])
+    schedule = GroundSchedule()
+    schedule.read(str(d / "schedule.txt"))
+    schedule.scans = schedule.scans[:4]
+    fp = fake_hexagon_focalplane(n_pix=7, width=10 * u.deg, sample_rate=RATE * u.Hz)
+    site = GroundSite(schedule.site_name, schedule.site_lat, schedule.site_lon, schedule.site_alt)
+    data = toast.Data(toast.mpi.Comm())
+    telescope = Telescope("sat", focalplane=fp, site=site)
+    toast.ops.SimGround(
+        telescope=telescope, schedule=schedule, hwp_angle="hwp_angle", hwp_rpm=RPM
+    ).apply(data)
+    detector_pointing = toast.ops.PointingDetectorSimple()
+    detector_pointing.apply(data)
+
+    def weights(name, **hwp_keys):
+        toast.ops.StokesWeights(
+            mode="IQU", detector_pointing=detector_pointing, weights=name, **hwp_keys
+        ).apply(data)
+
+    weights("bare")
+    weights("continuous", hwp_angle="hwp_angle", fp_gamma="gamma")
+    out = []
+    for ob in data.obs:
+        dets = list(ob.local_detectors)
+        out.append(
+            dict(
+                times=np.array(ob.shared["times"]),
+                chi=np.array(ob.shared["hwp_angle"]),
+                quats={det: np.array(ob.detdata["quats"][det]) for det in dets},
+                gamma={det: fp[det]["gamma"].to_value(u.rad) for det in dets},
+                bare={det: np.array(ob.detdata["bare"][det]) for det in dets},
+                continuous={det: np.array(ob.detdata["continuous"][det]) for det in dets},
+            )
+        )
+    # a stepped HWP: TOAST 3.0.6's own stepping (SimGround's hwp_step) stops with a
+    # UnitConversionError, so the angles are set here, one per observation, and its
+    # StokesWeights run on them
+    steps = np.radians([0.0, 22.5, 45.0, 67.5])
+    for i, ob in enumerate(data.obs):
+        ob.shared["hwp_angle"].set(np.full(ob.n_local_samples, steps[i % 4]), offset=(0,))
+        out[i]["stepped_chi"] = steps[i % 4]
+    weights("stepped", hwp_angle="hwp_angle", fp_gamma="gamma")
+    for ob, one in zip(data.obs, out):
+        one["stepped"] = {det: np.array(ob.detdata["stepped"][det]) for det in ob.local_detectors}
+    return out
+
+
+def test_stokes_weights_equal_toasts_with_and_without_a_hwp(toast_hwp):
+    """boresight's weights from its crossing angle psi = TOAST's detector angle alpha - gamma +
+    pi (the relation tests/test_focalplane.py checks against PointingDetectorSimple) equal TOAST's
+    StokesWeights to 1e-10: bare, behind a continuously turning HWP and behind a stepped one."""
+    from toast import qarray
+
+    worst = {"bare": 0.0, "continuous": 0.0, "stepped": 0.0}
+    for ob in toast_hwp:
+        for det, q in ob["quats"].items():
+            alpha = qarray.to_iso_angles(q)[2]
+            gamma = ob["gamma"][det]
+            psi = alpha - gamma + np.pi
+            for kind, chi in (
+                ("bare", None),
+                ("continuous", ob["chi"]),
+                ("stepped", np.full(psi.size, ob["stepped_chi"])),
+            ):
+                ours = hwp.stokes_weights(psi, gamma, chi)
+                worst[kind] = max(worst[kind], np.abs(ours - ob[kind][det]).max())
+    assert max(worst.values()) < 1e-10, worst
+    # and the HWP matters: a detector's Q weight behind it is not the bare one
+    det = next(iter(toast_hwp[0]["quats"]))
+    assert np.abs(toast_hwp[0]["continuous"][det][:, 1] - toast_hwp[0]["bare"][det][:, 1]).max() > 1
+
+
+def test_a_continuous_hwp_turns_as_toasts(toast_hwp):
+    """chi advances by 2 pi f / rate per sample as TOAST's SimGround's (to its own rounding of the
+    sample rate, 1e-6 rad); its phase at an observation's first sample differs from 2 pi f t by
+    less than one sample's turn, TOAST's rounding of the observation's start to a whole sample."""
+    f = RPM / 60.0
+    one = HWP("continuous", frequency_hz=f)
+    for ob in toast_hwp:
+        t, chi = ob["times"], ob["chi"]
+        ces = CES(float(t[0]), t.size / RATE, 50.0, 180.0, 10.0)
+        schedule = Schedule((ces,), Site(-22.958, -67.787, 5200.0), RATE)
+        ours = hwp.chunk_angles(one, schedule, 0, 0, first=0, n=t.size)
+        assert abs(_wrap(ours[0] - 2 * np.pi * f * t[0])) < 1e-5
+        moved = _wrap((chi - chi[0]) - (ours - ours[0]))
+        assert np.abs(moved).max() < 1e-6
+        assert abs(_wrap(chi[0] - ours[0])) < 2 * np.pi * f / RATE
+
+
+def _schedule(starts, repeats=(0.0,)):
+    """One-minute CESs turning around for 2 s at each end of their 10 deg throws."""
+    ces = tuple(CES(T0 + s, 60.0, 50.0, 180.0, 10.0, turnaround_s=2.0) for s in starts)
+    return Schedule(ces, Site(-22.958, -67.787, 5200.0), 2.0, repeat_boresight_deg=repeats)
+
+
+def _chi_per_ces(schedule, one):
+    """The HWP's angles of each (repeat, CES), from the pointing's own stream."""
+    seen = {}
+    for repeat, index, args in pointing.ces_chunks(schedule, 50):
+        chi = hwp.chunk_angles(one, schedule, repeat, index, first=args[0], n=args[1])
+        seen.setdefault((repeat, index), set()).update(np.round(np.degrees(chi), 9))
+    return seen
+
+
+def test_a_stepped_hwp_steps_per_ces_day_or_repeat():
+    day = 86400.0
+    schedule = _schedule([0.0, 3600.0, day, day + 3600.0], repeats=(0.0, 90.0))
+    expect = {
+        "ces": [0.0, 22.5, 45.0, 67.5, 0.0, 22.5, 45.0, 67.5],
+        "day": [0.0, 0.0, 22.5, 22.5, 45.0, 45.0, 67.5, 67.5],
+        "repeat": [0.0, 0.0, 0.0, 0.0, 22.5, 22.5, 22.5, 22.5],
+    }
+    for step, angles in expect.items():
+        seen = _chi_per_ces(schedule, HWP("stepped", step=step))
+        assert [s.pop() for s in seen.values()] == angles, step
+        assert all(not s for s in seen.values())  # one angle per CES
+    # four steps of 22.5 deg cancel exp(4 i chi), as a 0/90 rotation cancels exp(2 i psi)
+    chi = np.radians(expect["ces"][:4])
+    assert abs(np.mean(np.exp(4j * chi))) < 1e-15
+
+
+def test_the_pointing_carries_the_hwp_angle_and_keeps_its_own_numbers():
+    schedule = dataclasses.replace(_schedule([0.0, 600.0]), turnarounds="exclude")
+    bare = [np.concatenate(x) for x in zip(*pointing.pointing(schedule, 37))]
+    with_hwp = [
+        np.concatenate(x)
+        for x in zip(*pointing.pointing(schedule, 37, hwp=HWP("continuous", frequency_hz=1.3)))
+    ]
+    for a, b in zip(bare, with_hwp):
+        np.testing.assert_array_equal(a, b)
+    whole = [
+        np.concatenate(x)
+        for x in zip(*pointing.pointing(schedule, 1 << 20, hwp=HWP("continuous", frequency_hz=1.3)))
+    ]
+    np.testing.assert_array_equal(whole[3], with_hwp[3])  # the chunks do not change it
+    assert with_hwp[3].size == bare[0].size < schedule.n_samples  # no turnarounds in either
+
+
+@pytest.mark.parametrize(
+    "keys, message",
+    [
+        (dict(mode="spinning"), "allowed"),
+        (dict(mode="continuous", frequency_hz=0.0), "frequency"),
+        (dict(mode="stepped", angles_deg=()), "angles"),
+        (dict(mode="stepped", angles_deg=(0.0, float("nan"))), "angles"),
+        (dict(mode="stepped", step="hour"), "step"),
+    ],
+)
+def test_a_bad_hwp_is_one_clear_error(keys, message):
+    with pytest.raises(ConfigError, match=message):
+        HWP(**keys)
