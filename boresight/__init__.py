@@ -27,6 +27,7 @@ Public modules: :mod:`~boresight.sky`, :mod:`~boresight.scan`, :mod:`~boresight.
 :mod:`~boresight.predict`, :mod:`~boresight.scanstats`, :mod:`~boresight.config`,
 :mod:`~boresight.residual`, :mod:`~boresight.design`, :mod:`~boresight.suppression`,
 :mod:`~boresight.paper`, :mod:`~boresight.sweep`, :mod:`~boresight.so_maps`,
+:mod:`~boresight.litebird_maps`,
 :mod:`~boresight.cosmology` and
 :mod:`~boresight.commands` (each command's ``run``).
 

@@ -8,8 +8,9 @@ focal plane (a pair's angle; its partner at gamma + 90 deg) sees the sky as a ba
     d = I + Q cos 2a + U sin 2a,   a = psi - gamma + 2 chi   (a = psi + gamma without a HWP)
 
 with psi boresight's crossing angle (the focal plane's orientation on the sky, COSMO) and Q, U in
-HEALPix's COSMO convention. This is TOAST's ``StokesWeights`` with a HWP (weights (1, cos(2 alpha + 4 chi - 4 gamma), sin(2 alpha + 4 chi - 4 gamma)), with its detector
-angle alpha = psi + gamma - pi); ``tests/test_hwp.py`` checks it against TOAST's to 1e-10.
+HEALPix's COSMO convention. This is TOAST's ``StokesWeights`` with a HWP: its weights
+(1, cos(2 alpha + 4 chi - 4 gamma), sin(2 alpha + 4 chi - 4 gamma)), with its detector angle
+alpha = psi + gamma - pi, are these (``tests/test_hwp.py``, to 1e-10).
 
 In spin language the sky's polarisation reaches a pair difference as exp(-2 i a) P, the spin
 (n, m) = (2, -4) of the moments h_{n,m} = <exp(i n psi + i m chi)>

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from .focalplane import FocalPlane
+    from .hwp import HWP
     from .schedule import Schedule
 
 
@@ -441,6 +442,78 @@ def centroid_moments(
                 sums[k, n] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
             spin = spin * turn
     return np.where(hits > 0, sums / np.maximum(hits, 1), 0.0)
+
+
+#: the (n, m) of :func:`hwp_moments` by default: n = 0..4 against m = 0, +-4, +-8 (h_{-n,-m} is
+#: the conjugate of h_{n,m}), which hold the sky's polarisation (2, -4), the HWP's instrumental
+#: polarisation seen through h_{-2,0}, a detector-side leak (n, 0) through h_{2-n,-4}, and the
+#: pair map-maker's 2x2 system (4, -8)
+HWP_TERMS = ((0, 0), (0, 4), (0, 8)) + tuple(
+    (n, m) for n in range(1, N_MAX + 1) for m in (-8, -4, 0, 4, 8)
+)
+
+
+@numba.njit(cache=True)
+def _bin_spins(pix, psi, chi, terms, sums, hits):
+    """sums[k, p] += exp(i (n_k psi + m_k chi)) and hits[p] += 1 over samples, in sample order."""
+    for j in range(pix.size):
+        p = pix[j]
+        hits[p] += 1
+        for k in range(terms.shape[0]):
+            angle = terms[k, 0] * psi[j] + terms[k, 1] * chi[j]
+            sums[k, p] += complex(np.cos(angle), np.sin(angle))
+
+
+def hwp_moments(
+    schedule: Schedule,
+    hwp: HWP,
+    nside: int,
+    terms=HWP_TERMS,
+    chunk_samples: int = 1 << 20,
+    *,
+    progress: bool = False,
+) -> tuple[np.ndarray, dict]:
+    """The moments h_{n,m} = <exp(i n psi + i m chi)> over each pixel's samples of a schedule, with
+    psi boresight's crossing angle and chi the HWP's angle in the focal plane
+    (:mod:`boresight.hwp`); h_{n,0} is h_n.
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+        Its boresight's samples (the pairs on the axis).
+    hwp : boresight.hwp.HWP
+        Continuous or stepped.
+    nside : int
+    terms : sequence of (int, int)
+        The (n, m) to compute.
+    chunk_samples : int
+    progress : bool
+
+    Returns
+    -------
+    hits : numpy.ndarray, int64, shape (npix,)
+    h : dict
+        (n, m) -> (npix,) complex128, 0 where unseen.
+    """
+    from tqdm.auto import tqdm
+
+    if not hwp.present:
+        raise ValueError("h_{n,m} needs a continuous or a stepped HWP")
+    table = np.array([(int(n), int(m)) for n, m in terms], dtype=np.float64).reshape(-1, 2)
+    if len({tuple(t) for t in table}) != len(table):
+        raise ValueError(f"repeated (n, m) in {list(terms)}")
+    npix = 12 * nside**2
+    sums = np.zeros((len(table), npix), dtype=np.complex128)
+    hits = np.zeros(npix, dtype=np.int64)
+    with tqdm(
+        total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress
+    ) as bar:
+        for theta, phi, psi, chi in pointing(schedule, chunk_samples, hwp=hwp):
+            interrupts.check()
+            _bin_spins(ang2pix_array(nside, theta, phi), psi, chi, table, sums, hits)
+            bar.update(theta.size)
+    h = np.where(hits > 0, sums / np.maximum(hits, 1), 0.0)
+    return hits, {(int(n), int(m)): h[k] for k, (n, m) in enumerate(table)}
 
 
 @dataclass(frozen=True)

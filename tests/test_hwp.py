@@ -4,13 +4,15 @@ schedule of December 2026. The TOAST tests skip where it is not installed."""
 
 import dataclasses
 
+import healpy as hp
 import numpy as np
 import pytest
 from helpers import T0
 
-from boresight import hwp, pointing
+from boresight import hwp, pointing, scanstats
+from boresight.cli import main
 from boresight.hwp import HWP
-from boresight.schedule import CES, Schedule, Site
+from boresight.schedule import CES, Schedule, Site, load_schedule
 from boresight.validation import ConfigError
 
 RATE = 5.0  #: samples per second of the TOAST simulation
@@ -196,3 +198,106 @@ def test_the_pointing_carries_the_hwp_angle_and_keeps_its_own_numbers():
 def test_a_bad_hwp_is_one_clear_error(keys, message):
     with pytest.raises(ConfigError, match=message):
         HWP(**keys)
+
+
+def test_hwp_moments_are_the_h_n_times_the_hwp_average_of_a_stepped_plate():
+    """With the CES set repeated at one boresight angle and the HWP stepped per repeat, every
+    pixel sees the same psi in each repeat, so h_{n,m} = h_n mean_k exp(i m chi_k) exactly; h_{n,0}
+    is the fused kernel's h_n (scanstats.characterise_schedule)."""
+    schedule = _schedule([0.0, 600.0], repeats=(0.0, 0.0))
+    plate = HWP("stepped", angles_deg=(0.0, 30.0), step="repeat")
+    hits, h = scanstats.hwp_moments(schedule, plate, 16)
+    stats = scanstats.characterise_schedule(schedule, 16)
+    np.testing.assert_array_equal(hits, stats.hits)
+    seen = hits > 0
+    for (n, m), moment in h.items():
+        average = np.mean(np.exp(1j * m * np.radians([0.0, 30.0])))
+        np.testing.assert_allclose(moment[seen], stats.h[n, seen] * average, atol=1e-12)
+        assert np.all(moment[~seen] == 0)
+    assert (
+        np.abs(h[(2, 4)][seen]).max() > 0.1 and abs(np.mean(np.exp(4j * np.radians([0, 30])))) > 0.4
+    )
+    # four steps of 22.5 deg cancel m = 4 and 8 wherever the repeats see the sky alike
+    four = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,) * 4)
+    _, h4 = scanstats.hwp_moments(four, HWP("stepped", step="repeat"), 16, terms=((2, -4), (1, 8)))
+    assert max(np.abs(v).max() for v in h4.values()) < 1e-14
+
+
+def test_hwp_moments_of_a_continuous_plate_bin_as_numpy_does():
+    schedule = _schedule([0.0, 600.0])
+    plate = HWP("continuous", frequency_hz=0.7, phase_deg=10.0)
+    terms = ((2, -4), (0, 4), (3, 8))
+    hits, h = scanstats.hwp_moments(schedule, plate, 16, terms, chunk_samples=33)
+    theta, phi, psi, chi = (np.concatenate(x) for x in zip(*pointing.pointing(schedule, hwp=plate)))
+    pix = hp.ang2pix(16, theta, phi)
+    np.testing.assert_array_equal(hits, np.bincount(pix, minlength=hits.size))
+    for n, m in terms:
+        w = np.exp(1j * (n * psi + m * chi))
+        sums = np.bincount(pix, w.real, hits.size) + 1j * np.bincount(pix, w.imag, hits.size)
+        np.testing.assert_allclose(
+            h[(n, m)], np.where(hits > 0, sums / np.maximum(hits, 1), 0), atol=1e-12
+        )
+    with pytest.raises(ValueError, match="repeated"):
+        scanstats.hwp_moments(schedule, plate, 16, ((2, -4), (2, -4)))
+    with pytest.raises(ValueError, match="continuous or a stepped"):
+        scanstats.hwp_moments(schedule, HWP(), 16)
+
+
+def _schedule_file(path):
+    path.write_text(
+        "sample_rate_hz = 2.0\nrepeat_boresight_deg = [0.0, 90.0]\n"
+        + "".join(
+            f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 600\n"
+            f"elevation_deg = 50\naz_centre_deg = {134 if i % 2 else 226}\naz_throw_deg = 40\n"
+            for i in range(2)
+        )
+    )
+    return str(path)
+
+
+def test_scan_stats_writes_the_hwp_moments(tmp_path):
+    """hwp_moments.fits holds the library's h_{n,m} (RE_2_M4 is Re h_{2,-4}); litebird_sim's
+    layout holds them too, read as its load_h_map_from_file reads them."""
+    import h5py
+    from astropy.io import fits
+
+    path = _schedule_file(tmp_path / "s.toml")
+    flags = ["--nside", "16", "--hwp", "continuous", "--hwp-frequency", "0.7"]
+    assert main(["-q", "scan-stats", path, "--out", str(tmp_path / "a"), *flags]) == 0
+    plate = HWP("continuous", frequency_hz=0.7)
+    hits, h = scanstats.hwp_moments(load_schedule(path), plate, 16)
+    seen = hits > 0
+    table = fits.getdata(tmp_path / "a" / "hwp_moments.fits", 1)
+    for (n, m), name in (((2, -4), "2_M4"), ((4, 8), "4_8"), ((0, 4), "0_4")):
+        re_, im_ = (table[f"{p}_{name}"].ravel().astype(float) for p in ("RE", "IM"))
+        np.testing.assert_allclose(re_[seen] + 1j * im_[seen], h[(n, m)][seen], atol=1e-6)
+        assert np.all(re_[~seen] == hp.UNSEEN)
+    out = tmp_path / "lb"
+    galactic = ["--format", "litebird", "--frame", "galactic", "--hwp", "stepped"]
+    assert main(["-q", "scan-stats", path, "--out", str(out), "--nside", "16", *galactic]) == 0
+    schedule = load_schedule(path, frame="galactic")
+    hits, h = scanstats.hwp_moments(schedule, HWP("stepped"), 16)
+    with h5py.File(out / "h_maps_det_boresight.h5", "r") as f:
+        assert f.attrs["coordinate_system"] == "Galactic" and f.attrs["det"] == "boresight"
+        assert f.attrs["sampling_rate_Hz"] == 2.0 and f.attrs["duration_s"] == 2 * 2 * 600
+        assert {f.attrs["detector_split"], f.attrs["time_split"]} == {"full"}
+        read = {tuple(map(int, k.split(","))): f[k]["Re"][:] + 1j * f[k]["Im"][:] for k in f}
+    np.testing.assert_array_equal(read.pop((0, 0)).real, hits)
+    assert set(read) == set(h) - {(0, 0)}
+    for key, moment in read.items():
+        np.testing.assert_allclose(moment, h[key], atol=1e-12)
+
+
+def test_scan_stats_refuses_what_the_layouts_cannot_hold(tmp_path, capsys):
+    path = _schedule_file(tmp_path / "s.toml")
+    for flags, words in (
+        (["--format", "litebird"], "Galactic"),
+        (["--hwp", "stepped", "--format", "so"], "--hwp"),
+        (["--hwp", "stepped", "--focalplane", "hexagon:7:10"], "--hwp"),
+        (["--hwp", "stepped", "--hwp-angles", "0,x"], "--hwp-angles"),
+        (["--hwp", "continuous", "--hwp-frequency", "-1"], "frequency"),
+    ):
+        out = tmp_path / "bad"
+        assert main(["-q", "scan-stats", path, "--out", str(out), "--nside", "8", *flags]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1 and not out.exists(), (flags, err)

@@ -53,7 +53,7 @@ LAYERS = {
         "paper",
         "sweep",
     },
-    "outputs": {"report", "plots", "so_maps"},
+    "outputs": {"report", "plots", "so_maps", "litebird_maps"},
     "commands": {"commands"},
     "cli": {"cli"},
 }

@@ -1,5 +1,5 @@
 """What the commands share: the checks a user may skip, the progress bar's switch, and the flags
-of schedule files and focal planes."""
+of schedule files, focal planes and half-wave plates."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import sys
 
 from ..focalplane import load_focalplane
 from ..frames import FRAMES
+from ..hwp import HWP, MODES, STEPS
 from ..resources import Checks
 from ..schedule import TURNAROUNDS, ScanMotion
 from ..validation import ConfigError
@@ -81,3 +82,34 @@ def focalplane_flag(parser: argparse.ArgumentParser, replaces: str = "") -> None
 def focalplane(args: argparse.Namespace):
     """The :class:`boresight.focalplane.FocalPlane` of --focalplane, or None."""
     return load_focalplane(args.focalplane) if args.focalplane else None
+
+
+def hwp_flags(parser: argparse.ArgumentParser) -> None:
+    """Flags of a half-wave plate (:class:`boresight.hwp.HWP`)."""
+    g = parser.add_argument_group("half-wave plate")
+    g.add_argument("--hwp", choices=MODES, default="none", help="a HWP (default: none)")
+    g.add_argument(
+        "--hwp-frequency", type=float, default=2.0, help="a continuous HWP's rotations per second"
+    )
+    g.add_argument(
+        "--hwp-phase-deg", type=float, default=0.0, help="its angle at unix time 0 [deg]"
+    )
+    g.add_argument(
+        "--hwp-angles",
+        default="0,22.5,45,67.5",
+        help="a stepped HWP's angles in turn, comma-separated [deg]",
+    )
+    g.add_argument(
+        "--hwp-step", choices=STEPS, default="ces", help="when a stepped HWP steps (default: ces)"
+    )
+
+
+def hwp(args: argparse.Namespace):
+    """The :class:`boresight.hwp.HWP` of the HWP flags, or None without one."""
+    if args.hwp == "none":
+        return None
+    try:
+        angles = tuple(float(a) for a in args.hwp_angles.split(","))
+    except ValueError:
+        raise ConfigError(f"--hwp-angles {args.hwp_angles!r}: comma-separated numbers") from None
+    return HWP(args.hwp, args.hwp_frequency, args.hwp_phase_deg, angles, args.hwp_step)

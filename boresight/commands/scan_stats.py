@@ -4,6 +4,7 @@ schedule, their survey means, in boresight's layout or SO/SMARTIES's."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 from dataclasses import dataclass
@@ -16,6 +17,7 @@ import numpy as np
 from .. import (
     engine,
     io,
+    litebird_maps,
     masks,
     plots,
     precompile,
@@ -32,15 +34,18 @@ from . import _common
 
 if TYPE_CHECKING:
     from ..focalplane import FocalPlane
+    from ..hwp import HWP
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
 
 NAME = "scan-stats"
 HELP = "h_n, hit, N_phi and R maps of a study or a schedule"
-FORMATS = ("boresight", "so")
+FORMATS = ("boresight", "so", "litebird")
 #: the header COMMENT of boresight-layout h_n maps
 BORESIGHT_CONVENTION = "h_n = RE + i IM of <exp(i n psi)>, psi in boresight's convention"
+#: the header COMMENT of the HWP's moments
+HWP_CONVENTION = "h_n,m = RE_n_m + i IM_n_m of <exp(i(n psi + m chi))>; M = minus"
 
 
 @dataclass(frozen=True)
@@ -49,9 +54,10 @@ class Layout:
 
     Parameters
     ----------
-    format : {"boresight", "so"}
-        One FITS table ``hn_maps.fits`` (RE_H1.., IM_H1..) in boresight's psi convention, or the
-        SO/SMARTIES files of :mod:`boresight.so_maps` (``{prefix}_cos_{n}.fits``...) in TOAST's.
+    format : {"boresight", "so", "litebird"}
+        One FITS table ``hn_maps.fits`` (RE_H1.., IM_H1..) in boresight's psi convention, the
+        SO/SMARTIES files of :mod:`boresight.so_maps` (``{prefix}_cos_{n}.fits``...) in TOAST's,
+        or litebird_sim's HDF5 file of :mod:`boresight.litebird_maps` in boresight's.
     prefix : str
         File name prefix of the SO layout: letters, digits, '_', '-' and '.'.
     """
@@ -158,6 +164,7 @@ def run_schedule(
     turnarounds: str | None = None,
     focalplane: FocalPlane | None = None,
     per_detector: bool = False,
+    hwp: HWP | None = None,
     scheduler: str | None = "serial",
     workers: int = 2,
     progress: bool = False,
@@ -189,6 +196,10 @@ def run_schedule(
         Default: every pair on the boresight.
     per_detector : bool
         Write each detector's maps (SO layout, with a focal plane).
+    hwp : boresight.hwp.HWP, optional
+        Also the moments h_{n,m} of the boresight's psi and the HWP's angle
+        (:data:`boresight.scanstats.HWP_TERMS`): ``hwp_moments.fits`` (RE_n_m, IM_n_m, with M for
+        a minus sign: RE_2_M4 is Re h_{2,-4}), or litebird_sim's file in its layout.
     scheduler : str, optional
         Where a focal plane's blocks of pairs run: "serial" (this process), None (a local Dask
         cluster of ``workers`` processes) or a Dask scheduler's address.
@@ -213,7 +224,14 @@ def run_schedule(
                     "letters, digits, '_', '-' and '.' only"
                 )
         layout.check_names(f"{layout.prefix}_{det}" for det in names)
+    if hwp is not None and hwp.present and (focalplane is not None or layout.format == "so"):
+        raise ConfigError(
+            "--hwp: the HWP's moments are the boresight's, in boresight's or litebird_sim's "
+            "layout: leave out --focalplane and --format so"
+        )
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
+    if layout.format == "litebird":
+        litebird_maps.check_frame(schedule.frame)
     try:
         SkyConfig(nside=nside, lmax=2 * nside)
     except (TypeError, ValueError) as err:
@@ -261,9 +279,25 @@ def run_schedule(
             config["focalplane"] = focalplane.source
             if Path(focalplane.source).is_file():
                 inputs.append(focalplane.source)
+    moments = None
+    if hwp is not None and hwp.present:
+        with timer("the HWP's moments"):
+            moments = scanstats.hwp_moments(schedule, hwp, nside, progress=progress)
+        config["hwp"] = dataclasses.asdict(hwp)
+    config["observing_s"] = schedule.n_samples / schedule.sample_rate_hz
+    config["sample_rate_hz"] = schedule.sample_rate_hz
     maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
     return _write(
-        out_dir, maps, scanstats.N_MAX, inputs, force, layout, config, estimate, planes=planes
+        out_dir,
+        maps,
+        scanstats.N_MAX,
+        inputs,
+        force,
+        layout,
+        config,
+        estimate,
+        planes=planes,
+        hwp_moments=moments,
     )
 
 
@@ -292,7 +326,20 @@ def _write_focalplane(stage, planes, layout, frame):
             so_maps.write(stage, f"{layout.prefix}_{det}", h, planes.pair_hits[i], frame=frame)
 
 
-def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate, *, planes=None):
+def _hwp_columns(hits, moments):
+    """hwp_moments.fits' maps and names: RE_n_m and IM_n_m, M for a minus sign."""
+    observed = hits > 0
+    maps, names = [], []
+    for part, f in (("RE", np.real), ("IM", np.imag)):
+        for (n, m), h in moments.items():
+            maps.append(np.where(observed, f(h), hp.UNSEEN))
+            names.append(f"{part}_{n}_{m}".replace("-", "M"))
+    return maps, names
+
+
+def _write(
+    out_dir, maps, n_max, inputs, force, layout, config, estimate, *, planes=None, hwp_moments=None
+):
     """The survey means, the h_n maps in the layout, the scan maps, a figure and the manifest. In
     the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi convention (odd h_n
     change sign); the manifest's ``psi_convention`` says which."""
@@ -310,7 +357,21 @@ def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate, *, pla
     ]
     require_finite("the h_n summary", [list(row.values()) for row in rows])
     with io.staged_dir(out_dir, force, inputs) as stage:
-        if layout.format == "so":
+        if layout.format == "litebird":
+            hits, moments = hwp_moments or (
+                maps.crossings,
+                {(n, 0): h[n] for n in range(1, n_max + 1)},
+            )
+            litebird_maps.write(
+                stage,
+                "boresight",
+                hits,
+                moments,
+                frame=frame,
+                duration_s=config["observing_s"],
+                sample_rate_hz=config["sample_rate_hz"],
+            )
+        elif layout.format == "so":
             so_maps.write(
                 stage,
                 layout.prefix,
@@ -327,6 +388,16 @@ def _write(out_dir, maps, n_max, inputs, force, layout, config, estimate, *, pla
                 [f"{p}_H{n}" for p, _ in parts for n in range(1, n_max + 1)],
                 [""] * (2 * n_max),
                 comments=[BORESIGHT_CONVENTION],
+                frame=frame,
+            )
+        if hwp_moments is not None and layout.format == "boresight":
+            columns, names = _hwp_columns(*hwp_moments)
+            io.write_maps(
+                stage / "hwp_moments.fits",
+                columns,
+                names,
+                [""] * len(names),
+                comments=[HWP_CONVENTION],
                 frame=frame,
             )
         io.write_maps(
@@ -370,8 +441,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--format",
         choices=FORMATS,
         default="boresight",
-        help="h_n maps as hn_maps.fits, or as SO/SMARTIES {prefix}_cos_{n}/_sin_{n}.fits in "
-        "TOAST's psi convention (odd h_n change sign)",
+        help="h_n maps as hn_maps.fits, as SO/SMARTIES {prefix}_cos_{n}/_sin_{n}.fits in "
+        "TOAST's psi convention (odd h_n change sign), or as litebird_sim's "
+        "h_maps_det_boresight.h5 (groups 'n,m'; Galactic maps only)",
     )
     parser.add_argument("--prefix", default="hn", help="file name prefix of --format so")
     _common.focalplane_flag(parser)
@@ -387,6 +459,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with --focalplane and --format so: each detector's maps, as sotodlib's Hn writes",
     )
+    _common.hwp_flags(parser)
     _common.motion_flags(parser)
     _common.pointing_flags(parser)
 
@@ -403,6 +476,7 @@ def main(args: argparse.Namespace) -> int:
             layout=layout,
             focalplane=_common.focalplane(args),
             per_detector=args.per_detector,
+            hwp=_common.hwp(args),
             scheduler=None if args.scheduler == "local" else args.scheduler,
             workers=args.workers,
             progress=_common.progress(args),
@@ -410,8 +484,11 @@ def main(args: argparse.Namespace) -> int:
             **_common.pointing(args),
         )
     else:
-        if args.focalplane or args.per_detector:
-            raise ConfigError("--focalplane and --per-detector need a schedule, not a study")
+        if args.focalplane or args.per_detector or args.hwp != "none" or args.format == "litebird":
+            raise ConfigError(
+                "--focalplane, --per-detector, --hwp and --format litebird need a schedule, "
+                "not a study"
+            )
         rows = run(
             load_study(args.config),
             args.out,
