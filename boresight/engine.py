@@ -18,6 +18,8 @@ from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import METHODS, SkyFields
+from .hwp import check_systematics as check_hwp_systematics
+from .hwp import reflected
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
@@ -31,6 +33,7 @@ if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from .focalplane import FocalPlane
+    from .hwp import HWP
     from .scan import SyntheticScan
     from .schedule import Schedule
     from .sky import Sky
@@ -501,11 +504,16 @@ def simulate_focalplane(
     backend: str = "cpu",
     rcond_min: float = RCOND_MIN,
     chunk_samples: int = 1 << 20,
+    hwp: HWP | None = None,
     progress: bool = False,
 ) -> Maps:
     """Maps from every pair of a focal plane on a schedule, each pair on its own samples
     (:func:`boresight.pointing.detector_pointing`), all binned into one map as the map-maker
     combines them.
+
+    Behind a HWP each pair's pair difference is that of a bare pair at its reflected angle
+    (:func:`boresight.hwp.reflected`), and the map-maker solves with that angle: exact for the
+    sky and for what the pairs carry through the HWP (:data:`boresight.hwp.THROUGH_HWP`).
 
     Pair i has the focal plane's angle and the systematics' i-th draw (as pair i of
     ``Instrument(pair_angles_deg=focalplane.pair_angles_deg)``); the jitter of its sample k is
@@ -523,6 +531,8 @@ def simulate_focalplane(
         The GPU backend does not take a focal plane yet.
     chunk_samples : int
         Pair-samples per chunk of pointing.
+    hwp : boresight.hwp.HWP, optional
+        A continuous or stepped HWP in front of every pair.
     progress : bool
 
     Returns
@@ -532,6 +542,9 @@ def simulate_focalplane(
     """
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
+    if hwp is not None:
+        check_hwp_systematics(systematics)
+    gammas = np.radians(focalplane.gamma_deg)
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
@@ -544,12 +557,15 @@ def simulate_focalplane(
         numba_threads(nthreads),
         tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar,
     ):
-        for theta, phi, psi in detector_pointing(schedule, focalplane, chunk_samples):
+        for theta, phi, psi, *chi in detector_pointing(
+            schedule, focalplane, chunk_samples, hwp=hwp
+        ):
             for i, one in enumerate(pairs):
                 interrupts.check()
                 pix = ang2pix_array(sky.nside, theta[i], phi[i])
                 key = i * schedule.n_samples + first
-                one.scatter(pix, theta[i], phi[i], psi[i], normal, systematics.seed, key)
+                angle = reflected(psi[i], chi[0], gammas[i]) if chi else psi[i]
+                one.scatter(pix, theta[i], phi[i], angle, normal, systematics.seed, key)
             first += theta.shape[1]
             bar.update(theta.size)
     q, u, rcond, hits = _maps_from(binner.kernels, normal, 1, rcond_min)

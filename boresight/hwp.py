@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import DEG
+from .instrument import AMPLITUDES, _nonzero
 from .validation import ConfigError
 
 MODES = ("none", "continuous", "stepped")
@@ -137,6 +138,30 @@ def chunk_angles(hwp: HWP, schedule, repeat: int, index: int, *, first: int, n: 
     return (2 * np.pi * cycles + hwp.phase_deg * DEG) % (2 * np.pi)
 
 
+#: the systematics a pair behind the HWP carries as a bare pair at its reflected angle does
+#: (:func:`reflected`): those that do not depend on where the pair points
+THROUGH_HWP = ("dg", "leak", "dg_jitter")
+
+
+def check_systematics(systematics) -> None:
+    """Refuse systematics the HWP's pairs do not yet carry (:data:`THROUGH_HWP`): a pointing
+    offset or a beam turns with the focal plane, not with the HWP, and a polarisation-angle error
+    is reflected by it."""
+    others = [k for k in AMPLITUDES if k not in THROUGH_HWP and _nonzero(getattr(systematics, k))]
+    if others or _nonzero(systematics.dg_repeat):
+        raise ValueError(
+            f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted; "
+            f"a HWP's pairs carry {', '.join(THROUGH_HWP)}"
+        )
+
+
+def reflected(psi: np.ndarray, chi: np.ndarray, gamma: float) -> np.ndarray:
+    """The crossing angle at which a bare pair at angle ``gamma`` sees the sky as this pair does
+    behind the HWP at ``chi``: psi + 2 chi - 2 gamma (so that its a = psi' + gamma is
+    psi - gamma + 2 chi) [rad]."""
+    return psi + 2.0 * chi - 2.0 * gamma
+
+
 def stokes_weights(psi: np.ndarray, gamma: float, chi: np.ndarray | None = None) -> np.ndarray:
     """The I, Q, U weights of a detector at angle ``gamma`` in the focal plane, behind an ideal
     HWP at ``chi`` (module docstring).
@@ -156,5 +181,5 @@ def stokes_weights(psi: np.ndarray, gamma: float, chi: np.ndarray | None = None)
         (1, cos 2a, sin 2a): d = I + Q cos 2a + U sin 2a.
     """
     psi = np.asarray(psi, dtype=np.float64)
-    a = psi + gamma if chi is None else psi - gamma + 2 * np.asarray(chi)
+    a = (psi if chi is None else reflected(psi, np.asarray(chi), gamma)) + gamma
     return np.stack([np.ones_like(a), np.cos(2 * a), np.sin(2 * a)], axis=-1)

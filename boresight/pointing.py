@@ -358,7 +358,11 @@ def pointing(
 
 
 def detector_pointing(
-    schedule: Schedule, focalplane: FocalPlane, chunk_samples: int = 1 << 20
+    schedule: Schedule,
+    focalplane: FocalPlane,
+    chunk_samples: int = 1 << 20,
+    *,
+    hwp: HWP | None = None,
 ) -> Iterator[tuple]:
     """The pointing of every pair of a focal plane over a whole schedule, chunk by chunk: the
     boresight's (:func:`pointing`) carried to each pair's place, the boresight angle turning the
@@ -370,16 +374,24 @@ def detector_pointing(
     focalplane : boresight.focalplane.FocalPlane
     chunk_samples : int
         Detector-samples per chunk (at least one sample of every pair).
+    hwp : boresight.hwp.HWP, optional
+        Also yield its angle at each sample.
 
     Yields
     ------
     theta, phi, psi : numpy.ndarray, shape (n_pairs, <= chunk_samples / n_pairs)
         Each pair's colatitude, longitude and crossing angle [rad] in ``schedule.frame``.
+    chi : numpy.ndarray, shape (<= chunk_samples / n_pairs,)
+        With ``hwp``: the HWP's angle in the focal plane [rad].
     """
     vectors = focalplane.vectors()
-    for args in chunk_arguments(schedule, max(1, chunk_samples // focalplane.n_pairs)):
+    per_pair = max(1, chunk_samples // focalplane.n_pairs)
+    for repeat, index, args in ces_chunks(schedule, per_pair):
         theta, phi, psi, turning = _ces_detector_pointing(*args, vectors)
+        out = (theta, phi, psi)
+        if hwp is not None:
+            out = (*out, chunk_angles(hwp, schedule, repeat, index, first=args[0], n=args[1]))
         if schedule.turnarounds == "exclude":
             keep = ~turning
-            theta, phi, psi = theta[:, keep], phi[:, keep], psi[:, keep]
-        yield theta, phi, psi
+            out = tuple(x[..., keep] for x in out)
+        yield out

@@ -106,7 +106,12 @@ KERNELS = {
         Kernel("design_expectation", "_apply", (_F3, _I1, _F1, _C2, nt.int64, nt.int64, _C2), 0.6),
         Kernel("scanstats", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1),
         Kernel("scanstats", "_runs", (_U2, nt.int64, _I1), 2.8),
-        Kernel("scanstats", "ces_hits_pairs", (*_CHUNK, nt.int64, nt.int64, nt.bool_, _F2), 2.4),
+        Kernel(
+            "scanstats",
+            "ces_hits_pairs",
+            (*_CHUNK, nt.int64, nt.int64, nt.bool_, _F2, _F1, _F1),
+            2.4,
+        ),
         Kernel(
             "scanstats",
             "_bin_pairs",

@@ -19,8 +19,9 @@ import numpy as np
 
 from . import interrupts, tasks
 from .engine import check_samples
+from .hwp import chunk_angles
 from .kernels.pixels import ang2pix_array, zphi2pix
-from .pointing import chunk_arguments, offset_sample, pointing, sample_pointing
+from .pointing import ces_chunks, chunk_arguments, offset_sample, pointing, sample_pointing
 from .scan import SyntheticScan
 
 if TYPE_CHECKING:
@@ -102,9 +103,11 @@ def ces_hits(k0, n, chunk, terms, nside, nbins, exclude_turnarounds):
 
 
 @numba.njit(parallel=True, cache=True)
-def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vectors):
+def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vectors, chi, gammas):
     """:func:`ces_hits` of each pair of a focal plane at ``vectors`` (m, 6)
-    (:func:`boresight.pointing.offset_sample`): arrays (m, n)."""
+    (:func:`boresight.pointing.offset_sample`): arrays (m, n). Behind a HWP at ``chi`` (n,)
+    (empty: none), pair d's angle is :func:`boresight.hwp.reflected`'s, with ``gammas`` (m,)
+    the pairs' angles [rad]."""
     m = vectors.shape[0]
     pix = np.empty((m, n), dtype=np.int64)
     cos_psi = np.empty((m, n))
@@ -118,6 +121,10 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
         for d in range(m):
             zd, rd, phd, cd, sd = offset_sample(z, r, cp, sp, c, s, vectors[d])
             pix[d, i] = -1 if exclude_turnarounds and turning else zphi2pix(nside, zd, rd, phd)
+            if chi.size:  # psi + 2 chi - 2 gamma
+                turn = 2.0 * (chi[i] - gammas[d])
+                ct, st = np.cos(turn), np.sin(turn)
+                cd, sd = cd * ct - sd * st, cd * st + sd * ct
             cos_psi[d, i], sin_psi[d, i] = cd, sd
             angle_bin[d, i] = _angle_bin(cd, sd, nbins)
     return pix, cos_psi, sin_psi, angle_bin
@@ -534,6 +541,8 @@ class FocalPlaneStats:
         Each pair's hits N_i, where asked.
     pair_h : numpy.ndarray, complex128, shape (pairs, N_MAX + 1, npix), or None
         Each pair's h_{n,i}, where asked.
+    hwp : boresight.hwp.HWP, optional
+        The HWP in front of the pairs: their moments are of their reflected angles.
     """
 
     combined: ScanStats
@@ -542,6 +551,7 @@ class FocalPlaneStats:
     pair_weights: np.ndarray
     pair_hits: np.ndarray | None = None
     pair_h: np.ndarray | None = None
+    hwp: HWP | None = None
 
     def scattered(self) -> np.ndarray:
         """sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
@@ -575,18 +585,27 @@ def pair_blocks(n_pairs: int, nside: int, *, per_pair: bool = False) -> list[ran
     return [range(a, min(a + size, n_pairs)) for a in range(0, n_pairs, size)]
 
 
-def _block_stats(schedule, vectors, nside, tolerance_deg, chunk_samples, per_pair, update=None):
-    """One block of pairs at ``vectors`` (m, 6) over the whole schedule: its combined sums
-    (an :class:`_Accumulator`), its share of ``sum_sq`` and its pairs' weights, and where asked
-    its pairs' hits and h_n. An independent task (:mod:`boresight.tasks`)."""
+def _block_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, per_pair, update=None):
+    """One block of pairs, ``pairs`` = (their ``vectors`` (m, 6), their angles (m,) [rad], the
+    HWP or None), over the whole
+    schedule: its combined sums (an :class:`_Accumulator`), its share of ``sum_sq`` and its
+    pairs' weights, and where asked its pairs' hits and h_n; behind ``hwp``, of the pairs'
+    reflected angles. An independent task (:mod:`boresight.tasks`)."""
     exclude = schedule.turnarounds == "exclude"
+    vectors, gammas, hwp = pairs
     npix, m = 12 * nside**2, vectors.shape[0]
     acc = _Accumulator(nside, tolerance_deg)
     sums = np.zeros((m, npix, N_MAX + 1), dtype=np.complex128)
     hits = np.zeros((m, npix), dtype=np.int64)
     nparts = numba.get_num_threads()
-    for args in chunk_arguments(schedule, max(1, chunk_samples // m)):
-        pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors)
+    none = np.zeros(0)
+    for repeat, index, args in ces_chunks(schedule, max(1, chunk_samples // m)):
+        chi = (
+            none
+            if hwp is None
+            else chunk_angles(hwp, schedule, repeat, index, first=args[0], n=args[1])
+        )
+        pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors, chi, gammas)
         interrupts.check()
         _bin_pairs(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, nparts)
         if update is not None:
@@ -612,12 +631,18 @@ def characterise_focalplane(
     chunk_samples: int = 1 << 20,
     *,
     per_pair: bool = False,
+    hwp: HWP | None = None,
     scheduler: str | None = "serial",
     workers: int = 2,
     progress: bool = False,
 ) -> FocalPlaneStats:
     """Statistics of a schedule seen by every pair of a focal plane, each from its own place
     (:func:`boresight.pointing.detector_pointing`, fused into the binning).
+
+    Behind a HWP each pair's moments are those of its reflected angle
+    (:func:`boresight.hwp.reflected`): the angle at which a bare pair sees the sky as it does, so
+    that :mod:`boresight.predict.focalplane` predicts what it carries through the HWP
+    (:data:`boresight.hwp.THROUGH_HWP`).
 
     Pairs are streamed in blocks (:func:`pair_blocks`), so memory holds one block's maps, not one
     per pair. The blocks are independent tasks, run in this process or on Dask
@@ -634,6 +659,8 @@ def characterise_focalplane(
         Detector-samples per chunk.
     per_pair : bool
         Keep each pair's hits and h_n.
+    hwp : boresight.hwp.HWP, optional
+        A continuous or stepped HWP in front of every pair.
     scheduler : str, optional
         "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
         scheduler's address.
@@ -671,10 +698,15 @@ def characterise_focalplane(
                     kept.update(pair_hits=part["hits"], pair_h=part["h"])
                 merged[0] += 1
 
+        gammas = np.radians(focalplane.gamma_deg)
         arguments = [
             (
                 schedule,
-                np.ascontiguousarray(vectors[b.start : b.stop]),
+                (
+                    np.ascontiguousarray(vectors[b.start : b.stop]),
+                    np.ascontiguousarray(gammas[b.start : b.stop]),
+                    hwp,
+                ),
                 nside,
                 tolerance_deg,
                 chunk_samples,
@@ -691,4 +723,5 @@ def characterise_focalplane(
         pair_weights=weights,
         pair_hits=kept.get("pair_hits"),
         pair_h=kept.get("pair_h"),
+        hwp=hwp,
     )

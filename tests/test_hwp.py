@@ -7,12 +7,15 @@ import dataclasses
 import healpy as hp
 import numpy as np
 import pytest
-from helpers import T0
+from helpers import EXAMPLES, T0
 
-from boresight import hwp, pointing, scanstats
+from boresight import engine, focalplane, harmonics, hwp, pointing, scanstats, spectra
 from boresight.cli import main
 from boresight.hwp import HWP
+from boresight.instrument import Systematics
+from boresight.predict import focalplane as predict_fp
 from boresight.schedule import CES, Schedule, Site, load_schedule
+from boresight.sky import SkyConfig, make_sky
 from boresight.validation import ConfigError
 
 RATE = 5.0  #: samples per second of the TOAST simulation
@@ -301,3 +304,70 @@ def test_scan_stats_refuses_what_the_layouts_cannot_hold(tmp_path, capsys):
         assert main(["-q", "scan-stats", path, "--out", str(out), "--nside", "8", *flags]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1 and not out.exists(), (flags, err)
+
+
+@pytest.fixture(scope="module")
+def deep_bare():
+    """The deep example at 1 Hz, the paper's Q and U pairs, a sky smooth over a pixel, and the
+    leaked pseudo-C_BB of a differential gain without a HWP."""
+    base = dataclasses.replace(
+        load_schedule(str(EXAMPLES / "schedule_deep_sat.toml")), sample_rate_hz=1.0
+    )
+    sky = make_sky(SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=450.0, seed=10))
+    return base, sky, _leak(base, sky, None)[0]
+
+
+NSIDE = 32
+EDGES = np.array([40, 48, 56, 2 * NSIDE + 1])  #: bands of 40 <= ell <= 2 Nside
+GAIN = Systematics(dg=(0.01, -0.01))
+
+
+def _leak(schedule, sky, plate):
+    """The TOD's leaked pseudo-C_BB of GAIN behind ``plate`` (the sky read exactly at every
+    sample), and its prediction from the pairs' reflected-angle moments."""
+    pairs = focalplane.on_axis((0.0, 45.0))
+    maps = [
+        engine.simulate_focalplane(sky, schedule, pairs, s, evaluation="exact", hwp=plate)
+        for s in (Systematics(), GAIN)
+    ]
+    footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
+    stats = scanstats.characterise_focalplane(schedule, pairs, NSIDE, per_pair=True, hwp=plate)
+
+    def bb(dp):
+        d = dp[footprint.pixels]
+        b = footprint.alm(np.array([d.real, d.imag]), 2 * NSIDE, 2)[1]
+        return spectra.bin_spectrum(harmonics.alm2cl(b), EDGES)[1]
+
+    measured = bb((maps[1].q - maps[0].q) + 1j * (maps[1].u - maps[0].u))
+    return measured, bb(predict_fp.delta_p(sky, stats, GAIN))
+
+
+@pytest.mark.parametrize(
+    "plate", [HWP("continuous", frequency_hz=0.37), HWP("stepped")], ids=["continuous", "stepped"]
+)
+def test_a_gain_behind_a_hwp_leaks_as_its_moments_predict(deep_bare, plate):
+    """Each pair behind the HWP on its own samples (engine.simulate_focalplane, the sky read
+    exactly there) against the prediction from its reflected-angle moments: the leaked
+    pseudo-C_BB within 5 % in every band 40 <= ell <= 2 Nside (measured 0.985-1.004 continuous,
+    1.01 stepped). A continuous HWP averages the gain's T leak (h_{2,4}) away: 10x less at
+    40 <= ell < 48 than without a HWP; a HWP stepped per CES does not (4x more there)."""
+    schedule, sky, bare = deep_bare
+    measured, predicted = _leak(schedule, sky, plate)
+    assert np.all(np.abs(predicted / measured - 1) < 0.05), predicted / measured
+    if plate.mode == "continuous":
+        assert measured[0] < bare[0] / 5
+    else:
+        assert measured[0] > 2 * bare[0]
+
+
+def test_what_a_hwp_pair_does_not_yet_carry_is_refused(deep_bare):
+    schedule, sky, _ = deep_bare
+    pointing_offset = Systematics(rho_arcmin=1.0)
+    pairs = focalplane.on_axis()
+    with pytest.raises(ValueError, match="rho_arcmin behind a HWP"):
+        engine.simulate_focalplane(sky, schedule, pairs, pointing_offset, hwp=HWP("stepped"))
+    stats = scanstats.characterise_focalplane(
+        schedule.single(), pairs, 8, per_pair=True, hwp=HWP("stepped")
+    )
+    with pytest.raises(ValueError, match="pol_angle_deg behind a HWP"):
+        predict_fp.delta_p(sky, stats, Systematics(pol_angle_deg=0.5))

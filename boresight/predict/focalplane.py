@@ -28,6 +28,7 @@ import numpy as np
 
 from .. import harmonics
 from ..constants import DEG
+from ..hwp import check_systematics as check_hwp_systematics
 from ..instrument import LIMITS, UNITS, Spread, Systematics
 from ..spectra import as_footprint
 from . import field_products as fp_products
@@ -49,6 +50,8 @@ TERMS = (("t2", 2), ("s2", 2), ("g1", 1), ("g3", 3), ("p0", 0), ("p4", 4))
 def _check(stats, systematics):
     if stats.pair_h is None:
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
+    if stats.hwp is not None:
+        check_hwp_systematics(systematics)
     if systematics.has_beams:
         raise ValueError("beam systematics are not yet predicted for a focal plane")
 
