@@ -159,7 +159,7 @@ def at_means(systematics, n_pairs):
     drawn, values = [], params._asdict()
     for k, name in enumerate(LIMITS):
         spread = getattr(systematics, name)
-        if isinstance(spread, Spread) and spread.rms > 0:
+        if isinstance(spread, Spread) and spread.rms > 0 and name != "dg_jitter":
             if name not in LINEAR:
                 raise ValueError(
                     f"{name} drawn per pair: a focal plane's expectation covers "
@@ -318,7 +318,8 @@ def expected_residual(
         below :data:`RCOND_EXPECTATION`) are invalid, 0 in the maps with and without the
         systematics, as in :func:`boresight.engine.simulate_focalplane` with that ``rcond_min``.
     systematics : boresight.instrument.Systematics
-        {mean, rms} of dg, leak and rho_arcmin allowed; no beams or gain jitter yet.
+        {mean, rms} of dg, leak, rho_arcmin and dg_jitter allowed; no beams yet. A gain jitter
+        adds its white power (:func:`jitter_bb`).
     theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
         The sky's beam.
@@ -339,8 +340,6 @@ def expected_residual(
     FocalPlaneResidual
     """
     _check(stats, systematics)
-    if systematics.has_jitter:
-        raise ValueError("a gain jitter is not yet predicted for a focal plane")
     band = lmax if band is None else band
     nside, lw = hp.npix2nside(mask.size), lmax + band
     focal = stats.focalplane
@@ -386,6 +385,7 @@ def expected_residual(
     sky = [fp_products.weight_alm(fp_products.Weight(0, solved + 0j, None), lw, nthreads)]
     sky_terms = ([0], [fields["polarisation"]])
     scatter = _scatter(stats, terms, fields, sky_cl, solved, shares, params, drawn) if spread else 0
+    scatter = scatter + jitter_bb(stats, systematics, solved, sky_cl, shares, h4)
     leaked = bb(alms, spins, term_fields) + scatter
     total = bb(alms + sky, spins + sky_terms[0], term_fields + sky_terms[1])
     residual = total - bb(sky, *sky_terms) + scatter
@@ -394,6 +394,55 @@ def expected_residual(
         for i in range(focal.n_pairs):
             scattered += rms**2 * bb(*leak(delta, slice(i, i + 1)))
     return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
+
+
+def jitter_bb(stats, systematics, mask, sky_cl, shares, h4) -> float:
+    """The gain jitter's white pseudo-C_BB [muK^2] (the on-axis one of
+    :class:`boresight.predict.LeakModel`, with each pair's own hits).
+
+    A deviate z of rms s_i on a sample of pair i adds z T / 2 to its pair difference, so
+    Y = (1 / N) sum_samples exp(2 i a) z T, whose E``|Y|^2`` = S T^2 and E[Y^2] = G T^2 with
+    S = sum_i N_i E[s_i^2] / N^2 and G = sum_i N_i E[s_i^2] m4_i h_4,i / N^2. Through the 2x2
+    solve, E``|dP|^2`` = T^2 (S (1 + ``|H_4|^2``) - 2 Re(conj(H_4) G)) / (1 - ``|H_4|^2``)^2, white
+    from pixel to pixel; half of it is B, and E[T^2] is the sky's variance.
+
+    Parameters
+    ----------
+    stats : boresight.scanstats.FocalPlaneStats
+        With the per-pair maps.
+    systematics : boresight.instrument.Systematics
+        ``dg_jitter`` a number, one per pair, or {mean, rms} (E[s^2] = mean^2 + rms^2).
+    mask : numpy.ndarray, shape (npix,)
+        The weights of the solved pixels.
+    sky_cl : numpy.ndarray
+        The sky's smoothed spectra, TT first.
+    shares, h4
+        The pairs' coefficient shares at the means and H_4 per pixel.
+
+    Returns
+    -------
+    float
+        The same at every multipole.
+    """
+    if not systematics.has_jitter:
+        return 0.0
+    jitter = systematics.dg_jitter
+    n_pairs = stats.focalplane.n_pairs
+    if isinstance(jitter, Spread):
+        power = np.full(n_pairs, jitter.mean**2 + jitter.rms**2)
+    else:
+        power = systematics.per_pair(n_pairs).dg_jitter ** 2
+    hits = np.maximum(stats.combined.hits, 1).astype(np.float64)
+    s = np.einsum("i,ip->p", power, stats.pair_hits) / hits**2
+    g = np.einsum("i,ip,ip->p", power * shares["m4"], stats.pair_hits, stats.pair_h[:, 4])
+    g = g / hits**2
+    h4_sq = np.abs(h4) ** 2
+    solved = mask != 0
+    v = np.zeros(mask.size)
+    v[solved] = (s * (1 + h4_sq) - 2 * np.real(np.conj(h4) * g))[solved] / (1 - h4_sq[solved]) ** 2
+    ell = np.arange(sky_cl.shape[1])
+    variance_t = np.sum((2 * ell + 1) / (4 * np.pi) * sky_cl[0])
+    return 0.5 * (4 * np.pi / mask.size) * variance_t * np.sum(mask**2 * v) / mask.size
 
 
 def unit_shares(params, drawn, shares, focal):

@@ -11,8 +11,9 @@ from boresight import engine, focalplane, harmonics, predict, scanstats, spectra
 from boresight.cosmology import load_spectra
 from boresight.instrument import Instrument, Spread, Systematics
 from boresight.predict import focalplane as predict_fp
+from boresight.predict.expectation import smoothed_spectra
 from boresight.schedule import load_schedule
-from boresight.sky import SkyConfig, make_sky
+from boresight.sky import Sky, SkyConfig, make_sky
 
 NSIDE, LMAX = 32, 64
 EDGES = np.array([40, 48, 56, LMAX + 1])  #: bands of 40 <= ell <= 2 Nside
@@ -185,3 +186,62 @@ def test_its_sky_expectation_is_the_mean_over_skies_of_the_per_sky_one(deep):
         want = spectra.bin_spectrum(part, EDGES)[1]
         assert np.all(np.abs(mean[k] - want) < 3 * error[k]), (k, mean[k] / want)
         assert np.all(error[k] < 0.06 * want)
+
+
+def test_a_gain_jitter_adds_the_white_power_of_each_pairs_hits():
+    """A jitter of its own rms on each pair (no other systematic), on a sky of constant T so
+    that E[T^2] is exact: the mean over 8 jitter draws of the TOD's leaked pseudo-C_BB at
+    20 <= ell <= 64, and of its per-pixel ``|dP|^2``, against jitter_bb's white power (measured
+    1.02 and 1.03), with the 2x2 solve's H_4 terms (without them the pixels' power is 1.4x
+    off). expected_residual carries it as its leaked power."""
+    schedule = load_schedule(str(EXAMPLES / "schedule_deep_sat.toml"))
+    schedule = dataclasses.replace(schedule, sample_rate_hz=0.5, ces=schedule.ces[:12])
+    fp = focalplane.hexagon(7, 20.0)
+    stats = scanstats.characterise_focalplane(schedule, fp, NSIDE, per_pair=True)
+    mask = predict_fp.valid(stats).astype(float)
+    footprint = spectra.as_footprint(mask)
+    npix, t0 = 12 * NSIDE**2, 100.0
+    sky = Sky.from_maps(np.array([np.full(npix, t0), np.zeros(npix), np.zeros(npix)]), lmax=LMAX)
+    jitter = Systematics(dg_jitter=(0.02, 0.01, 0.03, 0.02, 0.015, 0.025, 0.02), seed=3)
+    sky_cl = np.zeros((4, LMAX + 1))
+    sky_cl[0, 0] = 4 * np.pi * t0**2  # E[T^2] = t0^2
+    params, _ = predict_fp.at_means(jitter, fp.n_pairs)
+    shares = predict_fp.pair_shares(params, fp)
+    h4 = np.einsum(
+        "i,ip,ip->p",
+        shares["m4"],
+        stats.pair_hits / np.maximum(stats.combined.hits, 1),
+        stats.pair_h[:, 4],
+    )
+    predicted = predict_fp.jitter_bb(stats, jitter, mask, sky_cl, shares, h4)
+    run = dict(evaluation="exact", rcond_min=predict_fp.RCOND_EXPECTATION)
+    ref = engine.simulate_focalplane(sky, schedule, fp, Systematics(), **run)
+    bands, power = [], np.zeros(npix)
+    for seed in range(8):
+        tod = engine.simulate_focalplane(
+            sky, schedule, fp, dataclasses.replace(jitter, seed=seed), **run
+        )
+        dp = (tod.q - ref.q) + 1j * (tod.u - ref.u)
+        power += np.abs(dp) ** 2 / 8
+        d = dp[footprint.pixels]
+        bands.append(
+            harmonics.alm2cl(footprint.alm(np.array([d.real, d.imag]), LMAX, 2)[1])[20:].mean()
+        )
+    bands = np.array(bands)
+    se = bands.std(ddof=1) / np.sqrt(bands.size)
+    assert abs(bands.mean() - predicted) < max(3 * se, 0.05 * predicted), (
+        bands.mean(),
+        predicted,
+        se,
+    )
+    # the same white power from the pixels' own |dP|^2: 0.5 Omega_pix <w^2 |dP|^2>
+    from_pixels = 0.5 * (4 * np.pi / npix) * np.sum(mask**2 * power) / npix
+    assert from_pixels == pytest.approx(predicted, rel=0.06)
+    expected = predict_fp.expected_residual(
+        stats, mask, jitter, load_spectra(), 0.0, lmax=LMAX, evaluation=None
+    )
+    white = predict_fp.jitter_bb(
+        stats, jitter, mask, smoothed_spectra(load_spectra(), 0.0, LMAX), shares, h4
+    )
+    np.testing.assert_allclose(expected.leaked, white, rtol=1e-12)  # the jitter's alone
+    assert np.all(expected.scattered == 0)
