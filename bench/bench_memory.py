@@ -42,9 +42,11 @@ def study_file(directory, nside, systematics="dg = [0.01, -0.01]", fwhm=7.0):
 
 
 def budget_file(directory, nside):
+    """The deep example's budget at one Nside, its TOD check on one sky per strategy (the skies
+    run one after another: the peak is one sky's)."""
     text = (
         (EXAMPLES / "budget_deep_sat.toml").read_text().replace("nside = 128", f"nside = {nside}")
-    )
+    ) + "validation_skies = 1\n"
     path = Path(directory) / f"budget_{nside}.toml"
     path.write_text(text)
     return str(path)

@@ -1,6 +1,8 @@
 """boresight design: per-unit moments, the predicted-delta_r objective, the optimiser, baselines,
 budgets and the command."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -181,7 +183,13 @@ def test_design_command_on_the_deep_example(tmp_path):
     text = open("examples/budget_deep_sat.toml").read().replace("nside = 128", "nside = 64")
     budget.write_text(text + "restarts = 1\nvalidation_skies = 2\n")
     out = tmp_path / "d"
-    args = [str(budget), "examples/schedule_deep_sat.toml", "--out", str(out)]
+    schedule = tmp_path / "deep.toml"  # at 4 Hz: about 4 samples per crossing of an Nside-64 pixel
+    schedule.write_text(
+        Path("examples/schedule_deep_sat.toml")
+        .read_text()
+        .replace("sample_rate_hz = 20.0", "sample_rate_hz = 4.0")
+    )
+    args = [str(budget), str(schedule), "--out", str(out)]
     assert cli.main(["-q", "design", *args]) == 0
     rows = {
         r["strategy"]: float(r["delta_r"]) for r in csv.DictReader(open(out / "strategies.csv"))

@@ -51,6 +51,7 @@ fwhm_arcmin = 240.0
 [design]
 nside = 16
 sweeps = 4
+validation_skies = 1
 """
 SWEEP = """
 base = "study.toml"
