@@ -150,7 +150,7 @@ def _four_ces(path):
     path.write_text(
         "sample_rate_hz = 2.0\nrepeat_boresight_deg = [0.0, 90.0]\n"
         + "".join(
-            f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 1800\n"
+            f"[[ces]]\nstart_unix = {T0 + 3600 * i}\nduration_s = 600\n"
             f"elevation_deg = 50\naz_centre_deg = {134 if i % 2 else 226}\n"
             "az_throw_deg = 60\n"
             for i in range(4)
