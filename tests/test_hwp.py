@@ -377,3 +377,19 @@ def test_what_a_hwp_pair_does_not_yet_carry_is_refused(deep_bare):
     )
     with pytest.raises(ValueError, match="pol_angle_deg behind a HWP"):
         predict_fp.delta_p(sky, stats, Systematics(pol_angle_deg=0.5))
+
+
+def test_the_reflected_angle_moments_are_the_hwp_moments():
+    """A pair at gamma behind the HWP has moments <exp(i n (psi + 2 chi - 2 gamma))> =
+    exp(-2 i n gamma) h_{n,2n}: the focal plane's fused kernel with the HWP against
+    scanstats.hwp_moments, to rounding, for a continuous and a stepped plate."""
+    schedule = _schedule([0.0, 600.0], repeats=(0.0, 90.0))
+    pairs = focalplane.on_axis((0.0, 22.5, 45.0))
+    for plate in (HWP("continuous", frequency_hz=0.61), HWP("stepped", step="ces")):
+        stats = scanstats.characterise_focalplane(schedule, pairs, 16, per_pair=True, hwp=plate)
+        hits, h = scanstats.hwp_moments(schedule, plate, 16, [(n, 2 * n) for n in range(1, 5)])
+        for i, gamma in enumerate(np.radians(pairs.gamma_deg)):
+            np.testing.assert_array_equal(stats.pair_hits[i], hits)
+            for n in range(1, 5):
+                turned = np.exp(-2j * n * gamma) * h[(n, 2 * n)]
+                np.testing.assert_allclose(stats.pair_h[i, n], turned, atol=1e-12)
