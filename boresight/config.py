@@ -27,6 +27,8 @@ from .constants import ARCMIN
 from .evaluation import METHODS
 from .focalplane import focalplane_of_table
 from .harmonics import ANALYSES
+from .hwp import HWP, behind
+from .hwp import check_systematics as check_hwp_systematics
 from .instrument import Instrument, Spread, Systematics, response
 from .io import toml_text, tomllib
 from .kernels import BACKENDS
@@ -190,7 +192,13 @@ FILE_KEYS = {
             (str,),
             "a focal-plane file (TOAST HDF5, CSV, TOML) or preset ('axis') whose pairs all sit on "
             "the boresight: its pairs' angles",
-        )
+        ),
+        "hwp": (
+            (str,),
+            "a half-wave plate in front of the pairs: none, continuous (its angle uniform per "
+            "hit) or stepped (one of hwp_angles_deg per rotation repeat)",
+        ),
+        "hwp_angles_deg": ((list,), "a stepped HWP's angles, one per repeat in turn [deg]"),
     },
 }
 
@@ -243,6 +251,9 @@ class Study:
         The parsed TOML the study came from.
     source : str, optional
         The TOML file it was read from.
+    hwp : boresight.hwp.HWP, optional
+        ``[instrument] hwp``: a HWP in front of the pairs. ``scan`` and ``instrument`` are then
+        the bare ones that see the sky as the pairs behind it do (:func:`boresight.hwp.behind`).
     """
 
     sky: SkyConfig
@@ -256,6 +267,7 @@ class Study:
     leak_template: str = None  #: FITS map of the additive leak
     raw: dict = None  #: the parsed TOML the study came from
     source: str = None  #: the TOML file it was read from
+    hwp: HWP = None  #: the HWP in front of the pairs (scan and instrument are then behind it)
 
     def __post_init__(self):
         object.__setattr__(self, "output", self.output.resolved(self.sky))
@@ -508,6 +520,22 @@ def _tuples(body, keys):
     return {k: tuple(v) if k in keys and isinstance(v, list) else v for k, v in body.items()}
 
 
+def _hwp(table):
+    """The HWP of [instrument]'s hwp keys, or None (the table without them, too)."""
+    keys = {"hwp", "hwp_angles_deg"}
+    rest = {k: v for k, v in table.items() if k not in keys}
+    mode = table.get("hwp", "none")
+    if mode == "none":
+        if "hwp_angles_deg" in table:
+            raise ConfigError("[instrument] hwp_angles_deg needs hwp = 'stepped'")
+        return None, rest
+    try:
+        angles = table.get("hwp_angles_deg", HWP.angles_deg)
+        return HWP(mode, angles_deg=tuple(angles), step="repeat"), rest
+    except ConfigError as err:
+        raise ConfigError(f"[instrument] {err}") from None
+
+
 def _instrument(table, base):
     """[instrument]: its own keys, or a focal plane whose pairs all sit on the boresight (a
     synthetic scan has no pointing to move pairs off it)."""
@@ -558,12 +586,19 @@ def parse_study(raw: dict, base: str = ".") -> Study:
         if key in scan_raw:
             scan_raw[key] = _map_or_value("scan", key, scan_raw[key], base, dtype, npix)
     scan = build_section("scan", SyntheticScan, scan_raw)
-    instrument = _instrument(raw.get("instrument", {}), base)
+    hwp, instrument_raw = _hwp(raw.get("instrument", {}))
+    instrument = _instrument(instrument_raw, base)
     sys_raw = dict(raw.get("systematics", {}))
     template = sys_raw.pop("leak_template", None)
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
     systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
+    if hwp is not None:
+        try:
+            check_hwp_systematics(systematics)
+        except ValueError as err:
+            raise ConfigError(f"[systematics] {err}") from None
+        scan, instrument = behind(hwp, scan, instrument)
     try:
         check_systematics(systematics, instrument, scan.rotations_deg, sky_cfg.fwhm_arcmin)
     except ValueError as err:
@@ -578,7 +613,17 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     output = build_section("output", OutputOptions, raw.get("output", {}))
     try:
         return Study(
-            sky_cfg, scan, instrument, systematics, mask, run, output, sky_maps, template, raw
+            sky_cfg,
+            scan,
+            instrument,
+            systematics,
+            mask,
+            run,
+            output,
+            sky_maps,
+            template,
+            raw,
+            hwp=hwp,
         )
     except (ValueError, TypeError) as err:
         raise ConfigError(f"[output] {err}") from None

@@ -29,12 +29,13 @@ angles in every repeat.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .constants import DEG
-from .instrument import AMPLITUDES, _nonzero
+from .instrument import AMPLITUDES, Instrument, _nonzero
+from .scan import SyntheticScan
 from .validation import ConfigError
 
 MODES = ("none", "continuous", "stepped")
@@ -160,6 +161,46 @@ def reflected(psi: np.ndarray, chi: np.ndarray, gamma: float) -> np.ndarray:
     behind the HWP at ``chi``: psi + 2 chi - 2 gamma (so that its a = psi' + gamma is
     psi - gamma + 2 chi) [rad]."""
     return psi + 2.0 * chi - 2.0 * gamma
+
+
+def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
+    """A synthetic scan and its pairs behind a HWP, as the bare scan and pairs that see the sky
+    alike (for what the pairs carry through the HWP, :data:`THROUGH_HWP`).
+
+    a = psi - gamma + 2 chi is a bare pair at -gamma crossing at psi + 2 chi, so the pairs'
+    angles are mirrored (their order, and so their systematics, kept) and:
+
+    * continuous: chi is drawn uniformly per hit, so psi + 2 chi is uniform over the circle
+      whatever psi: the scan's range becomes 2 pi (its hits and their places stay, and a
+      rotation repeat keeps its hit's HWP angle);
+    * stepped: repeat k of the scan's rotations has the HWP at ``angles_deg[k % len]``, so its
+      rotation becomes rotation_k + 2 chi_k.
+
+    Parameters
+    ----------
+    hwp : HWP
+        Continuous, or stepped per repeat (a synthetic scan has no CESs or days).
+    scan : boresight.scan.SyntheticScan
+    instrument : boresight.instrument.Instrument
+
+    Returns
+    -------
+    scan : boresight.scan.SyntheticScan
+    instrument : boresight.instrument.Instrument
+    """
+    mirrored = Instrument(pair_angles_deg=tuple(0.0 - a for a in instrument.pair_angles_deg))
+    if hwp.mode == "continuous":
+        return replace(scan, range_rad=2 * np.pi, centre_rad=0.0), mirrored
+    if hwp.mode != "stepped":
+        raise ValueError("behind() needs a continuous or a stepped HWP")
+    if hwp.step != "repeat":
+        raise ConfigError(
+            f"hwp step {hwp.step!r}: a synthetic scan has no CESs or days; its HWP steps per "
+            "rotation repeat (step = 'repeat')"
+        )
+    angles = hwp.angles_deg
+    rotations = tuple(r + 2 * angles[k % len(angles)] for k, r in enumerate(scan.rotations_deg))
+    return replace(scan, rotations_deg=rotations), mirrored
 
 
 def stokes_weights(psi: np.ndarray, gamma: float, chi: np.ndarray | None = None) -> np.ndarray:
