@@ -385,7 +385,7 @@ def expected_residual(
     sky = [fp_products.weight_alm(fp_products.Weight(0, solved + 0j, None), lw, nthreads)]
     sky_terms = ([0], [fields["polarisation"]])
     scatter = _scatter(stats, terms, fields, sky_cl, solved, shares, params, drawn) if spread else 0
-    scatter = scatter + jitter_bb(stats, systematics, solved, sky_cl, shares, h4)
+    scatter = scatter + jitter_bb(stats, systematics, solved, sky_cl, shares=shares, h4=h4)
     leaked = bb(alms, spins, term_fields) + scatter
     total = bb(alms + sky, spins + sky_terms[0], term_fields + sky_terms[1])
     residual = total - bb(sky, *sky_terms) + scatter
@@ -396,7 +396,7 @@ def expected_residual(
     return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
 
 
-def jitter_bb(stats, systematics, mask, sky_cl, shares, h4) -> float:
+def jitter_bb(stats, systematics, mask, sky_cl, *, shares, h4) -> float:
     """The gain jitter's white pseudo-C_BB [muK^2] (the on-axis one of
     :class:`boresight.predict.LeakModel`, with each pair's own hits).
 

@@ -213,7 +213,7 @@ def test_a_gain_jitter_adds_the_white_power_of_each_pairs_hits():
         stats.pair_hits / np.maximum(stats.combined.hits, 1),
         stats.pair_h[:, 4],
     )
-    predicted = predict_fp.jitter_bb(stats, jitter, mask, sky_cl, shares, h4)
+    predicted = predict_fp.jitter_bb(stats, jitter, mask, sky_cl, shares=shares, h4=h4)
     run = dict(evaluation="exact", rcond_min=predict_fp.RCOND_EXPECTATION)
     ref = engine.simulate_focalplane(sky, schedule, fp, Systematics(), **run)
     bands, power = [], np.zeros(npix)
@@ -241,7 +241,7 @@ def test_a_gain_jitter_adds_the_white_power_of_each_pairs_hits():
         stats, mask, jitter, load_spectra(), 0.0, lmax=LMAX, evaluation=None
     )
     white = predict_fp.jitter_bb(
-        stats, jitter, mask, smoothed_spectra(load_spectra(), 0.0, LMAX), shares, h4
+        stats, jitter, mask, smoothed_spectra(load_spectra(), 0.0, LMAX), shares=shares, h4=h4
     )
     np.testing.assert_allclose(expected.leaked, white, rtol=1e-12)  # the jitter's alone
     assert np.all(expected.scattered == 0)
