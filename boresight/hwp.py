@@ -12,9 +12,13 @@ HEALPix's COSMO convention. This is TOAST's ``StokesWeights`` with a HWP: its we
 (1, cos(2 alpha + 4 chi - 4 gamma), sin(2 alpha + 4 chi - 4 gamma)), with its detector angle
 alpha = psi + gamma - pi, are these (``tests/test_hwp.py``, to 1e-10).
 
-In spin language the sky's polarisation reaches a pair difference as exp(-2 i a) P, the spin
-(n, m) = (2, -4) of the moments h_{n,m} = <exp(i n psi + i m chi)>
-(:func:`boresight.scanstats.hwp_moments`).
+In spin language a pair difference sees the sky's P as Re[P exp(-2 i a)], and the map-maker
+weighs it by exp(2 i a) = exp(2 i psi) exp(4 i chi) exp(-2 i gamma): with the moments
+h_{n,m} = <exp(i n psi + i m chi)> (:func:`boresight.scanstats.hwp_moments`), the map-maker's
+weights sit at (n, m) = (2, 4), its 2x2 system at (4, 8), and a leak that reaches a bare pair's
+map through h_2 (a gain's or a leak's T) reaches it through h_{2,4} behind the plate. The sign of
+m is the sense of chi: Takase et al. (2024) and SBM write the sky's polarisation at (2, -4) with
+their own.
 
 Two kinds of HWP:
 

@@ -452,9 +452,9 @@ def centroid_moments(
 
 
 #: the (n, m) of :func:`hwp_moments` by default: n = 0..4 against m = 0, +-4, +-8 (h_{-n,-m} is
-#: the conjugate of h_{n,m}), which hold the sky's polarisation (2, -4), the HWP's instrumental
-#: polarisation seen through h_{-2,0}, a detector-side leak (n, 0) through h_{2-n,-4}, and the
-#: pair map-maker's 2x2 system (4, -8)
+#: the conjugate of h_{n,m}), which hold the map-maker's weights (2, 4) and 2x2 system (4, 8)
+#: behind the plate, a gain's or a leak's T leak (2, 4), and a signal fixed to the plate at
+#: 4 chi, as its instrumental polarisation, seen through (2, 0) (:mod:`boresight.hwp`)
 HWP_TERMS = ((0, 0), (0, 4), (0, 8)) + tuple(
     (n, m) for n in range(1, N_MAX + 1) for m in (-8, -4, 0, 4, 8)
 )
