@@ -136,3 +136,26 @@ def toast_schedule():
         CES(9.466848e8 + 4000.0, 450.0, 60.0, 120.0, 10.0, 1.5, 30.0, 3.0, "b", 3, 0),
     )
     return Schedule(ces, Site(-22.9, -67.8, 5190.0, "chajnantor", "sat1"), 5.0)
+
+
+def toast_december_schedule(directory):
+    """TOAST's own scheduler's three hours of 10-minute CESs of one patch at the Atacama site on
+    2026-12-01 (where ICRS and the frame of date are 0.15 deg apart), written to
+    ``directory / "schedule.txt"`` and read back as its GroundSchedule; the IERS tables are not
+    downloaded. Needs toast."""
+    from astropy.utils import iers
+    from toast.schedule import GroundSchedule
+    from toast.schedule_sim_ground import run_scheduler
+
+    iers.conf.auto_download = False
+    iers.conf.auto_max_age = None
+    site = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
+    site += ["--site-lon", " -67.787", "--site-alt", "5200"]
+    patch = ["--patch", "deep,1,30,-45,10", "--el-min-deg", "45", "--el-max-deg", "60"]
+    patch += ["--start", "2026-12-01 03:00:00", "--stop", "2026-12-01 06:00:00"]
+    patch += ["--ces-max-time-s", "600", "--sun-avoidance-angle-deg", "0"]
+    patch += ["--moon-avoidance-angle-deg", "0"]
+    run_scheduler(opts=[*site, *patch, "--out", str(directory / "schedule.txt")])
+    schedule = GroundSchedule()
+    schedule.read(str(directory / "schedule.txt"))
+    return schedule

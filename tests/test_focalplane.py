@@ -9,6 +9,7 @@ import h5py
 import healpy as hp
 import numpy as np
 import pytest
+from helpers import toast_december_schedule
 
 from boresight import cli, focalplane, pointing
 from boresight.focalplane import FocalPlaneError
@@ -16,13 +17,6 @@ from boresight.schedule import ScanMotion, Schedule, load_schedule
 
 ARCSEC = np.pi / 180 / 3600
 RATE = 5.0  #: samples per second of the TOAST simulations
-SITE = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
-SITE += ["--site-lon", " -67.787", "--site-alt", "5200"]
-#: three hours of 10-minute CESs of one patch (the boresight angle set per CES below)
-PATCH = ["--patch", "deep,1,30,-45,10", "--el-min-deg", "45", "--el-max-deg", "60"]
-PATCH += ["--start", "2026-12-01 03:00:00", "--stop", "2026-12-01 06:00:00"]
-PATCH += ["--ces-max-time-s", "600", "--sun-avoidance-angle-deg", "0"]
-PATCH += ["--moon-avoidance-angle-deg", "0"]
 #: pixels of TOAST's 37-pixel, 35 deg hexagon: the centre, 10.1 deg and 17.5 deg off the axis
 PIXELS = ("D00", "D08", "D19")
 
@@ -120,18 +114,11 @@ def toast_run(tmp_path_factory):
     import toast.ops
     from astropy import units as u
     from astropy.time import Time
-    from astropy.utils import iers
     from toast.instrument import Focalplane, GroundSite, Telescope
     from toast.instrument_sim import fake_hexagon_focalplane
-    from toast.schedule import GroundSchedule
-    from toast.schedule_sim_ground import run_scheduler
 
-    iers.conf.auto_download = False
-    iers.conf.auto_max_age = None
     d = tmp_path_factory.mktemp("toast_fp")
-    run_scheduler(opts=[*SITE, *PATCH, "--out", str(d / "schedule.txt")])
-    schedule = GroundSchedule()
-    schedule.read(str(d / "schedule.txt"))
+    schedule = toast_december_schedule(d)
     for i, scan in enumerate(schedule.scans):  # a boresight angle of -90..90 deg per CES
         scan.boresight_angle = (45.0 * (i % 5) - 90.0) * u.deg
     schedule.write(str(d / "schedule.ecsv"))

@@ -7,7 +7,7 @@ import dataclasses
 import healpy as hp
 import numpy as np
 import pytest
-from helpers import EXAMPLES, T0
+from helpers import EXAMPLES, T0, toast_december_schedule
 
 from boresight import engine, focalplane, harmonics, hwp, pointing, scanstats, spectra
 from boresight.cli import main
@@ -20,12 +20,6 @@ from boresight.validation import ConfigError
 
 RATE = 5.0  #: samples per second of the TOAST simulation
 RPM = 88.0  #: the continuous HWP's revolutions per minute there
-SITE = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
-SITE += ["--site-lon", " -67.787", "--site-alt", "5200"]
-PATCH = ["--patch", "deep,1,30,-45,10", "--el-min-deg", "45", "--el-max-deg", "60"]
-PATCH += ["--start", "2026-12-01 03:00:00", "--stop", "2026-12-01 06:00:00"]
-PATCH += ["--ces-max-time-s", "600", "--sun-avoidance-angle-deg", "0"]
-PATCH += ["--moon-avoidance-angle-deg", "0"]
 
 
 def _wrap(x):
@@ -41,18 +35,11 @@ def toast_hwp(tmp_path_factory):
     import toast
     import toast.ops
     from astropy import units as u
-    from astropy.utils import iers
     from toast.instrument import GroundSite, Telescope
     from toast.instrument_sim import fake_hexagon_focalplane
-    from toast.schedule import GroundSchedule
-    from toast.schedule_sim_ground import run_scheduler
 
-    iers.conf.auto_download = False
-    iers.conf.auto_max_age = None
     d = tmp_path_factory.mktemp("toast_hwp")
-    run_scheduler(opts=[*SITE, *PATCH, "--out", str(d / "schedule.txt")])
-    schedule = GroundSchedule()
-    schedule.read(str(d / "schedule.txt"))
+    schedule = toast_december_schedule(d)
     schedule.scans = schedule.scans[:4]
     fp = fake_hexagon_focalplane(n_pix=7, width=10 * u.deg, sample_rate=RATE * u.Hz)
     site = GroundSite(schedule.site_name, schedule.site_lat, schedule.site_lon, schedule.site_alt)
