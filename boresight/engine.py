@@ -17,14 +17,15 @@ from tqdm.auto import tqdm
 from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
-from .evaluation import METHODS, SkyFields
+from .evaluation import ENGINE_METHODS, SkyFields
 from .hwp import check_systematics as check_hwp_systematics
 from .hwp import reflected
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
+from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
-from .mapmaking import RCOND_MIN, Maps, solve
+from .mapmaking import RCOND_MIN, Maps, solve, solve_iqu
 from .pointing import detector_pointing
 from .sky import MAX_NSIDE
 from .threads import numba_threads
@@ -290,6 +291,37 @@ def _maps_from(kernels, normal, n_pairs, rcond_min):
     return tuple(kernels.to_host(x) for x in solve(normal, rcond_min) + (hits,))
 
 
+#: how a stream's samples become maps: pair differences -> (Q, U); each detector's own samples
+#: -> (I, Q, U), both of every pair's detectors or detector A alone (a single-detector instrument)
+MAPMAKERS = ("pairs", "detectors", "single")
+
+
+def _check_mapmaker(mapmaker, backend):
+    if mapmaker not in MAPMAKERS:
+        raise ValueError(f"mapmaker must be one of {MAPMAKERS}, got {mapmaker!r}")
+    if mapmaker != "pairs" and backend != "cpu":
+        raise ValueError(f"mapmaker {mapmaker!r} (I, Q, U) runs on the CPU backend only")
+
+
+def _normal(kernels, nside, mapmaker):
+    """The full-sky normal-equation sums a stream's map-maker fills: (npix, 5) or (npix, 9)."""
+    return kernels.zeros((12 * nside**2, 5 if mapmaker == "pairs" else 9))
+
+
+def _stream_maps(kernels, nside, normal, mapmaker, *, n_pairs, rcond_min):
+    """Maps on the observed pixels from a stream's full-sky sums (:func:`_normal`); hits count
+    pair-samples whichever the map-maker."""
+    if mapmaker == "pairs":
+        q, u, rcond, hits = _maps_from(kernels, normal, n_pairs, rcond_min)
+        seen = np.flatnonzero(hits)
+        return Maps(nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
+    seen = np.flatnonzero(normal[:, 0])
+    i, q, u, rcond = solve_iqu(normal[seen], rcond_min)
+    per_pair_sample = n_pairs * (2 if mapmaker == "detectors" else 1)
+    hits = np.rint(normal[seen, 0] / per_pair_sample).astype(np.int64)
+    return Maps(nside, seen, q, u, hits, rcond, i_obs=i)
+
+
 class _Binner:
     """Sky evaluation, detector-B pointing and pair-difference binning of one chunk of hits
     grouped by pixel: the part of the hot loop shared by synthetic scans and real sample streams."""
@@ -297,8 +329,8 @@ class _Binner:
     def __init__(
         self, sky, instrument, systematics, rotations, evaluation, leak_template, nthreads, backend
     ):
-        if evaluation not in METHODS:
-            raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
+        if evaluation not in ENGINE_METHODS:
+            raise ValueError(f"evaluation must be one of {ENGINE_METHODS}, got {evaluation!r}")
         self.kernels = get_backend(backend)
         params = systematics.per_pair(instrument.n_pairs)
         self.rho, self.chi, self.leak, self.jitter = (
@@ -321,12 +353,15 @@ class _Binner:
         self.evaluation, self.nthreads = evaluation, nthreads
 
     def _at(self, theta, phi):
-        """The fields at points: the backend interpolates the stack on its device, or ducc0
-        evaluates the alm exactly on the CPU."""
+        """The fields at points: the backend interpolates the stack on its device, ducc0
+        evaluates the alm exactly on the CPU, or the maps' values in the points' pixels."""
         k = self.kernels
         if self.evaluation == "interp":
             return k.interpolate(self.stack, self.fields.nside, theta, phi)
-        return self.fields.exact(k.to_host(theta), k.to_host(phi), self.nthreads)
+        theta, phi = k.to_host(theta), k.to_host(phi)
+        if self.evaluation == "pixel":
+            return k.to_device(self.fields.in_pixel(ang2pix_array(self.fields.nside, theta, phi)))
+        return self.fields.exact(theta, phi, self.nthreads)
 
     def _beam_terms(self, theta, phi, psi):
         """(2, H, K, M) extra signal of detectors A and B from their own beams, or (2, 0, K, M)."""
@@ -425,24 +460,17 @@ class _Binner:
             one.angle_a, one.angle_b = self.angle_a[keep], self.angle_b[keep]
         return one
 
-    def scatter(self, pixels, theta, phi, psi, normal, seed, first):
-        """Add the normal-equation sums of hits in any order into the full-sky ``normal``; the
-        jitter of hit h is keyed by (seed, first + h)."""
+    def scatter(self, pixels, theta, phi, psi, normal, seed, first, *, mapmaker="pairs"):
+        """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
+        ``mapmaker`` bins them (:data:`MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
+        by (seed, first + h)."""
         values_a, values_b = self._values(theta, phi, psi)
         beams = self._beam_terms(theta, phi, psi)
-        self.kernels.accumulate_scatter(
-            pixels,
-            psi,
-            values_a,
-            values_b,
-            beams,
-            self.response,
-            self.leak,
-            self.jitter,
-            seed,
-            first,
-            normal,
-        )
+        args = (pixels, psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
+        if mapmaker == "pairs":
+            self.kernels.accumulate_scatter(*args, seed, first, normal)
+        else:
+            accumulate_detectors(*args, seed, first, normal, only_a=mapmaker == "single")
 
 
 def simulate_samples(
@@ -456,6 +484,7 @@ def simulate_samples(
     nthreads: int = 0,
     backend: str = "cpu",
     rcond_min: float = RCOND_MIN,
+    mapmaker: str = "pairs",
 ) -> Maps:
     """Maps from streams of real samples, e.g. ``boresight.pointing.pointing(schedule)``.
 
@@ -468,28 +497,40 @@ def simulate_samples(
     sky : boresight.sky.Sky
     sample_chunks : iterable of (theta, phi, psi)
         Arrays (n,) [rad] of each chunk, in any order; checked by :func:`check_samples`.
-    instrument, systematics, evaluation, leak_template, nthreads, backend, rcond_min
+    instrument, systematics, leak_template, nthreads, backend, rcond_min
         As in :func:`simulate`.
+    evaluation : {"interp", "exact", "pixel"}
+        As in :func:`simulate`, or each map's value in the sample's pixel (TOAST's
+        ``ScanHealpixMap``).
+    mapmaker : {"pairs", "detectors", "single"}
+        Pair differences -> Q, U; or each detector's own samples -> I, Q, U (:data:`MAPMAKERS`),
+        on the CPU backend.
 
     Returns
     -------
     boresight.mapmaking.Maps
     """
+    _check_mapmaker(mapmaker, backend)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
-    normal = binner.kernels.zeros((12 * sky.nside**2, 5))
+    normal = _normal(binner.kernels, sky.nside, mapmaker)
     first = 0  # the stream index of each chunk's first sample: the key of its jitter draws
     with numba_threads(nthreads):
         for chunk in sample_chunks:
             interrupts.check()
             theta, phi, psi = check_samples(*chunk)
             pix = ang2pix_array(sky.nside, theta, phi)
-            binner.scatter(pix, theta, phi, psi, normal, systematics.seed, first)
+            binner.scatter(pix, theta, phi, psi, normal, systematics.seed, first, mapmaker=mapmaker)
             first += pix.size
-    q, u, rcond, hits = _maps_from(binner.kernels, normal, instrument.n_pairs, rcond_min)
-    seen = np.flatnonzero(hits)
-    return Maps(sky.nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
+    return _stream_maps(
+        binner.kernels,
+        sky.nside,
+        normal,
+        mapmaker,
+        n_pairs=instrument.n_pairs,
+        rcond_min=rcond_min,
+    )
 
 
 def simulate_focalplane(
@@ -505,6 +546,7 @@ def simulate_focalplane(
     rcond_min: float = RCOND_MIN,
     chunk_samples: int = 1 << 20,
     hwp: HWP | None = None,
+    mapmaker: str = "pairs",
     progress: bool = False,
 ) -> Maps:
     """Maps from every pair of a focal plane on a schedule, each pair on its own samples
@@ -525,8 +567,8 @@ def simulate_focalplane(
     schedule : boresight.schedule.Schedule
     focalplane : boresight.focalplane.FocalPlane
     systematics : boresight.instrument.Systematics
-    evaluation, leak_template, nthreads, rcond_min
-        As in :func:`simulate`.
+    evaluation, leak_template, nthreads, rcond_min, mapmaker
+        As in :func:`simulate_samples`.
     backend : {"cpu"}
         The GPU backend does not take a focal plane yet.
     chunk_samples : int
@@ -538,19 +580,20 @@ def simulate_focalplane(
     Returns
     -------
     boresight.mapmaking.Maps
-        Hits count pair-samples.
+        Hits count pair-samples; the (I, Q, U) map-makers give ``i`` as well.
     """
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     if hwp is not None:
         check_hwp_systematics(systematics)
+    _check_mapmaker(mapmaker, backend)
     gammas = np.radians(focalplane.gamma_deg)
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
     pairs = [binner.for_pair(i) for i in range(focalplane.n_pairs)]
-    normal = binner.kernels.zeros((12 * sky.nside**2, 5))
+    normal = _normal(binner.kernels, sky.nside, mapmaker)
     first = 0
     total = schedule.n_samples * focalplane.n_pairs
     with (
@@ -565,12 +608,12 @@ def simulate_focalplane(
                 pix = ang2pix_array(sky.nside, theta[i], phi[i])
                 key = i * schedule.n_samples + first
                 angle = reflected(psi[i], chi[0], gammas[i]) if chi else psi[i]
-                one.scatter(pix, theta[i], phi[i], angle, normal, systematics.seed, key)
+                one.scatter(
+                    pix, theta[i], phi[i], angle, normal, systematics.seed, key, mapmaker=mapmaker
+                )
             first += theta.shape[1]
             bar.update(theta.size)
-    q, u, rcond, hits = _maps_from(binner.kernels, normal, 1, rcond_min)
-    seen = np.flatnonzero(hits)
-    return Maps(sky.nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
+    return _stream_maps(binner.kernels, sky.nside, normal, mapmaker, n_pairs=1, rcond_min=rcond_min)
 
 
 def _sky_fields(sky, systematics, template, evaluation, nthreads):

@@ -3,7 +3,9 @@
 "interp" interpolates the pixelised maps (what the paper did; the backend kernels read ``stack``);
 "exact" evaluates the beam-smoothed
 alm at each point with ducc0's synthesis_general (accuracy ``EXACT_EPSILON``), which keeps the
-second-order pointing terms that interpolation smears.
+second-order pointing terms that interpolation smears. The engine also reads "pixel": each
+map's value in the sample's own pixel, as TOAST's ``ScanHealpixMap`` scans a map (with it an
+ideal instrument's maps return the input maps to rounding on any samples).
 """
 
 from functools import cached_property
@@ -13,6 +15,8 @@ import numpy as np
 from . import harmonics
 
 METHODS = ("interp", "exact")
+#: what the engine's TOD reads besides: the map's value in the sample's pixel
+ENGINE_METHODS = METHODS + ("pixel",)
 EXACT_EPSILON = 1e-11  #: ducc0 relative accuracy of exact evaluation
 
 
@@ -49,6 +53,10 @@ class SkyFields:
         stack[:, :3] = self._sky.maps.T
         stack[:, 3] = self._template
         return stack
+
+    def in_pixel(self, pixels):
+        """The fields' map values in some pixels: (n_fields, npoints) for RING indices (n,)."""
+        return np.ascontiguousarray(self.stack[pixels].T)
 
     def exact(self, theta, phi, nthreads=0):
         """Band-limited fields at points: (n_fields, npoints) for flat arrays theta, phi [rad]."""

@@ -1,8 +1,17 @@
-"""Naive map-making: per-pixel least squares for Q and U from the binned pair differences.
+"""Naive map-making: per-pixel least squares for (Q, U) from pair differences, or for (I, Q, U)
+from each detector's own samples.
 
-Each pixel's normal matrix [[sum c^2, sum c s], [sum c s, sum s^2]] (c, s = cos, sin 2a) is solved
-for (Q, U). Its reciprocal condition number rcond = lambda_min / lambda_max is kept; pixels with no
-hits or rcond < ``rcond_min`` are flagged invalid and set to healpy.UNSEEN, never filled.
+Pair differences: each pixel's normal matrix [[sum c^2, sum c s], [sum c s, sum s^2]] (c, s =
+cos, sin 2a) is solved for (Q, U) (:func:`solve`). Detectors: the 3x3 matrix sum w w^T with
+w = (1, c, s) is solved for (I, Q, U) (:func:`solve_iqu`), as TOAST's and sotodlib's binned
+map-makers do; a HWP telescope needs no pairs for it. When both detectors of every pair share
+their samples, the I-Q and I-U terms cancel and the 3x3 solution's Q, U are the pair difference's
+(``tests/test_mapmaking.py``).
+
+The reciprocal condition number rcond = lambda_min / lambda_max is kept (of the 3x3 matrix as it
+stands, as TOAST's ``CovarianceAndHits``: at most 1/2 for both detectors of a pair, whose I terms
+count twice); pixels with no hits or rcond < ``rcond_min`` are flagged invalid and set to
+healpy.UNSEEN, never filled.
 """
 
 from __future__ import annotations
@@ -29,7 +38,10 @@ class Maps:
     hits_obs : numpy.ndarray, int64, shape (n,)
         Hits x rotations.
     rcond_obs : numpy.ndarray, float64, shape (n,)
-        Reciprocal condition number of each pixel's 2x2 system.
+        Reciprocal condition number of each pixel's 2x2 (or 3x3) system.
+    i_obs : numpy.ndarray, float64, shape (n,), optional
+        [muK] on those pixels from the detectors' own samples (:func:`solve_iqu`), UNSEEN where
+        invalid; None for pair differences, which do not see I.
 
     Notes
     -----
@@ -44,11 +56,17 @@ class Maps:
     u_obs: np.ndarray
     hits_obs: np.ndarray
     rcond_obs: np.ndarray
+    i_obs: np.ndarray | None = None
 
     def _on_sky(self, values, fill):
         out = np.full(12 * self.nside**2, fill, dtype=values.dtype)
         out[self.pixels] = values
         return out
+
+    @property
+    def i(self):
+        """(npix,) [muK], UNSEEN where invalid; None for pair differences."""
+        return None if self.i_obs is None else self._on_sky(self.i_obs, hp.UNSEEN)
 
     @property
     def q(self):
@@ -134,3 +152,33 @@ def solve(normal: np.ndarray, rcond_min: float = RCOND_MIN) -> tuple:
         u = (a11 * b2 - a12 * b1) / det
     ok = rcond >= rcond_min
     return np.where(ok, q, hp.UNSEEN), np.where(ok, u, hp.UNSEEN), np.maximum(rcond, 0.0)
+
+
+def solve_iqu(normal: np.ndarray, rcond_min: float = RCOND_MIN) -> tuple:
+    """Solve each pixel's 3x3 least-squares system for (I, Q, U).
+
+    Parameters
+    ----------
+    normal : numpy.ndarray, shape (n, 9)
+        sum w_0 w_0, w_0 w_1, w_0 w_2, w_1 w_1, w_1 w_2, w_2 w_2, w_0 d, w_1 d, w_2 d per pixel,
+        with w = (1, c, s) the detector sample's weights (c, s = cos, sin 2a).
+    rcond_min : float
+        Pixels below this reciprocal condition number are invalid.
+
+    Returns
+    -------
+    i, q, u : numpy.ndarray, shape (n,)
+        [muK], UNSEEN where invalid.
+    rcond : numpy.ndarray, shape (n,)
+    """
+    upper = np.triu_indices(3)
+    matrix = np.zeros((normal.shape[0], 3, 3))
+    matrix[:, upper[0], upper[1]] = normal[:, :6]
+    matrix[:, upper[1], upper[0]] = normal[:, :6]
+    eig = np.linalg.eigvalsh(matrix)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rcond = np.where(eig[:, 2] > 0, eig[:, 0] / eig[:, 2], 0.0)
+    ok = rcond >= rcond_min
+    iqu = np.full((normal.shape[0], 3), hp.UNSEEN)
+    iqu[ok] = np.linalg.solve(matrix[ok], normal[ok, 6:, None])[..., 0]
+    return iqu[:, 0], iqu[:, 1], iqu[:, 2], np.maximum(rcond, 0.0)

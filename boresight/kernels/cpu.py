@@ -29,6 +29,7 @@ __all__ = [
     "interpolate",
     "accumulate",
     "accumulate_scatter",
+    "accumulate_detectors",
     "bin_scan",
     "moments",
     "to_host",
@@ -124,8 +125,8 @@ def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
 
 
 @numba.njit(inline="always")
-def _pair_difference(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak, beam_a, beam_b):
-    """d = (d_A - d_B) / 2 of one pair: detector A responds to (cos, sin) 2 x its angle (c_a, s_a),
+def _detectors(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak, beam_a, beam_b):
+    """(d_A, d_B) of one pair: detector A responds to (cos, sin) 2 x its angle (c_a, s_a),
     detector B to (c_b, s_b) of its angle less 90 deg with gain g_b, B sees field_b (pointing), the
     additive leak, and each detector's extra signal from its own beam; fields are (I, Q, U,
     template)."""
@@ -133,7 +134,12 @@ def _pair_difference(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak, beam_a, be
     i_b, q_b, u_b, t_b = field_b
     d_a = i_a + q_a * c_a + u_a * s_a + beam_a + 0.5 * leak * t_a
     d_b = g_b * (i_b - q_b * c_b - u_b * s_b + beam_b) - 0.5 * leak * t_b
-    return 0.5 * (d_a - d_b)
+    return d_a, d_b
+
+
+#: what a kernel bins (:func:`_hit_sums`): pair differences into the 2x2 (Q, U) system, or each
+#: detector's own samples into the 3x3 (I, Q, U) system, both of a pair's detectors or A's alone
+PAIRS, BOTH, A_ONLY = 0, 1, 2
 
 
 @numba.njit(inline="always")
@@ -151,18 +157,24 @@ def _flat(values_b):
 
 
 @numba.njit(inline="always")
-def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_key, j):
-    """The five normal-equation terms of hit h over every rotation and pair: sum c^2, c s, s^2,
-    c d, s d. values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened,
-    or has no columns when B looks where A does; beams (2, H K M) likewise A's and B's extra signal
-    from their beams, or has no columns. ``response`` is
-    :func:`boresight.instrument.response`; pairs with ``jitter`` > 0 draw a normal deviate for
-    each (hit j of the pixel, rotation, pair) from ``jitter_key``."""
+def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_key, j, mode):
+    """The normal-equation terms of hit h over every rotation and pair, as nine numbers.
+
+    ``mode`` :data:`PAIRS`: the pair difference d's sum c^2, c s, s^2, c d, s d (and four zeros).
+    :data:`BOTH` or :data:`A_ONLY`: each detector's own sample d with weights w = (1, c, s) (A)
+    or (1, -c, -s) (B, at 90 deg): sum w_0 w_0, w_0 w_1, w_0 w_2, w_1 w_1, w_1 w_2, w_2 w_2,
+    w_0 d, w_1 d, w_2 d. c, s are cos, sin 2 x the angle the map-maker assumes.
+
+    values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened, or has no
+    columns when B looks where A does; beams (2, H K M) likewise A's and B's extra signal from
+    their beams, or has no columns. ``response`` is :func:`boresight.instrument.response`; pairs
+    with ``jitter`` > 0 draw a normal deviate for each (hit j of the pixel, rotation, pair) from
+    ``jitter_key``."""
     nk, nm = response.shape[0], response.shape[1]
     field_a = _fields(values_a, h)
     c0 = np.cos(2.0 * psi[h])
     s0 = np.sin(2.0 * psi[h])
-    a11 = a12 = a22 = b1 = b2 = 0.0
+    t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = t8 = 0.0
     for k in range(nk):
         for m in range(nm):
             r = response[k, m]
@@ -176,7 +188,7 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
             beam_a = beam_b = 0.0
             if beams.shape[1] > 0:
                 beam_a, beam_b = beams[0, i], beams[1, i]
-            d = _pair_difference(
+            d_a, d_b = _detectors(
                 c0 * r[2] - s0 * r[3],
                 s0 * r[2] + c0 * r[3],
                 c0 * r[4] - s0 * r[5],
@@ -188,12 +200,28 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
                 beam_a,
                 beam_b,
             )
-            a11 += c * c
-            a12 += c * s
-            a22 += s * s
-            b1 += c * d
-            b2 += s * d
-    return a11, a12, a22, b1, b2
+            if mode == PAIRS:
+                d = 0.5 * (d_a - d_b)
+                t0 += c * c
+                t1 += c * s
+                t2 += s * s
+                t3 += c * d
+                t4 += s * d
+                continue
+            # detector A, and with BOTH detector B at (1, -c, -s): the I-Q and I-U terms cancel
+            n, sum_c, sum_s, d, cd, sd = 1.0, c, s, d_a, c * d_a, s * d_a
+            if mode == BOTH:
+                n, sum_c, sum_s, d, cd, sd = 2.0, 0.0, 0.0, d + d_b, cd - c * d_b, sd - s * d_b
+            t0 += n
+            t1 += sum_c
+            t2 += sum_s
+            t3 += n * c * c
+            t4 += n * c * s
+            t5 += n * s * s
+            t6 += d
+            t7 += cd
+            t8 += sd
+    return t0, t1, t2, t3, t4, t5, t6, t7, t8
 
 
 @numba.njit(parallel=True, cache=True)
@@ -221,6 +249,7 @@ def accumulate(offsets, psi, values_a, values_b, beams, response, leak, jitter, 
                 jitter,
                 jitter_key,
                 h - offsets[p],
+                PAIRS,
             )
             a11 += t[0]
             a12 += t[1]
@@ -236,24 +265,52 @@ def accumulate(offsets, psi, values_a, values_b, beams, response, leak, jitter, 
 
 
 @numba.njit(cache=True)
+def _scatter(
+    pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, mode, out
+):
+    """Hits in any order added into a full-sky accumulator (npix, 5 or 9) in hit order, as
+    ``mode`` bins them (:func:`_hit_sums`). Serial, so no two hits race for a pixel. The jitter of
+    sample h is keyed by (seed, its index in the stream, first + h), as a synthetic hit's by
+    (seed, pixel, hit)."""
+    values_b, beams = _flat(values_b), _flat(beams)
+    draws = np.any(jitter != 0.0)
+    for h in range(pixels.size):
+        key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
+        t = _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, key, 0, mode)
+        p = pixels[h]
+        for j in range(out.shape[1]):
+            out[p, j] += t[j]
+
+
 def accumulate_scatter(
     pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, out
 ):
     """:meth:`accumulate` for hits in any order, added into a full-sky accumulator in hit order.
 
     Parameters, shapes and units: :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
-
-    Serial, so no two hits race for a pixel. The jitter of sample h is keyed by (seed, its index
-    in the stream, first + h), as a synthetic hit's by (seed, pixel, hit).
     """
-    values_b, beams = _flat(values_b), _flat(beams)
-    draws = np.any(jitter != 0.0)
-    for h in range(pixels.size):
-        key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
-        t = _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, key, 0)
-        p = pixels[h]
-        for j in range(5):
-            out[p, j] += t[j]
+    _scatter(
+        pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, PAIRS, out
+    )
+
+
+def accumulate_detectors(
+    pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, out, *, only_a
+):
+    """Each detector's own samples, hits in any order, added into a full-sky accumulator of the
+    per-pixel 3x3 (I, Q, U) system: CPU only (not part of the backend contract).
+
+    Parameters
+    ----------
+    pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first
+        As in :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
+    out : float64 array, shape (npix, 9)
+        Running sums (:func:`_hit_sums`, :func:`boresight.mapmaking.solve_iqu`), updated in place.
+    only_a : bool
+        Detector A of each pair alone (a single-detector instrument), else both.
+    """
+    mode = A_ONLY if only_a else BOTH
+    _scatter(pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, mode, out)
 
 
 def bin_scan(

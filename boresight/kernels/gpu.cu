@@ -148,7 +148,7 @@ __device__ __forceinline__ void interp_point(const double *stack, int nf, i64 ns
                + w[2] * stack[p[2] * nf + f] + w[3] * stack[p[3] * nf + f];
 }
 struct Sums { double a11 = 0, a12 = 0, a22 = 0, b1 = 0, b2 = 0; };
-// d = (d_A - d_B) / 2 of one pair at (c, s) = (cos, sin) 2 x A's angle (tod_cpu._pair_difference)
+// d = (d_A - d_B) / 2 of one pair at (c, s) = (cos, sin) 2 x A's angle (kernels.cpu._detectors)
 __device__ __forceinline__ double pair_difference(const double *fa, const double *fb, double c,
         double s, double dg, double leak) {
     double da = fa[0] + fa[1] * c + fa[2] * s + 0.5 * leak * fa[3];
