@@ -26,6 +26,7 @@ Public modules: :mod:`~boresight.sky`, :mod:`~boresight.scan`, :mod:`~boresight.
 :mod:`~boresight.engine`, :mod:`~boresight.spectra`, :mod:`~boresight.coupling`,
 :mod:`~boresight.predict`, :mod:`~boresight.scanstats`, :mod:`~boresight.config`,
 :mod:`~boresight.residual`, :mod:`~boresight.design`, :mod:`~boresight.suppression`,
+:mod:`~boresight.hwp_suppression`,
 :mod:`~boresight.paper`, :mod:`~boresight.sweep`, :mod:`~boresight.so_maps`,
 :mod:`~boresight.litebird_maps`,
 :mod:`~boresight.cosmology` and

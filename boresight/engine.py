@@ -9,6 +9,7 @@ chunk. ``scan_moments`` runs the same hit generator to give the h_n maps.
 from __future__ import annotations
 
 import copy
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,8 +19,8 @@ from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import ENGINE_METHODS, SkyFields
+from .hwp import add_ip, reflected
 from .hwp import check_systematics as check_hwp_systematics
-from .hwp import reflected
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
@@ -460,11 +461,14 @@ class _Binner:
             one.angle_a, one.angle_b = self.angle_a[keep], self.angle_b[keep]
         return one
 
-    def scatter(self, pixels, theta, phi, psi, normal, seed, first, *, mapmaker="pairs"):
+    def scatter(self, pixels, theta, phi, psi, normal, seed, first, *, mapmaker="pairs", seen=None):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
         ``mapmaker`` bins them (:data:`MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
-        by (seed, first + h)."""
+        by (seed, first + h). ``seen``, if given, maps the fields at the hits to what the pair
+        sees there (a HWP's instrumental polarisation, :func:`boresight.hwp.add_ip`)."""
         values_a, values_b = self._values(theta, phi, psi)
+        if seen is not None:
+            values_a = seen(self.kernels.to_host(values_a))
         beams = self._beam_terms(theta, phi, psi)
         args = (pixels, psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
         if mapmaker == "pairs":
@@ -574,7 +578,7 @@ def simulate_focalplane(
     chunk_samples : int
         Pair-samples per chunk of pointing.
     hwp : boresight.hwp.HWP, optional
-        A continuous or stepped HWP in front of every pair.
+        A continuous or stepped HWP in front of every pair, with its instrumental polarisation.
     progress : bool
 
     Returns
@@ -608,8 +612,17 @@ def simulate_focalplane(
                 pix = ang2pix_array(sky.nside, theta[i], phi[i])
                 key = i * schedule.n_samples + first
                 angle = reflected(psi[i], chi[0], gammas[i]) if chi else psi[i]
+                seen = functools.partial(add_ip, hwp, psi[i]) if chi and hwp.ip else None
                 one.scatter(
-                    pix, theta[i], phi[i], angle, normal, systematics.seed, key, mapmaker=mapmaker
+                    pix,
+                    theta[i],
+                    phi[i],
+                    angle,
+                    normal,
+                    systematics.seed,
+                    key,
+                    mapmaker=mapmaker,
+                    seen=seen,
                 )
             first += theta.shape[1]
             bar.update(theta.size)

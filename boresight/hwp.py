@@ -64,6 +64,12 @@ class HWP:
         cancel exp(4 i chi)).
     step : {"ces", "day", "repeat"}
         When a stepped HWP moves to its next angle.
+    ip : float
+        The plate's instrumental polarisation epsilon: a fraction of the intensity polarised in
+        the focal plane at angle ``ip_phase_deg`` / 2 on the sky's side of the plate, so modulated
+        at 4 chi in the TOD, epsilon I cos(4 chi - 2 gamma - phase) (:func:`add_ip`).
+    ip_phase_deg : float
+        Its phase [deg].
     """
 
     mode: str = "none"
@@ -71,6 +77,8 @@ class HWP:
     phase_deg: float = 0.0
     angles_deg: tuple = (0.0, 22.5, 45.0, 67.5)
     step: str = "ces"
+    ip: float = 0.0
+    ip_phase_deg: float = 0.0
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -85,6 +93,10 @@ class HWP:
         object.__setattr__(self, "angles_deg", angles)
         if self.step not in STEPS:
             raise ConfigError(f"hwp step {self.step!r}; allowed: {STEPS}")
+        if not (math.isfinite(self.ip) and math.isfinite(self.ip_phase_deg)):
+            raise ConfigError(
+                f"hwp ip {self.ip!r}, phase {self.ip_phase_deg!r} deg: finite numbers"
+            )
 
     @property
     def present(self) -> bool:
@@ -136,6 +148,13 @@ def chunk_angles(hwp: HWP, schedule, repeat: int, index: int, *, first: int, n: 
         return np.full(n, (angle * DEG) % (2 * np.pi))
     if hwp.mode != "continuous":
         raise ValueError("a HWP angle needs a continuous or a stepped HWP")
+    per_sample = 4.0 * hwp.frequency_hz / schedule.sample_rate_hz
+    if abs(per_sample - round(per_sample)) < 1e-6:
+        raise ConfigError(
+            f"a {hwp.frequency_hz:g} Hz HWP sampled at {schedule.sample_rate_hz:g} Hz turns 4 chi "
+            "by whole turns from sample to sample: its modulation aliases to a constant; give "
+            "another frequency or sample rate"
+        )
     # the whole turns of the CES's start are taken out first, so that 2 pi f t keeps its digits
     start = schedule.ces[index].start_unix
     turns = math.fmod(hwp.frequency_hz * start, 1.0)
@@ -205,6 +224,34 @@ def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     angles = hwp.angles_deg
     rotations = tuple(r + 2 * angles[k % len(angles)] for k, r in enumerate(scan.rotations_deg))
     return replace(scan, rotations_deg=rotations), mirrored
+
+
+def add_ip(hwp: HWP, psi: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The fields a pair behind the plate sees with the plate's instrumental polarisation: the
+    sky's P = Q + i U and, polarised in the focal plane at phase / 2, epsilon I exp(i (2 psi +
+    phase)) on the sky (a focal-plane angle theta is psi + theta there). Through the plate a
+    detector at gamma sees it as epsilon I cos(4 chi - 2 gamma - phase), with its partner's sign
+    opposite: a signal fixed to the plate, which the pair difference keeps and which reaches the
+    map through the crossing angles' h_{2,0} alone (docs/conventions.md).
+
+    Parameters
+    ----------
+    hwp : HWP
+    psi : numpy.ndarray, shape (H,)
+        The pair's own crossing angle at each sample [rad] (not the reflected one).
+    values : numpy.ndarray, shape (F, H)
+        I, Q, U (and a leak's template) at the samples [muK].
+
+    Returns
+    -------
+    numpy.ndarray, shape (F, H)
+        A copy with epsilon I cos, sin (2 psi + phase) added to Q, U.
+    """
+    out = np.array(values, dtype=np.float64)
+    angle = 2.0 * np.asarray(psi) + hwp.ip_phase_deg * DEG
+    out[1] += hwp.ip * out[0] * np.cos(angle)
+    out[2] += hwp.ip * out[0] * np.sin(angle)
+    return out
 
 
 def stokes_weights(psi: np.ndarray, gamma: float, chi: np.ndarray | None = None) -> np.ndarray:

@@ -123,8 +123,8 @@ KERNELS = {
         Kernel("kernels.pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel(
             "kernels.cpu",
-            "accumulate_scatter",
-            (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, nt.int64, _F2),
+            "_scatter",  # accumulate_scatter's and accumulate_detectors' kernel, by its mode
+            (_I1, _F1, _F2, _F4, _F4, _F3, _F1, _F1, nt.int64, nt.int64, nt.int64, _F2),
             1.6,
         ),
     )
@@ -139,7 +139,7 @@ _JOBS = {
     "design": (("ces_hits", "_rotate_and_sum", "_recurse", "_apply"), ()),
     "validation": (
         ("_ces_pointing", "ang2pix_array", "_response"),
-        ("interpolate_interleaved", "accumulate_scatter"),
+        ("interpolate_interleaved", "_scatter"),
     ),
     "schedule-stats": (("ces_hits", "_bin", "_runs"), ()),
     "focalplane-stats": (("ces_hits_pairs", "_bin_pairs", "_runs"), ()),

@@ -50,6 +50,7 @@ LAYERS = {
         "design_expectation",
         "design_focalplane",
         "suppression",
+        "hwp_suppression",
         "paper",
         "sweep",
     },

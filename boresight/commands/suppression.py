@@ -1,5 +1,6 @@
 """``boresight suppression``: every systematic of :data:`boresight.suppression.CATALOGUE` alone
-through 0, 0/45, 0/90 and 0/180 deg rotation, simulated and predicted."""
+through 0, 0/45, 0/90 and 0/180 deg rotation, simulated and predicted; with ``--hwp``, what that
+rotation still buys behind a half-wave plate on a real schedule (:mod:`boresight.hwp_suppression`)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,11 @@ import argparse
 import dataclasses
 import logging
 
-from .. import io, plots, provenance, resources, suppression
+from .. import hwp_suppression, io, plots, provenance, resources, suppression
 from ..config import OutputOptions, Study, check_systematics
+from ..hwp import HWP
 from ..instrument import Instrument
+from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import ConfigError, require_finite
 from . import _common
@@ -91,6 +94,70 @@ def run(
     return rows
 
 
+def run_hwp(
+    sky_config: SkyConfig,
+    schedule_path: str,
+    plate: HWP,
+    out_dir: str,
+    *,
+    force: bool = False,
+    progress: bool = False,
+) -> list[dict]:
+    """What boresight rotation still buys behind a HWP, on a real schedule
+    (:mod:`boresight.hwp_suppression`).
+
+    Writes ``hwp_suppression.csv`` (a row per systematic, plate and boresight schedule: the leaked
+    pseudo-C_BB in three bands, the prediction over it and the leak over the first row of its
+    systematic), ``hwp_suppression.md``, ``hwp_suppression.png``/``.pdf`` and ``manifest.json``.
+
+    Parameters
+    ----------
+    sky_config : boresight.sky.SkyConfig
+    schedule_path : str
+        A schedule file (:func:`boresight.schedule.load_schedule`): its CES set, repeated at each
+        boresight schedule's angles.
+    plate : boresight.hwp.HWP
+        Continuous or stepped (per CES or per day).
+    out_dir : str
+    force, progress : bool
+
+    Returns
+    -------
+    list of dict
+        The table's rows.
+    """
+    if sky_config.nside < hwp_suppression.MIN_NSIDE:
+        raise ConfigError(
+            f"--nside = {sky_config.nside}: the HWP table's bands start at ell = 30; give a power "
+            f"of two >= {hwp_suppression.MIN_NSIDE}"
+        )
+    schedule = load_schedule(schedule_path)
+    hwp_suppression.check_plate(plate)
+    io.check_output_dir(out_dir, force, inputs=[schedule_path])
+    timer = provenance.Timer(log)
+    with timer("sky"):
+        sky = make_sky(sky_config)
+    with timer("simulations and predictions"):
+        result = hwp_suppression.run(schedule, sky, plate, progress=progress)
+    with io.staged_dir(out_dir, force) as stage:
+        io.write_csv(stage / "hwp_suppression.csv", result.rows, list(result.rows[0]))
+        io.write_text(stage / "hwp_suppression.md", hwp_suppression.markdown(result.rows))
+        plots.hwp_suppression_figure(result, stage / "hwp_suppression")
+        io.write_json(
+            stage / "manifest.json",
+            provenance.manifest(
+                {
+                    "schedule": schedule_path,
+                    "hwp": dataclasses.asdict(plate),
+                    "sky": dataclasses.asdict(sky_config),
+                },
+                {"sky": sky_config.seed},
+                timer.stages,
+            ),
+        )
+    return result.rows
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--force", action="store_true", help="replace an earlier output")
@@ -98,6 +165,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--survey", choices=("deep", "wide"), default="deep")
     parser.add_argument("--fwhm-arcmin", type=float, default=30.0, help="the sky's beam")
     parser.add_argument("--seed", type=int, default=0, help="the sky's seed")
+    _common.hwp_flags(parser)
+    parser.add_argument(
+        "--hwp-ip", type=float, default=None, help="with --hwp: the plate's IP epsilon (1e-3)"
+    )
+    parser.add_argument(
+        "--schedule",
+        help="with --hwp: the schedule file whose CES set the HWP table repeats (required there)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -110,6 +185,23 @@ def main(args: argparse.Namespace) -> int:
         )
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin / --seed: {err}") from None
+    plate = _common.hwp(args)
+    if plate is not None:
+        if args.schedule is None:
+            raise ConfigError("--hwp: give --schedule, the schedule file the HWP table repeats")
+        if args.hwp_ip is not None:
+            plate = dataclasses.replace(plate, ip=args.hwp_ip)
+        run_hwp(
+            sky_config,
+            args.schedule,
+            plate,
+            args.out,
+            force=args.force,
+            progress=_common.progress(args),
+        )
+        return 0
+    if args.schedule is not None or args.hwp_ip is not None:
+        raise ConfigError("--schedule and --hwp-ip belong to the HWP table: give --hwp too")
     run(
         sky_config,
         args.out,

@@ -38,6 +38,7 @@ from .windows import hit_spread_window
 
 if TYPE_CHECKING:
     from ..cosmology import Spectra
+    from ..hwp import HWP
     from ..scanstats import FocalPlaneStats
     from ..sky import Sky
 
@@ -150,6 +151,59 @@ def delta_p(
     fields = _fields(sky, systematics, template, spread, nthreads)
     weights = _weights(stats)
     return _solve(_y(stats, weights, shares, fields), _h4(stats, weights, shares))
+
+
+#: the h_{n,m} of (psi, chi) the plate's instrumental polarisation reaches a pair's map through
+IP_TERMS = ((2, 0), (2, 8), (4, 8))
+
+
+def ip_delta_p(
+    sky: Sky,
+    moments: dict,
+    hwp: HWP,
+    pair_angles_deg,
+    *,
+    spread: bool = True,
+    nthreads: int = 0,
+) -> np.ndarray:
+    """The spurious P = Q + i U of a HWP's instrumental polarisation (:func:`boresight.hwp.add_ip`)
+    in the pair differences' map of pairs on the axis (and both detectors' own: the same Q, U).
+
+    A pair at gamma behind the plate sees a = psi - gamma + 2 chi and the plate's epsilon I
+    exp(i (2 psi + phase)) on the sky, so with w_i = exp(-4 i gamma_i) averaged over the pairs::
+
+      Y = epsilon T [exp(i phase) h_{2,0} + exp(-i phase) <w> h_{2,8}],   H_4 = <w> h_{4,8}
+      dP = (Y - H_4 Y*) / (1 - ``|H_4|^2``)
+
+    the 2x2 solve of :func:`delta_p`. A spinning plate leaves h_{2,8} and h_{4,8} near zero:
+    dP = epsilon T exp(i phase) h_{2,0}, the crossing angles' own moment, which boresight
+    rotation cancels as it cancels a bare pair's h_2 (0/90 to rounding).
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    moments : dict
+        (n, m) -> (npix,) h_{n,m} of the boresight's samples with :data:`IP_TERMS`
+        (:func:`boresight.scanstats.hwp_moments`).
+    hwp : boresight.hwp.HWP
+    pair_angles_deg : sequence of float
+        Detector A's angle gamma of each pair [deg], all on the axis sharing the samples.
+    spread, nthreads
+        As in :func:`delta_p`.
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (npix,)
+        [muK], 0 off the observed pixels.
+    """
+    missing = [t for t in IP_TERMS if t not in moments]
+    if missing:
+        raise ValueError(f"the HWP's instrumental polarisation needs h_(n,m) {missing}")
+    t = _fields(sky, Systematics(), None, spread, nthreads)["t2"]
+    w = np.mean(np.exp(-4j * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
+    phase = np.exp(1j * hwp.ip_phase_deg * DEG)
+    y = hwp.ip * t * (phase * moments[2, 0] + np.conj(phase) * w * moments[2, 8])
+    return _solve(y, w * moments[4, 8])
 
 
 def at_means(systematics, n_pairs):

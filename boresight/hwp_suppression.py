@@ -1,0 +1,236 @@
+"""What boresight rotation still buys a telescope with a half-wave plate.
+
+Each systematic of :data:`CASES` runs alone on a real schedule, every pair on its own samples
+(:func:`boresight.engine.simulate_focalplane`, the sky read exactly at each sample), without a
+plate and behind one, through the boresight schedules of :data:`SCHEDULES` (the schedule's CES
+set repeated at each angle). For every row the leaked pseudo-C_BB of the TOD is binned in three
+bands, set beside its prediction from the schedule's moments and divided by the leak without a
+plate or rotation.
+
+The terms each cure acts on (docs/conventions.md, "Half-wave plates"): a differential gain's and
+an additive leak's T reach a bare pair's map through h_2 and a pair behind the plate's through
+h_{2,4}, which a spinning plate averages away and boresight rotation cancels; the plate's own
+instrumental polarisation reaches it through h_{2,0}, the crossing angles' moment, which the plate
+cannot touch and only the sky's and the boresight's rotation cancel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from . import engine, harmonics, interrupts, scanstats, spectra
+from .focalplane import on_axis
+from .instrument import Systematics
+from .predict import focalplane as predict_fp
+from .validation import ConfigError
+
+if TYPE_CHECKING:
+    from .hwp import HWP
+    from .schedule import Schedule
+    from .sky import Sky
+
+#: the boresight schedules: the CES set once, and repeated at each further angle [deg]
+SCHEDULES = ((0.0,), (0.0, 45.0), (0.0, 90.0), (0.0, 180.0))
+#: the pixels whose maps enter the spectra
+RCOND_FOOTPRINT = 0.05
+#: the plate's instrumental polarisation where the plate states none
+DEFAULT_IP = 1e-3
+MIN_NSIDE = 32  #: the lowest Nside whose bands (:func:`bands`) are in order
+
+
+@dataclass(frozen=True)
+class Case:
+    """One systematic of the table.
+
+    Parameters
+    ----------
+    name, amplitude : str
+        For the table.
+    bare, behind : str
+        The moment its leak reaches the map through, without and behind the plate.
+    systematics : Systematics
+        The pairs' (none for the plate's own).
+    plate_ip : bool
+        The plate's instrumental polarisation instead (only behind a plate).
+    """
+
+    name: str
+    amplitude: str
+    bare: str
+    behind: str
+    systematics: Systematics = Systematics()
+    plate_ip: bool = False
+
+
+CASES = (
+    Case("differential gain", "dg = +-0.01", "T: h_2", "T: h_{2,4}", Systematics(dg=(0.01, -0.01))),
+    Case("additive leak", "0.01 T", "T: h_2", "T: h_{2,4}", Systematics(leak=0.01)),
+    Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate_ip=True),
+)
+
+
+@dataclass(frozen=True)
+class Result:
+    """The table's rows and each row's leaked pseudo-C_BB per ell (for the figure).
+
+    Parameters
+    ----------
+    rows : list of dict
+    spectra : dict
+        (case name, "none" or "plate", boresight label) -> (measured, predicted), (lmax + 1,)
+        [muK^2] each.
+    edges : numpy.ndarray
+        The bands' edges.
+    """
+
+    rows: list
+    spectra: dict
+    edges: np.ndarray
+
+
+def bands(nside: int) -> np.ndarray:
+    """Three bands of 30 <= ell <= 2 Nside: [30, Nside), [Nside, 3 Nside / 2), [3 Nside / 2, 2
+    Nside]."""
+    return np.array([30, nside, 3 * nside // 2, 2 * nside + 1])
+
+
+def check_plate(hwp: HWP) -> None:
+    """Refuse a plate the table cannot take: none, or one stepped per repeat of the CES set (the
+    table's boresight schedules are those repeats)."""
+    if not hwp.present:
+        raise ConfigError("the HWP table needs a continuous or a stepped plate")
+    if hwp.mode == "stepped" and hwp.step == "repeat":
+        raise ConfigError(
+            "hwp step 'repeat': the table repeats the CES set at each boresight angle, which would "
+            "step the plate with it; step per ces or per day"
+        )
+
+
+def boresight_label(repeats) -> str:
+    return "/".join(f"{r:g}" for r in repeats)
+
+
+def run(
+    schedule: Schedule,
+    sky: Sky,
+    hwp: HWP,
+    *,
+    schedules=SCHEDULES,
+    pair_angles_deg=(0.0, 45.0),
+    progress: bool = False,
+) -> Result:
+    """Every case without a plate and behind ``hwp``, through each boresight schedule.
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+        Its CES set; its own repeats are replaced by each of ``schedules``.
+    sky : boresight.sky.Sky
+        lmax >= 2 Nside.
+    hwp : boresight.hwp.HWP
+        Continuous or stepped; its ``ip`` is the instrumental polarisation's case (default
+        :data:`DEFAULT_IP`).
+    schedules : sequence of sequence of float
+        Boresight angles of the CES set's repeats [deg].
+    pair_angles_deg : sequence of float
+        The pairs, on the axis (default the paper's Q and U pairs).
+    progress : bool
+
+    Returns
+    -------
+    Result
+    """
+    check_plate(hwp)
+    pairs = on_axis(pair_angles_deg)
+    ideal = dataclasses.replace(hwp, ip=0.0)
+    leaky = dataclasses.replace(hwp, ip=hwp.ip or DEFAULT_IP)
+    edges = bands(sky.nside)
+    names = [f"{lo}-{hi - 1}" for lo, hi in zip(edges[:-1], edges[1:])]
+    rows, cls, first = [], {}, {}
+    jobs = [(r, p) for r in schedules for p in ("none", "plate")]
+    for repeats, which in tqdm(jobs, desc="HWP table", disable=not progress):
+        interrupts.check()
+        scan = dataclasses.replace(schedule, repeat_boresight_deg=tuple(repeats))
+        plate = None if which == "none" else ideal
+        run_ = dict(evaluation="exact")
+        ref = engine.simulate_focalplane(sky, scan, pairs, hwp=plate, **run_)
+        footprint = spectra.as_footprint((ref.rcond > RCOND_FOOTPRINT).astype(float))
+        stats = scanstats.characterise_focalplane(scan, pairs, sky.nside, per_pair=True, hwp=plate)
+        moments = None
+        for case in CASES:
+            if case.plate_ip and plate is None:
+                continue
+            if case.plate_ip:
+                tod = engine.simulate_focalplane(sky, scan, pairs, hwp=leaky, **run_)
+                if moments is None:
+                    moments = scanstats.hwp_moments(scan, leaky, sky.nside, predict_fp.IP_TERMS)[1]
+                dp = predict_fp.ip_delta_p(sky, moments, leaky, pairs.pair_angles_deg)
+            else:
+                tod = engine.simulate_focalplane(
+                    sky, scan, pairs, case.systematics, hwp=plate, **run_
+                )
+                dp = predict_fp.delta_p(sky, stats, case.systematics)
+            measured = _pseudo_bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u), sky.nside)
+            predicted = _pseudo_bb(footprint, dp, sky.nside)
+            label = boresight_label(repeats)
+            cls[case.name, which, label] = (measured, predicted)
+            m, p = (spectra.bin_spectrum(x, edges)[1] for x in (measured, predicted))
+            first.setdefault(case.name, m)
+            row = {
+                "systematic": case.name,
+                "amplitude": f"epsilon = {leaky.ip:g}" if case.plate_ip else case.amplitude,
+                "plate": "none" if plate is None else _plate_label(hwp),
+                "boresight": label,
+                "through": case.bare if plate is None else case.behind,
+            }
+            for band, mb, pb, fb in zip(names, m, p, first[case.name]):
+                row[f"leak {band}"] = float(mb)
+                row[f"predicted/TOD {band}"] = float(pb / mb) if mb > 0 else float("nan")
+                row[f"over first {band}"] = float(mb / fb) if fb > 0 else float("nan")
+            rows.append(row)
+    return Result(rows, cls, edges)
+
+
+def _plate_label(hwp):
+    if hwp.mode == "continuous":
+        return f"continuous {hwp.frequency_hz:g} Hz"
+    angles = ", ".join(f"{a:g}" for a in hwp.angles_deg)
+    return f"stepped per {hwp.step} ({angles} deg)"
+
+
+def _pseudo_bb(footprint, dp, nside):
+    """The masked pseudo-C_BB (lmax = 2 Nside,) of a spurious P map."""
+    d = dp[footprint.pixels]
+    b = footprint.alm(np.array([d.real, d.imag]), 2 * nside, 2)[1]
+    return harmonics.alm2cl(b)
+
+
+#: a leak below this is rounding [muK^2]: its ratios carry no meaning
+ROUNDING = 1e-30
+
+
+def markdown(rows: list[dict]) -> str:
+    """The table, readable: the leak per band [muK^2], the prediction over the TOD and the leak
+    over the first row of its systematic (no plate, no rotation; the plate's IP: behind it, no
+    rotation)."""
+    bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
+    head = ["systematic", "plate", "boresight", "through"]
+    head += [f"leak {b}" for b in bands_] + [f"pred/TOD {b}" for b in bands_]
+    head += [f"over first {b}" for b in bands_]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        cells = [row["systematic"] + f" ({row['amplitude']})", row["plate"], row["boresight"]]
+        cells.append(row["through"])
+        leaks = [row[f"leak {b}"] for b in bands_]
+        cells += [f"{x:.2g}" for x in leaks]
+        for kind in ("predicted/TOD", "over first"):
+            for b, leak in zip(bands_, leaks):
+                x = row[f"{kind} {b}"]
+                cells.append("-" if leak < ROUNDING or not np.isfinite(x) else f"{x:.3g}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,116 @@
+"""What boresight rotation still buys behind a half-wave plate: the table end to end on a short
+real schedule, its physics against the moments, and the command's one clear errors."""
+
+import csv
+
+import numpy as np
+import pytest
+from helpers import T0
+
+from boresight import hwp_suppression
+from boresight.cli import main
+from boresight.hwp import HWP
+from boresight.schedule import load_schedule
+from boresight.sky import SkyConfig, make_sky
+from boresight.validation import ConfigError
+
+NSIDE = 32
+
+
+def _schedule_file(path):
+    """Four 20-minute CESs at 1 Hz, rising and setting, over two nights."""
+    path.write_text(
+        "sample_rate_hz = 1.0\n"
+        + "".join(
+            f"[[ces]]\nstart_unix = {T0 + 43200 * i}\nduration_s = 1200\nelevation_deg = 50\n"
+            f"az_centre_deg = {134 if i % 2 else 226}\naz_throw_deg = 40\n"
+            for i in range(4)
+        )
+    )
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hwp_table")
+    schedule = load_schedule(_schedule_file(d / "s.toml"))
+    sky = make_sky(SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=450.0, seed=3))
+    plate = HWP("continuous", frequency_hz=0.37)
+    result = hwp_suppression.run(schedule, sky, plate, schedules=((0.0,), (0.0, 45.0), (0.0, 90.0)))
+    return {(r["systematic"], r["plate"] != "none", r["boresight"]): r for r in result.rows}
+
+
+def _leak(row):
+    return np.array([v for k, v in row.items() if k.startswith("leak ")])
+
+
+def _ratio(row, kind):
+    return np.array([v for k, v in row.items() if k.startswith(kind)])
+
+
+def test_the_plate_cures_the_pairs_leaks_but_not_its_own(table):
+    """Behind a spinning plate the gain's and the leak's T (h_{2,4}) fall below a tenth of the
+    bare pairs' (h_2) in the lowest band; the plate's own IP (h_{2,0}) survives it, falls with
+    0/45 and is cancelled by 0/90 to rounding (h_{2,0} flips sign between the passes)."""
+    for name in ("differential gain", "additive leak"):
+        bare, behind = _leak(table[name, False, "0"]), _leak(table[name, True, "0"])
+        assert behind[0] < 0.1 * bare[0], (name, behind, bare)
+    ip = "HWP instrumental polarisation"
+    once = _leak(table[ip, True, "0"])
+    assert once.min() > 1e-10 and ip not in {k[0] for k in table if not k[1]}
+    assert _leak(table[ip, True, "0/45"])[0] < 0.8 * once[0]
+    assert _leak(table[ip, True, "0/90"]).max() < 1e-25
+    assert table[ip, True, "0"]["through"] == "T: h_{2,0}"
+
+
+def test_every_prediction_follows_the_tod(table):
+    """predicted / TOD within 10 % in every band where the leak is above rounding, behind the plate
+    (measured 0.94-1.05; the gain's exact second-order term survives 0/90 and is predicted too),
+    and within 15 % for the bare pairs on this small footprint (0.97-1.13)."""
+    checked = 0
+    for (_, behind, _), row in table.items():
+        leaks, ratios = _leak(row), _ratio(row, "predicted/TOD")
+        for leak, ratio in zip(leaks, ratios):
+            if leak > hwp_suppression.ROUNDING:
+                bound = 0.10 if behind else 0.15
+                assert abs(ratio - 1) < bound, (row["systematic"], row["boresight"], ratio)
+                checked += 1
+    assert checked >= 30
+
+
+def test_the_command_writes_the_table_and_the_figure(tmp_path):
+    path = _schedule_file(tmp_path / "s.toml")
+    out = tmp_path / "out"
+    flags = ["--hwp", "continuous", "--hwp-frequency", "0.37", "--hwp-ip", "2e-3"]
+    args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
+    assert main([*args, "--fwhm-arcmin", "450", *flags]) == 0
+    rows = list(csv.DictReader(open(out / "hwp_suppression.csv")))
+    assert len(rows) == 4 * 5  # per boresight schedule: 2 bare rows, 3 behind the plate
+    assert {r["amplitude"] for r in rows if r["systematic"].startswith("HWP")} == {
+        "epsilon = 0.002"
+    }
+    assert (out / "hwp_suppression.png").is_file() and (out / "hwp_suppression.pdf").is_file()
+    assert "h_{2,0}" in (out / "hwp_suppression.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--hwp", "continuous"], "--schedule"),
+        (["--hwp-ip", "1e-3"], "give --hwp too"),
+        (["--hwp", "stepped", "--hwp-step", "repeat", "--schedule", "S"], "step per ces"),
+        (["--hwp", "continuous", "--nside", "16", "--schedule", "S"], ">= 32"),
+    ],
+)
+def test_the_command_refuses_what_the_table_cannot_take(tmp_path, capsys, flags, words):
+    path = _schedule_file(tmp_path / "s.toml")
+    flags = [path if f == "S" else f for f in flags]
+    out = tmp_path / "bad"
+    assert main(["-q", "suppression", "--out", str(out), *flags]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1 and not out.exists(), err
+
+
+def test_the_table_needs_a_plate():
+    with pytest.raises(ConfigError, match="continuous or a stepped"):
+        hwp_suppression.check_plate(HWP())
