@@ -19,8 +19,7 @@ from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import ENGINE_METHODS, SkyFields
-from .hwp import add_ip, reflected
-from .hwp import check_systematics as check_hwp_systematics
+from .hwp import add_ip, reflected, with_angle_offset
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
@@ -589,7 +588,7 @@ def simulate_focalplane(
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     if hwp is not None:
-        check_hwp_systematics(systematics)
+        systematics = with_angle_offset(hwp, systematics)
     _check_mapmaker(mapmaker, backend)
     gammas = np.radians(focalplane.gamma_deg)
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)

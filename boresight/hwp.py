@@ -70,6 +70,9 @@ class HWP:
         at 4 chi in the TOD, epsilon I cos(4 chi - 2 gamma - phase) (:func:`add_ip`).
     ip_phase_deg : float
         Its phase [deg].
+    angle_offset_deg : float
+        The plate's true angle less the angle the map-maker takes for it [deg]
+        (:func:`with_angle_offset`).
     """
 
     mode: str = "none"
@@ -79,6 +82,7 @@ class HWP:
     step: str = "ces"
     ip: float = 0.0
     ip_phase_deg: float = 0.0
+    angle_offset_deg: float = 0.0
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -177,6 +181,30 @@ def check_systematics(systematics) -> None:
             f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted; "
             f"a HWP's pairs carry {', '.join(THROUGH_HWP)}"
         )
+
+
+def with_angle_offset(hwp: HWP, systematics):
+    """The systematics of pairs behind the plate, its angle offset delta included.
+
+    The map-maker takes a = psi - gamma + 2 chi where the pair sees a + 2 delta: for the pair at
+    its reflected angle (:func:`reflected`), a polarisation-angle error of 2 delta on both
+    detectors of every pair. The maps' P turns by exp(-4 i delta) (E into B through h_0, which no rotation
+    touches; a calibration's job).
+
+    Parameters
+    ----------
+    hwp : HWP
+    systematics : boresight.instrument.Systematics
+        The pairs' own, of :data:`THROUGH_HWP` (:func:`check_systematics`).
+
+    Returns
+    -------
+    boresight.instrument.Systematics
+    """
+    check_systematics(systematics)
+    if hwp.angle_offset_deg == 0.0:
+        return systematics
+    return replace(systematics, pol_angle_deg=2.0 * hwp.angle_offset_deg)
 
 
 def reflected(psi: np.ndarray, chi: np.ndarray, gamma: float) -> np.ndarray:

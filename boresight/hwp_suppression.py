@@ -40,6 +40,8 @@ SCHEDULES = ((0.0,), (0.0, 45.0), (0.0, 90.0), (0.0, 180.0))
 RCOND_FOOTPRINT = 0.05
 #: the plate's instrumental polarisation where the plate states none
 DEFAULT_IP = 1e-3
+#: the plate's angle offset where the plate states none [deg]
+DEFAULT_OFFSET_DEG = 0.1
 MIN_NSIDE = 32  #: the lowest Nside whose bands (:func:`bands`) are in order
 
 
@@ -55,8 +57,9 @@ class Case:
         The moment its leak reaches the map through, without and behind the plate.
     systematics : Systematics
         The pairs' (none for the plate's own).
-    plate_ip : bool
-        The plate's instrumental polarisation instead (only behind a plate).
+    plate : str
+        Instead, the plate's own: "ip" (its instrumental polarisation) or "angle" (its angle
+        offset), only behind a plate.
     """
 
     name: str
@@ -64,13 +67,14 @@ class Case:
     bare: str
     behind: str
     systematics: Systematics = Systematics()
-    plate_ip: bool = False
+    plate: str = ""
 
 
 CASES = (
     Case("differential gain", "dg = +-0.01", "T: h_2", "T: h_{2,4}", Systematics(dg=(0.01, -0.01))),
     Case("additive leak", "0.01 T", "T: h_2", "T: h_{2,4}", Systematics(leak=0.01)),
-    Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate_ip=True),
+    Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate="ip"),
+    Case("HWP angle offset", "delta", "-", "P: h_0 (turns P by 4 delta)", plate="angle"),
 )
 
 
@@ -133,8 +137,8 @@ def run(
     sky : boresight.sky.Sky
         lmax >= 2 Nside.
     hwp : boresight.hwp.HWP
-        Continuous or stepped; its ``ip`` is the instrumental polarisation's case (default
-        :data:`DEFAULT_IP`).
+        Continuous or stepped; its ``ip`` and ``angle_offset_deg`` are the amplitudes of the
+        plate's own cases (default :data:`DEFAULT_IP`, :data:`DEFAULT_OFFSET_DEG`).
     schedules : sequence of sequence of float
         Boresight angles of the CES set's repeats [deg].
     pair_angles_deg : sequence of float
@@ -147,8 +151,13 @@ def run(
     """
     check_plate(hwp)
     pairs = on_axis(pair_angles_deg)
-    ideal = dataclasses.replace(hwp, ip=0.0)
-    leaky = dataclasses.replace(hwp, ip=hwp.ip or DEFAULT_IP)
+    ideal = dataclasses.replace(hwp, ip=0.0, angle_offset_deg=0.0)  # the plate's own: each alone
+    own = {
+        "ip": dataclasses.replace(ideal, ip=hwp.ip or DEFAULT_IP),
+        "angle": dataclasses.replace(
+            ideal, angle_offset_deg=hwp.angle_offset_deg or DEFAULT_OFFSET_DEG
+        ),
+    }
     edges = bands(sky.nside)
     names = [f"{lo}-{hi - 1}" for lo, hi in zip(edges[:-1], edges[1:])]
     rows, cls, first = [], {}, {}
@@ -163,13 +172,17 @@ def run(
         stats = scanstats.characterise_focalplane(scan, pairs, sky.nside, per_pair=True, hwp=plate)
         moments = None
         for case in CASES:
-            if case.plate_ip and plate is None:
+            if case.plate and plate is None:
                 continue
-            if case.plate_ip:
-                tod = engine.simulate_focalplane(sky, scan, pairs, hwp=leaky, **run_)
+            if case.plate:
+                tod = engine.simulate_focalplane(sky, scan, pairs, hwp=own[case.plate], **run_)
+            if case.plate == "ip":
                 if moments is None:
-                    moments = scanstats.hwp_moments(scan, leaky, sky.nside, predict_fp.IP_TERMS)[1]
-                dp = predict_fp.ip_delta_p(sky, moments, leaky, pairs.pair_angles_deg)
+                    moments = scanstats.hwp_moments(scan, ideal, sky.nside, predict_fp.IP_TERMS)[1]
+                dp = predict_fp.ip_delta_p(sky, moments, own["ip"], pairs.pair_angles_deg)
+            elif case.plate == "angle":
+                offset = dataclasses.replace(stats, hwp=own["angle"])
+                dp = predict_fp.delta_p(sky, offset, Systematics())
             else:
                 tod = engine.simulate_focalplane(
                     sky, scan, pairs, case.systematics, hwp=plate, **run_
@@ -183,17 +196,26 @@ def run(
             first.setdefault(case.name, m)
             row = {
                 "systematic": case.name,
-                "amplitude": f"epsilon = {leaky.ip:g}" if case.plate_ip else case.amplitude,
+                "amplitude": _amplitude(case, own),
                 "plate": "none" if plate is None else _plate_label(hwp),
                 "boresight": label,
                 "through": case.bare if plate is None else case.behind,
             }
             for band, mb, pb, fb in zip(names, m, p, first[case.name]):
                 row[f"leak {band}"] = float(mb)
-                row[f"predicted/TOD {band}"] = float(pb / mb) if mb > 0 else float("nan")
-                row[f"over first {band}"] = float(mb / fb) if fb > 0 else float("nan")
+                real = mb > ROUNDING  # a leak at rounding has no meaningful ratio: NaN
+                row[f"predicted/TOD {band}"] = float(pb / mb) if real else float("nan")
+                row[f"over first {band}"] = float(mb / fb) if real and fb > ROUNDING else np.nan
             rows.append(row)
     return Result(rows, cls, edges)
+
+
+def _amplitude(case, own):
+    if case.plate == "ip":
+        return f"epsilon = {own['ip'].ip:g}"
+    if case.plate == "angle":
+        return f"delta = {own['angle'].angle_offset_deg:g} deg"
+    return case.amplitude
 
 
 def _plate_label(hwp):

@@ -183,6 +183,7 @@ def test_the_pointing_carries_the_hwp_angle_and_keeps_its_own_numbers():
         (dict(mode="stepped", angles_deg=()), "angles"),
         (dict(mode="stepped", angles_deg=(0.0, float("nan"))), "angles"),
         (dict(mode="stepped", step="hour"), "step"),
+        (dict(mode="continuous", ip=float("nan")), "ip"),
     ],
 )
 def test_a_bad_hwp_is_one_clear_error(keys, message):
@@ -631,3 +632,21 @@ def test_a_plate_whose_modulation_aliases_to_a_constant_is_one_clear_error():
         with pytest.raises(ConfigError, match="aliases to a constant"):
             next(pointing.pointing(schedule, hwp=HWP("continuous", frequency_hz=2.0)))
     next(pointing.pointing(_schedule([0.0]), hwp=HWP("continuous", frequency_hz=0.37)))
+
+
+def test_a_plate_angle_offset_turns_the_maps_by_four_times_it(plain_sky):
+    """A plate whose true angle is delta = 0.5 deg off the map-maker's: behind it the maps are the
+    sky's P turned by exp(-4 i delta) to rounding (the sky read in each sample's pixel), and
+    predict.focalplane.delta_p, with the offset as a 2 delta angle error of every pair at its
+    reflected angle, gives the same spurious P."""
+    schedule = _wide_schedule(1)
+    pairs = focalplane.on_axis((0.0, 30.0))
+    plate = HWP("continuous", frequency_hz=0.37, angle_offset_deg=0.5)
+    maps = engine.simulate_focalplane(plain_sky, schedule, pairs, evaluation="pixel", hwp=plate)
+    valid = maps.q_obs != hp.UNSEEN
+    p_sky = (plain_sky.maps[1] + 1j * plain_sky.maps[2])[maps.pixels[valid]]
+    got = (maps.q_obs + 1j * maps.u_obs)[valid]
+    np.testing.assert_allclose(got, p_sky * np.exp(-4j * np.radians(0.5)), atol=1e-9 * 100)
+    stats = scanstats.characterise_focalplane(schedule, pairs, 16, per_pair=True, hwp=plate)
+    dp = predict_fp.delta_p(plain_sky, stats, Systematics(), spread=False)[maps.pixels[valid]]
+    np.testing.assert_allclose(dp, got - p_sky, atol=1e-9 * np.abs(got - p_sky).max())

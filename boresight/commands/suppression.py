@@ -170,6 +170,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--hwp-ip", type=float, default=None, help="with --hwp: the plate's IP epsilon (1e-3)"
     )
     parser.add_argument(
+        "--hwp-angle-offset-deg",
+        type=float,
+        default=None,
+        help="with --hwp: the plate's angle offset [deg] (0.1)",
+    )
+    parser.add_argument(
         "--schedule",
         help="with --hwp: the schedule file whose CES set the HWP table repeats (required there)",
     )
@@ -191,6 +197,8 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError("--hwp: give --schedule, the schedule file the HWP table repeats")
         if args.hwp_ip is not None:
             plate = dataclasses.replace(plate, ip=args.hwp_ip)
+        if args.hwp_angle_offset_deg is not None:
+            plate = dataclasses.replace(plate, angle_offset_deg=args.hwp_angle_offset_deg)
         run_hwp(
             sky_config,
             args.schedule,
@@ -200,8 +208,14 @@ def main(args: argparse.Namespace) -> int:
             progress=_common.progress(args),
         )
         return 0
-    if args.schedule is not None or args.hwp_ip is not None:
-        raise ConfigError("--schedule and --hwp-ip belong to the HWP table: give --hwp too")
+    if (
+        args.schedule is not None
+        or args.hwp_ip is not None
+        or args.hwp_angle_offset_deg is not None
+    ):
+        raise ConfigError(
+            "--schedule, --hwp-ip and --hwp-angle-offset-deg belong to the HWP table: give --hwp too"
+        )
     run(
         sky_config,
         args.out,
