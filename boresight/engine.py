@@ -19,7 +19,7 @@ from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import ENGINE_METHODS, SkyFields
-from .hwp import add_ip, reflected, with_angle_offset
+from .hwp import plate_signals, reflected, with_angle_offset
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
@@ -464,7 +464,7 @@ class _Binner:
         """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
         ``mapmaker`` bins them (:data:`MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
         by (seed, first + h). ``seen``, if given, maps the fields at the hits to what the pair
-        sees there (a HWP's instrumental polarisation, :func:`boresight.hwp.add_ip`)."""
+        sees there (a HWP's own signals, :func:`boresight.hwp.plate_signals`)."""
         values_a, values_b = self._values(theta, phi, psi)
         if seen is not None:
             values_a = seen(self.kernels.to_host(values_a))
@@ -611,7 +611,11 @@ def simulate_focalplane(
                 pix = ang2pix_array(sky.nside, theta[i], phi[i])
                 key = i * schedule.n_samples + first
                 angle = reflected(psi[i], chi[0], gammas[i]) if chi else psi[i]
-                seen = functools.partial(add_ip, hwp, psi[i]) if chi and hwp.ip else None
+                seen = None
+                if chi and hwp.has_signals:
+                    seen = functools.partial(
+                        plate_signals, hwp, psi=psi[i], chi=chi[0], gamma=gammas[i]
+                    )
                 one.scatter(
                     pix,
                     theta[i],

@@ -67,12 +67,17 @@ class HWP:
     ip : float
         The plate's instrumental polarisation epsilon: a fraction of the intensity polarised in
         the focal plane at angle ``ip_phase_deg`` / 2 on the sky's side of the plate, so modulated
-        at 4 chi in the TOD, epsilon I cos(4 chi - 2 gamma - phase) (:func:`add_ip`).
+        at 4 chi in the TOD, epsilon I cos(4 chi - 2 gamma - phase) (:func:`plate_signals`).
     ip_phase_deg : float
         Its phase [deg].
     angle_offset_deg : float
         The plate's true angle less the angle the map-maker takes for it [deg]
         (:func:`with_angle_offset`).
+    synchronous_muk : tuple of float
+        The amplitudes (A_2, A_4) of its synchronous signal at 2 and 4 chi [muK]
+        (:func:`plate_signals`).
+    synchronous_phase_deg : tuple of float
+        Their phases (phi_2, phi_4) [deg].
     """
 
     mode: str = "none"
@@ -83,6 +88,8 @@ class HWP:
     ip: float = 0.0
     ip_phase_deg: float = 0.0
     angle_offset_deg: float = 0.0
+    synchronous_muk: tuple = (0.0, 0.0)
+    synchronous_phase_deg: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -105,6 +112,11 @@ class HWP:
     @property
     def present(self) -> bool:
         return self.mode != "none"
+
+    @property
+    def has_signals(self) -> bool:
+        """Whether the plate adds signals of its own (:func:`plate_signals`)."""
+        return bool(self.ip) or any(self.synchronous_muk)
 
 
 def step_index(hwp: HWP, schedule, repeat: int, index: int) -> int:
@@ -254,31 +266,54 @@ def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     return replace(scan, rotations_deg=rotations), mirrored
 
 
-def add_ip(hwp: HWP, psi: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """The fields a pair behind the plate sees with the plate's instrumental polarisation: the
-    sky's P = Q + i U and, polarised in the focal plane at phase / 2, epsilon I exp(i (2 psi +
-    phase)) on the sky (a focal-plane angle theta is psi + theta there). Through the plate a
-    detector at gamma sees it as epsilon I cos(4 chi - 2 gamma - phase), with its partner's sign
-    opposite: a signal fixed to the plate, which the pair difference keeps and which reaches the
-    map through the crossing angles' h_{2,0} alone (docs/conventions.md).
+def plate_signals(
+    hwp: HWP, values: np.ndarray, *, psi: np.ndarray, chi: np.ndarray, gamma: float
+) -> np.ndarray:
+    """The fields a pair at angle ``gamma`` behind the plate sees, with the plate's own signals.
+
+    * Its instrumental polarisation: epsilon I polarised in the focal plane at phase / 2, that is
+      epsilon I exp(i (2 psi + phase)) added to the sky's P = Q + i U (a focal-plane angle theta
+      is psi + theta on the sky). Through the plate a detector at gamma sees it as
+      epsilon I cos(4 chi - 2 gamma - phase), its partner the opposite: the pair difference keeps
+      it, and it reaches the map through the crossing angles' h_{2,0} (docs/conventions.md).
+    * Its synchronous signal: A_2 cos(2 (chi - gamma) - phi_2) + A_4 cos(4 (chi - gamma) - phi_4)
+      [muK] added to each detector, fixed to the instrument; at 90 deg the partner sees A_2 with
+      the opposite sign and A_4 alike. The A_4 part is common to the pair (added to I); the A_2
+      part is the pair's difference, added to Q, U along the detector's true angle a = psi' +
+      gamma + 2 delta (so that Q cos 2a + U sin 2a is it).
 
     Parameters
     ----------
     hwp : HWP
-    psi : numpy.ndarray, shape (H,)
-        The pair's own crossing angle at each sample [rad] (not the reflected one).
     values : numpy.ndarray, shape (F, H)
         I, Q, U (and a leak's template) at the samples [muK].
+    psi : numpy.ndarray, shape (H,)
+        The pair's own crossing angle at each sample [rad] (not the reflected one).
+    chi : numpy.ndarray, shape (H,)
+        The plate's angle [rad].
+    gamma : float
+        The pair's angle in the focal plane [rad].
 
     Returns
     -------
     numpy.ndarray, shape (F, H)
-        A copy with epsilon I cos, sin (2 psi + phase) added to Q, U.
+        A copy with the plate's signals added.
     """
     out = np.array(values, dtype=np.float64)
-    angle = 2.0 * np.asarray(psi) + hwp.ip_phase_deg * DEG
-    out[1] += hwp.ip * out[0] * np.cos(angle)
-    out[2] += hwp.ip * out[0] * np.sin(angle)
+    psi, chi = np.asarray(psi), np.asarray(chi)
+    if hwp.ip:
+        angle = 2.0 * psi + hwp.ip_phase_deg * DEG
+        out[1] += hwp.ip * out[0] * np.cos(angle)
+        out[2] += hwp.ip * out[0] * np.sin(angle)
+    a2, a4 = hwp.synchronous_muk
+    phi2, phi4 = (p * DEG for p in hwp.synchronous_phase_deg)
+    if a4:
+        out[0] += a4 * np.cos(4.0 * (chi - gamma) - phi4)
+    if a2:
+        difference = a2 * np.cos(2.0 * (chi - gamma) - phi2)
+        a = reflected(psi, chi, gamma) + gamma + 2.0 * hwp.angle_offset_deg * DEG
+        out[1] += difference * np.cos(2.0 * a)
+        out[2] += difference * np.sin(2.0 * a)
     return out
 
 

@@ -650,3 +650,43 @@ def test_a_plate_angle_offset_turns_the_maps_by_four_times_it(plain_sky):
     stats = scanstats.characterise_focalplane(schedule, pairs, 16, per_pair=True, hwp=plate)
     dp = predict_fp.delta_p(plain_sky, stats, Systematics(), spread=False)[maps.pixels[valid]]
     np.testing.assert_allclose(dp, got - p_sky, atol=1e-9 * np.abs(got - p_sky).max())
+
+
+SYNC = {"synchronous_muk": (3.0, 5.0), "synchronous_phase_deg": (20.0, -40.0)}
+
+
+@pytest.mark.parametrize(
+    "plate",
+    [HWP("continuous", frequency_hz=0.37, **SYNC), HWP("stepped", step="ces", **SYNC)],
+    ids=["continuous", "stepped"],
+)
+def test_the_plates_synchronous_signal_is_its_moments_prediction(plain_sky, plate):
+    """The plate's 2 chi and 4 chi signal: in the pair differences' map the TOD's spurious P is
+    predict.focalplane.synchronous_delta_p's from h_{2,2}, h_{2,6} and h_{4,8} (a separate
+    binning) to rounding; the 4 chi part, common to a pair, leaves it (so A_4 alone leaks
+    nothing). 0/90 cancels the 2 chi part with h_2 behind a spinning plate, whose repeats see the
+    same angles, to rounding; behind a plate stepped per CES the repeat sees the next angles and
+    keeps it (2.2 muK), as predicted."""
+    pairs = focalplane.on_axis((0.0, 30.0))
+    for repeats in (1, 2):
+        schedule = dataclasses.replace(
+            _wide_schedule(1), repeat_boresight_deg=(0.0, 90.0)[:repeats]
+        )
+        _, h = scanstats.hwp_moments(schedule, plate, 16, predict_fp.SYNCHRONOUS_TERMS)
+        want_all = predict_fp.synchronous_delta_p(h, plate, pairs.pair_angles_deg)
+        made = {}
+        for label, p in (
+            ("ideal", dataclasses.replace(plate, synchronous_muk=(0.0, 0.0))),
+            ("both", plate),
+            ("4f", dataclasses.replace(plate, synchronous_muk=(0.0, 5.0))),
+        ):
+            maps = engine.simulate_focalplane(plain_sky, schedule, pairs, evaluation="pixel", hwp=p)
+            made[label] = maps.q_obs + 1j * maps.u_obs
+        valid = maps.q_obs != hp.UNSEEN
+        got = (made["both"] - made["ideal"])[valid]
+        want = want_all[maps.pixels[valid]]
+        np.testing.assert_allclose(made["4f"][valid], made["ideal"][valid], rtol=0, atol=1e-9)
+        scale = max(np.abs(want).max(), 1e-3)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * scale)
+        cancelled = repeats == 2 and plate.mode == "continuous"
+        assert (np.abs(got).max() < 1e-9) == cancelled, (repeats, np.abs(got).max())

@@ -156,6 +156,14 @@ def delta_p(
     return _solve(_y(stats, weights, shares, fields), _h4(stats, weights, shares))
 
 
+def _pair_mean_w4(moments, terms, what, pair_angles_deg):
+    """<exp(-4 i gamma)> over the pairs, once the moments hold ``terms``."""
+    missing = [t for t in terms if t not in moments]
+    if missing:
+        raise ValueError(f"the HWP's {what} needs h_(n,m) {missing}")
+    return np.mean(np.exp(-4j * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
+
+
 #: the h_{n,m} of (psi, chi) the plate's instrumental polarisation reaches a pair's map through
 IP_TERMS = ((2, 0), (2, 8), (4, 8))
 
@@ -169,7 +177,7 @@ def ip_delta_p(
     spread: bool = True,
     nthreads: int = 0,
 ) -> np.ndarray:
-    """The spurious P = Q + i U of a HWP's instrumental polarisation (:func:`boresight.hwp.add_ip`)
+    """The spurious P = Q + i U of a HWP's instrumental polarisation (:func:`boresight.hwp.plate_signals`)
     in the pair differences' map of pairs on the axis (and both detectors' own: the same Q, U).
 
     A pair at gamma behind the plate sees a = psi - gamma + 2 chi and the plate's epsilon I
@@ -199,13 +207,47 @@ def ip_delta_p(
     numpy.ndarray, complex128, shape (npix,)
         [muK], 0 off the observed pixels.
     """
-    missing = [t for t in IP_TERMS if t not in moments]
-    if missing:
-        raise ValueError(f"the HWP's instrumental polarisation needs h_(n,m) {missing}")
+    w = _pair_mean_w4(moments, IP_TERMS, "instrumental polarisation", pair_angles_deg)
     t = _fields(sky, Systematics(), None, spread, nthreads)["t2"]
-    w = np.mean(np.exp(-4j * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
     phase = np.exp(1j * hwp.ip_phase_deg * DEG)
     y = hwp.ip * t * (phase * moments[2, 0] + np.conj(phase) * w * moments[2, 8])
+    return _solve(y, w * moments[4, 8])
+
+
+#: the h_{n,m} the plate's synchronous 2 chi signal reaches a pair's map through
+SYNCHRONOUS_TERMS = ((2, 2), (2, 6), (4, 8))
+
+
+def synchronous_delta_p(moments: dict, hwp: HWP, pair_angles_deg) -> np.ndarray:
+    """The spurious P of a HWP's synchronous signal (:func:`boresight.hwp.plate_signals`) in the
+    pair differences' map of pairs on the axis, the plate at its nominal angle.
+
+    The 4 chi part is common to a pair and leaves its difference. The 2 chi part, A_2 cos(2 chi -
+    2 gamma - phi_2), is its difference; with a = psi - gamma + 2 chi and w = exp(-4 i gamma)
+    averaged over the pairs::
+
+      Y = A_2 [exp(i phi_2) h_{2,2} + exp(-i phi_2) <w> h_{2,6}],   H_4 = <w> h_{4,8}
+
+    solved as in :func:`delta_p`. A spinning plate takes every term to zero; a stepped one
+    leaves h_{2,2} = exp(2 i chi_k) h_2 per step, which boresight rotation cancels with h_2.
+
+    Parameters
+    ----------
+    moments : dict
+        (n, m) -> (npix,) h_{n,m} with :data:`SYNCHRONOUS_TERMS`
+        (:func:`boresight.scanstats.hwp_moments`).
+    hwp : boresight.hwp.HWP
+    pair_angles_deg : sequence of float
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (npix,)
+        [muK], 0 off the observed pixels.
+    """
+    w = _pair_mean_w4(moments, SYNCHRONOUS_TERMS, "synchronous signal", pair_angles_deg)
+    phase = np.exp(1j * hwp.synchronous_phase_deg[0] * DEG)
+    a2 = hwp.synchronous_muk[0]
+    y = a2 * (phase * moments[2, 2] + np.conj(phase) * w * moments[2, 6])
     return _solve(y, w * moments[4, 8])
 
 
