@@ -577,7 +577,8 @@ def simulate_focalplane(
     chunk_samples : int
         Pair-samples per chunk of pointing.
     hwp : boresight.hwp.HWP, optional
-        A continuous or stepped HWP in front of every pair, with its instrumental polarisation.
+        A continuous or stepped HWP in front of every pair, with its own signals
+        (:func:`boresight.hwp.plate_signals`) and angle offset (:func:`boresight.hwp.with_angle_offset`).
     progress : bool
 
     Returns

@@ -108,6 +108,15 @@ class HWP:
             raise ConfigError(
                 f"hwp ip {self.ip!r}, phase {self.ip_phase_deg!r} deg: finite numbers"
             )
+        if not abs(self.angle_offset_deg) < 45.0:
+            raise ConfigError(f"hwp angle offset {self.angle_offset_deg!r} deg: within (-45, 45)")
+        for name in ("synchronous_muk", "synchronous_phase_deg"):
+            pair = tuple(float(x) for x in getattr(self, name))
+            if len(pair) != 2 or not all(math.isfinite(x) for x in pair):
+                raise ConfigError(
+                    f"hwp {name} {getattr(self, name)!r}: two finite numbers (2f, 4f)"
+                )
+            object.__setattr__(self, name, pair)
 
     @property
     def present(self) -> bool:
@@ -200,8 +209,8 @@ def with_angle_offset(hwp: HWP, systematics):
 
     The map-maker takes a = psi - gamma + 2 chi where the pair sees a + 2 delta: for the pair at
     its reflected angle (:func:`reflected`), a polarisation-angle error of 2 delta on both
-    detectors of every pair. The maps' P turns by exp(-4 i delta) (E into B through h_0, which no rotation
-    touches; a calibration's job).
+    detectors of every pair. The maps' P turns by exp(-4 i delta) (E into B through h_0, which no
+    rotation touches; a calibration's job).
 
     Parameters
     ----------

@@ -151,7 +151,8 @@ def run(
     """
     check_plate(hwp)
     pairs = on_axis(pair_angles_deg)
-    ideal = dataclasses.replace(hwp, ip=0.0, angle_offset_deg=0.0)  # the plate's own: each alone
+    # the plate's own signals and offset, each alone in its case
+    ideal = dataclasses.replace(hwp, ip=0.0, angle_offset_deg=0.0, synchronous_muk=(0.0, 0.0))
     own = {
         "ip": dataclasses.replace(ideal, ip=hwp.ip or DEFAULT_IP),
         "angle": dataclasses.replace(

@@ -12,7 +12,7 @@ from helpers import EXAMPLES, T0, toast_december_schedule
 from boresight import engine, focalplane, harmonics, hwp, pointing, scanstats, spectra
 from boresight.cli import main
 from boresight.hwp import HWP
-from boresight.instrument import Systematics
+from boresight.instrument import Instrument, Systematics
 from boresight.predict import focalplane as predict_fp
 from boresight.schedule import CES, Schedule, Site, load_schedule
 from boresight.sky import SkyConfig, make_sky
@@ -184,6 +184,9 @@ def test_the_pointing_carries_the_hwp_angle_and_keeps_its_own_numbers():
         (dict(mode="stepped", angles_deg=(0.0, float("nan"))), "angles"),
         (dict(mode="stepped", step="hour"), "step"),
         (dict(mode="continuous", ip=float("nan")), "ip"),
+        (dict(mode="continuous", angle_offset_deg=50.0), "angle offset"),
+        (dict(mode="continuous", synchronous_muk=(1.0,)), "two finite numbers"),
+        (dict(mode="continuous", synchronous_phase_deg=(0.0, float("inf"))), "two finite numbers"),
     ],
 )
 def test_a_bad_hwp_is_one_clear_error(keys, message):
@@ -497,8 +500,6 @@ def test_pixel_centre_hits_of_a_band_limited_sky_are_exact(plain_sky):
     psi, chi = rng.uniform(0, 2 * np.pi, (2, pix.size))
     chunks = [(theta, phi, hwp.reflected(psi, chi, 0.0))]
     maps = engine.simulate_samples(plain_sky, chunks, evaluation="exact", mapmaker="detectors")
-    from boresight.instrument import Instrument
-
     one = Instrument(pair_angles_deg=(0.0,))
     single = engine.simulate_samples(plain_sky, chunks, one, evaluation="exact", mapmaker="single")
     for m in (maps, single):
