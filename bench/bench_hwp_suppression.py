@@ -3,7 +3,8 @@
 
 The example at its own sample rate, the paper's Q and U pairs on the axis, a sky of FWHM 60
 arcmin read exactly at every sample, a plate spinning at 2 Hz (SO's small-aperture telescopes)
-with an instrumental polarisation of 1e-3: per systematic, plate and boresight schedule (the CES
+with an instrumental polarisation of 1e-3 (and the table's default angle offset, angle jitter and
+synchronous signal): per systematic, plate and boresight schedule (the CES
 set once, and repeated at 45, 90 and 180 deg) the leaked pseudo-C_BB of the TOD in three bands,
 its prediction over it, and the leak over its systematic's first row.
 
@@ -49,10 +50,13 @@ def main(nside, survey, rate_hz=None):
         notes=(
             f"examples/{SCHEDULES[survey]} at {schedule.sample_rate_hz:g} Hz, the paper's Q and U "
             "pairs on the axis, a sky of FWHM 60 arcmin read exactly at every sample, pixels with "
-            "rcond > 0.05; gain dg = +-0.01, leak 0.01 T, the plate's IP epsilon = 1e-3. through: "
-            "the moment the leak reaches the map through. leak: the TOD's leaked pseudo-C_BB "
-            "[muK^2] per band of ell; predicted/TOD: predict.focalplane.delta_p (the pairs' "
-            "reflected-angle moments) or ip_delta_p (h_{2,0}, h_{2,8}, h_{4,8}) over it; over "
+            "rcond > 0.05; gain dg = +-0.01, leak 0.01 T, the plate's IP epsilon = 1e-3, its angle "
+            "offset 0.1 deg, its angle jitter 0.5 deg rms per sample and its synchronous signal "
+            "A_2 = A_4 = 1 muK. through: the moment the leak reaches the map through. leak: the "
+            "TOD's leaked pseudo-C_BB [muK^2] per band of ell; predicted/TOD: "
+            "predict.focalplane.delta_p (the pairs' reflected-angle moments), ip_delta_p (h_{2,0}, "
+            "h_{2,8}, h_{4,8}), angle_jitter_leak (its mean's (mu - 1) P and its white part) or "
+            "synchronous_delta_p (h_{2,2}, h_{2,6}, h_{4,8}) over it; over "
             "first: the leak over its systematic's first row (no plate, no rotation; the IP: "
             f"behind the plate, no rotation). A leak of ~1e-36 is rounding. {seconds:.0f} s in all."
         ),

@@ -19,7 +19,7 @@ from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import ENGINE_METHODS, SkyFields
-from .hwp import plate_signals, reflected, with_angle_offset
+from .hwp import angle_jitter, plate_signals, reflected, with_angle_offset
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
@@ -561,8 +561,9 @@ def simulate_focalplane(
     sky and for what the pairs carry through the HWP (:data:`boresight.hwp.THROUGH_HWP`).
 
     Pair i has the focal plane's angle and the systematics' i-th draw (as pair i of
-    ``Instrument(pair_angles_deg=focalplane.pair_angles_deg)``); the jitter of its sample k is
-    keyed by (seed, i x samples + k), so nothing depends on the chunks.
+    ``Instrument(pair_angles_deg=focalplane.pair_angles_deg)``); the gain jitter of its sample k
+    is keyed by (seed, i x samples + k), and a HWP angle's jitter at sample k by (seed, k) for
+    every pair, so nothing depends on the chunks.
 
     Parameters
     ----------
@@ -607,6 +608,7 @@ def simulate_focalplane(
         for theta, phi, psi, *chi in detector_pointing(
             schedule, focalplane, chunk_samples, hwp=hwp
         ):
+            jitter = angle_jitter(hwp, systematics.seed, first, theta.shape[1]) if chi else None
             for i, one in enumerate(pairs):
                 interrupts.check()
                 pix = ang2pix_array(sky.nside, theta[i], phi[i])
@@ -615,7 +617,7 @@ def simulate_focalplane(
                 seen = None
                 if chi and hwp.has_signals:
                     seen = functools.partial(
-                        plate_signals, hwp, psi=psi[i], chi=chi[0], gamma=gammas[i]
+                        plate_signals, hwp, psi=psi[i], chi=chi[0], gamma=gammas[i], jitter=jitter
                     )
                 one.scatter(
                     pix,

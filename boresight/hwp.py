@@ -39,6 +39,7 @@ import numpy as np
 
 from .constants import DEG
 from .instrument import AMPLITUDES, Instrument, _nonzero
+from .kernels.rng import HWP_SALT, normal_range
 from .scan import SyntheticScan
 from .validation import ConfigError
 
@@ -73,6 +74,9 @@ class HWP:
     angle_offset_deg : float
         The plate's true angle less the angle the map-maker takes for it [deg]
         (:func:`with_angle_offset`).
+    angle_jitter_deg : float
+        The rms of a white jitter of its true angle about that, sample to sample [deg]: one
+        deviate per sample, shared by every pair (:func:`angle_jitter`, :func:`plate_signals`).
     synchronous_muk : tuple of float
         The amplitudes (A_2, A_4) of its synchronous signal at 2 and 4 chi [muK]
         (:func:`plate_signals`).
@@ -88,6 +92,7 @@ class HWP:
     ip: float = 0.0
     ip_phase_deg: float = 0.0
     angle_offset_deg: float = 0.0
+    angle_jitter_deg: float = 0.0
     synchronous_muk: tuple = (0.0, 0.0)
     synchronous_phase_deg: tuple = (0.0, 0.0)
 
@@ -110,6 +115,8 @@ class HWP:
             )
         if not abs(self.angle_offset_deg) < 45.0:
             raise ConfigError(f"hwp angle offset {self.angle_offset_deg!r} deg: within (-45, 45)")
+        if not 0.0 <= self.angle_jitter_deg < 45.0:
+            raise ConfigError(f"hwp angle jitter {self.angle_jitter_deg!r} deg: within [0, 45)")
         for name in ("synchronous_muk", "synchronous_phase_deg"):
             pair = tuple(float(x) for x in getattr(self, name))
             if len(pair) != 2 or not all(math.isfinite(x) for x in pair):
@@ -124,8 +131,9 @@ class HWP:
 
     @property
     def has_signals(self) -> bool:
-        """Whether the plate adds signals of its own (:func:`plate_signals`)."""
-        return bool(self.ip) or any(self.synchronous_muk)
+        """Whether the pairs see more through the plate than the sky at its angle: its own
+        signals or its angle's jitter (:func:`plate_signals`)."""
+        return bool(self.ip) or any(self.synchronous_muk) or self.angle_jitter_deg > 0.0
 
 
 def step_index(hwp: HWP, schedule, repeat: int, index: int) -> int:
@@ -275,8 +283,33 @@ def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     return replace(scan, rotations_deg=rotations), mirrored
 
 
+def angle_jitter(hwp: HWP, seed: int, first: int, n: int) -> np.ndarray:
+    """The jitter of the plate's angle at samples first .. first + n - 1 of a schedule's stream
+    [rad]: white normal deviates of rms ``angle_jitter_deg``, keyed by (seed, sample), so the
+    same whatever the chunks and for every pair at one sample.
+
+    Parameters
+    ----------
+    hwp : HWP
+    seed, first, n : int
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    if hwp.angle_jitter_deg == 0.0:
+        return np.zeros(n)
+    return hwp.angle_jitter_deg * DEG * normal_range(seed, HWP_SALT, first, n)
+
+
 def plate_signals(
-    hwp: HWP, values: np.ndarray, *, psi: np.ndarray, chi: np.ndarray, gamma: float
+    hwp: HWP,
+    values: np.ndarray,
+    *,
+    psi: np.ndarray,
+    chi: np.ndarray,
+    gamma: float,
+    jitter: np.ndarray | None = None,
 ) -> np.ndarray:
     """The fields a pair at angle ``gamma`` behind the plate sees, with the plate's own signals.
 
@@ -285,6 +318,9 @@ def plate_signals(
       is psi + theta on the sky). Through the plate a detector at gamma sees it as
       epsilon I cos(4 chi - 2 gamma - phase), its partner the opposite: the pair difference keeps
       it, and it reaches the map through the crossing angles' h_{2,0} (docs/conventions.md).
+    * Its angle's jitter j: the plate at chi + j reflects the pair's angle to a + 2 j, so the pair
+      sees P exp(-4 i j) (the plate's IP with it) where the map-maker takes P. On average that
+      is P exp(-8 sigma^2); the rest is white (:func:`boresight.predict.focalplane.angle_jitter_leak`).
     * Its synchronous signal: A_2 cos(2 (chi - gamma) - phi_2) + A_4 cos(4 (chi - gamma) - phi_4)
       [muK] added to each detector, fixed to the instrument; at 90 deg the partner sees A_2 with
       the opposite sign and A_4 alike. The A_4 part is common to the pair (added to I); the A_2
@@ -302,6 +338,9 @@ def plate_signals(
         The plate's angle [rad].
     gamma : float
         The pair's angle in the focal plane [rad].
+    jitter : numpy.ndarray, shape (H,), optional
+        The plate's angle jitter at the samples [rad] (:func:`angle_jitter`); needed where
+        ``angle_jitter_deg`` > 0.
 
     Returns
     -------
@@ -314,6 +353,11 @@ def plate_signals(
         angle = 2.0 * psi + hwp.ip_phase_deg * DEG
         out[1] += hwp.ip * out[0] * np.cos(angle)
         out[2] += hwp.ip * out[0] * np.sin(angle)
+    if hwp.angle_jitter_deg > 0.0:
+        if jitter is None:
+            raise ValueError("a HWP with an angle jitter: give its jitter at the samples")
+        turned = (out[1] + 1j * out[2]) * np.exp(-4j * np.asarray(jitter))
+        out[1], out[2] = turned.real, turned.imag
     a2, a4 = hwp.synchronous_muk
     phi2, phi4 = (p * DEG for p in hwp.synchronous_phase_deg)
     if a4:

@@ -11,7 +11,10 @@ The terms each cure acts on (docs/conventions.md, "Half-wave plates"): a differe
 an additive leak's T reach a bare pair's map through h_2 and a pair behind the plate's through
 h_{2,4}, which a spinning plate averages away and boresight rotation cancels; the plate's own
 instrumental polarisation reaches it through h_{2,0}, the crossing angles' moment, which the plate
-cannot touch and only the sky's and the boresight's rotation cancel.
+cannot touch and only the sky's and the boresight's rotation cancel. The plate's angle offset
+turns the sky's P by 4 delta (h_0: no rotation touches it), and its angle's jitter leaves
+(mu - 1) P and a white part that only more samples average down. Its synchronous signal's 2 chi
+part reaches the map through h_{2,2} and h_{2,6}, which a spinning plate averages away.
 """
 
 from __future__ import annotations
@@ -42,6 +45,10 @@ RCOND_FOOTPRINT = 0.05
 DEFAULT_IP = 1e-3
 #: the plate's angle offset where the plate states none [deg]
 DEFAULT_OFFSET_DEG = 0.1
+#: the rms of the plate's angle jitter where the plate states none [deg]
+DEFAULT_JITTER_DEG = 0.5
+#: the plate's synchronous (A_2, A_4) where the plate states none [muK]
+DEFAULT_SYNCHRONOUS_MUK = (1.0, 1.0)
 MIN_NSIDE = 32  #: the lowest Nside whose bands (:func:`bands`) are in order
 
 
@@ -58,8 +65,9 @@ class Case:
     systematics : Systematics
         The pairs' (none for the plate's own).
     plate : str
-        Instead, the plate's own: "ip" (its instrumental polarisation) or "angle" (its angle
-        offset), only behind a plate.
+        Instead, the plate's own, only behind a plate: "ip" (its instrumental polarisation),
+        "angle" (its angle offset), "jitter" (its angle's white jitter) or "synchronous" (its
+        synchronous signal).
     """
 
     name: str
@@ -75,6 +83,18 @@ CASES = (
     Case("additive leak", "0.01 T", "T: h_2", "T: h_{2,4}", Systematics(leak=0.01)),
     Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate="ip"),
     Case("HWP angle offset", "delta", "-", "P: h_0 (turns P by 4 delta)", plate="angle"),
+    Case(
+        "HWP angle jitter",
+        "sigma",
+        "-",
+        "P: (mu - 1) P and white v |P|^2 / N",
+        plate="jitter",
+    ),
+    Case("HWP synchronous signal", "A_2, A_4", "-", "A_2: h_{2,2}, h_{2,6}", plate="synchronous"),
+)
+#: the moments the plate's own cases are predicted from
+PLATE_TERMS = tuple(
+    dict.fromkeys(predict_fp.IP_TERMS + predict_fp.SYNCHRONOUS_TERMS + predict_fp.JITTER_TERMS)
 )
 
 
@@ -137,8 +157,10 @@ def run(
     sky : boresight.sky.Sky
         lmax >= 2 Nside.
     hwp : boresight.hwp.HWP
-        Continuous or stepped; its ``ip`` and ``angle_offset_deg`` are the amplitudes of the
-        plate's own cases (default :data:`DEFAULT_IP`, :data:`DEFAULT_OFFSET_DEG`).
+        Continuous or stepped; its ``ip``, ``angle_offset_deg``, ``angle_jitter_deg`` and
+        ``synchronous_muk`` (with their phases) are the amplitudes of the plate's own cases
+        (default :data:`DEFAULT_IP`, :data:`DEFAULT_OFFSET_DEG`, :data:`DEFAULT_JITTER_DEG`,
+        :data:`DEFAULT_SYNCHRONOUS_MUK`).
     schedules : sequence of sequence of float
         Boresight angles of the CES set's repeats [deg].
     pair_angles_deg : sequence of float
@@ -152,11 +174,22 @@ def run(
     check_plate(hwp)
     pairs = on_axis(pair_angles_deg)
     # the plate's own signals and offset, each alone in its case
-    ideal = dataclasses.replace(hwp, ip=0.0, angle_offset_deg=0.0, synchronous_muk=(0.0, 0.0))
+    ideal = dataclasses.replace(
+        hwp, ip=0.0, angle_offset_deg=0.0, angle_jitter_deg=0.0, synchronous_muk=(0.0, 0.0)
+    )
     own = {
         "ip": dataclasses.replace(ideal, ip=hwp.ip or DEFAULT_IP),
         "angle": dataclasses.replace(
             ideal, angle_offset_deg=hwp.angle_offset_deg or DEFAULT_OFFSET_DEG
+        ),
+        "jitter": dataclasses.replace(
+            ideal, angle_jitter_deg=hwp.angle_jitter_deg or DEFAULT_JITTER_DEG
+        ),
+        "synchronous": dataclasses.replace(
+            ideal,
+            synchronous_muk=hwp.synchronous_muk
+            if any(hwp.synchronous_muk)
+            else DEFAULT_SYNCHRONOUS_MUK,
         ),
     }
     edges = bands(sky.nside)
@@ -169,18 +202,28 @@ def run(
         plate = None if which == "none" else ideal
         run_ = dict(evaluation="exact")
         ref = engine.simulate_focalplane(sky, scan, pairs, hwp=plate, **run_)
-        footprint = spectra.as_footprint((ref.rcond > RCOND_FOOTPRINT).astype(float))
+        mask = (ref.rcond > RCOND_FOOTPRINT).astype(float)
+        footprint = spectra.as_footprint(mask)
         stats = scanstats.characterise_focalplane(scan, pairs, sky.nside, per_pair=True, hwp=plate)
-        moments = None
+        moments = None  # the boresight's hits and h_{n,m}, once a plate's own case needs them
         for case in CASES:
             if case.plate and plate is None:
                 continue
             if case.plate:
                 tod = engine.simulate_focalplane(sky, scan, pairs, hwp=own[case.plate], **run_)
+            if case.plate and moments is None:
+                moments = scanstats.hwp_moments(scan, ideal, sky.nside, PLATE_TERMS)
+            white = 0.0
             if case.plate == "ip":
-                if moments is None:
-                    moments = scanstats.hwp_moments(scan, ideal, sky.nside, predict_fp.IP_TERMS)[1]
-                dp = predict_fp.ip_delta_p(sky, moments, own["ip"], pairs.pair_angles_deg)
+                dp = predict_fp.ip_delta_p(sky, moments[1], own["ip"], pairs.pair_angles_deg)
+            elif case.plate == "jitter":
+                dp, _, white = predict_fp.angle_jitter_leak(
+                    sky, *moments, own["jitter"], pair_angles_deg=pairs.pair_angles_deg, mask=mask
+                )
+            elif case.plate == "synchronous":
+                dp = predict_fp.synchronous_delta_p(
+                    moments[1], own["synchronous"], pairs.pair_angles_deg
+                )
             elif case.plate == "angle":
                 offset = dataclasses.replace(stats, hwp=own["angle"])
                 dp = predict_fp.delta_p(sky, offset, Systematics())
@@ -190,7 +233,7 @@ def run(
                 )
                 dp = predict_fp.delta_p(sky, stats, case.systematics)
             measured = _pseudo_bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u), sky.nside)
-            predicted = _pseudo_bb(footprint, dp, sky.nside)
+            predicted = _pseudo_bb(footprint, dp, sky.nside) + white
             label = boresight_label(repeats)
             cls[case.name, which, label] = (measured, predicted)
             m, p = (spectra.bin_spectrum(x, edges)[1] for x in (measured, predicted))
@@ -216,6 +259,11 @@ def _amplitude(case, own):
         return f"epsilon = {own['ip'].ip:g}"
     if case.plate == "angle":
         return f"delta = {own['angle'].angle_offset_deg:g} deg"
+    if case.plate == "jitter":
+        return f"sigma = {own['jitter'].angle_jitter_deg:g} deg"
+    if case.plate == "synchronous":
+        a2, a4 = own["synchronous"].synchronous_muk
+        return f"A_2 = {a2:g}, A_4 = {a4:g} muK"
     return case.amplitude
 
 

@@ -446,9 +446,15 @@ def hwp_suppression_figure(result, path_stem: str | os.PathLike) -> None:
         Writes .png and .pdf.
     """
     labels = list(dict.fromkeys(key[2] for key in result.spectra))
-    fig, axes = plt.subplots(1, len(HWP_CASES), figsize=(3.6 * len(HWP_CASES), 3.2), sharey=True)
+    columns = 3
+    rows = -(-len(HWP_CASES) // columns)
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(3.6 * columns, 3.0 * rows), sharey=True, squeeze=False
+    )
     floor = 1e-16
-    for ax, case in zip(np.atleast_1d(axes), HWP_CASES):
+    for ax in axes.flat[len(HWP_CASES) :]:
+        ax.set_visible(False)
+    for ax, case in zip(axes.flat, HWP_CASES):
         for i, label in enumerate(labels):
             for which, style in (("plate", "-"), ("none", "--")):
                 key = (case.name, which, label)
@@ -472,8 +478,9 @@ def hwp_suppression_figure(result, path_stem: str | os.PathLike) -> None:
         ax.set_xlabel("multipole \u2113")
         _log_y(ax)
         ax.set_ylim(floor, None)
-    np.atleast_1d(axes)[0].set_ylabel(f"leaked pseudo-C_BB {MUK2}")
-    np.atleast_1d(axes)[-1].legend(
+    for ax in axes[:, 0]:
+        ax.set_ylabel(f"leaked pseudo-C_BB {MUK2}")
+    axes.flat[len(HWP_CASES) - 1].legend(
         fontsize=8, title="boresight; dashed: no HWP", title_fontsize=8, loc="lower left"
     )
     fig.suptitle(

@@ -73,12 +73,25 @@ def test_no_boresight_rotation_touches_the_plates_angle_offset(table):
     assert _leak(rows[0]).min() > 1e-13
 
 
+def test_the_plates_synchronous_signal_falls_with_the_boresight_schedules(table):
+    """Behind a spinning plate the synchronous signal's 2 chi part leaks through h_{2,2}, which
+    0/45 halves (0.44-0.55) and 0/90 cancels to rounding, as it does a bare pair's h_2."""
+    rows = {b: table["HWP synchronous signal", True, b] for b in ("0", "0/45", "0/90")}
+    assert _leak(rows["0"]).min() > 1e-8
+    assert np.all(_ratio(rows["0/45"], "over first") < 0.7)
+    assert _leak(rows["0/90"]).max() < 1e-25
+
+
 def test_every_prediction_follows_the_tod(table):
     """predicted / TOD within 10 % in every band where the leak is above rounding, behind the plate
     (measured 0.94-1.05; the gain's exact second-order term survives 0/90 and is predicted too),
-    and within 15 % for the bare pairs on this small footprint (0.97-1.13)."""
+    and within 15 % for the bare pairs on this small footprint (0.97-1.13). The plate's angle
+    jitter is one draw of white noise on this footprint's few hundred modes (0.84-1.33 of its
+    expectation here): tests/test_hwp.py checks it over 16 draws, the bench at Nside 512."""
     checked = 0
-    for (_, behind, _), row in table.items():
+    for (name, behind, _), row in table.items():
+        if name == "HWP angle jitter":
+            continue
         leaks, ratios = _leak(row), _ratio(row, "predicted/TOD")
         for leak, ratio in zip(leaks, ratios):
             if leak > hwp_suppression.ROUNDING:
@@ -92,12 +105,13 @@ def test_the_command_writes_the_table_and_the_figure(tmp_path):
     path = _schedule_file(tmp_path / "s.toml")
     out = tmp_path / "out"
     flags = ["--hwp", "continuous", "--hwp-frequency", "0.37", "--hwp-ip", "2e-3"]
+    flags += ["--hwp-synchronous-muk", "2", "0", "--hwp-angle-jitter-deg", "0.3"]
     args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
     assert main([*args, "--fwhm-arcmin", "450", *flags]) == 0
     rows = list(csv.DictReader(open(out / "hwp_suppression.csv")))
-    assert len(rows) == 4 * 6  # per boresight schedule: 2 bare rows, 4 behind the plate
+    assert len(rows) == 4 * 8  # per boresight schedule: 2 bare rows, 6 behind the plate
     own = {r["amplitude"] for r in rows if r["systematic"].startswith("HWP")}
-    assert own == {"epsilon = 0.002", "delta = 0.1 deg"}
+    assert own == {"epsilon = 0.002", "delta = 0.1 deg", "sigma = 0.3 deg", "A_2 = 2, A_4 = 0 muK"}
     assert (out / "hwp_suppression.png").is_file() and (out / "hwp_suppression.pdf").is_file()
     assert "h_{2,0}" in (out / "hwp_suppression.md").read_text()
 
@@ -107,6 +121,7 @@ def test_the_command_writes_the_table_and_the_figure(tmp_path):
     [
         (["--hwp", "continuous"], "--schedule"),
         (["--hwp-ip", "1e-3"], "give --hwp too"),
+        (["--hwp-synchronous-muk", "1", "1"], "--hwp-synchronous-muk belong"),
         (["--hwp", "stepped", "--hwp-step", "repeat", "--schedule", "S"], "step per ces"),
         (["--hwp", "continuous", "--nside", "16", "--schedule", "S"], ">= 32"),
     ],

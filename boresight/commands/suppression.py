@@ -158,6 +158,27 @@ def run_hwp(
     return result.rows
 
 
+#: the flags of the plate's own cases: flag -> (its HWP field, its values, its help)
+PLATE_FLAGS = {
+    "--hwp-ip": ("ip", None, "the plate's IP epsilon (1e-3)"),
+    "--hwp-angle-offset-deg": ("angle_offset_deg", None, "the plate's angle offset [deg] (0.1)"),
+    "--hwp-angle-jitter-deg": (
+        "angle_jitter_deg",
+        None,
+        "the rms of the plate's angle jitter per sample [deg] (0.5)",
+    ),
+    "--hwp-synchronous-muk": (
+        "synchronous_muk",
+        2,
+        "the plate's synchronous signal at 2 and 4 chi, A_2 A_4 [muK] (1 1)",
+    ),
+}
+
+
+def _dest(flag):
+    return flag[2:].replace("-", "_")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--force", action="store_true", help="replace an earlier output")
@@ -166,15 +187,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fwhm-arcmin", type=float, default=30.0, help="the sky's beam")
     parser.add_argument("--seed", type=int, default=0, help="the sky's seed")
     _common.hwp_flags(parser)
-    parser.add_argument(
-        "--hwp-ip", type=float, default=None, help="with --hwp: the plate's IP epsilon (1e-3)"
-    )
-    parser.add_argument(
-        "--hwp-angle-offset-deg",
-        type=float,
-        default=None,
-        help="with --hwp: the plate's angle offset [deg] (0.1)",
-    )
+    for flag, (_, nargs, what) in PLATE_FLAGS.items():
+        parser.add_argument(flag, type=float, nargs=nargs, default=None, help=f"with --hwp: {what}")
     parser.add_argument(
         "--schedule",
         help="with --hwp: the schedule file whose CES set the HWP table repeats (required there)",
@@ -195,10 +209,10 @@ def main(args: argparse.Namespace) -> int:
     if plate is not None:
         if args.schedule is None:
             raise ConfigError("--hwp: give --schedule, the schedule file the HWP table repeats")
-        if args.hwp_ip is not None:
-            plate = dataclasses.replace(plate, ip=args.hwp_ip)
-        if args.hwp_angle_offset_deg is not None:
-            plate = dataclasses.replace(plate, angle_offset_deg=args.hwp_angle_offset_deg)
+        for flag, (field, _, _) in PLATE_FLAGS.items():
+            value = getattr(args, _dest(flag))
+            if value is not None:
+                plate = dataclasses.replace(plate, **{field: value})
         run_hwp(
             sky_config,
             args.schedule,
@@ -208,14 +222,9 @@ def main(args: argparse.Namespace) -> int:
             progress=_common.progress(args),
         )
         return 0
-    if (
-        args.schedule is not None
-        or args.hwp_ip is not None
-        or args.hwp_angle_offset_deg is not None
-    ):
-        raise ConfigError(
-            "--schedule, --hwp-ip and --hwp-angle-offset-deg belong to the HWP table: give --hwp too"
-        )
+    given = [f for f in ("--schedule", *PLATE_FLAGS) if getattr(args, _dest(f)) is not None]
+    if given:
+        raise ConfigError(f"{', '.join(given)} belong to the HWP table: give --hwp too")
     run(
         sky_config,
         args.out,

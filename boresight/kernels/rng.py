@@ -21,6 +21,7 @@ SEED_SALT = np.uint64(0x9E3779B97F4A7C15)
 JITTER_SALT = np.uint64(0xD1B54A32D192ED03)  #: per-sample gain jitter
 PAIR_SALT = np.uint64(0xAEF17502108EF2D9)  #: per-pair systematic parameters
 REPEAT_SALT = np.uint64(0x8CB92BA72F3D8DD7)  #: per-repeat gain drift
+HWP_SALT = np.uint64(0xF1357AEA2E62A9C5)  #: per-sample jitter of a HWP's angle
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
@@ -170,4 +171,27 @@ def normal_array(seed, pixel, salt, n):
     out = np.empty(n)
     for i in range(n):
         out[i] = normal_from_key(key, i)
+    return out
+
+
+@numba.njit(cache=True)
+def normal_range(seed, salt, first, n):
+    """n standard normal deviates of the key (seed, pixel 0) and a salt, counts first .. first +
+    n - 1: a stream's draws, whatever its chunks.
+
+    Parameters
+    ----------
+    seed : int
+    salt : numpy.uint64
+    first, n : int
+        >= 0.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+    """
+    key = derived_key(pixel_key(seed, 0), salt)
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = normal_from_key(key, first + i)
     return out

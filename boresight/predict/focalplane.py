@@ -251,6 +251,72 @@ def synchronous_delta_p(moments: dict, hwp: HWP, pair_angles_deg) -> np.ndarray:
     return _solve(y, w * moments[4, 8])
 
 
+#: the h_{n,m} a HWP angle's jitter reaches a pair's map through
+JITTER_TERMS = ((4, 8), (8, 16))
+
+
+def angle_jitter_leak(
+    sky: Sky, hits: np.ndarray, moments: dict, hwp: HWP, *, pair_angles_deg, mask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """What a HWP angle's white jitter (:func:`boresight.hwp.plate_signals`) leaves in the pair
+    differences' map of pairs on the axis, over its draws: the spurious P of its mean, and the
+    variance and white pseudo-C_BB of the rest.
+
+    A jitter j of rms sigma turns the pair's P to P exp(-4 i j), whose mean over the draws is
+    mu P, mu = exp(-8 sigma^2): the mean leaves dP = (mu - 1) P, whatever the moments. The rest,
+    X = P e with e = exp(-4 i j) - mu, E``|e|^2`` = v = 1 - exp(-16 sigma^2) and E[e^2] = c =
+    exp(-32 sigma^2) - exp(-16 sigma^2), is the same for every pair at a sample. With z =
+    exp(4 i a) of a pair at gamma = 0, W = <exp(-4 i gamma)> over the pairs and n_t the samples
+    of a pixel, Y = (1 / n_t) sum_t (X + X* W z), so over the draws, with P the pixel's and
+    h = h_{4,8}, H_4 = W h::
+
+      E``|Y|^2`` = (v ``|P|^2`` (1 + ``|W|^2``) + 2 Re(c P^2 W* h*)) / n_t
+      E[Y^2] = (c P^2 + 2 v ``|P|^2`` W h + c* P*^2 W^2 h_{8,16}) / n_t
+      E``|dP|^2`` = (E``|Y|^2`` (1 + ``|H_4|^2``) - 2 Re(H_4* E[Y^2])) / (1 - ``|H_4|^2``)^2
+
+    through the 2x2 solve (as :func:`jitter_bb` has it for a gain's jitter), white from pixel to
+    pixel; half of it is B.
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    hits : numpy.ndarray, shape (npix,)
+        The boresight's samples per pixel (:func:`boresight.scanstats.hwp_moments`).
+    moments : dict
+        (n, m) -> (npix,) h_{n,m} with :data:`JITTER_TERMS`.
+    hwp : boresight.hwp.HWP
+        Its ``angle_jitter_deg``; no angle offset (the offset's own is :func:`delta_p`'s).
+    pair_angles_deg : sequence of float
+    mask : numpy.ndarray, shape (npix,)
+        The weights of the solved pixels.
+
+    Returns
+    -------
+    dp : numpy.ndarray, complex128, shape (npix,)
+        The mean's [muK], 0 off the observed pixels.
+    variance : numpy.ndarray, shape (npix,)
+        E``|dP - dp|^2`` [muK^2], 0 off the mask.
+    white : float
+        Its pseudo-C_BB, the same at every multipole [muK^2].
+    """
+    w = _pair_mean_w4(moments, JITTER_TERMS, "angle jitter", pair_angles_deg)
+    sigma = hwp.angle_jitter_deg * DEG
+    mu, v = np.exp(-8.0 * sigma**2), -np.expm1(-16.0 * sigma**2)
+    c = np.exp(-32.0 * sigma**2) - np.exp(-16.0 * sigma**2)
+    p = sky.maps[1] + 1j * sky.maps[2]
+    dp = np.where(hits > 0, (mu - 1.0) * p, 0.0)
+    on = (mask != 0) & (hits > 0)
+    p, n, h, h8 = p[on], hits[on], moments[4, 8][on], moments[8, 16][on]
+    h4 = w * h
+    yy = (v * np.abs(p) ** 2 * (1 + abs(w) ** 2) + 2 * np.real(c * p**2 * np.conj(w * h))) / n
+    y2 = (c * p**2 + 2 * v * np.abs(p) ** 2 * h4 + np.conj(c * p**2) * w**2 * h8) / n
+    h4_sq = np.abs(h4) ** 2
+    variance = np.zeros(mask.size)
+    variance[on] = (yy * (1 + h4_sq) - 2 * np.real(np.conj(h4) * y2)) / (1 - h4_sq) ** 2
+    white = 0.5 * (4 * np.pi / mask.size) * np.sum(mask**2 * variance) / mask.size
+    return dp, variance, float(white)
+
+
 def at_means(systematics, n_pairs):
     """Each pair's parameters with every drawn one at its mean, and the drawn ones' (name,
     rms in the engine's units)."""
