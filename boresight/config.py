@@ -27,8 +27,7 @@ from .constants import ARCMIN
 from .evaluation import METHODS
 from .focalplane import focalplane_of_table
 from .harmonics import ANALYSES
-from .hwp import HWP, behind
-from .hwp import check_systematics as check_hwp_systematics
+from .hwp import HWP, behind, reflected_systematics
 from .instrument import Instrument, Spread, Systematics, response
 from .io import toml_text, tomllib
 from .kernels import BACKENDS
@@ -252,8 +251,9 @@ class Study:
     source : str, optional
         The TOML file it was read from.
     hwp : boresight.hwp.HWP, optional
-        ``[instrument] hwp``: a HWP in front of the pairs. ``scan`` and ``instrument`` are then
-        the bare ones that see the sky as the pairs behind it do (:func:`boresight.hwp.behind`).
+        ``[instrument] hwp``: a HWP in front of the pairs. ``scan``, ``instrument`` and
+        ``systematics`` are then the bare ones that see the sky as the pairs behind it do
+        (:func:`boresight.hwp.behind`, :func:`boresight.hwp.reflected_systematics`).
     """
 
     sky: SkyConfig
@@ -595,7 +595,7 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
     if hwp is not None:
         try:
-            check_hwp_systematics(systematics)
+            systematics = reflected_systematics(hwp, systematics)
         except ValueError as err:
             raise ConfigError(f"[systematics] {err}") from None
         scan, instrument = behind(hwp, scan, instrument)

@@ -19,7 +19,7 @@ from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams
 from .constants import ARCMIN
 from .evaluation import ENGINE_METHODS, SkyFields
-from .hwp import angle_jitter, plate_signals, reflected, with_angle_offset
+from .hwp import angle_jitter, plate_signals, reflected, reflected_systematics
 from .instrument import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
@@ -579,7 +579,7 @@ def simulate_focalplane(
         Pair-samples per chunk of pointing.
     hwp : boresight.hwp.HWP, optional
         A continuous or stepped HWP in front of every pair, with its own signals
-        (:func:`boresight.hwp.plate_signals`) and angle offset (:func:`boresight.hwp.with_angle_offset`).
+        (:func:`boresight.hwp.plate_signals`) and angle offset (:func:`boresight.hwp.reflected_systematics`).
     progress : bool
 
     Returns
@@ -590,7 +590,7 @@ def simulate_focalplane(
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     if hwp is not None:
-        systematics = with_angle_offset(hwp, systematics)
+        systematics = reflected_systematics(hwp, systematics)
     _check_mapmaker(mapmaker, backend)
     gammas = np.radians(focalplane.gamma_deg)
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)

@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .constants import DEG
-from .instrument import AMPLITUDES, Instrument, _nonzero
+from .instrument import AMPLITUDES, Instrument, Spread, _nonzero
 from .kernels.rng import HWP_SALT, normal_range
 from .scan import SyntheticScan
 from .validation import ConfigError
@@ -73,7 +73,7 @@ class HWP:
         Its phase [deg].
     angle_offset_deg : float
         The plate's true angle less the angle the map-maker takes for it [deg]
-        (:func:`with_angle_offset`).
+        (:func:`reflected_systematics`).
     angle_jitter_deg : float
         The rms of a white jitter of its true angle about that, sample to sample [deg]: one
         deviate per sample, shared by every pair (:func:`angle_jitter`, :func:`plate_signals`).
@@ -198,42 +198,64 @@ def chunk_angles(hwp: HWP, schedule, repeat: int, index: int, *, first: int, n: 
 #: the systematics a pair behind the HWP carries as a bare pair at its reflected angle does
 #: (:func:`reflected`): those that do not depend on where the pair points
 THROUGH_HWP = ("dg", "leak", "dg_jitter")
+#: the systematics the HWP reflects: a detector at gamma + theta behind it sees a - theta
+REFLECTED_BY_HWP = ("pol_angle_deg", "nonortho_deg")
 
 
 def check_systematics(systematics) -> None:
-    """Refuse systematics the HWP's pairs do not yet carry (:data:`THROUGH_HWP`): a pointing
-    offset or a beam turns with the focal plane, not with the HWP, and a polarisation-angle error
-    is reflected by it."""
-    others = [k for k in AMPLITUDES if k not in THROUGH_HWP and _nonzero(getattr(systematics, k))]
+    """Refuse systematics the HWP's pairs do not yet carry (:data:`THROUGH_HWP`,
+    :data:`REFLECTED_BY_HWP`): a pointing offset or a beam turns with the focal plane, not with
+    the HWP."""
+    carried = THROUGH_HWP + REFLECTED_BY_HWP
+    others = [k for k in AMPLITUDES if k not in carried and _nonzero(getattr(systematics, k))]
     if others or _nonzero(systematics.dg_repeat):
         raise ValueError(
             f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted; "
-            f"a HWP's pairs carry {', '.join(THROUGH_HWP)}"
+            f"a HWP's pairs carry {', '.join(carried)}"
         )
 
 
-def with_angle_offset(hwp: HWP, systematics):
-    """The systematics of pairs behind the plate, its angle offset delta included.
+def _turned(value, sign: float, shift: float = 0.0):
+    """sign x value + shift, for a number, one per pair, or a {mean, rms} Spread (its mean)."""
+    if isinstance(value, Spread):
+        return Spread(sign * value.mean + shift, value.rms)
+    if np.ndim(value):
+        return tuple(sign * float(x) + shift for x in value)
+    return sign * float(value) + shift
 
-    The map-maker takes a = psi - gamma + 2 chi where the pair sees a + 2 delta: for the pair at
-    its reflected angle (:func:`reflected`), a polarisation-angle error of 2 delta on both
-    detectors of every pair. The maps' P turns by exp(-4 i delta) (E into B through h_0, which no
-    rotation touches; a calibration's job).
+
+def reflected_systematics(hwp: HWP, systematics):
+    """The systematics of pairs behind the plate as the bare pairs at their reflected angles
+    (:func:`reflected`) carry them, the plate's angle offset delta included.
+
+    * A detector at gamma + theta behind the plate sees a = psi - gamma - theta + 2 chi: its
+      angle error theta is -theta for the pair at its reflected angle, so ``pol_angle_deg`` and
+      ``nonortho_deg`` change sign (a {mean, rms} draw keeps its rms and flips its mean: the
+      same distribution, pair i's draw -mean + rms z_i).
+    * The map-maker takes a = psi - gamma + 2 chi where the plate at chi + delta shows the pair
+      a + 2 delta: a polarisation-angle error of 2 delta on both detectors of every pair. The
+      maps' P turns by exp(-4 i delta) (E into B through h_0, which no rotation touches; a
+      calibration's job).
 
     Parameters
     ----------
     hwp : HWP
     systematics : boresight.instrument.Systematics
-        The pairs' own, of :data:`THROUGH_HWP` (:func:`check_systematics`).
+        The pairs' own (:func:`check_systematics`).
 
     Returns
     -------
     boresight.instrument.Systematics
     """
     check_systematics(systematics)
-    if hwp.angle_offset_deg == 0.0:
+    pol, nonortho = systematics.pol_angle_deg, systematics.nonortho_deg
+    if hwp.angle_offset_deg == 0.0 and not (_nonzero(pol) or _nonzero(nonortho)):
         return systematics
-    return replace(systematics, pol_angle_deg=2.0 * hwp.angle_offset_deg)
+    return replace(
+        systematics,
+        pol_angle_deg=_turned(pol, -1.0, 2.0 * hwp.angle_offset_deg),
+        nonortho_deg=_turned(nonortho, -1.0),
+    )
 
 
 def reflected(psi: np.ndarray, chi: np.ndarray, gamma: float) -> np.ndarray:
@@ -245,7 +267,8 @@ def reflected(psi: np.ndarray, chi: np.ndarray, gamma: float) -> np.ndarray:
 
 def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     """A synthetic scan and its pairs behind a HWP, as the bare scan and pairs that see the sky
-    alike (for what the pairs carry through the HWP, :data:`THROUGH_HWP`).
+    alike (for what the pairs carry through the HWP, :data:`THROUGH_HWP`; their angle errors
+    reflected by :func:`reflected_systematics`).
 
     a = psi - gamma + 2 chi is a bare pair at -gamma crossing at psi + 2 chi, so the pairs'
     angles are mirrored (their order, and so their systematics, kept) and:

@@ -366,8 +366,8 @@ def test_what_a_hwp_pair_does_not_yet_carry_is_refused(deep_bare):
     stats = scanstats.characterise_focalplane(
         schedule.single(), pairs, 8, per_pair=True, hwp=HWP("stepped")
     )
-    with pytest.raises(ValueError, match="pol_angle_deg behind a HWP"):
-        predict_fp.delta_p(sky, stats, Systematics(pol_angle_deg=0.5))
+    with pytest.raises(ValueError, match="dfwhm_a_arcmin behind a HWP"):
+        predict_fp.delta_p(sky, stats, Systematics(dfwhm_a_arcmin=0.5))
 
 
 def test_the_reflected_angle_moments_are_the_hwp_moments():
@@ -651,6 +651,43 @@ def test_a_plate_angle_offset_turns_the_maps_by_four_times_it(plain_sky):
     stats = scanstats.characterise_focalplane(schedule, pairs, 16, per_pair=True, hwp=plate)
     dp = predict_fp.delta_p(plain_sky, stats, Systematics(), spread=False)[maps.pixels[valid]]
     np.testing.assert_allclose(dp, got - p_sky, atol=1e-9 * np.abs(got - p_sky).max())
+
+
+@pytest.mark.parametrize(
+    "plate", [HWP("continuous", frequency_hz=0.37), HWP("stepped")], ids=["continuous", "stepped"]
+)
+def test_the_plate_reflects_the_pairs_angle_errors(plain_sky, plate):
+    """A detector at gamma + theta behind the plate sees a = psi - gamma - theta + 2 chi: both
+    detectors of every pair 0.5 deg off turn the maps' P by exp(+2 i theta) to rounding, where a
+    bare pair's turn by exp(-2 i theta); with the plate's 0.3 deg offset as well, by
+    exp(2 i theta - 4 i delta). A non-orthogonality (A at -epsilon / 2, B at +epsilon / 2, drawn
+    per pair) and a drawn angle error leave the TOD's spurious P that
+    predict.focalplane.delta_p gives, to rounding."""
+    schedule = _wide_schedule(1)
+    pairs = focalplane.on_axis((0.0, 30.0))
+    run = dict(evaluation="pixel")
+    theta, delta = 0.5, 0.3
+    p_sky = plain_sky.maps[1] + 1j * plain_sky.maps[2]
+    stats = scanstats.characterise_focalplane(schedule, pairs, 16, per_pair=True, hwp=plate)
+    for offset, turn in ((0.0, 2 * theta), (delta, 2 * theta - 4 * delta)):
+        shown = dataclasses.replace(plate, angle_offset_deg=offset)
+        errors = Systematics(pol_angle_deg=theta)
+        maps = engine.simulate_focalplane(plain_sky, schedule, pairs, errors, hwp=shown, **run)
+        valid = maps.q_obs != hp.UNSEEN
+        got = (maps.q_obs + 1j * maps.u_obs)[valid]
+        want = p_sky[maps.pixels[valid]] * np.exp(1j * np.radians(turn))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+    bare = engine.simulate_focalplane(plain_sky, schedule, pairs, errors, **run)
+    valid = bare.q_obs != hp.UNSEEN
+    want = p_sky[bare.pixels[valid]] * np.exp(-2j * np.radians(theta))
+    np.testing.assert_allclose((bare.q_obs + 1j * bare.u_obs)[valid], want, atol=1e-9 * 100)
+    drawn = Systematics(nonortho_deg={"mean": 2.0, "rms": 1.0}, pol_angle_deg=(0.4, -0.7))
+    ideal = engine.simulate_focalplane(plain_sky, schedule, pairs, hwp=plate, **run)
+    maps = engine.simulate_focalplane(plain_sky, schedule, pairs, drawn, hwp=plate, **run)
+    valid = maps.q_obs != hp.UNSEEN
+    got = ((maps.q_obs - ideal.q_obs) + 1j * (maps.u_obs - ideal.u_obs))[valid]
+    dp = predict_fp.delta_p(plain_sky, stats, drawn, spread=False)[maps.pixels[valid]]
+    np.testing.assert_allclose(dp, got, rtol=0, atol=1e-9 * np.abs(got).max())
 
 
 SYNC = {"synchronous_muk": (3.0, 5.0), "synchronous_phase_deg": (20.0, -40.0)}

@@ -29,7 +29,7 @@ import numpy as np
 from .. import harmonics
 from ..constants import DEG
 from ..hwp import check_systematics as check_hwp_systematics
-from ..hwp import with_angle_offset
+from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, Spread, Systematics
 from ..spectra import as_footprint
 from . import field_products as fp_products
@@ -149,7 +149,7 @@ def delta_p(
     """
     _check(stats, systematics)
     if stats.hwp is not None:
-        systematics = with_angle_offset(stats.hwp, systematics)
+        systematics = reflected_systematics(stats.hwp, systematics)
     shares = pair_shares(systematics.per_pair(stats.focalplane.n_pairs), stats.focalplane)
     fields = _fields(sky, systematics, template, spread, nthreads)
     weights = _weights(stats)
