@@ -21,7 +21,14 @@ from . import interrupts, tasks
 from .engine import check_samples
 from .hwp import chunk_angles
 from .kernels.pixels import ang2pix_array, zphi2pix
-from .pointing import ces_chunks, chunk_arguments, offset_sample, pointing, sample_pointing
+from .pointing import (
+    ces_chunks,
+    chunk_arguments,
+    detector_pointing,
+    offset_sample,
+    pointing,
+    sample_pointing,
+)
 from .scan import SyntheticScan
 
 if TYPE_CHECKING:
@@ -476,31 +483,41 @@ def hwp_moments(
     hwp: HWP,
     nside: int,
     terms=HWP_TERMS,
-    chunk_samples: int = 1 << 20,
     *,
+    chunk_samples: int = 1 << 20,
+    focalplane: FocalPlane | None = None,
+    each=None,
     progress: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """The moments h_{n,m} = <exp(i n psi + i m chi)> over each pixel's samples of a schedule, with
     psi boresight's crossing angle and chi the HWP's angle in the focal plane
-    (:mod:`boresight.hwp`); h_{n,0} is h_n.
+    (:mod:`boresight.hwp`); h_{n,m} is h_n at m = 0.
 
     Parameters
     ----------
     schedule : boresight.schedule.Schedule
-        Its boresight's samples (the pairs on the axis).
     hwp : boresight.hwp.HWP
         Continuous or stepped.
     nside : int
     terms : sequence of (int, int)
         The (n, m) to compute.
     chunk_samples : int
+    focalplane : boresight.focalplane.FocalPlane, optional
+        Each pair on its own samples, psi its own crossing angle
+        (:func:`boresight.pointing.detector_pointing`), one pair at a time, so memory is one
+        pair's maps and the combination's; default: the boresight's samples (the pairs on the
+        axis).
+    each : callable, optional
+        With a focal plane, called as ``each(i, hits_i, h_i)`` with pair i's own moments as they
+        are made.
     progress : bool
 
     Returns
     -------
     hits : numpy.ndarray, int64, shape (npix,)
     h : dict
-        (n, m) -> (npix,) complex128, 0 where unseen.
+        (n, m) -> (npix,) complex128, 0 where unseen: with a focal plane, the combination the
+        map-maker makes, every pair's samples binned together.
     """
     from tqdm.auto import tqdm
 
@@ -512,15 +529,33 @@ def hwp_moments(
     npix = 12 * nside**2
     sums = np.zeros((len(table), npix), dtype=np.complex128)
     hits = np.zeros(npix, dtype=np.int64)
+    pairs = 1 if focalplane is None else focalplane.n_pairs
     with tqdm(
-        total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress
+        total=schedule.n_samples * pairs, unit="sample", unit_scale=True, disable=not progress
     ) as bar:
-        for theta, phi, psi, chi in pointing(schedule, chunk_samples, hwp=hwp):
-            interrupts.check()
-            _bin_spins(ang2pix_array(nside, theta, phi), psi, chi, table, sums, hits)
-            bar.update(theta.size)
+        if focalplane is None:
+            for theta, phi, psi, chi in pointing(schedule, chunk_samples, hwp=hwp):
+                interrupts.check()
+                _bin_spins(ang2pix_array(nside, theta, phi), psi, chi, table, sums, hits)
+                bar.update(theta.size)
+        for i in range(pairs if focalplane is not None else 0):
+            own_sums, own_hits = np.zeros_like(sums), np.zeros_like(hits)
+            one = focalplane.subset([i])
+            for theta, phi, psi, chi in detector_pointing(schedule, one, chunk_samples, hwp=hwp):
+                interrupts.check()
+                pix = ang2pix_array(nside, theta[0], phi[0])
+                _bin_spins(pix, psi[0], chi, table, own_sums, own_hits)
+                bar.update(theta.size)
+            if each is not None:
+                each(i, own_hits, _moments(own_sums, own_hits, table))
+            sums += own_sums
+            hits += own_hits
+    return hits, _moments(sums, hits, table)
+
+
+def _moments(sums, hits, table):
     h = np.where(hits > 0, sums / np.maximum(hits, 1), 0.0)
-    return hits, {(int(n), int(m)): h[k] for k, (n, m) in enumerate(table)}
+    return {(int(n), int(m)): h[k] for k, (n, m) in enumerate(table)}
 
 
 @dataclass(frozen=True)

@@ -287,7 +287,6 @@ def test_scan_stats_refuses_what_the_layouts_cannot_hold(tmp_path, capsys):
     for flags, words in (
         (["--format", "litebird"], "Galactic"),
         (["--hwp", "stepped", "--format", "so"], "--hwp"),
-        (["--hwp", "stepped", "--focalplane", "hexagon:7:10"], "--hwp"),
         (["--hwp", "stepped", "--hwp-angles", "0,x"], "--hwp-angles"),
         (["--hwp", "continuous", "--hwp-frequency", "-1"], "frequency"),
     ):
@@ -384,6 +383,68 @@ def test_the_reflected_angle_moments_are_the_hwp_moments():
             for n in range(1, 5):
                 turned = np.exp(-2j * n * gamma) * h[(n, 2 * n)]
                 np.testing.assert_allclose(stats.pair_h[i, n], turned, atol=1e-12)
+
+
+def test_a_focal_planes_hwp_moments_are_its_pairs_own():
+    """Off the axis each pair has its own samples: scanstats.hwp_moments with a focal plane (one
+    pair at a time through detector_pointing) against the focal plane's fused kernel with the
+    HWP (characterise_focalplane's reflected-angle moments, exp(-2 i n gamma) h_{n,2n} of each
+    pair) to rounding, for every pair of a 7-pixel hexagon 10 deg wide; the combination is the
+    hit-weighted mean of the pairs' own."""
+    schedule = _schedule([0.0, 600.0], repeats=(0.0, 90.0))
+    pairs = focalplane.hexagon(7, 10.0)
+    plate = HWP("continuous", frequency_hz=0.61)
+    stats = scanstats.characterise_focalplane(schedule, pairs, 16, per_pair=True, hwp=plate)
+    terms = [(n, 2 * n) for n in range(1, 5)]
+    own = {}
+    hits, h = scanstats.hwp_moments(
+        schedule, plate, 16, terms, focalplane=pairs, each=lambda i, n, m: own.update({i: (n, m)})
+    )
+    assert sorted(own) == list(range(7)) and len({int(o[0].sum()) for o in own.values()}) == 1
+    np.testing.assert_array_equal(hits, stats.combined.hits)
+    for i, gamma in enumerate(np.radians(pairs.gamma_deg)):
+        np.testing.assert_array_equal(own[i][0], stats.pair_hits[i])
+        for n in range(1, 5):
+            turned = np.exp(-2j * n * gamma) * own[i][1][(n, 2 * n)]
+            np.testing.assert_allclose(stats.pair_h[i, n], turned, atol=1e-12)
+    weighted = sum(o[0] * o[1][(2, 4)] for o in own.values()) / np.maximum(hits, 1)
+    np.testing.assert_allclose(h[(2, 4)], weighted, atol=1e-12)
+    assert np.count_nonzero(own[0][0] != own[1][0]) > 5  # off the axis: their own pixels
+
+
+def test_scan_stats_writes_each_detectors_hwp_moments_in_litebird_sims_layout(tmp_path):
+    """scan-stats --focalplane --hwp --format litebird: one file per detector, both of a pair
+    holding its moments, and the focal plane's combination as det "focalplane" (the writer's
+    files against litebird_sim's own reader: tests/test_litebird_maps.py)."""
+    import h5py
+
+    path = _schedule_file(tmp_path / "s.toml")
+    out = tmp_path / "lb"
+    flags = ["--format", "litebird", "--frame", "galactic", "--hwp", "stepped"]
+    flags += ["--focalplane", "hexagon:7:10", "--nside", "16"]
+    assert main(["-q", "scan-stats", path, "--out", str(out), *flags]) == 0
+    schedule = load_schedule(path, frame="galactic")
+    pairs = focalplane.hexagon(7, 10.0)
+    own = {}
+    hits, h = scanstats.hwp_moments(
+        schedule, HWP("stepped"), 16, focalplane=pairs, each=lambda i, n, m: own.update({i: (n, m)})
+    )
+
+    def read(det):
+        with h5py.File(out / f"h_maps_det_{det}.h5", "r") as f:
+            assert f.attrs["det"] == det
+            return {tuple(map(int, k.split(","))): f[k]["Re"][:] + 1j * f[k]["Im"][:] for k in f}
+
+    for i, detectors in enumerate(pairs.detectors):
+        for det in detectors:
+            got = read(det)
+            np.testing.assert_array_equal(got.pop((0, 0)).real, own[i][0])
+            for key, moment in got.items():
+                np.testing.assert_allclose(moment, own[i][1][key], atol=1e-12)
+    combined = read("focalplane")
+    np.testing.assert_array_equal(combined.pop((0, 0)).real, hits)
+    for key, moment in combined.items():
+        np.testing.assert_allclose(moment, h[key], atol=1e-12)
 
 
 def _study_behind(instrument, rotations=(0.0,)):

@@ -199,7 +199,10 @@ def run_schedule(
     hwp : boresight.hwp.HWP, optional
         Also the moments h_{n,m} of the boresight's psi and the HWP's angle
         (:data:`boresight.scanstats.HWP_TERMS`): ``hwp_moments.fits`` (RE_n_m, IM_n_m, with M for
-        a minus sign: RE_2_M4 is Re h_{2,-4}), or litebird_sim's file in its layout.
+        a minus sign: RE_2_M4 is Re h_{2,-4}), or litebird_sim's file in its layout. With a
+        focal plane, of each pair's own psi: the combination in ``hwp_moments.fits`` (or
+        litebird_sim's ``h_maps_det_focalplane.h5``), and in litebird_sim's layout a file per
+        detector, its pair's.
     scheduler : str, optional
         Where a focal plane's blocks of pairs run: "serial" (this process), None (a local Dask
         cluster of ``workers`` processes) or a Dask scheduler's address.
@@ -215,19 +218,24 @@ def run_schedule(
     """
     if per_detector and (focalplane is None or layout.format != "so"):
         raise ConfigError("--per-detector needs --focalplane and --format so")
-    if per_detector:
+    lite_files = hwp is not None and hwp.present and layout.format == "litebird"
+    if per_detector or (lite_files and focalplane is not None):
         names = [det for pair in focalplane.detectors for det in pair]
         for det in names:
-            if not all(c.isalnum() or c in "_-." for c in det):
+            if not all(c.isalnum() or c in "_-." for c in det) or det in (
+                "boresight",
+                "focalplane",
+            ):
                 raise ConfigError(
-                    f"--per-detector: detector {det!r} of {focalplane.source} cannot name a file: "
-                    "letters, digits, '_', '-' and '.' only"
+                    f"detector {det!r} of {focalplane.source} cannot name a file of its own: "
+                    "letters, digits, '_', '-' and '.' only, and not 'boresight' or 'focalplane'"
                 )
-        layout.check_names(f"{layout.prefix}_{det}" for det in names)
-    if hwp is not None and hwp.present and (focalplane is not None or layout.format == "so"):
+        if per_detector:
+            layout.check_names(f"{layout.prefix}_{det}" for det in names)
+    if hwp is not None and hwp.present and layout.format == "so":
         raise ConfigError(
-            "--hwp: the HWP's moments are the boresight's, in boresight's or litebird_sim's "
-            "layout: leave out --focalplane and --format so"
+            "--hwp: the HWP's moments are in boresight's or litebird_sim's layout: leave out "
+            "--format so"
         )
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     if layout.format == "litebird":
@@ -281,8 +289,13 @@ def run_schedule(
                 inputs.append(focalplane.source)
     moments = None
     if hwp is not None and hwp.present:
-        with timer("the HWP's moments"):
-            moments = scanstats.hwp_moments(schedule, hwp, nside, progress=progress)
+
+        def moments(each):
+            with timer("the HWP's moments"):
+                return scanstats.hwp_moments(
+                    schedule, hwp, nside, focalplane=focalplane, each=each, progress=progress
+                )
+
         config["hwp"] = dataclasses.asdict(hwp)
     config["observing_s"] = schedule.n_samples / schedule.sample_rate_hz
     config["sample_rate_hz"] = schedule.sample_rate_hz
@@ -342,7 +355,10 @@ def _write(
 ):
     """The survey means, the h_n maps in the layout, the scan maps, a figure and the manifest. In
     the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi convention (odd h_n
-    change sign); the manifest's ``psi_convention`` says which."""
+    change sign); the manifest's ``psi_convention`` says which. ``hwp_moments``, if given, makes
+    the HWP's moments as ``hwp_moments(each)`` (:func:`boresight.scanstats.hwp_moments`): in
+    litebird_sim's layout with a focal plane, ``each`` writes every detector's file as its pair's
+    are made."""
     h, obs = maps.h, maps.observed
     frame = config.get("frame", "icrs")
     turn = so_maps.to_so if layout.format == "so" else (lambda hn, n: hn)
@@ -358,19 +374,27 @@ def _write(
     require_finite("the h_n summary", [list(row.values()) for row in rows])
     with io.staged_dir(out_dir, force, inputs) as stage:
         if layout.format == "litebird":
-            hits, moments = hwp_moments or (
-                maps.crossings,
-                {(n, 0): h[n] for n in range(1, n_max + 1)},
-            )
-            litebird_maps.write(
-                stage,
-                "boresight",
-                hits,
-                moments,
+            lite = dict(
                 frame=frame,
                 duration_s=config["observing_s"],
                 sample_rate_hz=config["sample_rate_hz"],
             )
+        if hwp_moments is not None:
+            each = None
+            if layout.format == "litebird" and planes is not None:
+
+                def each(i, hits, h):
+                    for det in planes.focalplane.detectors[i]:
+                        litebird_maps.write(stage, det, hits, h, **lite)
+
+            hwp_moments = hwp_moments(each)
+        if layout.format == "litebird":
+            hits, moments = hwp_moments or (
+                maps.crossings,
+                {(n, 0): h[n] for n in range(1, n_max + 1)},
+            )
+            name = "boresight" if planes is None else "focalplane"
+            litebird_maps.write(stage, name, hits, moments, **lite)
         elif layout.format == "so":
             so_maps.write(
                 stage,
