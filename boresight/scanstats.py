@@ -550,6 +550,7 @@ def hwp_moments(
                 each(i, own_hits, _moments(own_sums, own_hits, table))
             sums += own_sums
             hits += own_hits
+        bar.update(bar.total - bar.n)  # the samples of excluded turnarounds, never yielded
     return hits, _moments(sums, hits, table)
 
 

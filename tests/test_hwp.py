@@ -385,6 +385,14 @@ def test_the_reflected_angle_moments_are_the_hwp_moments():
                 np.testing.assert_allclose(stats.pair_h[i, n], turned, atol=1e-12)
 
 
+def test_the_hwp_moments_progress_ends_at_the_schedules_samples(capsys):
+    """With the turnarounds excluded their samples are never yielded; the bar still ends full."""
+    schedule = dataclasses.replace(_schedule([0.0, 600.0]), turnarounds="exclude")
+    scanstats.hwp_moments(schedule, HWP("stepped"), 8, progress=True)
+    err = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert f"{schedule.n_samples}/{schedule.n_samples} " in err, err
+
+
 def test_a_focal_planes_hwp_moments_are_its_pairs_own():
     """Off the axis each pair has its own samples: scanstats.hwp_moments with a focal plane (one
     pair at a time through detector_pointing) against the focal plane's fused kernel with the
