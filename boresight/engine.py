@@ -608,7 +608,9 @@ def simulate_focalplane(
         for theta, phi, psi, *chi in detector_pointing(
             schedule, focalplane, chunk_samples, hwp=hwp
         ):
-            jitter = angle_jitter(hwp, systematics.seed, first, theta.shape[1]) if chi else None
+            jitter = None
+            if chi and hwp.angle_jitter_deg:  # the plate's, one per sample for every pair
+                jitter = angle_jitter(hwp, systematics.seed, first, theta.shape[1])
             for i, one in enumerate(pairs):
                 interrupts.check()
                 pix = ang2pix_array(sky.nside, theta[i], phi[i])

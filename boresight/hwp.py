@@ -39,7 +39,7 @@ import numpy as np
 
 from .constants import DEG
 from .instrument import AMPLITUDES, Instrument, Spread, _nonzero
-from .kernels.rng import HWP_SALT, normal_range
+from .kernels.rng import HWP_SALT, normal_array
 from .scan import SyntheticScan
 from .validation import ConfigError
 
@@ -322,7 +322,7 @@ def angle_jitter(hwp: HWP, seed: int, first: int, n: int) -> np.ndarray:
     """
     if hwp.angle_jitter_deg == 0.0:
         return np.zeros(n)
-    return hwp.angle_jitter_deg * DEG * normal_range(seed, HWP_SALT, first, n)
+    return hwp.angle_jitter_deg * DEG * normal_array(seed, 0, HWP_SALT, n, first)
 
 
 def plate_signals(

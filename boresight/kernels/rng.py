@@ -153,8 +153,9 @@ def normal_from_key(key, count):
 
 
 @numba.njit(cache=True)
-def normal_array(seed, pixel, salt, n):
-    """n standard normal deviates of the key (seed, pixel) and a salt, counts 0 .. n - 1.
+def normal_array(seed, pixel, salt, n, first=0):
+    """n standard normal deviates of the key (seed, pixel) and a salt, counts first .. first +
+    n - 1 (a stream's draws, whatever its chunks).
 
     Parameters
     ----------
@@ -162,35 +163,14 @@ def normal_array(seed, pixel, salt, n):
         >= 0.
     salt : numpy.uint64
     n : int
+    first : int
+        The first count.
 
     Returns
     -------
     numpy.ndarray, shape (n,)
     """
     key = derived_key(pixel_key(seed, pixel), salt)
-    out = np.empty(n)
-    for i in range(n):
-        out[i] = normal_from_key(key, i)
-    return out
-
-
-@numba.njit(cache=True)
-def normal_range(seed, salt, first, n):
-    """n standard normal deviates of the key (seed, pixel 0) and a salt, counts first .. first +
-    n - 1: a stream's draws, whatever its chunks.
-
-    Parameters
-    ----------
-    seed : int
-    salt : numpy.uint64
-    first, n : int
-        >= 0.
-
-    Returns
-    -------
-    numpy.ndarray, shape (n,)
-    """
-    key = derived_key(pixel_key(seed, 0), salt)
     out = np.empty(n)
     for i in range(n):
         out[i] = normal_from_key(key, first + i)
