@@ -39,6 +39,7 @@ from .config import ConfigError, build_section, check_systematics, read_toml
 from .constants import DEG
 from .evaluation import METHODS
 from .focalplane import FocalPlane, focalplane_of_table
+from .hwp import HWP, chunk_angles
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
 from .noise import SurveyNoise
 from .pointing import chunk_arguments
@@ -209,6 +210,14 @@ class UnitMoments:
         out[..., self.pixels] = h_obs
         return out
 
+    def stepped_plate(self, hwp: HWP, steps_deg: np.ndarray) -> HWP:
+        """A stepped HWP at one angle per unit (a design's ``steps_deg``), CES by CES of
+        :meth:`schedule`'s CESs."""
+        per_ces = np.zeros(len(self.rows))
+        for u, idx in enumerate(self.units):
+            per_ces[idx] = steps_deg[u]
+        return replace(hwp, mode="stepped", angles_deg=tuple(per_ces), step="ces")
+
     def schedule(self, schedule: Schedule, angles_deg: np.ndarray) -> Schedule:
         """The schedule with every CES at its unit's angle, repeats as CESs of their own."""
         rows = list(self.rows)
@@ -229,7 +238,12 @@ def _rotate_and_sum(offsets, index, sums, phases, out):
 
 
 def unit_moments(
-    schedule: Schedule, nside: int, group: str = "ces", chunk_samples: int = 1 << 20
+    schedule: Schedule,
+    nside: int,
+    group: str = "ces",
+    chunk_samples: int = 1 << 20,
+    *,
+    hwp: HWP | None = None,
 ) -> UnitMoments:
     """Build every unit's spin sums once, with the fused pointing of ``scanstats``.
 
@@ -239,27 +253,37 @@ def unit_moments(
     nside : int
     group : {"ces", "day", "pass"}
     chunk_samples : int
+    hwp : boresight.hwp.HWP, optional
+        A continuous HWP: the sums are of the pairs' reflected angle psi + 2 chi
+        (:func:`boresight.hwp.reflected`, gamma 0), chi at each sample's time. The focal plane
+        carries the plate, so a boresight angle a still turns them by exp(i n a).
 
     Returns
     -------
     UnitMoments
     """
+    if hwp is not None and hwp.mode != "continuous":
+        raise ValueError("unit_moments turns the angles by a continuous HWP's only")
     rows = schedule.expanded()
     units = units_of(rows, group)
     per_unit = []
     for idx in units:
-        pix, cos, sin = [], [], []
+        pix, e1 = [], []
         for i in idx:
-            one = replace(schedule, ces=(replace(rows[i], boresight_deg=0.0),))
+            one = replace(schedule, ces=(replace(rows[i], boresight_deg=0.0),)).single()
             exclude = schedule.turnarounds == "exclude"
-            for args in chunk_arguments(one.single(), chunk_samples):
+            for args in chunk_arguments(one, chunk_samples):
                 interrupts.check()
                 p, c, s, _ = ces_hits(*args, nside, 1, exclude)
                 kept = p >= 0
+                turn = c + 1j * s
+                if hwp is not None:
+                    turn = turn * np.exp(
+                        2j * chunk_angles(hwp, one, 0, 0, first=args[0], n=args[1])
+                    )
                 pix.append(p[kept])
-                cos.append(c[kept])
-                sin.append(s[kept])
-        pix, e1 = np.concatenate(pix), np.concatenate(cos) + 1j * np.concatenate(sin)
+                e1.append(turn[kept])
+        pix, e1 = np.concatenate(pix), np.concatenate(e1)
         upix, inverse = np.unique(pix, return_inverse=True)
         power = np.ones_like(e1)
         sums = np.empty((N_MAX, upix.size), dtype=np.complex128)
@@ -459,12 +483,15 @@ class Design:
     interrupted : boresight.interrupts.Interrupted, optional
         What stopped the search (Ctrl-C or SIGTERM); ``angles_deg`` is then the best found until
         then (:func:`boresight.design_expectation.search`).
+    steps_deg : numpy.ndarray, shape (n_units,), optional
+        A stepped HWP's angle per unit, where the search chose them too.
     """
 
     angles_deg: np.ndarray
     value: float
     history: list
     interrupted: interrupts.Interrupted | None = None
+    steps_deg: np.ndarray | None = None
 
 
 def baselines(n_units: int, allowed_deg: tuple, seed: int = 0) -> dict[str, np.ndarray]:

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import interrupts
 from .design import Design
-from .design_expectation import EXHAUSTIVE_LIMIT, _cost, _form, _pair_cost
+from .design_expectation import EXHAUSTIVE_LIMIT, _changes, _cost, _form, _pair_cost
 from .predict import R_RANGE, delta_r
 from .predict import field_products as fp
 from .predict import focalplane as predict_fp
@@ -83,11 +83,6 @@ def _index(allowed, angles_deg):
     if np.any(allowed[index] != angles):
         raise ValueError("every unit's angle must be one of the allowed angles")
     return index
-
-
-def _changes(angles_deg):
-    """Changes of angle between consecutive units."""
-    return int(np.sum(np.diff(np.asarray(angles_deg, dtype=float)) != 0))
 
 
 class Target(NamedTuple):

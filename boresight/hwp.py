@@ -265,6 +265,13 @@ def reflected(psi: np.ndarray, chi: np.ndarray, gamma: float) -> np.ndarray:
     return psi + 2.0 * chi - 2.0 * gamma
 
 
+def mirrored(instrument: Instrument) -> Instrument:
+    """The bare pairs at the reflected angles of pairs behind a HWP: a pair at gamma sees the
+    sky as a bare pair at -gamma crossing at psi + 2 chi (:func:`reflected`); their order, and
+    so the systematics' draws, kept."""
+    return Instrument(pair_angles_deg=tuple(0.0 - a for a in instrument.pair_angles_deg))
+
+
 def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     """A synthetic scan and its pairs behind a HWP, as the bare scan and pairs that see the sky
     alike (for what the pairs carry through the HWP, :data:`THROUGH_HWP`; their angle errors
@@ -291,9 +298,9 @@ def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     scan : boresight.scan.SyntheticScan
     instrument : boresight.instrument.Instrument
     """
-    mirrored = Instrument(pair_angles_deg=tuple(0.0 - a for a in instrument.pair_angles_deg))
+    pairs = mirrored(instrument)
     if hwp.mode == "continuous":
-        return replace(scan, range_rad=2 * np.pi, centre_rad=0.0), mirrored
+        return replace(scan, range_rad=2 * np.pi, centre_rad=0.0), pairs
     if hwp.mode != "stepped":
         raise ValueError("behind() needs a continuous or a stepped HWP")
     if hwp.step != "repeat":
@@ -303,7 +310,7 @@ def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
         )
     angles = hwp.angles_deg
     rotations = tuple(r + 2 * angles[k % len(angles)] for k, r in enumerate(scan.rotations_deg))
-    return replace(scan, rotations_deg=rotations), mirrored
+    return replace(scan, rotations_deg=rotations), pairs
 
 
 def angle_jitter(hwp: HWP, seed: int, first: int, n: int) -> np.ndarray:

@@ -138,6 +138,7 @@ def leak_model(
     hits: np.ndarray | None = None,
     with_sky: bool = False,
     evaluation: str = "interp",
+    plate_ip: complex = 0.0,
 ) -> LeakModel:
     """The leak's terms of a budget (:func:`expected_residual` says how each enters).
 
@@ -153,6 +154,13 @@ def leak_model(
         Add the sky's own P (coefficient 1) as the last term.
     evaluation : {"interp", "exact"}
         How the engine reads the values of the sky's fields (:func:`sky_fields`).
+    plate_ip : complex
+        epsilon exp(i phase) of a HWP's instrumental polarisation in front of pairs whose
+        4 x angles cancel: the term epsilon exp(i phase) T through the crossing angles' own h_2
+        (h_{2,0}, :func:`boresight.predict.focalplane.ip_delta_p`), put just before the sky's
+        P. Here ``systematics`` and ``instrument`` are the pairs' as the bare pairs at their
+        reflected angles carry them (:func:`boresight.hwp.reflected_systematics`,
+        :func:`boresight.hwp.mirrored`), whose h_n are those of psi + 2 chi. 0: none.
 
     Returns
     -------
@@ -169,7 +177,7 @@ def leak_model(
     field_list = [fields[terms[MOMENT_NAMES[k]][1]] for k in kept]
     readings = [terms[MOMENT_NAMES[k]][2] for k in kept]
     second, pseudo, mean = second[np.ix_(kept, kept)], pseudo[np.ix_(kept, kept)], mean[kept]
-    extra = 0
+    fixed = []
     if systematics.has_beams:
         filters = beam_filters(systematics, instrument, (0.0,), fwhm_arcmin, band, n_max=n_max)
         for n, filt in filters.items():
@@ -177,13 +185,18 @@ def leak_model(
                 ns.append(n)
                 field_list.append(fp.SkyField(2 - n, filt * exact.window))  # n > 2: conj(H_n)
                 readings.append(exact)
-                extra += 1
+                fixed.append(1.0)
+    if plate_ip:
+        ns.append(2)
+        field_list.append(fields["temperature"])
+        readings.append(value)
+        fixed.append(complex(plate_ip))
     if with_sky:
         ns.append(0)
         field_list.append(fields["polarisation"])
         readings.append(value)
-        extra += 1
-    second, pseudo, mean = _with_fixed(second, pseudo, mean, extra)
+        fixed.append(1.0)
+    second, pseudo, mean = _with_fixed(second, pseudo, mean, fixed)
     coefs = coefficients(systematics, instrument)
     jitter = jitter_variance(systematics, coefs, expected=True) / coefs.n_samples
     return LeakModel(
@@ -372,11 +385,12 @@ def _kept(name, systematics):
     return True
 
 
-def _with_fixed(second, pseudo, mean, extra):
-    """The moments with ``extra`` deterministic coefficients of 1 appended (the beams' terms,
-    whose filters carry their coefficients, and the sky's P): E[c c'^*] = E c for those."""
+def _with_fixed(second, pseudo, mean, fixed):
+    """The moments with deterministic coefficients ``fixed`` appended (1 for the beams' terms,
+    whose filters carry their coefficients, and for the sky's P; a HWP's IP's own):
+    E[c c'^*] = E c conj(c') for those."""
     k = mean.size
-    out_mean = np.concatenate([mean, np.ones(extra)])
+    out_mean = np.concatenate([mean, np.asarray(fixed, dtype=np.complex128)])
     out_second = np.outer(out_mean, np.conj(out_mean))
     out_pseudo = np.outer(out_mean, out_mean)
     out_second[:k, :k], out_pseudo[:k, :k] = second, pseudo
