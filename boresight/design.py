@@ -39,7 +39,7 @@ from .config import ConfigError, build_section, check_systematics, read_toml
 from .constants import DEG
 from .evaluation import METHODS
 from .focalplane import FocalPlane, focalplane_of_table
-from .hwp import HWP, chunk_angles
+from .hwp import HWP, chunk_angles, pairs_behind
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
 from .noise import SurveyNoise
 from .pointing import chunk_arguments
@@ -538,6 +538,10 @@ class Budget:
     focalplane : boresight.focalplane.FocalPlane, optional
         ``[instrument] focalplane``: a file (beside the budget) or a preset name
         (:func:`boresight.focalplane.load_focalplane`).
+    hwp : boresight.hwp.HWP, optional
+        The ``[hwp]`` table (:class:`boresight.hwp.HWP`'s fields, ``mode`` "continuous" or
+        "stepped"): a HWP in front of the pairs, its IP in the budget. A stepped plate's
+        ``angles_deg`` are the steps the design may give each unit.
     """
 
     systematics: Systematics
@@ -545,6 +549,7 @@ class Budget:
     design: DesignOptions
     instrument: Instrument = Instrument()
     focalplane: FocalPlane | None = None
+    hwp: HWP | None = None
 
 
 def search_instrument(focal: FocalPlane) -> Instrument:
@@ -559,6 +564,11 @@ def search_instrument(focal: FocalPlane) -> Instrument:
 
 
 BUDGET_SECTIONS = ("systematics", "noise", "design", "instrument")
+#: the [hwp] table's keys (:class:`boresight.hwp.HWP`; its jitter and synchronous signal are not
+#: in the design's objective)
+BUDGET_HWP_KEYS = (
+    "mode", "frequency_hz", "phase_deg", "angles_deg", "ip", "ip_phase_deg", "angle_offset_deg"
+)  # fmt: skip
 
 
 def load_budget(path: str) -> Budget:
@@ -574,9 +584,12 @@ def load_budget(path: str) -> Budget:
     """
 
     raw = read_toml(path, "budget")
-    unknown = sorted(set(raw) - set(BUDGET_SECTIONS))
+    unknown = sorted(set(raw) - set(BUDGET_SECTIONS) - {"hwp"})
     if unknown:
-        raise ConfigError(f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS}")
+        raise ConfigError(
+            f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS + ('hwp',)}"
+        )
+    plate = _budget_hwp(path, raw.get("hwp"))
     if "noise" not in raw:
         raise ConfigError(f"budget {path}: a [noise] table is required")
     tables, focal = {}, None
@@ -602,7 +615,12 @@ def load_budget(path: str) -> Budget:
     if focal is not None:
         tables["instrument"] = search_instrument(focal)
     sysm, instrument = tables["systematics"], tables["instrument"]
-    if not sysm.has_amplitude:
+    if plate is not None and (focal is not None or tables["design"].evaluation != "interp"):
+        raise ConfigError(
+            f"budget {path}: [hwp] designs pairs on the axis with the sky read by interpolation: "
+            "not with [instrument] focalplane or design.evaluation = 'exact' yet"
+        )
+    if not (sysm.has_amplitude or (plate is not None and plate.ip)):
         raise ConfigError(
             f"budget {path}: [systematics] has no non-zero amplitude (chi_deg and the "
             "ellipticity angles only orient a pointing offset or a beam); give one of "
@@ -618,6 +636,29 @@ def load_budget(path: str) -> Budget:
         check_systematics(sysm, instrument, (0.0,), tables["noise"].fwhm_arcmin)
         if not predict.supports(instrument):
             raise ValueError("its pairs' 4 x angles must cancel (m_4 = 0), e.g. 'uniform'")
+        if plate is not None:
+            pairs_behind(plate, sysm, instrument)
     except ValueError as err:
         raise ConfigError(f"budget {path}: [systematics] / [instrument]: {err}") from None
-    return Budget(**tables, focalplane=focal)
+    return Budget(**tables, focalplane=focal, hwp=plate)
+
+
+def _budget_hwp(path, table):
+    """The budget's [hwp] table as a HWP, or None."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError(f"budget {path}: [hwp] must be a table")
+    unknown = sorted(set(table) - set(BUDGET_HWP_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"budget {path}: unknown key hwp.{unknown[0]}; allowed: {BUDGET_HWP_KEYS}"
+        )
+    if table.get("mode") not in ("continuous", "stepped"):
+        raise ConfigError(f"budget {path}: hwp.mode must be 'continuous' or 'stepped'")
+    if isinstance(table.get("angles_deg"), list):
+        table = {**table, "angles_deg": tuple(table["angles_deg"])}
+    try:
+        return build_section("hwp", HWP, table)
+    except ConfigError as err:
+        raise ConfigError(f"budget {path}: {err}") from None

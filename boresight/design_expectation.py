@@ -32,8 +32,7 @@ import numpy as np
 from . import coupling, interrupts, predict
 from .constants import DEG
 from .design import Design
-from .hwp import mirrored, reflected_systematics
-from .instrument import Instrument
+from .hwp import pairs_behind
 from .predict import field_products as fp
 from .scanstats import N_MAX
 
@@ -43,7 +42,7 @@ if TYPE_CHECKING:
     from .cosmology import Spectra
     from .design import UnitMoments
     from .hwp import HWP
-    from .instrument import Systematics
+    from .instrument import Instrument, Systematics
 
 #: (E, B) rows of Y_n = i X_n: the unit's alm turned by a quarter of a period of n a
 _QUARTER = np.array([[0.0, -1.0], [1.0, 0.0]])
@@ -52,7 +51,7 @@ EXHAUSTIVE_LIMIT = 59049
 
 
 class Channel(NamedTuple):
-    """Two rows (E, B) of the objective's alm: the weight w h_n of moment ``n`` of a source.
+    """Two rows (E, B) of the objective's alm: the weight w h_n of ``moment`` n of a source.
 
     ``source`` "pairs": the pairs' own h_n (behind a HWP, of their reflected angle psi + 2 chi),
     which a unit at boresight angle a and a stepped plate's step b turns by n (a + 2 b);
@@ -60,7 +59,7 @@ class Channel(NamedTuple):
     reaches through and which only a turns, by n a.
     """
 
-    n: int
+    moment: int
     source: str = "pairs"
 
 
@@ -129,7 +128,7 @@ class ExactObjective:
     def phases(self, choice: np.ndarray) -> np.ndarray:
         """n_c times each channel's angle [rad] (K, n_channels) of (angle, step) rows (K, 2)."""
         choice = np.atleast_2d(np.asarray(choice, dtype=float))
-        n = np.array([c.n for c in self.channels], dtype=float)
+        n = np.array([c.moment for c in self.channels], dtype=float)
         stepped = np.array([c.source == "pairs" for c in self.channels], dtype=float)
         turn = (choice[:, :1] + 2.0 * choice[:, 1:] * stepped[None, :]) * DEG
         return turn * n[None, :]
@@ -228,7 +227,7 @@ def exact_objective(
     hits = moments.full_sky(moments.hits)
     plate_ip = 0.0
     if hwp is not None and hwp.present:
-        systematics, instrument, plate_ip = _behind(hwp, systematics, instrument)
+        systematics, instrument, plate_ip = pairs_behind(hwp, systematics, instrument)
     model = predict.leak_model(
         systematics, theory, fwhm_arcmin, band, nside, instrument=instrument, hits=hits,
         with_sky=True, evaluation=evaluation, plate_ip=plate_ip,
@@ -260,19 +259,6 @@ def exact_objective(
     return ExactObjective(
         moments, form, sky_alm, unit_alm, const, change_cost, template, lmax, band, channels
     )
-
-
-def _behind(hwp, systematics, instrument):
-    """The pairs' systematics and pairs as the bare pairs at their reflected angles, and the
-    plate's IP coefficient epsilon exp(i phase)."""
-    if hwp.angle_jitter_deg > 0.0 or any(hwp.synchronous_muk):
-        raise ValueError(
-            "the design objective carries a HWP's instrumental polarisation and angle offset; "
-            "its angle jitter and synchronous signal are not in it yet"
-        )
-    pairs = mirrored(Instrument() if instrument is None else instrument)
-    ip = hwp.ip * np.exp(1j * hwp.ip_phase_deg * DEG) if hwp.ip else 0.0
-    return reflected_systematics(hwp, systematics), pairs, ip
 
 
 def _channels(model, hwp, moments, plate_moments, with_ip):
@@ -394,11 +380,11 @@ def _unit_alm(m, sources, channels, mask, lw, nthreads):
         inverse = mask[pix] / m.hits[m.index[lo:hi]]
         done = {}
         for k, (channel, source) in enumerate(zip(channels, sources)):
-            key = (id(source), channel.n)
+            key = (id(source), channel.moment)
             if key not in done:
                 weight = np.zeros(12 * m.nside**2, dtype=np.complex128)
-                weight[pix] = source.sums[channel.n - 1, lo:hi] * inverse
-                done[key] = fp.weight_alm(fp.Weight(channel.n, weight, None), lw, nthreads)
+                weight[pix] = source.sums[channel.moment - 1, lo:hi] * inverse
+                done[key] = fp.weight_alm(fp.Weight(channel.moment, weight, None), lw, nthreads)
             out[u, k] = done[key]
     return out
 

@@ -272,6 +272,36 @@ def mirrored(instrument: Instrument) -> Instrument:
     return Instrument(pair_angles_deg=tuple(0.0 - a for a in instrument.pair_angles_deg))
 
 
+def pairs_behind(hwp: HWP, systematics, instrument: Instrument | None):
+    """What a prediction of pairs on the axis behind the plate takes: their systematics and
+    pairs as the bare pairs at their reflected angles carry them (:func:`reflected_systematics`,
+    :func:`mirrored`), and the plate's IP coefficient epsilon exp(i phase), which reaches the
+    maps through the crossing angles' own h_2 (:func:`boresight.predict.expected_residual`).
+
+    Parameters
+    ----------
+    hwp : HWP
+        Without an angle jitter or a synchronous signal, which such a prediction does not carry.
+    systematics : boresight.instrument.Systematics
+    instrument : boresight.instrument.Instrument or None
+        None: the paper's pairs.
+
+    Returns
+    -------
+    systematics : boresight.instrument.Systematics
+    instrument : boresight.instrument.Instrument
+    ip : complex
+    """
+    if hwp.angle_jitter_deg > 0.0 or any(hwp.synchronous_muk):
+        raise ValueError(
+            "the exact expectation carries a HWP's instrumental polarisation and angle offset; "
+            "its angle jitter and synchronous signal are not in it yet"
+        )
+    pairs = mirrored(Instrument() if instrument is None else instrument)
+    ip = hwp.ip * complex(math.cos(hwp.ip_phase_deg * DEG), math.sin(hwp.ip_phase_deg * DEG))
+    return reflected_systematics(hwp, systematics), pairs, ip
+
+
 def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     """A synthetic scan and its pairs behind a HWP, as the bare scan and pairs that see the sky
     alike (for what the pairs carry through the HWP, :data:`THROUGH_HWP`; their angle errors

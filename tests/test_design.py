@@ -1,6 +1,7 @@
 """boresight design: per-unit moments, the predicted-delta_r objective, the optimiser, baselines,
 budgets and the command."""
 
+import csv
 from pathlib import Path
 
 import numpy as np
@@ -162,6 +163,19 @@ def _budget(tmp_path, nside=NSIDE, **tables):
             dict(systematics="dg = 0.01", instrument="pair_angles_deg = 'hexagonal'\nn_pairs = 6"),
             "preset",
         ),  # fmt: skip
+        (dict(hwp="mode = 'spinning'"), "hwp.mode"),
+        (dict(systematics="dg = 0.01", hwp="mode = 'stepped'\nangles_deg = []"), "angles"),
+        (
+            dict(systematics="dg = 0.01", hwp="mode = 'continuous'\nfrequency_hz = -2.0"),
+            "frequency",
+        ),
+        (dict(hwp="mode = 'stepped'"), "rho_arcmin behind a HWP"),
+        (dict(systematics="dg = 0.01", hwp="mode = 'stepped'\nangle_jitter_deg = 0.1"), "jitter"),
+        (
+            dict(systematics="dg = 0.01", design="evaluation = 'exact'", hwp="mode = 'stepped'"),
+            "not with",
+        ),  # fmt: skip
+        (dict(systematics="dg = 0.0", hwp="mode = 'stepped'"), "no non-zero"),
     ],
 )
 def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
@@ -383,3 +397,32 @@ def test_a_design_read_exactly_validates_with_the_samples_offsets(tmp_path, sche
     for row in checked:
         if objective[row["strategy"]] > 1e-3:
             assert float(row["predicted_delta_r"]) > 1.05 * objective[row["strategy"]]
+
+
+def test_design_behind_a_stepped_plate_chooses_its_steps(tmp_path, schedule):
+    """A budget with a stepped HWP (its IP 5e-3) and a gain mismatch: the search chooses each
+    unit's boresight angle and plate step. The IP needs the boresight (a 0/90 pair of repeats of
+    one CES cancels its h_2), the gain the pairs' reflected angle a + 2 b, so the optimum is
+    below every baseline (the plate's steps in turn) by more than 10x; units.csv has the steps;
+    the IP-only budget is accepted; every strategy's TOD mean over 8 skies is the prediction
+    within 3 standard errors or 10 %."""
+    budget = _budget(
+        tmp_path,
+        systematics="dg = [0.005, -0.005]",
+        design=f"nside = {NSIDE}\nsweeps = 4\nangles_deg = [0.0, 45.0, 90.0]\nvalidation_skies = 8",
+        hwp="mode = 'stepped'\nip = 5e-3\nip_phase_deg = 30.0",
+    )  # fmt: skip
+    out = _design(tmp_path, schedule, budget)
+    rows = {r["strategy"]: r for r in csv.DictReader(open(out / "strategies.csv"))}
+    best = float(rows.pop("optimised")["delta_r"])
+    assert all(abs(best) < 0.1 * float(r["delta_r"]) for r in rows.values())
+    units = list(csv.DictReader(open(out / "units.csv")))
+    assert {float(u["hwp_step_deg"]) for u in units} <= {0.0, 22.5, 45.0, 67.5}
+    for row in csv.DictReader(open(out / "validation.csv")):
+        mean, se = float(row["simulated_delta_r"]), float(row["simulated_delta_r_se"])
+        predicted = float(row["predicted_delta_r"])
+        assert abs(mean - predicted) < max(3 * se, 0.1 * abs(predicted)), row
+    only_ip = design.load_budget(
+        _budget(tmp_path, systematics="dg = 0.0", hwp="mode = 'continuous'\nip = 1e-3")
+    )
+    assert only_ip.hwp.ip == 1e-3

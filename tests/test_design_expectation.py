@@ -198,28 +198,37 @@ def test_behind_a_plate_the_objective_is_the_expectation_of_the_reflected_h_n(
     moments, spinning_moments, theory
 ):
     """Behind a stepped plate the pairs' gain and angle errors reach the maps as bare pairs' at
-    their reflected angles do: the objective at boresight angles a and steps b equals
-    predict.expected_residual of the h_n at a + 2 b, with the reflected systematics and the
-    mirrored pairs, to rounding; behind a continuous plate, of the h_n of psi + 2 chi at a. The
-    steps matter (a change of one unit's step changes the objective)."""
+    their reflected angles do, and the plate's IP through the crossing angles' own h_2: the
+    objective at boresight angles a and steps b equals predict.expected_residual of the h_n at
+    a + 2 b and of the IP's h_2 at a (a transform of every weight, no unit decomposition), to
+    rounding; behind a continuous plate, of the h_n of psi + 2 chi at a. The steps matter (a
+    change of one unit's step changes the objective)."""
     rng = np.random.default_rng(4)
     angles, steps = rng.choice(ANGLES, moments.n_units), rng.choice(STEPS, moments.n_units)
-    stepped = HWP("stepped")
+    stepped = HWP("stepped", ip=1e-3, ip_phase_deg=30.0, angle_offset_deg=0.2)
     cases = [
         (stepped, None, moments.h(angles + 2 * steps)),
-        (SPINNING, spinning_moments, spinning_moments.h(angles)),
+        (dataclasses.replace(SPINNING, ip=1e-3), spinning_moments, spinning_moments.h(angles)),
     ]
     for plate, own, h in cases:
         obj = exact_objective(moments, THROUGH, theory, FWHM, hwp=plate, plate_moments=own)
         expected = predict.expected_residual(
-            moments.full_sky(h), moments.mask, reflected_systematics(plate, THROUGH), theory,
-            FWHM, lmax=obj.lmax, instrument=mirrored(Instrument()),
-            hits=moments.full_sky(moments.hits),
+            moments.full_sky(h), moments.mask, THROUGH, theory, FWHM, lmax=obj.lmax,
+            hits=moments.full_sky(moments.hits), hwp=plate,
+            plate_h=moments.full_sky(moments.h(angles)),
         )  # fmt: skip
         want = predict.delta_r(expected.residual, obj.template)
         given = steps if plate.mode == "stepped" else None
         assert obj.delta_r(angles, given) == pytest.approx(want, rel=1e-10)
-    obj = exact_objective(moments, THROUGH, theory, FWHM, hwp=stepped)
+    # the pairs' terms as bare pairs at their reflected angles carry them
+    bare = predict.expected_residual(
+        moments.full_sky(moments.h(angles + 2 * steps)), moments.mask,
+        reflected_systematics(stepped, THROUGH), theory, FWHM, lmax=obj.lmax,
+        instrument=mirrored(Instrument()), hits=moments.full_sky(moments.hits),
+    )  # fmt: skip
+    obj = exact_objective(moments, THROUGH, theory, FWHM, hwp=dataclasses.replace(stepped, ip=0))
+    want = predict.delta_r(bare.residual, obj.template)
+    assert obj.delta_r(angles, steps) == pytest.approx(want, rel=1e-10)
     moved = steps.copy()
     moved[0] = (moved[0] + 22.5) % 90.0
     assert abs(obj.delta_r(angles, moved) / obj.delta_r(angles, steps) - 1) > 1e-3

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
 import numpy as np
@@ -18,6 +18,7 @@ from ..design import baselines, load_budget, objective, search_instrument, unit_
 from ..design_expectation import exact_objective, search
 from ..design_focalplane import Target, exact_delta_r, unit_sums
 from ..design_focalplane import search as focalplane_search
+from ..focalplane import on_axis
 from ..instrument import Systematics
 from ..noise import sigma_r
 from ..predict import R_RANGE, delta_r, expected_residual
@@ -30,7 +31,9 @@ from ..validation import require_finite
 from . import _common
 
 if TYPE_CHECKING:
+    from ..design import UnitMoments
     from ..focalplane import FocalPlane
+    from ..hwp import HWP
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -123,6 +126,7 @@ def run(
     theory = load_spectra()
     with timer("per-unit spin moments"):
         moments = unit_moments(schedule, opts.nside, opts.group)
+        plate = _Plate.of(budget, schedule, moments)
     with timer("objective"):
         obj = exact_objective(
             moments,
@@ -132,6 +136,8 @@ def run(
             change_cost=opts.change_cost,
             instrument=budget.instrument,
             evaluation=opts.evaluation,
+            hwp=plate.hwp,
+            plate_moments=plate.moments,
         )
         white = objective(  # the paper's white-h_n approximation, reported beside
             moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
@@ -142,7 +148,7 @@ def run(
     allowed = set(opts.angles_deg)
     startable = {k: v for k, v in strategies.items() if set(v) <= allowed}
     start = (
-        min(startable.values(), key=obj)
+        min(startable.values(), key=lambda a: obj(a, plate.baseline))
         if startable
         else np.full(moments.n_units, opts.angles_deg[0])
     )
@@ -169,7 +175,8 @@ def run(
     if focal is None:
         with timer("search"):
             found = search(
-                obj, opts.angles_deg, start, sweeps=opts.sweeps, restarts=opts.restarts,
+                obj, opts.angles_deg, start, steps_deg=plate.allowed,
+                start_steps_deg=plate.baseline, sweeps=opts.sweeps, restarts=opts.restarts,
                 seed=opts.seed, progress=tick,
             )  # fmt: skip
     else:
@@ -179,18 +186,21 @@ def run(
     if bar:
         bar.close()
     strategies["optimised"] = found.angles_deg
+    steps = {name: plate.baseline for name in strategies}
+    steps["optimised"] = found.steps_deg
     rows, h_maps = [], {}
     for name, angles in strategies.items():
         h = moments.h(angles)
         h_maps[name] = h
-        dr = obj.delta_r(angles)
+        dr = obj.delta_r(angles, steps[name])
         rows.append(
             dict(
                 strategy=name,
                 delta_r=dr,
                 delta_r_over_sigma_r=dr / sigma,
-                delta_r_white_approximation=white.delta_r_of(h),
-                changes=obj.changes(angles),
+                # the paper's approximation knows no plate
+                delta_r_white_approximation=np.nan if plate.hwp else white.delta_r_of(h),
+                changes=obj.changes(angles, steps[name]),
                 **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(h[n]) ** 2)) for n in range(1, 5)},
             )
         )
@@ -200,9 +210,10 @@ def run(
         if stopped is None:
             with timer("expected residual of every strategy"):
                 expected = {
-                    n: _expected(budget, moments, obj, schedule, strategies[n], theory)
+                    n: _expected(budget, moments, obj, schedule, theory, plate, strategies[n],
+                                 steps[n])
                     for n in h_maps
-                }
+                }  # fmt: skip
     else:
         with timer("the optimised schedule on the focal plane"):
             target = _target(budget, theory, moments, obj)
@@ -218,7 +229,9 @@ def run(
     if validate and stopped is None:
         try:
             with timer("TOD simulation of every strategy"):
-                validation = _validate(budget, moments, obj, schedule, strategies, expected)
+                validation = _validate(
+                    budget, moments, obj, schedule, (strategies, steps, plate), expected
+                )
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
@@ -230,14 +243,14 @@ def run(
         io.write_csv(stage / "strategies.csv", rows, list(rows[0]))
         fields = ["start", "sweep", "objective", "moves"] + (["round"] if focal is not None else [])
         io.write_csv(stage / "history.csv", found.history, fields)
-        io.write_csv(
-            stage / "units.csv",
-            [
-                dict(unit=u, first_ces=idx[0], n_ces=len(idx), angle_deg=a)
-                for u, (idx, a) in enumerate(zip(moments.units, found.angles_deg))
-            ],
-            ["unit", "first_ces", "n_ces", "angle_deg"],
-        )
+        units = [
+            dict(unit=u, first_ces=idx[0], n_ces=len(idx), angle_deg=a)
+            for u, (idx, a) in enumerate(zip(moments.units, found.angles_deg))
+        ]
+        if found.steps_deg is not None:  # the plate's step of each unit (not in the schedule)
+            for row, b in zip(units, found.steps_deg):
+                row["hwp_step_deg"] = b
+        io.write_csv(stage / "units.csv", units, list(units[0]))
         if validation:
             io.write_csv(stage / "validation.csv", validation, list(validation[0]))
         if curves:
@@ -252,6 +265,7 @@ def run(
                     "turnarounds": schedule.turnarounds,
                     "design": dataclasses.asdict(budget.design),
                     "focalplane": None if focal is None else focal.source,
+                    "hwp": None if plate.hwp is None else dataclasses.asdict(plate.hwp),
                     "sigma_r": sigma,
                     "search_interrupted": found.interrupted is not None,
                     "validation": checked,
@@ -272,6 +286,7 @@ def run(
         sigma_r=sigma,
         strategies=rows,
         angles_deg=found.angles_deg,
+        steps_deg=found.steps_deg,
         validation=validation,
     )
 
@@ -291,15 +306,55 @@ def _figures(curves, white, budget, sigma, theory, moments, h_maps, stage):
     plots.map_figure(maps, names, stage / "hn_before_after.png", unit="")
 
 
-def _expected(budget, moments, obj, schedule, angles, theory):
+class _Plate(NamedTuple):
+    """The budget's HWP, as the design sees it: a continuous plate's unit moments of psi + 2 chi
+    (where the pairs carry systematics), a stepped plate's allowed steps, and the steps of the
+    baselines (the allowed steps in turn, unit by unit)."""
+
+    hwp: HWP | None = None
+    moments: UnitMoments | None = None
+    allowed: tuple | None = None
+    baseline: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, budget, schedule, moments):
+        hwp = budget.hwp
+        if hwp is None:
+            return cls()
+        if hwp.mode == "stepped":
+            turn = np.asarray(hwp.angles_deg)[np.arange(moments.n_units) % len(hwp.angles_deg)]
+            return cls(hwp, allowed=hwp.angles_deg, baseline=turn)
+        opts = budget.design
+        spun = None
+        if budget.systematics.has_amplitude:
+            spun = unit_moments(schedule, opts.nside, opts.group, hwp=hwp)
+        return cls(hwp, spun)
+
+    def pairs_h(self, moments, angles, steps):
+        """The h_n of the pairs' reflected angle (their own without a plate)."""
+        if self.hwp is None:
+            return moments.h(angles)
+        if self.hwp.mode == "stepped":
+            return moments.h(np.asarray(angles) + 2 * np.asarray(steps))
+        return (self.moments or moments).h(angles)  # no pair terms where there are none
+
+    def seen(self, moments, steps):
+        """The HWP the TOD sees on an assignment (a stepped plate at its units' steps)."""
+        if self.hwp is None or self.hwp.mode == "continuous":
+            return self.hwp
+        return moments.stepped_plate(self.hwp, steps)
+
+
+def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):
     """The exact expected residual of an assignment's observed-pixel h_n (:func:`boresight.
     predict.expected_residual`) at the objective's band limits, the hits spread as the
     schedule's and read as the design's ``evaluation``; read exactly, with the samples' offsets
-    from their pixel centres (:func:`boresight.scanstats.centroid_moments`)."""
+    from their pixel centres (:func:`boresight.scanstats.centroid_moments`). Behind the budget's
+    HWP, of the pairs' reflected h_n and the crossing angles' own (``plate``)."""
     exact = budget.design.evaluation == "exact"
     offsets = centroid_moments(moments.schedule(schedule, angles), moments.nside) if exact else None
     return expected_residual(
-        moments.full_sky(moments.h(angles)),
+        moments.full_sky(plate.pairs_h(moments, angles, steps)),
         moments.mask,
         budget.systematics,
         theory,
@@ -310,6 +365,8 @@ def _expected(budget, moments, obj, schedule, angles, theory):
         hits=moments.full_sky(moments.hits),
         evaluation=budget.design.evaluation,
         offsets=offsets,
+        hwp=plate.hwp,
+        plate_h=moments.full_sky(moments.h(angles)),
     )
 
 
@@ -374,7 +431,7 @@ def _focalplane_columns(expected, template, sigma, row):
     )
 
 
-def _validate(budget, moments, obj, schedule, strategies, expected):
+def _validate(budget, moments, obj, schedule, assignments, expected):
     """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
@@ -384,20 +441,24 @@ def _validate(budget, moments, obj, schedule, strategies, expected):
     focal plane, every pair on its own samples (:func:`boresight.engine.simulate_focalplane`).
     Like is compared with like: the total residual C_BB(sys) - C_BB(no sys) with the predicted
     total, the leaked power <dB, dB> with the predicted leaked power (``expected``, per
-    strategy); each mean with its standard error.
+    strategy); each mean with its standard error. ``assignments``: the strategies' angles and
+    steps, and the budget's :class:`_Plate`, behind which the pairs on the axis are simulated
+    as a focal plane.
     """
     nside, lmax = moments.nside, 2 * moments.nside
     skies = budget.design.validation_skies
+    strategies, steps, plate = assignments
     out = []
     for name, angles in strategies.items():
         scan = moments.schedule(schedule, angles)
+        seen = plate.seen(moments, steps[name])
         total, leaked = [], []
         for seed in range(skies):
             sky = make_sky(
                 SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=budget.noise.fwhm_arcmin, seed=seed)
             )
             systematics = dataclasses.replace(budget.systematics, seed=seed)
-            cross, auto = _tod_parts(sky, scan, systematics, budget, moments.mask, lmax)
+            cross, auto = _tod_parts(sky, scan, systematics, budget, moments.mask, lmax, seen)
             total.append(delta_r(cross + auto, obj.template))
             leaked.append(delta_r(auto, obj.template))
         row = dict(strategy=name, skies=skies)
@@ -420,25 +481,31 @@ def _validate(budget, moments, obj, schedule, strategies, expected):
     return out
 
 
-def _tod_parts(sky, scan, systematics, budget, mask, lmax):
-    """The TOD's residual pseudo-C_BB parts (cross with the sky, auto) of one sky."""
+def _tod_parts(sky, scan, systematics, budget, mask, lmax, hwp=None):
+    """The TOD's residual pseudo-C_BB parts (cross with the sky, auto) of one sky, behind
+    ``hwp`` (the reference behind it without its IP)."""
     evaluation = budget.design.evaluation
-    if budget.focalplane is None:
+    focal = budget.focalplane
+    if hwp is not None:
+        focal = on_axis(budget.instrument.pair_angles_deg)
+    elif focal is None:
         job = residual(
             sky, scan, systematics, mask, lmax, instrument=budget.instrument,
             run=RunOptions(evaluation=evaluation),
         )  # fmt: skip
         return job.total - job.auto, job.auto
+    plates = (None, None) if hwp is None else (dataclasses.replace(hwp, ip=0.0), hwp)
     maps = [
         engine.simulate_focalplane(
             sky,
             scan,
-            budget.focalplane,
+            focal,
             s,
             evaluation=evaluation,
             rcond_min=predict_fp.RCOND_EXPECTATION,
+            hwp=p,
         )  # fmt: skip
-        for s in (Systematics(), systematics)
+        for s, p in zip((Systematics(), systematics), plates)
     ]
     ref, sys = (np.array([np.where(m.valid, m.q, 0.0), np.where(m.valid, m.u, 0.0)]) for m in maps)
     return spectra.residual_bb_parts(sys, ref, mask, lmax)

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..constants import ARCMIN
 from ..evaluation import METHODS
+from ..hwp import pairs_behind
 from . import field_products as fp
 from .beam_fields import beam_filters
 from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients, jitter_variance
@@ -29,6 +30,7 @@ from .windows import hit_spread_window, interpolation_window
 
 if TYPE_CHECKING:
     from ..cosmology import Spectra
+    from ..hwp import HWP
     from ..instrument import Instrument, Systematics
 
 #: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`
@@ -288,6 +290,8 @@ def expected_residual(
     hits: np.ndarray | None = None,
     evaluation: str = "interp",
     offsets: np.ndarray | None = None,
+    hwp: HWP | None = None,
+    plate_h: np.ndarray | None = None,
     nthreads: int = 0,
 ) -> ExpectedResidual:
     """The exact expected leaked and total residual pseudo-C_BB of a schedule's h_n maps.
@@ -333,6 +337,13 @@ def expected_residual(
         (:func:`boresight.predict.field_products.derivative`). A real scan crosses a pixel along
         a few lines, at places that depend on the crossing angle, and so on structure at the
         pixel scale a leak reads more than its pixel centre (docs/conventions.md).
+    hwp : boresight.hwp.HWP, optional
+        A HWP in front of the pairs (:func:`boresight.hwp.pairs_behind`): ``h`` is then of their
+        reflected angle psi + 2 chi, ``systematics`` and ``instrument`` their own, and the
+        plate's IP reaches the maps through ``plate_h``'s h_2, the crossing angles' own.
+        Not with ``offsets``.
+    plate_h : numpy.ndarray, complex, shape (>= 3, npix), optional
+        The crossing angles' own h_n (h_{n,0}), where the plate has an IP.
     nthreads : int
 
     Returns
@@ -340,13 +351,20 @@ def expected_residual(
     ExpectedResidual
     """
     band = lmax if band is None else band
+    plate_ip = 0.0
+    if hwp is not None and hwp.present:
+        if offsets is not None:
+            raise ValueError("the samples' offsets behind a HWP: not yet predicted")
+        systematics, instrument, plate_ip = pairs_behind(hwp, systematics, instrument)
+        if plate_ip and plate_h is None:
+            raise ValueError("a HWP's IP: give plate_h, the crossing angles' own h_n")
     n_max = h.shape[0] - 1
     if n_max < 4:
         raise ValueError(f"h must hold h_0..h_4 at least, got {h.shape[0]} moments")
     nside = hp.npix2nside(h.shape[1])
     model = leak_model(
         systematics, theory, fwhm_arcmin, band, nside, n_max=n_max, instrument=instrument,
-        hits=hits, with_sky=True, evaluation=evaluation,
+        hits=hits, with_sky=True, evaluation=evaluation, plate_ip=plate_ip,
     )  # fmt: skip
     lw = lmax + band
     alms = {}
@@ -355,6 +373,8 @@ def expected_residual(
     spins, fields = list(model.term_n), list(model.fields)
     term_alms = [alms[abs(n)] for n in spins]
     k = model.n_leak  # the sky's P is the last term
+    if plate_ip:  # the plate's IP term, just before it
+        term_alms[k - 1] = fp.weight_alm(fp.Weight(2, mask * plate_h[2], None), lw, nthreads)
     second, pseudo = model.second, model.pseudo
     if offsets is not None:
         extra = _offset_terms(model, offsets, mask, lw, nthreads)
