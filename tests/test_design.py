@@ -426,3 +426,27 @@ def test_design_behind_a_stepped_plate_chooses_its_steps(tmp_path, schedule):
         _budget(tmp_path, systematics="dg = 0.0", hwp="mode = 'continuous'\nip = 1e-3")
     )
     assert only_ip.hwp.ip == 1e-3
+
+
+def test_design_behind_a_continuous_plate_is_its_objective(tmp_path, schedule, moments, theory):
+    """Behind a plate spinning at 0.3 Hz (2 Hz samples), the command's delta_r of every
+    strategy is the exact objective with the units' moments of psi + 2 chi, and the search
+    cancels the IP's h_2 with the 0/90 repeats of each CES; no steps are written."""
+    budget = _budget(
+        tmp_path,
+        systematics="dg = [0.005, -0.005]",
+        design=f"nside = {NSIDE}\nsweeps = 4\nangles_deg = [0.0, 90.0]",
+        hwp="mode = 'continuous'\nfrequency_hz = 0.3\nip = 5e-3",
+    )  # fmt: skip
+    out = _design(tmp_path, schedule, budget, "--no-validate")
+    plate = design.load_budget(budget).hwp
+    spun = design.unit_moments(schedule, NSIDE, "ces", hwp=plate)
+    obj = exact_objective(
+        moments, Systematics(dg=(0.005, -0.005)), theory, 30.0, hwp=plate, plate_moments=spun
+    )
+    rows = {r["strategy"]: r for r in csv.DictReader(open(out / "strategies.csv"))}
+    for name, angles in design.baselines(moments.n_units, (0.0, 90.0)).items():
+        assert float(rows[name]["delta_r"]) == pytest.approx(obj.delta_r(angles), rel=1e-9)
+    units = list(csv.DictReader(open(out / "units.csv")))
+    assert "hwp_step_deg" not in units[0]
+    assert float(rows["optimised"]["delta_r"]) < 0.1 * float(rows["none"]["delta_r"])
