@@ -161,8 +161,8 @@ def validation(skies, evaluation="interp"):
         list(rows[0]),
         rows,
         "simulated: mean +- standard error over the skies; within: |simulated - predicted| in "
-        "standard errors; objective: the search's exact objective (read exactly, it leaves the "
-        "samples' offsets from their pixel centres out); white_approximation: the paper's "
+        "standard errors; objective: the search's exact objective (read exactly, with the "
+        "samples' offsets from their pixel centres); white_approximation: the paper's "
         "slowly-varying-h_n objective",
     )
 

@@ -42,8 +42,8 @@ from .focalplane import FocalPlane, focalplane_of_table
 from .hwp import HWP, chunk_angles, pairs_behind
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
 from .noise import SurveyNoise
-from .pointing import chunk_arguments
-from .scanstats import N_MAX, ces_hits
+from .pointing import chunk_arguments, pointing
+from .scanstats import N_MAX, ces_hits, sample_offsets
 from .schedule import Schedule
 from .validation import option
 
@@ -164,6 +164,11 @@ class UnitMoments:
     units : list of list of int
         The CES rows of each unit.
     rows : tuple of boresight.schedule.CES
+    centroids : numpy.ndarray, complex128, shape (2, N_MAX + 1, n_entries), optional
+        sum exp(i n psi) delta and sum exp(i n psi) conj(delta) of each entry, n = 0..N_MAX,
+        delta the samples' offsets from their pixel centres
+        (:func:`boresight.scanstats.sample_offsets`): the unit's share of
+        :func:`boresight.scanstats.centroid_moments` times the hits.
     """
 
     nside: int
@@ -174,6 +179,7 @@ class UnitMoments:
     sums: np.ndarray
     units: list
     rows: tuple
+    centroids: np.ndarray | None = None
 
     @property
     def n_units(self):
@@ -244,6 +250,7 @@ def unit_moments(
     chunk_samples: int = 1 << 20,
     *,
     hwp: HWP | None = None,
+    centroids: bool = False,
 ) -> UnitMoments:
     """Build every unit's spin sums once, with the fused pointing of ``scanstats``.
 
@@ -257,6 +264,10 @@ def unit_moments(
         A continuous HWP: the sums are of the pairs' reflected angle psi + 2 chi
         (:func:`boresight.hwp.reflected`, gamma 0), chi at each sample's time. The focal plane
         carries the plate, so a boresight angle a still turns them by exp(i n a).
+    centroids : bool
+        Also the sums of the samples' offsets from their pixel centres
+        (:attr:`UnitMoments.centroids`; on the axis a boresight angle moves no sample, so they
+        turn by exp(i n a) too), for a sky read exactly at each sample.
 
     Returns
     -------
@@ -268,7 +279,7 @@ def unit_moments(
     units = units_of(rows, group)
     per_unit = []
     for idx in units:
-        pix, e1 = [], []
+        pix, e1, deltas = [], [], []
         for i in idx:
             one = replace(schedule, ces=(replace(rows[i], boresight_deg=0.0),)).single()
             exclude = schedule.turnarounds == "exclude"
@@ -283,22 +294,41 @@ def unit_moments(
                     )
                 pix.append(p[kept])
                 e1.append(turn[kept])
+            if centroids:  # the same samples in the same order, turnarounds left out alike
+                for theta, phi, _ in pointing(one, chunk_samples):
+                    deltas.append(sample_offsets(theta, phi, nside)[1])
         pix, e1 = np.concatenate(pix), np.concatenate(e1)
         upix, inverse = np.unique(pix, return_inverse=True)
-        power = np.ones_like(e1)
-        sums = np.empty((N_MAX, upix.size), dtype=np.complex128)
-        for n in range(N_MAX):
-            power = power * e1
-            sums[n] = np.bincount(inverse, power.real, upix.size) + 1j * np.bincount(
-                inverse, power.imag, upix.size
+        sums = _bin_powers(inverse, upix.size, e1, np.ones_like(e1), 1)
+        cent = None
+        if centroids:
+            delta = np.concatenate(deltas)
+            cent = np.array(
+                [_bin_powers(inverse, upix.size, e1, d, 0) for d in (delta, np.conj(delta))]
             )
-        per_unit.append((upix, np.bincount(inverse, minlength=upix.size), sums))
+        per_unit.append((upix, np.bincount(inverse, minlength=upix.size), sums, cent))
     pixels = np.unique(np.concatenate([u[0] for u in per_unit]))
     index = np.concatenate([np.searchsorted(pixels, u[0]) for u in per_unit])
     hits = np.bincount(index, np.concatenate([u[1] for u in per_unit]), pixels.size)
     offsets = np.concatenate([[0], np.cumsum([u[0].size for u in per_unit])])
     sums = np.concatenate([u[2] for u in per_unit], axis=1)
-    return UnitMoments(nside, pixels, hits, offsets, index, sums, units, rows)
+    cent = np.concatenate([u[3] for u in per_unit], axis=2) if centroids else None
+    return UnitMoments(nside, pixels, hits, offsets, index, sums, units, rows, cent)
+
+
+def _bin_powers(inverse, size, e1, value, first):
+    """Each entry's sum of value e1^n over its samples, n = first..N_MAX: (N_MAX + 1 - first,
+    size)."""
+    power = value
+    for _ in range(first):
+        power = power * e1
+    out = np.empty((N_MAX + 1 - first, size), dtype=np.complex128)
+    for n in range(out.shape[0]):
+        out[n] = np.bincount(inverse, power.real, size) + 1j * np.bincount(
+            inverse, power.imag, size
+        )
+        power = power * e1
+    return out
 
 
 @dataclass

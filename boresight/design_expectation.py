@@ -56,11 +56,20 @@ class Channel(NamedTuple):
     ``source`` "pairs": the pairs' own h_n (behind a HWP, of their reflected angle psi + 2 chi),
     which a unit at boresight angle a and a stepped plate's step b turns by n (a + 2 b);
     "plate": the crossing angles' own h_n (h_{n,0}), which a plate's instrumental polarisation
-    reaches through and which only a turns, by n a.
+    reaches through and which only a turns, by n a; "delta", "conj delta": half the sums of
+    exp(i n psi) delta and exp(i n psi) conj(delta) over the hits, delta the samples' offsets
+    from their pixel centres (:attr:`boresight.design.UnitMoments.centroids`), and "conjugate
+    conj delta" the conjugate of the latter (turned by -n a: ``moment`` is then -n). ``spin``:
+    the weight's, as :class:`boresight.predict.field_products.Weight` takes it (default n).
     """
 
     moment: int
     source: str = "pairs"
+    spin: int | None = None
+
+    @property
+    def weight_spin(self) -> int:
+        return self.moment if self.spin is None else self.spin
 
 
 #: the channels of bare pairs: their h_1 .. h_N_MAX
@@ -241,16 +250,31 @@ def exact_objective(
             rows[k] = 1 + channels.index(Channel(abs(n)))
     if plate_ip:
         rows[model.n_leak - 1] = 1 + channels.index(Channel(2, "plate"))
+    spins, fields = list(model.term_n), list(model.fields)
+    second, pseudo = model.second, model.pseudo
+    if evaluation == "exact" and moments.centroids is not None:
+        if hwp is not None and hwp.present:
+            raise ValueError("the samples' offsets behind a HWP: not yet predicted")
+        k = model.n_leak
+        extra = _offset_terms(model)
+        new = list(dict.fromkeys(c for *_, c in extra))
+        channels = channels + tuple(new)
+        sources = list(sources) + [moments] * len(new)
+        index = list(range(k)) + [t[2] for t in extra] + list(range(k, len(spins)))
+        second, pseudo = second[np.ix_(index, index)], pseudo[np.ix_(index, index)]
+        spins = spins[:k] + [t[0] for t in extra] + spins[k:]
+        fields = fields[:k] + [t[1] for t in extra] + fields[k:]
+        rows = rows[:k] + [1 + channels.index(t[3]) for t in extra] + rows[k:]
     couplings = coupling.mask_coupling(mask, lmax, nthreads)
     template = predict.tensor_template(couplings, theory, fwhm_arcmin, nside)
     weight_l = np.zeros(lmax + 1)
     lo, hi = predict.R_RANGE[0], min(predict.R_RANGE[1], lmax)
     weight_l[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
     kappa_w, kappa_v = fp.bb_kernels(
-        model.term_n, model.fields, model.sky_cl, weight_l, second=model.second, pseudo=model.pseudo
+        spins, fields, model.sky_cl, weight_l, second=second, pseudo=pseudo
     )
     j_count = 2 + 2 * len(channels)
-    form = _form(model.term_n, kappa_w, kappa_v, lw, rows, j_count)
+    form = _form(spins, kappa_w, kappa_v, lw, rows, j_count)
     alone = fp.bb_kernels((0,), model.fields[-1:], model.sky_cl, weight_l)
     sky_alm = fp.weight_alm(fp.Weight(0, mask + 0j, None), lw, nthreads)
     sky_form = _form((0,), *alone, lw)
@@ -259,6 +283,28 @@ def exact_objective(
     return ExactObjective(
         moments, form, sky_alm, unit_alm, const, change_cost, template, lmax, band, channels
     )
+
+
+def _offset_terms(model):
+    """Each leak term's first-order changes across its pixels
+    (:func:`boresight.predict.expected_residual`'s ``offsets``): for term k, h_n F, the spin
+    n - 1 term on d F and the spin n + 1 term on dbar F, as (spin, field, k, channel). h_-n's
+    share the channels of h_n's other one, conjugated by their spin's sign, but for the spin-0
+    weight of n = -1, which has its own."""
+    out = []
+    for k in range(model.n_leak):
+        n = model.term_n[k]
+        m = abs(n)
+        for raising in (True, False):
+            spin = n - 1 if raising else n + 1
+            if n >= 0:
+                channel = Channel(m, "conj delta" if raising else "delta", spin)
+            elif spin:
+                channel = Channel(m, "delta" if raising else "conj delta", abs(spin))
+            else:
+                channel = Channel(-1, "conjugate conj delta", 0)
+            out.append((spin, fp.derivative(model.fields[k], raising=raising), k, channel))
+    return out
 
 
 def _channels(model, hwp, moments, plate_moments, with_ip):
@@ -380,13 +426,27 @@ def _unit_alm(m, sources, channels, mask, lw, nthreads):
         inverse = mask[pix] / m.hits[m.index[lo:hi]]
         done = {}
         for k, (channel, source) in enumerate(zip(channels, sources)):
-            key = (id(source), channel.moment)
+            kind = "sums" if channel.source in ("pairs", "plate") else channel.source
+            key = (id(source), kind, channel.moment, channel.weight_spin)
             if key not in done:
                 weight = np.zeros(12 * m.nside**2, dtype=np.complex128)
-                weight[pix] = source.sums[channel.moment - 1, lo:hi] * inverse
-                done[key] = fp.weight_alm(fp.Weight(channel.moment, weight, None), lw, nthreads)
+                weight[pix] = _unit_share(source, channel, lo, hi) * inverse
+                spin = channel.weight_spin
+                done[key] = fp.weight_alm(fp.Weight(spin, weight, None), lw, nthreads)
             out[u, k] = done[key]
     return out
+
+
+def _unit_share(source, channel, lo, hi):
+    """Entries lo:hi of a channel's unit sums (:class:`Channel`)."""
+    n = channel.moment
+    if channel.source in ("pairs", "plate"):
+        return source.sums[n - 1, lo:hi]
+    if channel.source == "delta":
+        return 0.5 * source.centroids[0, n, lo:hi]
+    if channel.source == "conj delta":
+        return 0.5 * source.centroids[1, n, lo:hi]
+    return 0.5 * np.conj(source.centroids[1, -n, lo:hi])
 
 
 class _State:

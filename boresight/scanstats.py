@@ -411,6 +411,31 @@ def characterise_schedule(
     return _stats(nside, tolerance_deg, binned)
 
 
+def sample_offsets(theta: np.ndarray, phi: np.ndarray, nside: int) -> tuple:
+    """Each sample's RING pixel and its offset delta [rad] from the pixel's centre in the tangent
+    plane there, (n - c_p) . e_theta + i (n - c_p) . e_phi (:func:`centroid_moments`).
+
+    Parameters
+    ----------
+    theta, phi : numpy.ndarray
+        The samples' colatitude and longitude [rad].
+    nside : int
+
+    Returns
+    -------
+    pix : numpy.ndarray, int64
+    delta : numpy.ndarray, complex128
+    """
+    pix = hp.ang2pix(nside, theta, phi)
+    c_theta, c_phi = hp.pix2ang(nside, pix)
+    d = hp.ang2vec(theta, phi) - hp.ang2vec(c_theta, c_phi)
+    e_theta = np.array(
+        [np.cos(c_theta) * np.cos(c_phi), np.cos(c_theta) * np.sin(c_phi), -np.sin(c_theta)]
+    )
+    e_phi = np.array([-np.sin(c_phi), np.cos(c_phi), np.zeros_like(c_phi)])
+    return pix, np.einsum("ij,ji->i", d, e_theta) + 1j * np.einsum("ij,ji->i", d, e_phi)
+
+
 def centroid_moments(
     schedule: Schedule, nside: int, n_max: int = N_MAX, chunk_samples: int = 1 << 20
 ) -> np.ndarray:
@@ -440,14 +465,7 @@ def centroid_moments(
     hits = np.zeros(npix)
     for theta, phi, psi in pointing(schedule, chunk_samples):
         interrupts.check()
-        pix = hp.ang2pix(nside, theta, phi)
-        c_theta, c_phi = hp.pix2ang(nside, pix)
-        d = hp.ang2vec(theta, phi) - hp.ang2vec(c_theta, c_phi)
-        e_theta = np.array(
-            [np.cos(c_theta) * np.cos(c_phi), np.cos(c_theta) * np.sin(c_phi), -np.sin(c_theta)]
-        )
-        e_phi = np.array([-np.sin(c_phi), np.cos(c_phi), np.zeros_like(c_phi)])
-        delta = np.einsum("ij,ji->i", d, e_theta) + 1j * np.einsum("ij,ji->i", d, e_phi)
+        pix, delta = sample_offsets(theta, phi, nside)
         hits += np.bincount(pix, minlength=npix)
         turn, spin = np.exp(1j * psi), np.ones(psi.size, dtype=np.complex128)
         for n in range(n_max + 1):

@@ -15,6 +15,7 @@ from boresight.harmonics import alm2cl
 from boresight.hwp import HWP, mirrored, reflected_systematics
 from boresight.instrument import Instrument, Spread, Systematics
 from boresight.residual import residual
+from boresight.scanstats import N_MAX
 from boresight.schedule import CES, Schedule, load_schedule
 from boresight.sky import SkyConfig, make_sky
 
@@ -151,34 +152,31 @@ def test_change_cost_and_interrupt(moments, theory):
 
 @pytest.mark.xdist_group("timing")  # not beside the signals test (its latency)
 @pytest.mark.parametrize("evaluation", ["interp", "exact"])
-def test_the_prediction_is_the_mean_of_tod_skies(schedule, moments, theory, evaluation):
+def test_the_prediction_is_the_mean_of_tod_skies(schedule, centred, theory, evaluation):
     """The TOD engine on the schedule's own samples, 8 skies per strategy, the sky read as the
-    prediction reads it: the mean total residual's delta_r equals the prediction within 5 % or
-    2.5 standard errors. Read exactly, the prediction carries the samples' offsets from their
-    pixel centres (scanstats.centroid_moments): at 2 Hz a pixel of Nside 32 holds a few scan
+    objective reads it: the mean total residual's delta_r equals the objective within 5 % or
+    2.5 standard errors. Read exactly, the objective carries the samples' offsets from their
+    pixel centres (the units' centroid sums): at 2 Hz a pixel of Nside 32 holds a few scan
     lines, and without them the pointing's leak is predicted 0.68-0.71 of the TOD's."""
-    obj = exact_objective(moments, BUDGET, theory, FWHM, evaluation=evaluation)
+    obj = exact_objective(centred, BUDGET, theory, FWHM, evaluation=evaluation)
+    bare = dataclasses.replace(centred, centroids=None)
+    without = exact_objective(bare, BUDGET, theory, FWHM, evaluation=evaluation)
     run = RunOptions(evaluation=evaluation)
-    for angles in (np.zeros(moments.n_units), np.where(np.arange(moments.n_units) % 2, 90.0, 0.0)):
-        scan = moments.schedule(schedule, angles)
+    for angles in (np.zeros(centred.n_units), np.where(np.arange(centred.n_units) % 2, 90.0, 0.0)):
+        scan = centred.schedule(schedule, angles)
         values = []
         for seed in range(8):
             sky = make_sky(
                 SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=FWHM, seed=seed), theory
             )
-            job = residual(sky, scan, BUDGET, moments.mask, 2 * NSIDE, run=run)
+            job = residual(sky, scan, BUDGET, centred.mask, 2 * NSIDE, run=run)
             values.append(predict.delta_r(job.total, obj.template))
         mean, se = np.mean(values), np.std(values, ddof=1) / np.sqrt(len(values))
         predicted = obj.delta_r(angles)
         if evaluation == "exact":
-            expected = predict.expected_residual(
-                moments.full_sky(moments.h(angles)), moments.mask, BUDGET, theory, FWHM,
-                lmax=obj.lmax, hits=moments.full_sky(moments.hits), evaluation="exact",
-                offsets=scanstats.centroid_moments(scan, NSIDE),
-            )  # fmt: skip
-            without = predicted
-            predicted = predict.delta_r(expected.residual, obj.template)
-            assert predicted > 1.2 * without  # the offsets matter here
+            assert predicted > 1.2 * without.delta_r(angles)  # the offsets matter here
+        else:  # read by interpolation, the offsets are not taken
+            assert predicted == without.delta_r(angles)
         assert abs(mean - predicted) < max(0.05 * abs(predicted), 2.5 * se), (mean, se, predicted)
 
 
@@ -317,3 +315,41 @@ def test_behind_a_plate_the_prediction_is_the_mean_of_tod_skies(
         predicted = obj.delta_r(angles, steps)
         assert abs(mean - predicted) < max(0.05 * abs(predicted), 2.5 * se), (mean, se, predicted)
         assert abs(mean - without.delta_r(angles, steps)) > 2.5 * se
+
+
+@pytest.fixture(scope="module")
+def centred(schedule):
+    return design.unit_moments(schedule, NSIDE, "ces", centroids=True)
+
+
+def test_read_exactly_the_objective_carries_the_samples_offsets(schedule, centred, theory):
+    """With the units' sums of the samples' offsets from their pixel centres, the objective read
+    exactly equals predict.expected_residual with the assignment's own centroid moments
+    (scanstats.centroid_moments of the written-out schedule) to rounding, for a budget with a
+    gain, a pointing offset, a beam ellipticity (whose terms reach h_-n) and an angle error;
+    the units' sums add up to the schedule's moments times the hits."""
+    budget = Systematics(
+        dg=(0.01, -0.01), rho_arcmin=3.0, chi_deg=30.0, ellipticity_b=0.05, pol_angle_deg=0.3
+    )
+    obj = exact_objective(centred, budget, theory, FWHM, evaluation="exact")
+    bare = exact_objective(
+        dataclasses.replace(centred, centroids=None), budget, theory, FWHM, evaluation="exact"
+    )
+    rng = np.random.default_rng(8)
+    for angles in (np.zeros(centred.n_units), rng.choice(ANGLES, centred.n_units)):
+        scan = centred.schedule(schedule, angles)
+        offsets = scanstats.centroid_moments(scan, NSIDE)
+        expected = predict.expected_residual(
+            centred.full_sky(centred.h(angles)), centred.mask, budget, theory, FWHM,
+            lmax=obj.lmax, hits=centred.full_sky(centred.hits), evaluation="exact",
+            offsets=offsets,
+        )  # fmt: skip
+        want = predict.delta_r(expected.residual, obj.template)
+        assert obj.delta_r(angles) == pytest.approx(want, rel=1e-9)
+        assert abs(bare.delta_r(angles) / want - 1) > 0.05  # the offsets matter here
+    total = np.zeros((2, N_MAX + 1, centred.pixels.size), dtype=np.complex128)
+    np.add.at(total, (slice(None), slice(None), centred.index), centred.centroids)
+    offsets = scanstats.centroid_moments(
+        centred.schedule(schedule, np.zeros(centred.n_units)), NSIDE
+    )
+    np.testing.assert_allclose(total / centred.hits, offsets[:, :, centred.pixels], atol=1e-15)

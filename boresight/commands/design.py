@@ -125,7 +125,8 @@ def run(
     precompile.precompile(kernels, timer=timer)
     theory = load_spectra()
     with timer("per-unit spin moments"):
-        moments = unit_moments(schedule, opts.nside, opts.group)
+        exact = opts.evaluation == "exact"
+        moments = unit_moments(schedule, opts.nside, opts.group, centroids=exact)
         plate = _Plate.of(budget, schedule, moments)
     with timer("objective"):
         obj = exact_objective(
