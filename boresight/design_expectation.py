@@ -14,6 +14,12 @@ unit visited, plus a quadratic term from an 8 x 8 matrix per unit made once. Not
 white: on a real schedule's striped h_n the paper's approximation
 (:class:`boresight.design.Objective`) can rank strategies wrongly.
 
+The rows come in channels (:class:`Channel`), each a unit weight that an assignment turns by a
+phase: the pairs' h_1 .. h_4; read exactly, the sums of the samples' offsets from their pixel
+centres, which turn alike; behind a HWP, the plate's IP through the crossing angles' own h_2,
+turned by the boresight angle alone, while a stepped plate's step b turns the pairs' channels by
+2 n b as well, so that a unit's choice is an (angle, step) pair.
+
 The search (:func:`search`) enumerates every assignment where there are at most 3^10
 (:func:`exhaustive`); beyond, it is coordinate descent with moves of one unit and of two
 consecutive units (a slot's rising and setting CESs), from the best of the baselines and from
