@@ -17,6 +17,7 @@ def test_cached_spectra_are_the_paper_cosmology(theory):
     assert np.all(theory.bb_tensor[2:300] > 0) and theory.bb_lens[0] == 0
 
 
+@pytest.mark.slow
 def test_cache_matches_camb():
     pytest.importorskip("camb")
     fresh = cosmology.compute_spectra(lmax=1000)

@@ -58,6 +58,7 @@ def test_real_space_coupling_is_the_wigner_3j_matrices(survey, band):
     assert np.array_equal(tiny.pseudo_bb(np.ones(2), np.ones(2)), np.zeros(2))
 
 
+@pytest.mark.slow
 def test_coupling_predicts_monte_carlo_pseudo_cl():
     """<pseudo C_l> over 200 Gaussian skies of known C_l equals M C_l (E-only input: EE and BB,
     through the real-space coupling; TT through its matrix).

@@ -100,6 +100,7 @@ def test_the_readings_differ_where_the_values_are_read(moments, theory):
         exact_objective(moments, gain, theory, FWHM, evaluation="nearest")
 
 
+@pytest.mark.slow
 def test_the_enumeration_is_the_minimum_of_direct_evaluations(obj, moments):
     """exhaustive()'s optimum is a real assignment's direct value, and no one of 400 random
     assignments (nor a baseline of the allowed angles) evaluated directly is below it."""
@@ -113,6 +114,7 @@ def test_the_enumeration_is_the_minimum_of_direct_evaluations(obj, moments):
     assert min(obj(a) for a in trials) >= best.value - 1e-12 * abs(best.value)
 
 
+@pytest.mark.slow
 def test_the_descent_finds_the_global_optimum(obj, moments):
     """Coordinate descent with one- and two-unit moves and restarts, enumeration switched off:
     within 0.5 % of the enumerated optimum for every seed, and on it for at least 5 of 6."""
@@ -152,6 +154,7 @@ def test_change_cost_and_interrupt(moments, theory):
 
 @pytest.mark.xdist_group("timing")  # not beside the signals test (its latency)
 @pytest.mark.parametrize("evaluation", ["interp", "exact"])
+@pytest.mark.slow
 def test_the_prediction_is_the_mean_of_tod_skies(schedule, centred, theory, evaluation):
     """The TOD engine on the schedule's own samples, 8 skies per strategy, the sky read as the
     objective reads it: the mean total residual's delta_r equals the objective within 5 % or
@@ -236,6 +239,7 @@ def test_behind_a_plate_the_objective_is_the_expectation_of_the_reflected_h_n(
         exact_objective(moments, THROUGH, theory, FWHM, hwp=HWP("stepped", angle_jitter_deg=0.1))
 
 
+@pytest.mark.slow
 def test_a_plates_ip_is_designed_by_the_boresight_and_the_pairs_by_the_steps(moments, theory):
     """With the plate's IP alone the steps do not matter and the search's optimum is the
     boresight's alone; with the pairs' gain alone the objective depends on a + 2 b only. With
@@ -322,6 +326,7 @@ def centred(schedule):
     return design.unit_moments(schedule, NSIDE, "ces", centroids=True)
 
 
+@pytest.mark.slow
 def test_read_exactly_the_objective_carries_the_samples_offsets(schedule, centred, theory):
     """With the units' sums of the samples' offsets from their pixel centres, the objective read
     exactly equals predict.expected_residual with the assignment's own centroid moments

@@ -141,6 +141,7 @@ def toast_run(tmp_path_factory):
     return d, data, fp, float(Time(start, format="unix").delta_ut1_utc)
 
 
+@pytest.mark.slow
 def test_toast_hdf5_focal_plane_reads_without_toast(toast_run):
     """TOAST's own file gives its positions, angles and pairs (TOAST's 'pixel' column)."""
     d, _, fp, _ = toast_run
@@ -289,6 +290,7 @@ def test_a_bad_focal_plane_exits_2_naming_it(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_per_detector_so_maps_match_toasts_own_hn(toast_run, tmp_path):
     """scan-stats --focalplane (TOAST's HDF5) --format so --per-detector of TOAST's schedule writes
     each detector's maps as sotodlib's Hn bins TOAST's own pointing (psi = the ISO angle of the
@@ -361,6 +363,7 @@ def test_per_detector_files_refuse_names_no_file_can_take(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_scan_stats_runs_a_focal_planes_blocks_on_a_local_cluster(tmp_path):
     """--scheduler local writes the maps --scheduler serial writes."""
     pytest.importorskip("dask.distributed")

@@ -76,6 +76,7 @@ def test_a_schedule_in_integers_or_floats_calls_the_ces_kernels_at_one_signature
             assert types + extra == precompile.KERNELS["ces_hits"].signature
 
 
+@pytest.mark.slow
 def test_every_job_calls_its_kernels_at_their_registered_signatures(tmp_path):
     # a fresh process, in which each job precompiles its kernels: a kernel called with other
     # argument types would compile a second signature
@@ -103,6 +104,7 @@ assert precompile.precompile(names, nthreads=2) == []
 """
 
 
+@pytest.mark.slow
 def test_a_helper_compiles_its_share_into_the_cache(tmp_path):
     # an empty cache; this process compiles offset_points, the helper _response, which this
     # process then loads from the cache (a hit, no miss)

@@ -33,12 +33,14 @@ def _peak_and_estimate(args, out):
 
 
 @pytest.mark.parametrize("command, nside", CASES)
+@pytest.mark.slow
 def test_memory_estimate_is_within_1p5_of_the_measured_peak(command, nside, tmp_path):
     peak, estimate = _peak_and_estimate(command_args(command, tmp_path, nside), tmp_path / "o")
     ratio = estimate["memory_gib"] / peak
     assert 1 / FACTOR < ratio < FACTOR, (command, nside, peak, estimate)
 
 
+@pytest.mark.slow
 def test_beam_analysis_grids_and_convolution_cubes_are_estimated(tmp_path):
     """A narrow elliptical beam's analysis grid (it peaked at 6.8 GiB against an estimate of
     0.036 GiB) and one convolution cube per drawn beam (64 beams kept 19.7 GiB): each estimated

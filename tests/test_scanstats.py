@@ -126,6 +126,7 @@ def test_rotation_cancels_h2_only_on_the_axis():
     assert turned[1]["abs_h2_sq"] > 0.3 * fixed[1]["abs_h2_sq"]
 
 
+@pytest.mark.slow
 def test_focal_plane_blocks_on_dask_give_the_serial_result_to_the_bit(monkeypatch):
     """Blocks of pairs as tasks on a local Dask cluster add up in block order: the same result
     as in this process, whichever worker finishes first."""

@@ -46,6 +46,7 @@ def _table(out):
     return (out / "results.csv").read_text()
 
 
+@pytest.mark.slow
 def test_serial_and_local_cluster_give_identical_tables(tmp_path):
     path = _sweep_files(tmp_path)
     a = sweep.run_sweep(path, tmp_path / "serial", scheduler="serial")
@@ -101,6 +102,7 @@ def test_sweep_validation(tmp_path):
     assert raw["scan"]["rotations_deg"] == [0.0, 90.0]
 
 
+@pytest.mark.slow
 def test_delta_r_recovers_input_r(theory):
     """Pure tensor skies (r = 0.05, B only) through the deep mask: the estimator returns r.
 

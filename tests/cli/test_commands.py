@@ -14,6 +14,7 @@ from boresight.schedule import (
 )
 
 
+@pytest.mark.slow
 def test_reproduce_quick_end_to_end(tmp_path):
     out = tmp_path / "paper"
     # Nside 256 is the lowest resolution at which every verdict holds (README); the quick
@@ -180,6 +181,7 @@ def test_compare_scans_cli(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_compare_scans_with_a_focal_plane(tmp_path):
     """The real scans seen by every pair from its place: on the axis, today's numbers; a 10 deg
     hexagon keeps h_2 through a 0/90 repeat (its pairs move on the sky as the boresight turns),

@@ -88,6 +88,7 @@ def _finite_csv(path):
 
 @SLOW_FUZZ
 @given(raw=small_studies(), command=st.sampled_from(["simulate", "predict", "scan-stats"]))
+@pytest.mark.slow
 def test_cli_runs_or_exits_2_and_never_writes_nan(raw, command, tmp_path_factory, capsys):
     work = tmp_path_factory.mktemp("cli")
     config = work / "study.toml"

@@ -8,6 +8,7 @@ import time
 
 import healpy as hp
 import numpy as np
+import pytest
 
 from boresight.cli import main
 
@@ -41,6 +42,7 @@ def _outputs(out):
     return (out / "spectra.csv").read_text(), np.array(maps)
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_moments_then_rerun_equals_an_uninterrupted_run(tmp_path):
     config = tmp_path / "study.toml"
     config.write_text(STUDY)

@@ -380,6 +380,7 @@ def test_stale_staging_directories_of_dead_runs_are_removed(tmp_path, study_file
     assert not stale.exists() and not replaced.exists() and foreign.exists()
 
 
+@pytest.mark.slow
 def test_sigterm_is_handled_like_ctrl_c(tmp_path, study_file):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "boresight.cli", "reproduce", "--quick", "--out", str(out)]

@@ -146,6 +146,7 @@ def _interrupted_run(args, delay, signum, capsys):
 #: measured while the other worker runs a design's TOD check on the same two cores
 @pytest.mark.xdist_group("timing")
 @pytest.mark.parametrize("command", list(COMMANDS))
+@pytest.mark.slow
 def test_signals_at_random_moments_end_cleanly(command, inputs, tmp_path, capsys):
     out = tmp_path / "out"
     # an uninterrupted run (reproduce's claims need Nside 256, so it exits 1 at 16), then one
@@ -187,6 +188,7 @@ def test_signals_at_random_moments_end_cleanly(command, inputs, tmp_path, capsys
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.slow
 def test_signals_during_the_imports_exit_cleanly(signum, inputs, tmp_path):
     """A fresh process, signalled while it imports numba and boresight (before it could run any
     job), exits 130 or 143 with one line and no traceback.

@@ -19,6 +19,7 @@ from boresight.sky import SkyConfig, make_sky
     "survey, sysm",
     [("deep", Systematics(dfwhm_b_arcmin=0.5)), ("wide", Systematics(ellipticity_b=0.03))],
 )
+@pytest.mark.slow
 def test_beam_cl_prediction_within_10_percent(survey, sysm, theory):
     """Nside 256, the paper's scans (random in-pixel hits): the C_ell-level prediction of the
     leaked power, with the hits' spread over their pixels (predict.hit_spread_window), against

@@ -42,6 +42,7 @@ def study(paper_sky):
 
 
 @pytest.mark.parametrize("survey", ["wide", "deep"])
+@pytest.mark.slow
 def test_map_level_prediction_within_10_percent(survey, study, paper_sky):
     s = study[survey]
     dp = predict.delta_p(paper_sky, s["h"], CASES[survey]) * s["obs"]
@@ -54,6 +55,7 @@ def test_map_level_prediction_within_10_percent(survey, study, paper_sky):
 
 
 @pytest.mark.parametrize("survey", ["wide", "deep"])
+@pytest.mark.slow
 def test_cl_level_prediction_within_10_percent(survey, study, paper_sky, theory):
     """Eq. 10 prediction against the leaked-power (auto) part of the simulated residual.
 

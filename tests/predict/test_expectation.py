@@ -103,6 +103,7 @@ def test_a_pair_angle_layout_without_m4_cancellation_is_refused(theory, schedule
         )
 
 
+@pytest.mark.slow
 def test_offsets_of_zero_change_nothing_and_the_wrong_size_is_refused(theory, schedule_h):
     """Samples at their pixel centres (zero offsets) give the expectation without offsets to
     rounding; offsets that lack a term's moment are one clear error."""

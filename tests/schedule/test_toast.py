@@ -155,6 +155,7 @@ def _toast_boresight(ob):
     return qarray.to_iso_angles(np.asarray(ob.shared["boresight_radec"]))
 
 
+@pytest.mark.slow
 def test_pointing_matches_toast_simground(toast_files, toast_sim):
     """Azimuth within 0.01 arcsec, psi_boresight - psi_TOAST within 0.02 deg of 180 deg and
     positions within 50 arcsec of TOAST's J2000 on CESs at every boresight angle, in December
@@ -247,6 +248,7 @@ def test_so_maps_match_toast_hn_maps_in_j2000(toast_files, toast_sim, tmp_path):
         )
 
 
+@pytest.mark.slow
 def test_turnarounds_match_toast_flags_and_can_be_left_out(toast_files, toast_sim, tmp_path):
     """boresight's turnarounds are TOAST's turnaround intervals to one sample in 50000 (where a
     sample falls on an interval's edge), and ``--turnarounds exclude`` bins TOAST's unflagged
