@@ -34,7 +34,7 @@ from .predict import R_RANGE, delta_r
 from .predict import field_products as fp
 from .predict import focalplane as predict_fp
 from .predict.expectation import leak_terms, sky_fields, smoothed_spectra
-from .scanstats import characterise_focalplane
+from .scanstats import N_MAX, characterise_focalplane
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -187,25 +187,36 @@ class DenseForm:
 
 
 class _Terms:
-    """The focal plane's terms of dP and the kernels of delta_r over them (fixed per budget)."""
+    """The focal plane's terms of dP and the kernels of delta_r over them (fixed per budget):
+    ``terms`` lists each term's key among the pairs' shares and its moment n; the beams' terms
+    (:func:`boresight.predict.focalplane.beam_groups`) are keyed ("beam", group, n), their
+    shares 1 on the group's pairs."""
 
-    def __init__(self, systematics, theory, fwhm_arcmin, nside, lmax, template, hits, evaluation):
+    def __init__(self, target, nside, hits, groups):
+        systematics, theory, fwhm_arcmin, _, template, lmax, evaluation = target
         self.lmax, self.band, self.lw = lmax, lmax, 2 * lmax
         read = sky_fields(nside, lmax, hits=hits, evaluation=evaluation)
         fields = read[0]
-        self.terms = leak_terms(systematics, read)
-        spins, kinds = [], []
-        for n, kind, _ in self.terms.values():  # each term, then its H_4 conjugate
+        named = leak_terms(systematics, read)
+        self.terms = [(name, n) for name, (n, _, _) in named.items()]
+        spins, term_fields = [], []
+        for n, kind, _ in named.values():  # each term, then its H_4 conjugate
             spins += [n, 4 - n]
-            kinds += [kind, predict_fp.CONJUGATE_FIELD[kind]]
+            term_fields += [fields[kind], fields[predict_fp.CONJUGATE_FIELD[kind]]]
+        for g, group in enumerate(groups):
+            for n, filt in group.filters.items():
+                field = predict_fp.beam_sky_field(filt, n, read[2].window)
+                self.terms.append((("beam", g, n), n))
+                spins += [n, 4 - n]
+                term_fields += [field, predict_fp.conjugate_field(field)]
         spins.append(0)  # the sky's own P, with the mask's weight
-        kinds.append("polarisation")
+        term_fields.append(fields["polarisation"])
         self.spins = spins
         weight_l = np.zeros(lmax + 1)
         lo, hi = R_RANGE[0], min(R_RANGE[1], lmax)
         weight_l[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
         sky_cl = smoothed_spectra(theory, fwhm_arcmin, lmax)
-        kappa = fp.bb_kernels(spins, [fields[k] for k in kinds], sky_cl, weight_l)
+        kappa = fp.bb_kernels(spins, term_fields, sky_cl, weight_l)
         rows = list(range(len(spins)))
         self.form = _form(spins, *kappa, self.lw, rows, 2 * len(spins))
 
@@ -246,6 +257,10 @@ def linearised(
     focal, npix = sums.focalplane, mask.size
     params, drawn = predict_fp.at_means(systematics, focal.n_pairs)
     shares = predict_fp.pair_shares(params, focal)
+    groups = predict_fp.beam_groups(params, focal, fwhm_arcmin, lmax, n_max=N_MAX)
+    for g, group in enumerate(groups):
+        for n in group.filters:
+            shares["beam", g, n] = np.isin(np.arange(focal.n_pairs), group.pairs) * 1.0
     deltas = [(rms, d) for _, rms, d in predict_fp.unit_shares(params, drawn, shares, focal)]
     hits, s4 = np.zeros(npix), np.zeros(npix, dtype=np.complex128)
     for u, k in enumerate(reference):
@@ -256,7 +271,7 @@ def linearised(
     ok = (hits > 0) & ((1 - np.abs(h4)) >= predict_fp.RCOND_EXPECTATION * (1 + np.abs(h4)))
     solved = mask * ok  # the reference's valid pixels (predict.focalplane.valid)
     inverse = np.where(ok, solved / np.where(ok, hits * (1.0 - np.abs(h4) ** 2), 1.0), 0.0)
-    terms = _Terms(systematics, theory, fwhm_arcmin, sums.nside, lmax, template, hits, evaluation)
+    terms = _Terms(target, sums.nside, hits, groups)
     n_units, n_allowed = sums.unit_count, sums.allowed_deg.size
     rows = 2 * len(terms.spins)
     nalm = fp.weight_alm(fp.Weight(0, np.zeros(npix, dtype=complex), None), terms.lw).shape[1]
@@ -287,8 +302,9 @@ def linearised(
 
 def _pair_alm(sums, i, inverse, h4, terms, nthreads):
     """Pair i's weight alm per unit and angle, by moment: w S_n,i / (N det) (spin n) and its
-    H_4 conjugate -w H_4 conj(S_n,i) / (N det) (spin 4 - n), {n: (U, K, 2, nalm)} each."""
-    moments = sorted({n for n, _, _ in terms.terms.values()})
+    H_4 conjugate -w H_4 conj(S_n,i) / (N det) (spin 4 - n), {n: (U, K, 2, nalm)} each;
+    S_-n = conj(S_n)."""
+    moments = sorted({n for _, n in terms.terms})
     direct, conj = {n: [] for n in moments}, {n: [] for n in moments}
     weight = np.zeros(inverse.size, dtype=np.complex128)
     for u in range(sums.unit_count):
@@ -299,10 +315,11 @@ def _pair_alm(sums, i, inverse, h4, terms, nthreads):
             interrupts.check()
             pix, s = sums.pixels[u][k], sums.sums[u][k][i]
             for n in moments:
+                moment = s[n] if n >= 0 else np.conj(s[-n])
                 weight[:] = 0.0
-                weight[pix] = inverse[pix] * s[n]
+                weight[pix] = inverse[pix] * moment
                 direct[n][-1].append(fp.weight_alm(fp.Weight(n, weight, None), terms.lw, nthreads))
-                weight[pix] = -inverse[pix] * h4[pix] * np.conj(s[n])
+                weight[pix] = -inverse[pix] * h4[pix] * np.conj(moment)
                 conj[n][-1].append(
                     fp.weight_alm(fp.Weight(4 - n, weight, None), terms.lw, nthreads)
                 )
@@ -313,8 +330,10 @@ def _rows(direct, conj, terms, share):
     """(U, K, rows, nalm): every term's (E, B), then its conjugate's, for one pair's shares."""
     any_n = next(iter(direct.values()))
     out = np.zeros((*any_n.shape[:2], 2 * len(terms.spins), any_n.shape[-1]), dtype=np.complex128)
-    for t, (name, (n, _, _)) in enumerate(terms.terms.items()):
-        c = share[name]
+    for t, (key, n) in enumerate(terms.terms):
+        c = share.get(key, 0.0)  # the beams' terms are not drawn: no change of their shares
+        if c == 0:
+            continue
         for u in range(out.shape[0]):
             for k in range(out.shape[1]):
                 out[u, k, 4 * t : 4 * t + 2] = _rotate(direct[n][u, k], c)

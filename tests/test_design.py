@@ -104,6 +104,7 @@ def test_units_follow_the_schedule(schedule, moments):
     assert designed.repeat_boresight_deg == (0.0,) and len(designed.ces) == moments.n_units
 
 
+@pytest.mark.slow
 def test_gain_alone_is_cancelled_by_90_degree_pairs(moments, theory):
     """The design rule: with a gain error only, the search over {0, 90} makes h_2 vanish (each
     CES and its repeat at 0 and 90 deg), leaving the h_4 E-to-B term."""
@@ -184,6 +185,7 @@ def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
 
 
 @pytest.mark.xdist_group("timing")  # not beside the signals test (its latency)
+@pytest.mark.slow
 def test_design_command_on_the_deep_example(tmp_path):
     """The check: the gain + pointing + ellipticity budget of examples/budget_deep_sat.toml on
     examples/schedule_deep_sat.toml, at Nside 64 with 2 skies per strategy (the bench runs the
@@ -221,6 +223,7 @@ def test_design_command_on_the_deep_example(tmp_path):
     assert (out / "design.png").stat().st_size > 0 and (out / "hn_before_after.png").is_file()
 
 
+@pytest.mark.slow
 def test_design_command_speaks_toast_and_refuses_bad_budgets(tmp_path, schedule):
     from boresight.schedule import toast
 
@@ -263,6 +266,7 @@ def test_ctrl_c_during_the_search_keeps_the_best_schedule(tmp_path, schedule, mo
     assert not (out / "validation.csv").exists()
 
 
+@pytest.mark.slow
 def test_interrupt_during_the_validation_keeps_the_finished_design(
     tmp_path, schedule, monkeypatch, capsys
 ):
@@ -295,6 +299,7 @@ def test_interrupt_during_the_validation_keeps_the_finished_design(
         assert not (out / "validation.csv").exists()
 
 
+@pytest.mark.slow
 def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule):
     """`[instrument] focalplane = "axis"` (the paper's pairs on the boresight, each pair on its
     own samples) gives every strategy the on-axis objective's delta_r, to rounding: the
@@ -316,17 +321,21 @@ def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule
         assert abs(parts - total) < 1e-12 * abs(total)
 
 
+@pytest.mark.slow
 def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, schedule):
-    """TOAST's 7-pixel, 20 deg hexagon: every strategy gets the focal plane's delta_r, its
-    coherent and scattered parts adding up, beside the on-axis search objective's, and
-    validation.csv runs every strategy's TOD on the focal plane (engine.simulate_focalplane)
-    against that prediction. The search runs on the focal plane's own per-angle moments and ends
-    at or below every baseline it could start from."""
+    """TOAST's 7-pixel, 20 deg hexagon, a gain drawn per pair, a pointing offset and an
+    elliptical beam: every strategy gets the focal plane's delta_r, its coherent and scattered
+    parts adding up, beside the on-axis search objective's, and validation.csv runs every
+    strategy's TOD on the focal plane (engine.simulate_focalplane, each detector through its own
+    beam) against that prediction. The search runs on the focal plane's own per-angle moments
+    (the beams' terms through each pair's own h_n) and ends at or below every baseline it could
+    start from."""
     import csv
 
     budget = _budget(
         tmp_path,
-        systematics="dg = {mean = 0.002, rms = 0.002}\nrho_arcmin = 0.5\nseed = 3",
+        systematics="dg = {mean = 0.002, rms = 0.002}\nrho_arcmin = 0.5\nellipticity_a = 0.02\n"
+        "seed = 3",
         design="nside = 16\nsweeps = 4\nrestarts = 1\nvalidation_skies = 2\n"
         "angles_deg = [0.0, 45.0, 90.0]",
         instrument='focalplane = "hexagon:7:20"',
@@ -338,7 +347,6 @@ def test_design_on_a_hexagon_focal_plane_reports_every_strategy_on_it(tmp_path, 
         assert coherent > 0 and scattered > 0
         assert abs(coherent + scattered - float(row["delta_r"])) < 1e-12 * coherent
     # the search on the focal plane's own moments beats every baseline it could start from
-    # (here 0/180 at 0.106 on the focal plane; the on-axis search's optimum there was 0.155)
     startable = ("none", "paper 0/90", "stepped", "random")  # within the allowed 0, 45, 90
     best = min(float(rows[k]["delta_r"]) for k in startable)
     assert float(rows["optimised"]["delta_r"]) <= best
@@ -372,6 +380,7 @@ def test_a_budget_focal_plane_is_checked(tmp_path):
     assert budget.focalplane.n_pairs == 37 and predict.supports(budget.instrument)
 
 
+@pytest.mark.slow
 def test_a_design_read_exactly_validates_with_the_samples_offsets(tmp_path, schedule):
     """`evaluation = "exact"`: the TOD check reads the band-limited sky at every sample, and
     the prediction it is checked against carries the samples' offsets from their pixel centres,
@@ -400,6 +409,7 @@ def test_a_design_read_exactly_validates_with_the_samples_offsets(tmp_path, sche
         )
 
 
+@pytest.mark.slow
 def test_design_behind_a_stepped_plate_chooses_its_steps(tmp_path, schedule):
     """A budget with a stepped HWP (its IP 5e-3) and a gain mismatch: the search chooses each
     unit's boresight angle and plate step. The IP needs the boresight (a 0/90 pair of repeats of
@@ -429,6 +439,7 @@ def test_design_behind_a_stepped_plate_chooses_its_steps(tmp_path, schedule):
     assert only_ip.hwp.ip == 1e-3
 
 
+@pytest.mark.slow
 def test_design_behind_a_continuous_plate_is_its_objective(tmp_path, schedule, moments, theory):
     """Behind a plate spinning at 0.3 Hz (2 Hz samples), the command's delta_r of every
     strategy is the exact objective with the units' moments of psi + 2 chi, and the search

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
     from ..cosmology import Spectra
     from ..coupling import Coupling
-    from ..instrument import Instrument, Systematics
+    from ..instrument import Instrument, PairParameters, Systematics
     from ..sky import Sky
     from .sky_spectra import FieldSpectra
     from .windows import _HitSpread
@@ -65,11 +65,52 @@ def beam_filters(
         n -> complex array of shape (3, lmax + 1); h_{-n} = conj(h_n).
     """
     instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
+    return pairs_beam_filters(
+        par,
+        instrument.pair_angles_rad,
+        alpha,
+        systematics.per_repeat(alpha.size),
+        fwhm_arcmin=fwhm_arcmin,
+        lmax=lmax,
+        n_max=n_max,
+    )
+
+
+def pairs_beam_filters(
+    par: PairParameters,
+    pair_angles: np.ndarray,
+    alpha: np.ndarray,
+    dg_repeat: np.ndarray,
+    *,
+    fwhm_arcmin: float,
+    lmax: int,
+    n_max: int = BEAM_N_MAX,
+) -> dict[int, np.ndarray]:
+    """:func:`beam_filters` of pairs given by their parameters: the mean over the pairs and the
+    repeats of each pair's filters. For one pair, its own (a focal plane's pairs each have their
+    own moments, :mod:`boresight.predict.focalplane`).
+
+    Parameters
+    ----------
+    par : boresight.instrument.PairParameters
+        (M,) each.
+    pair_angles : numpy.ndarray, shape (M,)
+        The pairs' nominal angles [rad].
+    alpha, dg_repeat : numpy.ndarray, shape (K,)
+        The repeats' rotations [rad] and gain drifts.
+    fwhm_arcmin : float
+    lmax, n_max : int
+
+    Returns
+    -------
+    dict of int to numpy.ndarray
+        As :func:`beam_filters`.
+    """
     nominal = fwhm_arcmin * ARCMIN
     smoothing = hp.gauss_beam(nominal, lmax=lmax, pol=True).T[:3]  # (T, E, B), (3, lmax + 1)
     kmax = n_max + 2
-    ang = alpha[:, None] + instrument.pair_angles_rad[None, :]  # (K, M)
-    gain_b = 1 - (par.dg[None, :] + systematics.per_repeat(alpha.size)[:, None])
+    ang = alpha[:, None] + pair_angles[None, :]  # (K, M)
+    gain_b = 1 - (par.dg[None, :] + dg_repeat[:, None])
     offset = {  # c_X: the detector's angle from the assumed one
         "a": par.pol_angle - 0.5 * par.nonortho,
         "b": par.pol_angle + 0.5 * par.nonortho + np.pi / 2,
@@ -88,7 +129,7 @@ def beam_filters(
                 for n, phase in ((2 - k, 1j * (2 - k)), (2 + k, -1j * (2 + k)))[: 1 + (k > 0)]:
                     if abs(n) <= n_max:
                         out[n] += np.mean(weight * np.exp(phase * ang[:, m] - 1j * k * c)) * g[k]
-    n = instrument.n_pairs
+    n = pair_angles.size
     return {key: f / n / np.where(smoothing > 0, smoothing, np.inf) for key, f in out.items()}
 
 

@@ -30,9 +30,10 @@ from .. import harmonics
 from ..constants import DEG
 from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
-from ..instrument import LIMITS, UNITS, Spread, Systematics
+from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
 from ..spectra import as_footprint
 from . import field_products as fp_products
+from .beam_fields import _beam_field, pairs_beam_filters
 from .coefficients import _pair_terms
 from .expectation import ExpectedResidual, leak_terms, sky_fields, smoothed_spectra
 from .windows import hit_spread_window
@@ -54,8 +55,6 @@ def _check(stats, systematics):
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:
         check_hwp_systematics(systematics)
-    if systematics.has_beams:
-        raise ValueError("beam systematics are not yet predicted for a focal plane")
 
 
 def pair_shares(params, focalplane) -> dict:
@@ -66,13 +65,89 @@ def pair_shares(params, focalplane) -> dict:
     return _pair_terms(params, angles, np.zeros(1), np.zeros(1))
 
 
+class BeamGroup(NamedTuple):
+    """Pairs whose beams give one set of filters: their indices and the filters of one of them
+    (:func:`boresight.predict.beam_fields.pairs_beam_filters`), n -> (3, band + 1)."""
+
+    pairs: np.ndarray
+    filters: dict
+
+
+def beam_groups(params, focalplane, fwhm_arcmin, band, *, n_max) -> list[BeamGroup]:
+    """The pairs' beam terms, grouped by the parameters their filters depend on (the pair's
+    angle, beams, gain and angle errors), so that a focal plane of many alike pairs makes one set
+    of fields per group. Each pair's h_n carries its own terms h_n G_n, abs(n) <= n_max (the
+    moments the focal plane's statistics hold: the ellipticity's eth^2 P at h_6 is left out, a
+    polarisation-sized term); h_{-n} is conj(h_n). Empty without beams.
+
+    Parameters
+    ----------
+    params : boresight.instrument.PairParameters
+        Each pair's parameters (the means of drawn ones).
+    focalplane : boresight.focalplane.FocalPlane
+    fwhm_arcmin : float
+        The sky's beam.
+    band, n_max : int
+
+    Returns
+    -------
+    list of BeamGroup
+    """
+    beams = ("dfwhm_a", "dfwhm_b", "ellipticity_a", "ellipticity_b")
+    if not any(np.any(getattr(params, k)) for k in beams):
+        return []
+    angles = np.asarray(focalplane.pair_angles_deg, dtype=np.float64) * DEG
+    keys = np.column_stack([angles, *params])
+    _, first, which = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    zero = np.zeros(1)
+    out = []
+    for g, i in enumerate(first):
+        one = PairParameters(*(np.asarray(p)[i : i + 1] for p in params))
+        filters = pairs_beam_filters(
+            one, angles[i : i + 1], zero, zero, fwhm_arcmin=fwhm_arcmin, lmax=band, n_max=n_max
+        )
+        kept = {n: f for n, f in filters.items() if np.any(f)}
+        out.append(BeamGroup(np.flatnonzero(which.ravel() == g), kept))
+    return out
+
+
+def _group_y(stats, weights, group, n):
+    """sum over the group's pairs of N_i / N h_n,i (npix,) complex; h_-n = conj(h_n)."""
+    h = stats.pair_h[group.pairs, abs(n)]
+    y = np.einsum("ip,ip->p", weights[group.pairs], h)
+    return y if n >= 0 else np.conj(y)
+
+
+def beam_sky_field(filt, n, window):
+    """G_n of a filter as a sky field, read through ``window``: spin 2 - n (n > 2: conj(H_n))."""
+    return fp_products.SkyField(2 - n, filt * window[: filt.shape[1]])
+
+
+def _spread_window(sky):
+    """The amplitude window of a field's mean over hits spread uniformly over a pixel."""
+    return np.sqrt(np.clip(hit_spread_window(sky.nside, sky.lmax), 0.0, None))
+
+
+def _sky_beam_y(sky, stats, params, weights, spread, nthreads):
+    """The beams' part of Y on this sky, sum over groups and n of the group's h_n times its G_n
+    (npix,), each G_n read exactly at the hits (their pixel mean with ``spread``)."""
+    y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
+    n_max = stats.pair_h.shape[1] - 1
+    window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
+    for group in beam_groups(params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max):
+        for n, filt in group.filters.items():
+            field = _beam_field(sky, filt * window[: filt.shape[1]], abs(2 - n), nthreads)
+            y += _group_y(stats, weights, group, n) * (np.conj(field) if n > 2 else field)
+    return y
+
+
 def _fields(sky, systematics, template, spread, nthreads):
     """The sky's fields each term multiplies: T, P and P*, the leak's template, the gradient G
     and G*; with ``spread``, each as its mean over hits spread uniformly over a pixel (its alm
     times the square root of :func:`~boresight.predict.windows.hit_spread_window`)."""
     alm = sky.alm
     if spread:
-        window = np.sqrt(np.clip(hit_spread_window(sky.nside, sky.lmax), 0.0, None))
+        window = _spread_window(sky)
         alm = np.array([harmonics.almxfl(a, window) for a in alm])
         t = harmonics.alm2map(alm[0], sky.nside, nthreads=nthreads)
         q, u = harmonics.alm2map(alm[1:], sky.nside, spin=2, nthreads=nthreads)
@@ -150,10 +225,14 @@ def delta_p(
     _check(stats, systematics)
     if stats.hwp is not None:
         systematics = reflected_systematics(stats.hwp, systematics)
-    shares = pair_shares(systematics.per_pair(stats.focalplane.n_pairs), stats.focalplane)
+    params = systematics.per_pair(stats.focalplane.n_pairs)
+    shares = pair_shares(params, stats.focalplane)
     fields = _fields(sky, systematics, template, spread, nthreads)
     weights = _weights(stats)
-    return _solve(_y(stats, weights, shares, fields), _h4(stats, weights, shares))
+    y = _y(stats, weights, shares, fields) + _sky_beam_y(
+        sky, stats, params, weights, spread, nthreads
+    )
+    return _solve(y, _h4(stats, weights, shares))
 
 
 def _pair_mean_w4(moments, terms, what, pair_angles_deg):
@@ -385,7 +464,8 @@ def expected_leak_bb(
         b = footprint.alm(np.array([d.real, d.imag]), lmax, 2, nthreads=nthreads)[1]
         return harmonics.alm2cl(b)
 
-    coherent = bb(_y(stats, weights, shares, fields))
+    beams = _sky_beam_y(sky, stats, params, weights, spread, nthreads)
+    coherent = bb(_y(stats, weights, shares, fields) + beams)
     scattered = np.zeros(lmax + 1)
     for field, rms in drawn:
         unit = params._asdict()
@@ -522,34 +602,58 @@ def expected_residual(
     fields, terms = read[0], leak_terms(systematics, read)
     sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)
 
-    def leak(term_shares, pairs=slice(None)):
-        """The weights' alm, spins and fields of dP for coefficient shares over ``pairs``."""
-        alms, spins, kinds = [], [], []
-        for name, (n, kind, _) in terms.items():
-            y = np.einsum(
-                "i,ip,ip->p", term_shares[name][pairs], weights[pairs], stats.pair_h[pairs, n]
-            )
+    def weighted(items):
+        """The weights' alm, spins and fields of dP for terms (y, n, field, conjugate field) of
+        Y: y F and, where H_4 != 0, -H_4 conj(y) conj(F)."""
+        alms, spins, term_fields = [], [], []
+        for y, n, field, conj_field in items:
             alms.append(
                 fp_products.weight_alm(fp_products.Weight(n, inverse * y, None), lw, nthreads)
             )
             spins.append(n)
-            kinds.append(kind)
+            term_fields.append(field)
             if conjugate:
                 z = -inverse * h4 * np.conj(y)
                 alms.append(
                     fp_products.weight_alm(fp_products.Weight(4 - n, z, None), lw, nthreads)
                 )
                 spins.append(4 - n)
-                kinds.append(CONJUGATE_FIELD[kind])
-        return alms, spins, [fields[k] for k in kinds]
+                term_fields.append(conj_field)
+        return alms, spins, term_fields
+
+    def leak(term_shares, pairs=slice(None)):
+        """The terms of Y for coefficient shares over ``pairs``."""
+        return [
+            (
+                np.einsum(
+                    "i,ip,ip->p", term_shares[name][pairs], weights[pairs], stats.pair_h[pairs, n]
+                ),
+                n,
+                fields[kind],
+                fields[CONJUGATE_FIELD[kind]],
+            )
+            for name, (n, kind, _) in terms.items()
+        ]
+
+    exact = read[2]
+    groups = beam_groups(params, focal, fwhm_arcmin, band, n_max=stats.pair_h.shape[1] - 1)
+    beams = [
+        (_group_y(stats, weights, group, n), n, field, conjugate_field(field))
+        for group in groups
+        for n, filt in group.filters.items()
+        for field in (beam_sky_field(filt, n, exact.window),)
+    ]
 
     def bb(alms, spins, term_fields):
         return fp_products.expected_pseudo_cl_alm(alms, spins, term_fields, sky_cl, lmax).bb
 
-    alms, spins, term_fields = leak(shares)
+    alms, spins, term_fields = weighted(leak(shares) + beams)
     sky = [fp_products.weight_alm(fp_products.Weight(0, solved + 0j, None), lw, nthreads)]
     sky_terms = ([0], [fields["polarisation"]])
-    scatter = _scatter(stats, terms, fields, sky_cl, solved, shares, params, drawn) if spread else 0
+    scatter = 0.0
+    if spread:
+        scatter = _scatter(stats, terms, fields, sky_cl, solved, shares, params, drawn)
+        scatter += _beam_scatter(stats, groups, exact, sky_cl, solved)
     scatter = scatter + jitter_bb(stats, systematics, solved, sky_cl, shares=shares, h4=h4)
     leaked = bb(alms, spins, term_fields) + scatter
     total = bb(alms + sky, spins + sky_terms[0], term_fields + sky_terms[1])
@@ -557,7 +661,7 @@ def expected_residual(
     scattered = np.zeros(lmax + 1)
     for _, rms, delta in unit_shares(params, drawn, shares, focal):
         for i in range(focal.n_pairs):
-            scattered += rms**2 * bb(*leak(delta, slice(i, i + 1)))
+            scattered += rms**2 * bb(*weighted(leak(delta, slice(i, i + 1))))
     return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
 
 
@@ -625,12 +729,42 @@ def _scatter(stats, terms, fields, sky_cl, mask, shares, params, drawn):
     of E``|sum_i c_i|^2`` (its pairs' p0) over the number of pairs."""
     if "p0" not in terms:
         return 0.0
-    places = np.unique(np.round(stats.focalplane.vectors(), 12), axis=0, return_inverse=True)[1]
+    places = _places(stats.focalplane)
     power = 0.0
     for g in np.unique(places):
-        at = places.ravel() == g
+        at = places == g
         power += abs(np.sum(shares["p0"][at])) ** 2
         for _, rms, delta in unit_shares(params, drawn, shares, stats.focalplane):
             power += rms**2 * np.sum(np.abs(delta["p0"][at]) ** 2)
     _, kind, reading = terms["p0"]
     return reading.scatter(fields[kind], sky_cl, power / stats.focalplane.n_pairs, mask)
+
+
+def _places(focalplane):
+    """Each pair's place in the focal plane, an index (n_pairs,): pairs at one place share their
+    samples."""
+    return np.unique(np.round(focalplane.vectors(), 12), axis=0, return_inverse=True)[1].ravel()
+
+
+def _beam_scatter(stats, groups, reading, sky_cl, mask):
+    """The beams' h_0 term's in-pixel scatter (as :func:`_scatter`'s): per place, the field
+    sum over its pairs of G_0,i, each pair-sample's departure from its pixel's mean."""
+    places = _places(stats.focalplane)
+    total = 0.0
+    for g in np.unique(places):
+        filters = [
+            np.count_nonzero(places[group.pairs] == g) * group.filters[0]
+            for group in groups
+            if 0 in group.filters
+        ]
+        if filters:
+            field = beam_sky_field(sum(filters), 0, reading.window)
+            total += reading.scatter(field, sky_cl, 1.0 / stats.focalplane.n_pairs, mask)
+    return total
+
+
+def conjugate_field(field):
+    """conj(F) of a sky field of any spin."""
+    if field.spin == 0:
+        return fp_products.SkyField(0, np.conj(field.filters))
+    return fp_products.SkyField(-field.spin, field.filters)
