@@ -25,6 +25,7 @@ from _table import report
 from bench_ground import CES as DAY
 
 from boresight import focalplane, scanstats
+from boresight.pointing import ces_chunks
 from boresight.schedule import Schedule
 from boresight.schedule import toast as toast_files
 
@@ -37,6 +38,19 @@ def _boresight(schedule, fp, nside, threads):
     numba.set_num_threads(threads)
     t0 = time.perf_counter()
     scanstats.characterise_focalplane(schedule, fp, nside)
+    return time.perf_counter() - t0
+
+
+def _pointing_only(schedule, fp, nside):
+    """Seconds of the pointing alone, on one core: every pair's pixel, crossing angle and angle
+    bin per sample (scanstats.ces_hits_pairs), nothing binned."""
+    numba.set_num_threads(1)
+    vectors = np.ascontiguousarray(fp.vectors())
+    gammas, none = np.radians(fp.gamma_deg), np.zeros(0)
+    nbins = 360  # characterise_focalplane's bins at its default tolerance of 1 deg
+    t0 = time.perf_counter()
+    for _, _, args in ces_chunks(schedule, (1 << 20) // fp.n_pairs):
+        scanstats.ces_hits_pairs(*args, nside, nbins, False, vectors, none, gammas)
     return time.perf_counter() - t0
 
 
@@ -80,54 +94,43 @@ def _toast(schedule, n_pix, nside):
     return time.perf_counter() - t0, samples
 
 
+def _row(code, detectors, samples, seconds, cores=1):
+    return dict(
+        code=code,
+        detectors=detectors,
+        detector_samples=samples,
+        seconds=seconds,
+        per_core_per_s=samples / seconds / cores,
+    )
+
+
 def main(nside):
     cores = numba.get_num_threads()
     short = Schedule(CES_DAY[:2], sample_rate_hz=RATE)
     fp = focalplane.hexagon(37, 35.0)
     detectors = 2 * fp.n_pairs
     _boresight(Schedule(CES_DAY[:1], sample_rate_hz=1.0), fp, nside, cores)  # compile
-    rows = []
     n_det = short.n_samples * detectors
-    for threads in (1, cores):
-        t = _boresight(short, fp, nside, threads)
-        rows.append(
-            dict(
-                code=f"boresight, {threads} core{'s' * (threads > 1)}",
-                detectors=detectors,
-                detector_samples=n_det,
-                seconds=t,
-                per_core_per_s=n_det / t / threads,
-            )
-        )
+    rows = [
+        _row(f"boresight, {n} core{'s' * (n > 1)}", detectors, n_det, t, n)
+        for n in (1, cores)
+        for t in (_boresight(short, fp, nside, n),)
+    ]
+    t = _pointing_only(short, fp, nside)
+    rows.append(_row("boresight, 1 core: the pointing alone", detectors, n_det, t))
     try:
         t_toast, samples = _toast(short, 37, nside)
     except ImportError:
         t_toast = samples = None
     if t_toast is not None:
-        rows.append(
-            dict(
-                code="TOAST 3, 1 core",
-                detectors=detectors,
-                detector_samples=samples,
-                seconds=t_toast,
-                per_core_per_s=samples / t_toast,
-            )
-        )
+        rows.append(_row("TOAST 3, 1 core", detectors, samples, t_toast))
         for row in rows[:-1]:
             row["ratio_to_toast"] = row["per_core_per_s"] / rows[-1]["per_core_per_s"]
     big = focalplane.hexagon(547, 35.0)
     day = Schedule(CES_DAY, sample_rate_hz=RATE)
     t = _boresight(day, big, nside, cores)
     n_big = day.n_samples * 2 * big.n_pairs
-    rows.append(
-        dict(
-            code=f"boresight, {cores} cores: a day",
-            detectors=2 * big.n_pairs,
-            detector_samples=n_big,
-            seconds=t,
-            per_core_per_s=n_big / t / cores,
-        )
-    )
+    rows.append(_row(f"boresight, {cores} cores: a day", 2 * big.n_pairs, n_big, t, cores))
     if t_toast is not None:  # TOAST's per-core rate of the short run: a day of it would take 10 min
         rows[-1]["ratio_to_toast"] = rows[-1]["per_core_per_s"] / (samples / t_toast)
     report(
@@ -140,7 +143,9 @@ def main(nside):
             "its 547-pixel hexagon. TOAST: SimGround (pyephem), PointingDetectorSimple, "
             "PixelsHealpix and numpy binning as sotodlib's Hn, OMP_NUM_THREADS=1. boresight: "
             "scanstats.characterise_focalplane (hits, h_n, crossing-angle bitmaps and the "
-            "scattered sums), pointing computed once per pair."
+            "scattered sums), pointing computed once per pair; the pointing alone: each pair's "
+            "pixel, crossing angle and angle bin per sample (scanstats.ces_hits_pairs), the "
+            "floor of the whole."
         ),
     )
 

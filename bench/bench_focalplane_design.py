@@ -3,14 +3,14 @@ TOAST's 37-pixel, 35 deg hexagon, against the same pairs on the axis.
 
 The deep example schedule at 2 Hz (48 units: each CES, once per repeat), allowed angles 0, 45,
 90 deg, a gain {mean 0, rms 0.01} drawn per pair and a pointing offset {mean 1, rms 0.5} arcmin
-(or the gain alone, on the hexagon).
+(or the gain alone, on the hexagon; or both and an ellipticity of 0.02 on every detector A).
 For each focal plane the command designs on it (boresight.design_focalplane) and reports every
 strategy's exact expected delta_r on it, coherent and scattered, and the mean of SKIES TOD skies
 of it (every pair on its own samples, a new draw of the pairs per sky) with its standard error.
 It also times the design's stages.
 
-Usage: python bench/bench_focalplane_design.py [NSIDE] [SKIES] [CASE: "gain + pointing" (both
-focal planes) or "gain" (the hexagon)]
+Usage: python bench/bench_focalplane_design.py [NSIDE] [SKIES] [CASE: "gain + pointing" or
+"gain + pointing + ellipticity" (both focal planes), or "gain" (the hexagon)]
 """
 
 import dataclasses
@@ -30,6 +30,10 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 SYSTEMATICS = {
     "gain + pointing": "dg = {mean = 0.0, rms = 0.01}\nrho_arcmin = {mean = 1.0, rms = 0.5}",
     "gain": "dg = {mean = 0.0, rms = 0.01}",
+    "gain + pointing + ellipticity": (
+        "dg = {mean = 0.0, rms = 0.01}\nrho_arcmin = {mean = 1.0, rms = 0.5}\n"
+        "ellipticity_a = 0.02\nellipticity_angle_a_deg = 0.0"
+    ),
 }
 NOISE = "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 30.0\n"
 
@@ -37,7 +41,7 @@ NOISE = "[noise]\ndepth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 30.0\n"
 def main(nside, skies, case="gain + pointing"):
     hexagon = focalplane.hexagon(37, 35.0)
     planes = {"37-pixel hexagon": hexagon}
-    if case == "gain + pointing":
+    if case != "gain":
         planes["the same pairs on the axis"] = focalplane.on_axis(hexagon.pair_angles_deg)
     rows, costs = [], []
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,7 +89,7 @@ def main(nside, skies, case="gain + pointing"):
                         within=f"{abs(sim - pred) / max(se, 1e-300):.1f} se",
                     )
                 )
-    suffix = "" if case == "gain + pointing" else "_" + case.replace(" ", "_")
+    suffix = "" if case == "gain + pointing" else "_" + case.replace(" + ", "_")
     report(
         "focalplane_design" + suffix,
         f"design on the deep example for {case}, a 37-pixel 35 deg hexagon"
@@ -95,7 +99,7 @@ def main(nside, skies, case="gain + pointing"):
         rows,
         notes=(
             "The deep example's 48 units at 2 Hz, allowed angles 0/45/90; "
-            f"{SYSTEMATICS[case]} drawn per pair. delta_r: the exact "
+            f"{SYSTEMATICS[case]}, drawn per pair where given as mean and rms. delta_r: the exact "
             "expectation over skies and draws on that focal plane, with its coherent and "
             f"scattered parts; simulated: the mean +- standard error over {skies} TOD skies; "
             "within: |simulated - predicted| in standard errors."

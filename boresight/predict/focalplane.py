@@ -16,7 +16,8 @@ drawn parameter, rms^2 times the sum over pairs of the spectrum of that pair's u
 (the scattered part, through each pair's own (N_i / N) h_n,i): :func:`expected_leak_bb`. With
 every pair on the axis the scattered part is the rms^2 / N_pairs of
 :func:`boresight.predict.expected_power`, and rotation cancels the pairs' h_n together; off the
-axis each pair keeps its own.
+axis each pair keeps its own. Detector beams add sum_n (N_i / N) h_n,i G_n,i to Y, each pair's
+own beam fields through its own h_n (:func:`beam_groups`).
 """
 
 from __future__ import annotations
@@ -200,7 +201,8 @@ def delta_p(
     nthreads: int = 0,
 ) -> np.ndarray:
     """The spurious P = Q + i U of a focal plane's own draw of its pairs' systematics: the
-    module's dP, pointing to first order in rho.
+    module's dP, pointing to first order in rho, the beams to first order in their ellipticity
+    and FWHM change (up to h_4: the ellipticity's eth^2 P at h_6 is left out).
 
     Parameters
     ----------
@@ -563,8 +565,9 @@ def expected_residual(
         below :data:`RCOND_EXPECTATION`) are invalid, 0 in the maps with and without the
         systematics, as in :func:`boresight.engine.simulate_focalplane` with that ``rcond_min``.
     systematics : boresight.instrument.Systematics
-        {mean, rms} of dg, leak, rho_arcmin and dg_jitter allowed; no beams yet. A gain jitter
-        adds its white power (:func:`jitter_bb`).
+        {mean, rms} of dg, leak, rho_arcmin and dg_jitter allowed, beams as numbers (their
+        terms through each pair's own h_n, :func:`beam_groups`). A gain jitter adds its white
+        power (:func:`jitter_bb`).
     theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
         The sky's beam.
