@@ -29,7 +29,14 @@ import numpy as np
 
 from . import interrupts
 from .design import Design
-from .design_expectation import EXHAUSTIVE_LIMIT, _changes, _cost, _form, _pair_cost
+from .design_expectation import (
+    EXHAUSTIVE_LIMIT,
+    QuadraticForm,
+    _changes,
+    _cost,
+    _form,
+    _pair_cost,
+)
 from .predict import R_RANGE, delta_r
 from .predict import field_products as fp
 from .predict import focalplane as predict_fp
@@ -189,10 +196,9 @@ class DenseForm:
 class _Terms:
     """The focal plane's terms of dP and the kernels of delta_r over them (fixed per budget):
     ``terms`` lists each term's key among the pairs' shares and its moment n; the beams' terms
-    (:func:`boresight.predict.focalplane.beam_groups`) are keyed ("beam", group, n), their
-    shares 1 on the group's pairs."""
+    (:func:`boresight.predict.focalplane.beam_terms`) are keyed as there, with their shares."""
 
-    def __init__(self, target, nside, hits, groups):
+    def __init__(self, target, nside, hits, beams):
         systematics, theory, fwhm_arcmin, _, template, lmax, evaluation = target
         self.lmax, self.band, self.lw = lmax, lmax, 2 * lmax
         read = sky_fields(nside, lmax, hits=hits, evaluation=evaluation)
@@ -203,12 +209,11 @@ class _Terms:
         for n, kind, _ in named.values():  # each term, then its H_4 conjugate
             spins += [n, 4 - n]
             term_fields += [fields[kind], fields[predict_fp.CONJUGATE_FIELD[kind]]]
-        for g, group in enumerate(groups):
-            for n, filt in group.filters.items():
-                field = predict_fp.beam_sky_field(filt, n, read[2].window)
-                self.terms.append((("beam", g, n), n))
-                spins += [n, 4 - n]
-                term_fields += [field, predict_fp.conjugate_field(field)]
+        for key, term in beams.items():
+            field = predict_fp.beam_sky_field(term.filter, term.n, read[2].window)
+            self.terms.append((key, term.n))
+            spins += [term.n, 4 - term.n]
+            term_fields += [field, predict_fp.conjugate_field(field)]
         spins.append(0)  # the sky's own P, with the mask's weight
         term_fields.append(fields["polarisation"])
         self.spins = spins
@@ -219,6 +224,11 @@ class _Terms:
         kappa = fp.bb_kernels(spins, term_fields, sky_cl, weight_l)
         rows = list(range(len(spins)))
         self.form = _form(spins, *kappa, self.lw, rows, 2 * len(spins))
+        # the rows a drawn parameter moves: the named terms' (first); the beams' are not drawn
+        self.drawn, self.drawn_form = slice(None), self.form
+        if beams:
+            self.drawn = slice(0, 4 * len(named))
+            self.drawn_form = QuadraticForm(self.form.lam[self.drawn, self.drawn], self.lw)
 
 
 def _rotate(alm, c):
@@ -257,10 +267,8 @@ def linearised(
     focal, npix = sums.focalplane, mask.size
     params, drawn = predict_fp.at_means(systematics, focal.n_pairs)
     shares = predict_fp.pair_shares(params, focal)
-    groups = predict_fp.beam_groups(params, focal, fwhm_arcmin, lmax, n_max=N_MAX)
-    for g, group in enumerate(groups):
-        for n in group.filters:
-            shares["beam", g, n] = np.isin(np.arange(focal.n_pairs), group.pairs) * 1.0
+    beams = predict_fp.beam_terms(params, focal, fwhm_arcmin, lmax, n_max=N_MAX)
+    shares.update({key: term.shares for key, term in beams.items()})
     deltas = [(rms, d) for _, rms, d in predict_fp.unit_shares(params, drawn, shares, focal)]
     hits, s4 = np.zeros(npix), np.zeros(npix, dtype=np.complex128)
     for u, k in enumerate(reference):
@@ -271,7 +279,7 @@ def linearised(
     ok = (hits > 0) & ((1 - np.abs(h4)) >= predict_fp.RCOND_EXPECTATION * (1 + np.abs(h4)))
     solved = mask * ok  # the reference's valid pixels (predict.focalplane.valid)
     inverse = np.where(ok, solved / np.where(ok, hits * (1.0 - np.abs(h4) ** 2), 1.0), 0.0)
-    terms = _Terms(target, sums.nside, hits, groups)
+    terms = _Terms(target, sums.nside, hits, beams)
     n_units, n_allowed = sums.unit_count, sums.allowed_deg.size
     rows = 2 * len(terms.spins)
     nalm = fp.weight_alm(fp.Weight(0, np.zeros(npix, dtype=complex), None), terms.lw).shape[1]
@@ -281,8 +289,8 @@ def linearised(
         direct, conj = _pair_alm(sums, i, inverse, h4, terms, nthreads)
         coherent += _rows(direct, conj, terms, {k: v[i] for k, v in shares.items()})
         for rms, delta in deltas:
-            x = _rows(direct, conj, terms, {k: v[i] for k, v in delta.items()})
-            gram += rms**2 * _gram(terms.form, x.reshape(n_units * n_allowed, rows, nalm))
+            x = _rows(direct, conj, terms, {k: v[i] for k, v in delta.items()})[:, :, terms.drawn]
+            gram += rms**2 * _gram(terms.drawn_form, x.reshape(n_units * n_allowed, -1, nalm))
     flat = coherent.reshape(n_units * n_allowed, rows, nalm)
     gram += _gram(terms.form, flat)
     sky = np.zeros((rows, nalm), dtype=np.complex128)
@@ -336,7 +344,8 @@ def _rows(direct, conj, terms, share):
             continue
         for u in range(out.shape[0]):
             for k in range(out.shape[1]):
-                out[u, k, 4 * t : 4 * t + 2] = _rotate(direct[n][u, k], c)
+                # a weight of negative spin holds the alm of its conjugate: c turns it by conj(c)
+                out[u, k, 4 * t : 4 * t + 2] = _rotate(direct[n][u, k], c if n >= 0 else np.conj(c))
                 out[u, k, 4 * t + 2 : 4 * t + 4] = _rotate(conj[n][u, k], np.conj(c))
     return out
 

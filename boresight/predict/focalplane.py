@@ -17,7 +17,7 @@ drawn parameter, rms^2 times the sum over pairs of the spectrum of that pair's u
 every pair on the axis the scattered part is the rms^2 / N_pairs of
 :func:`boresight.predict.expected_power`, and rotation cancels the pairs' h_n together; off the
 axis each pair keeps its own. Detector beams add sum_n (N_i / N) h_n,i G_n,i to Y, each pair's
-own beam fields through its own h_n (:func:`beam_groups`).
+own beam fields through its own h_n (:func:`beam_terms`).
 """
 
 from __future__ import annotations
@@ -66,20 +66,25 @@ def pair_shares(params, focalplane) -> dict:
     return _pair_terms(params, angles, np.zeros(1), np.zeros(1))
 
 
-class BeamGroup(NamedTuple):
-    """Pairs whose beams give one set of filters: their indices and the filters of one of them
-    (:func:`boresight.predict.beam_fields.pairs_beam_filters`), n -> (3, band + 1)."""
+class BeamTerm(NamedTuple):
+    """One beam term h_n G_n of Y: each pair's share (n_pairs,) complex, e^{i n gamma_i} on the
+    pairs of one beam and 0 elsewhere, and the filter (3, band + 1) of G_n of a pair of that beam
+    at angle 0 (:func:`boresight.predict.beam_fields.pairs_beam_filters`)."""
 
-    pairs: np.ndarray
-    filters: dict
+    n: int
+    shares: np.ndarray
+    filter: np.ndarray
 
 
-def beam_groups(params, focalplane, fwhm_arcmin, band, *, n_max) -> list[BeamGroup]:
-    """The pairs' beam terms, grouped by the parameters their filters depend on (the pair's
-    angle, beams, gain and angle errors), so that a focal plane of many alike pairs makes one set
-    of fields per group. Each pair's h_n carries its own terms h_n G_n, abs(n) <= n_max (the
-    moments the focal plane's statistics hold: the ellipticity's eth^2 P at h_6 is left out, a
-    polarisation-sized term); h_{-n} is conj(h_n). Empty without beams.
+def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max) -> dict:
+    """The pairs' beam terms, keyed ("beam", group, n), abs(n) <= n_max.
+
+    A pair's G_n turns with its angle gamma as e^{i n gamma} (the filters' phase of
+    :func:`boresight.predict.beam_fields.pairs_beam_filters`), so the pairs whose beams, gain and
+    angle errors are alike share one field per n, each with its own phase in its share: a focal
+    plane of one beam makes one field per moment, however many pairs and angles. The moments are
+    those the focal plane's statistics hold (n_max): the ellipticity's eth^2 P at h_6 is left
+    out, a polarisation-sized term; h_{-n} is conj(h_n). Empty without beams.
 
     Parameters
     ----------
@@ -92,31 +97,33 @@ def beam_groups(params, focalplane, fwhm_arcmin, band, *, n_max) -> list[BeamGro
 
     Returns
     -------
-    list of BeamGroup
+    dict of tuple to BeamTerm
     """
     beams = ("dfwhm_a", "dfwhm_b", "ellipticity_a", "ellipticity_b")
     if not any(np.any(getattr(params, k)) for k in beams):
-        return []
+        return {}
     angles = np.asarray(focalplane.pair_angles_deg, dtype=np.float64) * DEG
-    keys = np.column_stack([angles, *params])
-    _, first, which = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    _, first, which = np.unique(
+        np.column_stack(params), axis=0, return_index=True, return_inverse=True
+    )
     zero = np.zeros(1)
-    out = []
+    out = {}
     for g, i in enumerate(first):
         one = PairParameters(*(np.asarray(p)[i : i + 1] for p in params))
         filters = pairs_beam_filters(
-            one, angles[i : i + 1], zero, zero, fwhm_arcmin=fwhm_arcmin, lmax=band, n_max=n_max
+            one, zero, zero, zero, fwhm_arcmin=fwhm_arcmin, lmax=band, n_max=n_max
         )
-        kept = {n: f for n, f in filters.items() if np.any(f)}
-        out.append(BeamGroup(np.flatnonzero(which.ravel() == g), kept))
+        alike = which.ravel() == g
+        for n, filt in filters.items():
+            if np.any(filt):
+                out["beam", g, n] = BeamTerm(n, np.where(alike, np.exp(1j * n * angles), 0), filt)
     return out
 
 
-def _group_y(stats, weights, group, n):
-    """sum over the group's pairs of N_i / N h_n,i (npix,) complex; h_-n = conj(h_n)."""
-    h = stats.pair_h[group.pairs, abs(n)]
-    y = np.einsum("ip,ip->p", weights[group.pairs], h)
-    return y if n >= 0 else np.conj(y)
+def _beam_y(stats, weights, term):
+    """sum_i share_i N_i / N h_n,i (npix,) complex of a beam term; h_-n = conj(h_n)."""
+    h = stats.pair_h[:, abs(term.n)]
+    return np.einsum("i,ip,ip->p", term.shares, weights, h if term.n >= 0 else np.conj(h))
 
 
 def beam_sky_field(filt, n, window):
@@ -130,15 +137,16 @@ def _spread_window(sky):
 
 
 def _sky_beam_y(sky, stats, params, weights, spread, nthreads):
-    """The beams' part of Y on this sky, sum over groups and n of the group's h_n times its G_n
-    (npix,), each G_n read exactly at the hits (their pixel mean with ``spread``)."""
+    """The beams' part of Y on this sky, sum over the beam terms of their weight times G_n (npix,),
+    each G_n read exactly at the hits (their pixel mean with ``spread``)."""
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     n_max = stats.pair_h.shape[1] - 1
     window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
-    for group in beam_groups(params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max):
-        for n, filt in group.filters.items():
-            field = _beam_field(sky, filt * window[: filt.shape[1]], abs(2 - n), nthreads)
-            y += _group_y(stats, weights, group, n) * (np.conj(field) if n > 2 else field)
+    terms = beam_terms(params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max)
+    for term in terms.values():
+        n = term.n
+        field = _beam_field(sky, term.filter * window[: term.filter.shape[1]], abs(2 - n), nthreads)
+        y += _beam_y(stats, weights, term) * (np.conj(field) if n > 2 else field)
     return y
 
 
@@ -566,7 +574,7 @@ def expected_residual(
         systematics, as in :func:`boresight.engine.simulate_focalplane` with that ``rcond_min``.
     systematics : boresight.instrument.Systematics
         {mean, rms} of dg, leak, rho_arcmin and dg_jitter allowed, beams as numbers (their
-        terms through each pair's own h_n, :func:`beam_groups`). A gain jitter adds its white
+        terms through each pair's own h_n, :func:`beam_terms`). A gain jitter adds its white
         power (:func:`jitter_bb`).
     theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
@@ -639,12 +647,11 @@ def expected_residual(
         ]
 
     exact = read[2]
-    groups = beam_groups(params, focal, fwhm_arcmin, band, n_max=stats.pair_h.shape[1] - 1)
+    beam = beam_terms(params, focal, fwhm_arcmin, band, n_max=stats.pair_h.shape[1] - 1)
     beams = [
-        (_group_y(stats, weights, group, n), n, field, conjugate_field(field))
-        for group in groups
-        for n, filt in group.filters.items()
-        for field in (beam_sky_field(filt, n, exact.window),)
+        (_beam_y(stats, weights, term), term.n, field, conjugate_field(field))
+        for term in beam.values()
+        for field in (beam_sky_field(term.filter, term.n, exact.window),)
     ]
 
     def bb(alms, spins, term_fields):
@@ -656,7 +663,7 @@ def expected_residual(
     scatter = 0.0
     if spread:
         scatter = _scatter(stats, terms, fields, sky_cl, solved, shares, params, drawn)
-        scatter += _beam_scatter(stats, groups, exact, sky_cl, solved)
+        scatter += _beam_scatter(stats, beam, exact, sky_cl, solved)
     scatter = scatter + jitter_bb(stats, systematics, solved, sky_cl, shares=shares, h4=h4)
     leaked = bb(alms, spins, term_fields) + scatter
     total = bb(alms + sky, spins + sky_terms[0], term_fields + sky_terms[1])
@@ -749,16 +756,16 @@ def _places(focalplane):
     return np.unique(np.round(focalplane.vectors(), 12), axis=0, return_inverse=True)[1].ravel()
 
 
-def _beam_scatter(stats, groups, reading, sky_cl, mask):
+def _beam_scatter(stats, terms, reading, sky_cl, mask):
     """The beams' h_0 term's in-pixel scatter (as :func:`_scatter`'s): per place, the field
     sum over its pairs of G_0,i, each pair-sample's departure from its pixel's mean."""
     places = _places(stats.focalplane)
     total = 0.0
     for g in np.unique(places):
         filters = [
-            np.count_nonzero(places[group.pairs] == g) * group.filters[0]
-            for group in groups
-            if 0 in group.filters
+            np.sum(term.shares[places == g]).real * term.filter
+            for term in terms.values()
+            if term.n == 0
         ]
         if filters:
             field = beam_sky_field(sum(filters), 0, reading.window)
