@@ -210,9 +210,9 @@ class _Terms:
             spins += [n, 4 - n]
             term_fields += [fields[kind], fields[predict_fp.CONJUGATE_FIELD[kind]]]
         for key, term in beams.items():
-            field = predict_fp.beam_sky_field(term.filter, term.n, read[2].window)
-            self.terms.append((key, term.n))
-            spins += [term.n, 4 - term.n]
+            field = predict_fp.beam_sky_field(term.filter, term.moment, read[2].window)
+            self.terms.append((key, term.moment))
+            spins += [term.moment, 4 - term.moment]
             term_fields += [field, predict_fp.conjugate_field(field)]
         spins.append(0)  # the sky's own P, with the mask's weight
         term_fields.append(fields["polarisation"])

@@ -67,11 +67,11 @@ def pair_shares(params, focalplane) -> dict:
 
 
 class BeamTerm(NamedTuple):
-    """One beam term h_n G_n of Y: each pair's share (n_pairs,) complex, e^{i n gamma_i} on the
-    pairs of one beam and 0 elsewhere, and the filter (3, band + 1) of G_n of a pair of that beam
-    at angle 0 (:func:`boresight.predict.beam_fields.pairs_beam_filters`)."""
+    """One beam term h_n G_n of Y: its moment n, each pair's share (n_pairs,) complex,
+    e^{i n gamma_i} on the pairs of one beam and 0 elsewhere, and the filter (3, band + 1) of G_n
+    of a pair of that beam at angle 0 (:func:`boresight.predict.beam_fields.pairs_beam_filters`)."""
 
-    n: int
+    moment: int
     shares: np.ndarray
     filter: np.ndarray
 
@@ -122,8 +122,8 @@ def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max) -> dict:
 
 def _beam_y(stats, weights, term):
     """sum_i share_i N_i / N h_n,i (npix,) complex of a beam term; h_-n = conj(h_n)."""
-    h = stats.pair_h[:, abs(term.n)]
-    return np.einsum("i,ip,ip->p", term.shares, weights, h if term.n >= 0 else np.conj(h))
+    h = stats.pair_h[:, abs(term.moment)]
+    return np.einsum("i,ip,ip->p", term.shares, weights, h if term.moment >= 0 else np.conj(h))
 
 
 def beam_sky_field(filt, n, window):
@@ -144,7 +144,7 @@ def _sky_beam_y(sky, stats, params, weights, spread, nthreads):
     window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
     terms = beam_terms(params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max)
     for term in terms.values():
-        n = term.n
+        n = term.moment
         field = _beam_field(sky, term.filter * window[: term.filter.shape[1]], abs(2 - n), nthreads)
         y += _beam_y(stats, weights, term) * (np.conj(field) if n > 2 else field)
     return y
@@ -649,9 +649,9 @@ def expected_residual(
     exact = read[2]
     beam = beam_terms(params, focal, fwhm_arcmin, band, n_max=stats.pair_h.shape[1] - 1)
     beams = [
-        (_beam_y(stats, weights, term), term.n, field, conjugate_field(field))
+        (_beam_y(stats, weights, term), term.moment, field, conjugate_field(field))
         for term in beam.values()
-        for field in (beam_sky_field(term.filter, term.n, exact.window),)
+        for field in (beam_sky_field(term.filter, term.moment, exact.window),)
     ]
 
     def bb(alms, spins, term_fields):
@@ -765,7 +765,7 @@ def _beam_scatter(stats, terms, reading, sky_cl, mask):
         filters = [
             np.sum(term.shares[places == g]).real * term.filter
             for term in terms.values()
-            if term.n == 0
+            if term.moment == 0
         ]
         if filters:
             field = beam_sky_field(sum(filters), 0, reading.window)
