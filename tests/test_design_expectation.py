@@ -46,7 +46,7 @@ def obj(moments, theory):
     "budget, instrument, evaluation",
     [
         (BUDGET, None, "interp"),
-        (BUDGET, None, "exact"),
+        pytest.param(BUDGET, None, "exact", marks=pytest.mark.slow),
         (Systematics(dg=Spread(0.002, 0.01), rho_arcmin=1.0), Instrument("uniform", 4), "interp"),
     ],
     ids=["numbers", "numbers, read exactly", "rms over 4 pairs"],

@@ -81,6 +81,7 @@ def test_on_the_axis_the_form_is_exact_everywhere(problem, budget):
         assert abs(on_axis.delta_r(angles) - exact) < 1e-9 * exact
 
 
+@pytest.mark.slow
 def test_off_the_axis_the_form_is_exact_at_its_reference(problem):
     """TOAST's 7-pixel, 20 deg hexagon: the form is the exact expectation at its reference with
     an anchor that is only the in-pixel scatter. Away from it the hits and H_4 it holds fixed
