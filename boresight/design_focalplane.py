@@ -213,7 +213,7 @@ class _Terms:
             field = predict_fp.beam_sky_field(term.filter, term.moment, read[2].window)
             self.terms.append((key, term.moment))
             spins += [term.moment, 4 - term.moment]
-            term_fields += [field, predict_fp.conjugate_field(field)]
+            term_fields += [field, fp.conjugate(field)]
         spins.append(0)  # the sky's own P, with the mask's weight
         term_fields.append(fields["polarisation"])
         self.spins = spins

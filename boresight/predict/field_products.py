@@ -129,17 +129,17 @@ def derivative(field: SkyField, *, raising: bool) -> SkyField:
     ell = np.arange(phi.shape[1])
     if t < 0:  # conj(F_a): d conj(F_a) = conj(dbar F_a), dbar conj(F_a) = conj(d F_a)
         inner = derivative(SkyField(-t, phi), raising=not raising)
-        return _conjugate(inner)
+        return conjugate(inner)
     if raising:
         return SkyField(t + 1, -np.sqrt(np.maximum((ell - t) * (ell + t + 1.0), 0.0)) * phi)
     if t == 0:  # dbar F = conj(d conj(F)), conj(F) of spin 0 having the conjugate filters
-        return _conjugate(derivative(SkyField(0, np.conj(phi)), raising=True))
+        return conjugate(derivative(SkyField(0, np.conj(phi)), raising=True))
     return SkyField(t - 1, np.sqrt(np.maximum((ell + t) * (ell - t + 1.0), 0.0)) * phi)
 
 
-def _conjugate(field):
-    """conj(F) of a field of spin >= 0: spin -s with F's filters, or for spin 0 the scalar with
-    conjugate filters (the sky's T, E, B being real fields)."""
+def conjugate(field: SkyField) -> SkyField:
+    """conj(F): spin -s with F's filters (a negative spin is already a conjugate), or for spin 0
+    the scalar with conjugate filters (the sky's T, E, B being real fields)."""
     if field.spin == 0:
         return SkyField(0, np.conj(field.filters))
     return SkyField(-field.spin, field.filters)

@@ -649,7 +649,7 @@ def expected_residual(
     exact = read[2]
     beam = beam_terms(params, focal, fwhm_arcmin, band, n_max=stats.pair_h.shape[1] - 1)
     beams = [
-        (_beam_y(stats, weights, term), term.moment, field, conjugate_field(field))
+        (_beam_y(stats, weights, term), term.moment, field, fp_products.conjugate(field))
         for term in beam.values()
         for field in (beam_sky_field(term.filter, term.moment, exact.window),)
     ]
@@ -771,10 +771,3 @@ def _beam_scatter(stats, terms, reading, sky_cl, mask):
             field = beam_sky_field(sum(filters), 0, reading.window)
             total += reading.scatter(field, sky_cl, 1.0 / stats.focalplane.n_pairs, mask)
     return total
-
-
-def conjugate_field(field):
-    """conj(F) of a sky field of any spin."""
-    if field.spin == 0:
-        return fp_products.SkyField(0, np.conj(field.filters))
-    return fp_products.SkyField(-field.spin, field.filters)
