@@ -41,7 +41,7 @@ from .predict import R_RANGE, delta_r
 from .predict import field_products as fp
 from .predict import focalplane as predict_fp
 from .predict.expectation import leak_terms, sky_fields, smoothed_spectra
-from .scanstats import N_MAX, characterise_focalplane
+from .scanstats import N_MAX, centroid_moments, characterise_focalplane
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -208,7 +208,7 @@ class _Terms:
         spins, term_fields = [], []
         for n, kind, _ in named.values():  # each term, then its H_4 conjugate
             spins += [n, 4 - n]
-            term_fields += [fields[kind], fields[predict_fp.CONJUGATE_FIELD[kind]]]
+            term_fields += [fields[kind], fp.conjugate(fields[kind])]
         for key, term in beams.items():
             field = predict_fp.beam_sky_field(term.filter, term.moment, read[2].window)
             self.terms.append((key, term.moment))
@@ -367,13 +367,16 @@ def exact_delta_r(
     target: Target,
 ) -> tuple:
     """The exact expected delta_r of an assignment on the focal plane and its
-    :class:`boresight.predict.focalplane.FocalPlaneResidual` (every pair on its own samples)."""
-    stats = characterise_focalplane(
-        moments.schedule(schedule, angles_deg), focal, moments.nside, per_pair=True
-    )
+    :class:`boresight.predict.focalplane.FocalPlaneResidual` (every pair on its own samples;
+    read exactly, with each pair's samples' offsets from their pixel centres)."""
+    scan = moments.schedule(schedule, angles_deg)
+    stats = characterise_focalplane(scan, focal, moments.nside, per_pair=True)
+    offsets = None
+    if target.evaluation == "exact":
+        offsets = centroid_moments(scan, moments.nside, focalplane=focal)
     expected = predict_fp.expected_residual(
         stats, target.mask, target.systematics, target.theory, target.fwhm_arcmin,
-        lmax=target.lmax, evaluation=target.evaluation,
+        lmax=target.lmax, evaluation=target.evaluation, offsets=offsets,
     )  # fmt: skip
     return delta_r(expected.residual, target.template), expected
 

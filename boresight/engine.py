@@ -460,12 +460,27 @@ class _Binner:
             one.angle_a, one.angle_b = self.angle_a[keep], self.angle_b[keep]
         return one
 
-    def scatter(self, pixels, theta, phi, psi, normal, seed, first, *, mapmaker="pairs", seen=None):
+    def scatter(
+        self,
+        pixels,
+        theta,
+        phi,
+        psi,
+        normal,
+        seed,
+        first,
+        *,
+        mapmaker="pairs",
+        seen=None,
+        pointing_psi=None,
+    ):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
         ``mapmaker`` bins them (:data:`MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
         by (seed, first + h). ``seen``, if given, maps the fields at the hits to what the pair
-        sees there (a HWP's own signals, :func:`boresight.hwp.plate_signals`)."""
-        values_a, values_b = self._values(theta, phi, psi)
+        sees there (a HWP's own signals, :func:`boresight.hwp.plate_signals`).
+        ``pointing_psi``, if given, is the angle detector B's offset turns with, where ``psi``
+        is another (behind a HWP, the pair's own crossing angle beside its reflected one)."""
+        values_a, values_b = self._values(theta, phi, psi if pointing_psi is None else pointing_psi)
         if seen is not None:
             values_a = seen(self.kernels.to_host(values_a))
         beams = self._beam_terms(theta, phi, psi)
@@ -590,7 +605,7 @@ def simulate_focalplane(
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     if hwp is not None:
-        systematics = reflected_systematics(hwp, systematics)
+        systematics = reflected_systematics(hwp, systematics, pointing=True)
     _check_mapmaker(mapmaker, backend)
     gammas = np.radians(focalplane.gamma_deg)
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)
@@ -631,6 +646,7 @@ def simulate_focalplane(
                     key,
                     mapmaker=mapmaker,
                     seen=seen,
+                    pointing_psi=psi[i] if chi else None,
                 )
             first += theta.shape[1]
             bar.update(theta.size)

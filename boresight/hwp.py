@@ -202,11 +202,18 @@ THROUGH_HWP = ("dg", "leak", "dg_jitter")
 REFLECTED_BY_HWP = ("pol_angle_deg", "nonortho_deg")
 
 
-def check_systematics(systematics) -> None:
+#: the systematics that turn with the focal plane, not with the HWP: carried where each pair's
+#: own crossing angle is known beside its reflected one (a schedule's pairs,
+#: :func:`boresight.engine.simulate_focalplane` and :mod:`boresight.predict.focalplane`)
+POINTING_BEHIND_HWP = ("rho_arcmin", "chi_deg")
+
+
+def check_systematics(systematics, *, pointing: bool = False) -> None:
     """Refuse systematics the HWP's pairs do not yet carry (:data:`THROUGH_HWP`,
-    :data:`REFLECTED_BY_HWP`): a pointing offset or a beam turns with the focal plane, not with
-    the HWP."""
-    carried = THROUGH_HWP + REFLECTED_BY_HWP
+    :data:`REFLECTED_BY_HWP`, and with ``pointing`` :data:`POINTING_BEHIND_HWP`): a pointing
+    offset or a beam turns with the focal plane, not with the HWP, so it needs the pairs' own
+    crossing angles; a beam is not carried yet."""
+    carried = THROUGH_HWP + REFLECTED_BY_HWP + (POINTING_BEHIND_HWP if pointing else ())
     others = [k for k in AMPLITUDES if k not in carried and _nonzero(getattr(systematics, k))]
     if others or _nonzero(systematics.dg_repeat):
         raise ValueError(
@@ -224,7 +231,7 @@ def _turned(value, sign: float, shift: float = 0.0):
     return sign * float(value) + shift
 
 
-def reflected_systematics(hwp: HWP, systematics):
+def reflected_systematics(hwp: HWP, systematics, *, pointing: bool = False):
     """The systematics of pairs behind the plate as the bare pairs at their reflected angles
     (:func:`reflected`) carry them, the plate's angle offset delta included.
 
@@ -242,12 +249,15 @@ def reflected_systematics(hwp: HWP, systematics):
     hwp : HWP
     systematics : boresight.instrument.Systematics
         The pairs' own (:func:`check_systematics`).
+    pointing : bool
+        Whether the caller carries a pointing offset, which stays as it is: it turns with each
+        pair's own crossing angle (:data:`POINTING_BEHIND_HWP`).
 
     Returns
     -------
     boresight.instrument.Systematics
     """
-    check_systematics(systematics)
+    check_systematics(systematics, pointing=pointing)
     pol, nonortho = systematics.pol_angle_deg, systematics.nonortho_deg
     if hwp.angle_offset_deg == 0.0 and not (_nonzero(pol) or _nonzero(nonortho)):
         return systematics

@@ -9,7 +9,10 @@ plate or rotation.
 
 The terms each cure acts on (docs/conventions.md, "Half-wave plates"): a differential gain's and
 an additive leak's T reach a bare pair's map through h_2 and a pair behind the plate's through
-h_{2,4}, which a spinning plate averages away and boresight rotation cancels; the plate's own
+h_{2,4}, which a spinning plate averages away and boresight rotation cancels. A pointing
+offset's T gradient reaches it through h_1 and h_3 bare, h_{1,4} and h_{3,4} behind the plate
+(the offset turns with the crossing angle, not with the plate), which the spinning plate
+averages away too, leaving what detector B reads of P off its place, through h_1. The plate's own
 instrumental polarisation reaches it through h_{2,0}, the crossing angles' moment, which the plate
 cannot touch and only the sky's and the boresight's rotation cancel. The plate's angle offset
 turns the sky's P by 4 delta (h_0: no rotation touches it), and its angle's jitter leaves
@@ -81,6 +84,13 @@ class Case:
 CASES = (
     Case("differential gain", "dg = +-0.01", "T: h_2", "T: h_{2,4}", Systematics(dg=(0.01, -0.01))),
     Case("additive leak", "0.01 T", "T: h_2", "T: h_{2,4}", Systematics(leak=0.01)),
+    Case(
+        "pointing offset",
+        "rho = 1 arcmin",
+        "grad T: h_1, h_3",
+        "grad T: h_{1,4}, h_{3,4}; grad P: h_1",
+        Systematics(rho_arcmin=1.0, chi_deg=30.0),
+    ),
     Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate="ip"),
     Case("HWP angle offset", "delta", "-", "P: h_0 (turns P by 4 delta)", plate="angle"),
     Case(
@@ -206,6 +216,7 @@ def run(
         footprint = spectra.as_footprint(mask)
         stats = scanstats.characterise_focalplane(scan, pairs, sky.nside, per_pair=True, hwp=plate)
         moments = None  # the boresight's hits and h_{n,m}, once a plate's own case needs them
+        offsets = None  # the bare pairs' samples' offsets from their pixel centres
         for case in CASES:
             if case.plate and plate is None:
                 continue
@@ -231,7 +242,11 @@ def run(
                 tod = engine.simulate_focalplane(
                     sky, scan, pairs, case.systematics, hwp=plate, **run_
                 )
-                dp = predict_fp.delta_p(sky, stats, case.systematics)
+                if plate is None and offsets is None:
+                    offsets = scanstats.centroid_moments(scan, sky.nside, focalplane=pairs)
+                dp = predict_fp.delta_p(
+                    sky, stats, case.systematics, offsets=offsets if plate is None else None
+                )
             measured = _pseudo_bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u), sky.nside)
             predicted = _pseudo_bb(footprint, dp, sky.nside) + white
             label = boresight_label(repeats)

@@ -437,7 +437,12 @@ def sample_offsets(theta: np.ndarray, phi: np.ndarray, nside: int) -> tuple:
 
 
 def centroid_moments(
-    schedule: Schedule, nside: int, n_max: int = N_MAX, chunk_samples: int = 1 << 20
+    schedule: Schedule,
+    nside: int,
+    n_max: int = N_MAX,
+    chunk_samples: int = 1 << 20,
+    *,
+    focalplane: FocalPlane | None = None,
 ) -> np.ndarray:
     """The samples' offsets from their pixel centres, weighted as the h_n are.
 
@@ -453,17 +458,40 @@ def centroid_moments(
     schedule : boresight.schedule.Schedule
         With its boresight angles and repeats (:func:`boresight.pointing.pointing`).
     nside, n_max, chunk_samples : int
+    focalplane : boresight.focalplane.FocalPlane, optional
+        Each pair's own, on its own samples and crossing angles
+        (:func:`boresight.pointing.detector_pointing`), one pair at a time: the ``offsets`` of
+        :func:`boresight.predict.focalplane.expected_residual`.
 
     Returns
     -------
-    numpy.ndarray, complex128, shape (2, n_max + 1, npix)
+    numpy.ndarray, complex128, shape (2, n_max + 1, npix), or (pairs, 2, n_max + 1, npix)
         (1/N) sum_j exp(i n psi_j) delta_j and (1/N) sum_j exp(i n psi_j) conj(delta_j), n = 0..
         n_max (0 where N = 0).
     """
+    if focalplane is None:
+        return _centroids(pointing(schedule, chunk_samples), nside, n_max)
+    return np.array(
+        [
+            _centroids(
+                (
+                    tuple(x[0] for x in chunk)
+                    for chunk in detector_pointing(schedule, focalplane.subset([i]), chunk_samples)
+                ),
+                nside,
+                n_max,
+            )
+            for i in range(focalplane.n_pairs)
+        ]
+    )
+
+
+def _centroids(chunks, nside, n_max):
+    """:func:`centroid_moments` of the (theta, phi, psi) chunks of one pointing."""
     npix = 12 * nside**2
     sums = np.zeros((2, n_max + 1, npix), dtype=np.complex128)
     hits = np.zeros(npix)
-    for theta, phi, psi in pointing(schedule, chunk_samples):
+    for theta, phi, psi in chunks:
         interrupts.check()
         pix, delta = sample_offsets(theta, phi, nside)
         hits += np.bincount(pix, minlength=npix)
@@ -597,6 +625,9 @@ class FocalPlaneStats:
         Each pair's h_{n,i}, where asked.
     hwp : boresight.hwp.HWP, optional
         The HWP in front of the pairs: their moments are of their reflected angles.
+    pair_pointing_h : numpy.ndarray, complex128, shape (pairs, 5, npix), or None
+        Behind ``hwp``, with the per-pair maps: each pair's moments of a pointing offset's terms
+        (:func:`pointing_behind`).
     """
 
     combined: ScanStats
@@ -606,6 +637,7 @@ class FocalPlaneStats:
     pair_hits: np.ndarray | None = None
     pair_h: np.ndarray | None = None
     hwp: HWP | None = None
+    pair_pointing_h: np.ndarray | None = None
 
     def scattered(self) -> np.ndarray:
         """sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
@@ -770,6 +802,7 @@ def characterise_focalplane(
             for b in blocks
         ]
         tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
+    behind = per_pair and hwp is not None and hwp.present
     return FocalPlaneStats(
         combined=combined.stats(),
         sum_sq=sum_sq,
@@ -778,4 +811,73 @@ def characterise_focalplane(
         pair_hits=kept.get("pair_hits"),
         pair_h=kept.get("pair_h"),
         hwp=hwp,
+        pair_pointing_h=(
+            pointing_behind(schedule, focalplane, hwp, nside, chunk_samples=chunk_samples)
+            if behind
+            else None
+        ),
     )
+
+
+#: :func:`pointing_behind`'s moments, by name: each (n, m) is exp(i n psi + i m (chi - gamma)),
+#: times delta or conj(delta) where named
+POINTING_BEHIND_TERMS = (
+    ("g1", (1, 4), None),
+    ("g3", (3, 4), None),
+    ("h1", (1, 0), None),
+    ("q3", (3, 8), None),
+    ("q5", (5, 8), None),
+    ("g1 conj(delta)", (1, 4), "conj"),
+    ("g1 delta", (1, 4), "delta"),
+    ("g3 conj(delta)", (3, 4), "conj"),
+    ("g3 delta", (3, 4), "delta"),
+)
+
+
+def pointing_behind(
+    schedule: Schedule,
+    focalplane: FocalPlane,
+    hwp: HWP,
+    nside: int,
+    *,
+    chunk_samples: int = 1 << 20,
+) -> np.ndarray:
+    """Each pair's moments of a pointing offset's terms behind a HWP, on its own samples.
+
+    Detector B's offset turns with the pair's own crossing angle psi, and the map-maker
+    demodulates with its reflected angle psi' = psi + 2 chi - 2 gamma
+    (:func:`boresight.hwp.reflected`), so exp(i m (psi' - psi) / 2) = exp(i m (chi - gamma)):
+
+    * the T gradient's terms, a bare pair's h_1 G and h_3 G*, take ``g1`` = <exp(i (2 psi' -
+      psi))> and ``g3`` = <exp(i (2 psi' + psi))>, (n, m) = (1, 4) and (3, 4), which a spinning
+      plate averages away;
+    * the P gradient's, which that leaves, take ``h1`` = h_{1,0} of the pairs' own crossing
+      angles and ``q3``, ``q5`` = <exp(i (4 psi' -+ psi))>, (3, 8) and (5, 8);
+    * read exactly at each sample, the T gradient's terms gain their first-order change across
+      the pixel: ``g1`` and ``g3`` weighted by each sample's offset delta from its pixel's centre
+      and by its conjugate (:func:`sample_offsets`, :func:`centroid_moments`). Behind a spinning
+      plate the terms are incoherent sums of the size of these (docs/conventions.md).
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (pairs, 9, npix)
+        In :data:`POINTING_BEHIND_TERMS` order, 0 where a pair has no hits.
+    """
+    npix = 12 * nside**2
+    out = np.zeros((focalplane.n_pairs, len(POINTING_BEHIND_TERMS), npix), dtype=np.complex128)
+    gamma = np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64))
+    for i in range(focalplane.n_pairs):
+        hits = np.zeros(npix)
+        chunks = detector_pointing(schedule, focalplane.subset([i]), chunk_samples, hwp=hwp)
+        for theta, phi, psi, chi in chunks:
+            interrupts.check()
+            pix, delta = sample_offsets(theta[0], phi[0], nside)
+            hits += np.bincount(pix, minlength=npix)
+            spin, turn = np.exp(1j * psi[0]), np.exp(1j * (chi - gamma[i]))
+            for k, (_, (n, m), offset) in enumerate(POINTING_BEHIND_TERMS):
+                w = spin**n * turn**m
+                if offset is not None:
+                    w = w * (np.conj(delta) if offset == "conj" else delta)
+                out[i, k] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
+        out[i] = np.where(hits > 0, out[i] / np.maximum(hits, 1), 0.0)
+    return out

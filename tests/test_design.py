@@ -300,15 +300,18 @@ def test_interrupt_during_the_validation_keeps_the_finished_design(
 
 
 @pytest.mark.slow
-def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule):
+@pytest.mark.parametrize("evaluation", ["interp", "exact"])
+def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule, evaluation):
     """`[instrument] focalplane = "axis"` (the paper's pairs on the boresight, each pair on its
     own samples) gives every strategy the on-axis objective's delta_r, to rounding: the
-    focal-plane expectation reduces to the shared-h_n one."""
+    focal-plane expectation reduces to the shared-h_n one; read exactly, each pair's samples'
+    offsets from their pixel centres give the on-axis objective's offset terms."""
     import csv
 
     budget = _budget(
         tmp_path,
-        design="nside = 16\nsweeps = 2\nrestarts = 0\nangles_deg = [0.0, 90.0]",
+        design="nside = 16\nsweeps = 2\nrestarts = 0\nangles_deg = [0.0, 90.0]\n"
+        f'evaluation = "{evaluation}"',
         instrument='focalplane = "axis"',
     )
     out = _design(tmp_path, schedule, budget, "--no-validate")

@@ -24,7 +24,7 @@ from ..noise import sigma_r
 from ..predict import R_RANGE, delta_r, expected_residual
 from ..predict import focalplane as predict_fp
 from ..residual import residual
-from ..scanstats import centroid_moments, characterise_focalplane
+from ..scanstats import centroid_moments
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import require_finite
@@ -405,17 +405,14 @@ def _target(budget, theory, moments, obj):
 
 def _on_focalplane(budget, moments, obj, schedule, strategies, theory):
     """Each strategy's exact expected residual on the focal plane, every pair on its own samples
-    (:func:`boresight.predict.focalplane.expected_residual`), on the boresight's footprint."""
+    (:func:`boresight.design_focalplane.exact_delta_r`), on the boresight's footprint."""
+    target = _target(budget, theory, moments, obj)
     expected = {}
     for name, angles in strategies.items():
         interrupts.check()
-        stats = characterise_focalplane(
-            moments.schedule(schedule, angles), budget.focalplane, moments.nside, per_pair=True
+        _, expected[name] = exact_delta_r(
+            moments, schedule, budget.focalplane, angles, target=target
         )
-        expected[name] = predict_fp.expected_residual(
-            stats, moments.mask, budget.systematics, theory, budget.noise.fwhm_arcmin,
-            lmax=obj.lmax, band=obj.band, evaluation=budget.design.evaluation,
-        )  # fmt: skip
     return expected
 
 

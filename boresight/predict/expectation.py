@@ -216,22 +216,26 @@ class _OffsetTerms(NamedTuple):
     parents: list
 
 
+def offset_weights(offsets: np.ndarray, n: int) -> tuple:
+    """The first-order weights of a leak term h_n F across its pixels: (1/N) sum exp(i n psi)
+    conj(delta) on d F (weight spin n - 1) and (1/N) sum exp(i n psi) delta on dbar F (spin
+    n + 1), from :func:`boresight.scanstats.centroid_moments`' ``offsets`` (..., 2, >= ``|n|`` + 1,
+    npix); h_-n's are the conjugates of h_n's other one."""
+    n_have = offsets.shape[-2] - 1
+    if abs(n) > n_have:
+        raise ValueError(f"offsets hold n <= {n_have}, a term needs {abs(n)}")
+    if n >= 0:
+        return offsets[..., 1, n, :], offsets[..., 0, n, :]
+    return np.conj(offsets[..., 0, -n, :]), np.conj(offsets[..., 1, -n, :])
+
+
 def _offset_terms(model, offsets, mask, lw, nthreads):
-    """For every leak term k, h_n F: the weights (1/N) sum exp(i n psi) conj(delta) / 2 on d F
-    (spin n - 1) and (1/N) sum exp(i n psi) delta / 2 on dbar F (spin n + 1), h_-n's being the
-    conjugates of h_n's other one."""
-    n_have = offsets.shape[1] - 1
+    """For every leak term k, h_n F: its :func:`offset_weights` / 2 on F's raising and lowering
+    derivatives."""
     out = _OffsetTerms([], [], [], [])
     for k in range(model.n_leak):
         n = model.term_n[k]
-        if abs(n) > n_have:
-            raise ValueError(f"offsets hold n <= {n_have}, a term needs {abs(n)}")
-        by_conj, by_delta = (
-            (offsets[1, n], offsets[0, n])
-            if n >= 0
-            else (np.conj(offsets[0, -n]), np.conj(offsets[1, -n]))
-        )
-        for weight, raising in ((by_conj, True), (by_delta, False)):
+        for weight, raising in zip(offset_weights(offsets, n), (True, False)):
             spin = n - 1 if raising else n + 1
             w = fp.Weight(spin, 0.5 * mask * weight, None)
             out.alms.append(fp.weight_alm(w, lw, nthreads))

@@ -32,11 +32,18 @@ from ..constants import DEG
 from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
+from ..scanstats import POINTING_BEHIND_TERMS
 from ..spectra import as_footprint
 from . import field_products as fp_products
 from .beam_fields import _beam_field, pairs_beam_filters
 from .coefficients import _pair_terms
-from .expectation import ExpectedResidual, leak_terms, sky_fields, smoothed_spectra
+from .expectation import (
+    ExpectedResidual,
+    leak_terms,
+    offset_weights,
+    sky_fields,
+    smoothed_spectra,
+)
 from .windows import hit_spread_window
 
 if TYPE_CHECKING:
@@ -55,7 +62,7 @@ def _check(stats, systematics):
     if stats.pair_h is None:
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:
-        check_hwp_systematics(systematics)
+        check_hwp_systematics(systematics, pointing=True)
 
 
 def pair_shares(params, focalplane) -> dict:
@@ -121,9 +128,14 @@ def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max) -> dict:
 
 
 def _beam_y(stats, weights, term):
-    """sum_i share_i N_i / N h_n,i (npix,) complex of a beam term; h_-n = conj(h_n)."""
-    h = stats.pair_h[:, abs(term.moment)]
-    return np.einsum("i,ip,ip->p", term.shares, weights, h if term.moment >= 0 else np.conj(h))
+    """sum_i share_i N_i / N h_n,i (npix,) complex of a beam term."""
+    return np.einsum("i,ip,ip->p", term.shares, weights, _pair_moment(stats, term.moment))
+
+
+def _pair_moment(stats, n):
+    """Each pair's h_n (pairs, npix); h_-n = conj(h_n)."""
+    h = stats.pair_h[:, abs(n)]
+    return h if n >= 0 else np.conj(h)
 
 
 def beam_sky_field(filt, n, window):
@@ -184,9 +196,21 @@ def _y(stats, weights, shares, fields, pairs=slice(None)):
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     for name, n in TERMS:
         if name in fields:
-            h = stats.pair_h[pairs, n]
+            h = _term_h(stats, name, n, pairs)
             y += fields[name] * np.einsum("i,ip,ip->p", shares[name][pairs], weights[pairs], h)
     return y
+
+
+#: the places of :func:`boresight.scanstats.pointing_behind`'s moments, by name
+BEHIND = {name: k for k, (name, _, _) in enumerate(POINTING_BEHIND_TERMS)}
+
+
+def _term_h(stats, name, n, pairs=slice(None)):
+    """Each pair's moment of a term (pairs, npix): its h_n; behind a HWP a pointing term's own
+    (the offset turns with the pair's crossing angle, the map-maker with its reflected one)."""
+    if stats.pair_pointing_h is not None and name in ("g1", "g3"):
+        return stats.pair_pointing_h[pairs, BEHIND[name]]
+    return stats.pair_h[pairs, n]
 
 
 def _solve(y, h4):
@@ -206,6 +230,7 @@ def delta_p(
     *,
     template: np.ndarray | None = None,
     spread: bool = True,
+    offsets: np.ndarray | None = None,
     nthreads: int = 0,
 ) -> np.ndarray:
     """The spurious P = Q + i U of a focal plane's own draw of its pairs' systematics: the
@@ -225,6 +250,12 @@ def delta_p(
         Read the fields as averages over hits spread uniformly over each pixel, as a real scan's
         samples are (the default); else at pixel centres, where the formula is exact (with the
         template as given).
+    offsets : numpy.ndarray, complex, shape (pairs, 2, >= 5, npix), optional
+        Each pair's samples' offsets from their pixel centres weighted as its h_n are
+        (:func:`boresight.scanstats.centroid_moments` with the focal plane), for a sky read
+        exactly at each sample: each term of Y gains its field's first-order change across the
+        pixel, as :func:`expected_residual` has it. Not behind a HWP, whose pointing terms carry
+        their own (:func:`boresight.scanstats.pointing_behind`), and not with a template or beams.
     nthreads : int
 
     Returns
@@ -233,8 +264,12 @@ def delta_p(
         [muK], 0 off the observed pixels.
     """
     _check(stats, systematics)
+    if offsets is not None and (
+        stats.hwp is not None or template is not None or systematics.has_beams
+    ):
+        raise ValueError("the samples' offsets: not behind a HWP, with a template or with beams")
     if stats.hwp is not None:
-        systematics = reflected_systematics(stats.hwp, systematics)
+        systematics = reflected_systematics(stats.hwp, systematics, pointing=True)
     params = systematics.per_pair(stats.focalplane.n_pairs)
     shares = pair_shares(params, stats.focalplane)
     fields = _fields(sky, systematics, template, spread, nthreads)
@@ -242,7 +277,95 @@ def delta_p(
     y = _y(stats, weights, shares, fields) + _sky_beam_y(
         sky, stats, params, weights, spread, nthreads
     )
+    if systematics.has_pointing and stats.pair_pointing_h is not None:
+        y = y + _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads)
+    if offsets is not None:
+        window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
+        for name, n in TERMS:
+            if name not in fields:
+                continue
+            make, conjugate = SKY_FIELDS[name]
+            up, down = _derivative_maps(sky, make(window), nthreads)
+            if conjugate:  # d conj(F) = conj(dbar F), dbar conj(F) = conj(d F)
+                up, down = np.conj(down), np.conj(up)
+            for by, field in zip(offset_weights(offsets, n), (up, down)):
+                y = y + 0.5 * field * np.einsum("i,ip,ip->p", shares[name], weights, by)
     return _solve(y, _h4(stats, weights, shares))
+
+
+#: each term's sky field: how it is made from a window, and whether it is its conjugate
+SKY_FIELDS = {
+    "t2": (fp_products.temperature, False),
+    "s2": (fp_products.temperature, False),
+    "g1": (fp_products.gradient, False),
+    "g3": (fp_products.gradient, True),
+    "p0": (fp_products.polarisation, False),
+    "p4": (fp_products.polarisation, True),
+}
+
+
+def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
+    """Behind a HWP, the parts of a pointing offset's Y that its moments of
+    :func:`boresight.scanstats.pointing_behind` add to the T gradient's terms (npix,) complex:
+    those terms' first-order change across the pixels, (conj(delta) d G + delta dbar G) / 2
+    weighted as each term is (:func:`boresight.predict.field_products.derivative`; d G* =
+    conj(dbar G)), and what detector B reads of P off its place
+    (:func:`_polarisation_gradient_y`)."""
+    window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
+    up, down = _derivative_maps(sky, fp_products.gradient(window), nthreads)
+    moments = stats.pair_pointing_h
+
+    def mean(name, k):
+        return np.einsum("i,ip,ip->p", shares[name], weights, moments[:, BEHIND[k]])
+
+    y = 0.5 * (mean("g1", "g1 conj(delta)") * up + mean("g1", "g1 delta") * down)
+    y += 0.5 * (mean("g3", "g3 conj(delta)") * np.conj(down) + mean("g3", "g3 delta") * np.conj(up))
+    return y + _polarisation_gradient_y(sky, stats, params, weights, window, nthreads)
+
+
+def _derivative_maps(sky, field, nthreads):
+    """The maps of a sky field's raising and lowering derivatives d F and dbar F (npix,) complex
+    each (:func:`boresight.predict.field_products.derivative`)."""
+    out = []
+    for raising in (True, False):
+        f = fp_products.derivative(field, raising=raising)
+        value = _beam_field(sky, f.filters, abs(f.spin), nthreads)
+        out.append(value if f.spin >= 0 else np.conj(value))  # a negative spin: a conjugate
+    return tuple(out)
+
+
+def _polarisation_gradient_y(sky, stats, params, weights, window, nthreads):
+    """Behind a HWP, the part of Y of detector B reading P at its offset rho (npix,) complex: the
+    term a spinning plate leaves of a pointing offset, where the T gradient's averages away
+    (docs/conventions.md).
+
+    With the offset delta = rho exp(i beta), beta = psi + gamma + chi_rho, P read there is
+    P + (conj(delta) d P + delta dbar P) / 2 (:func:`boresight.predict.field_products.derivative`:
+    d P of spin 3, dbar P of spin 1), and the pair difference's (1/2) Re(dP exp(-2 i a)) gives,
+    with a = psi' + gamma and the moments of :func:`boresight.scanstats.pointing_behind`::
+
+      Y += rho/4 [e^{-i beta'} conj(h_1) d P + e^{i beta'} h_1 dbar P
+                  + e^{i (4 gamma + beta')} <e^{i (4 psi' + psi)}> conj(d P)
+                  + e^{i (4 gamma - beta')} <e^{i (4 psi' - psi)}> conj(dbar P)]
+
+    with beta' = gamma + chi_rho: h_1 of the pairs' own crossing angles, which only the sky's and
+    the boresight's rotation cancel. On a bare pair the term is P-sized against the T gradient's
+    and left out, as :func:`boresight.predict.delta_p` does."""
+    up, down = _derivative_maps(sky, fp_products.polarisation(window), nthreads)
+    gamma = np.asarray(stats.focalplane.pair_angles_deg, dtype=np.float64) * DEG
+    beta = gamma + params.chi
+    moments = stats.pair_pointing_h
+
+    def mean(phase, k, conjugate=False):
+        h = np.conj(moments[:, BEHIND[k]]) if conjugate else moments[:, BEHIND[k]]
+        return np.einsum("i,ip,ip->p", 0.25 * params.rho * np.exp(1j * phase), weights, h)
+
+    return (
+        mean(-beta, "h1", conjugate=True) * up
+        + mean(beta, "h1") * down
+        + mean(4 * gamma + beta, "q5") * np.conj(up)
+        + mean(4 * gamma - beta, "q3") * np.conj(down)
+    )
 
 
 def _pair_mean_w4(moments, terms, what, pair_angles_deg):
@@ -486,17 +609,6 @@ def expected_leak_bb(
     return coherent, scattered
 
 
-#: the field that multiplies a term of dP's conjugate part, H_4 Y*, by the kind of Y's field
-CONJUGATE_FIELD = {
-    "temperature": "temperature",
-    "template": "template",
-    "gradient": "conjugate gradient",
-    "conjugate gradient": "gradient",
-    "polarisation": "conjugate polarisation",
-    "conjugate polarisation": "polarisation",
-}
-
-
 #: the least condition (1 - ``|H_4|``) / (1 + ``|H_4|``) of a pixel's 2x2 system that
 #: :func:`expected_residual` keeps (the engine's rcond; 0.05 is ``|H_4|`` < 0.905): nearer
 #: singular, 1 / (1 - ``|H_4|^2``) spikes that the weights' harmonics cannot hold, so such pixels
@@ -549,6 +661,7 @@ def expected_residual(
     lmax: int,
     band: int | None = None,
     evaluation: str | None = "interp",
+    offsets: np.ndarray | None = None,
     nthreads: int = 0,
 ) -> FocalPlaneResidual:
     """The exact expected leaked and total residual pseudo-C_BB of a focal plane's own h_n maps,
@@ -589,6 +702,12 @@ def expected_residual(
         with the h_0 terms' in-pixel scatter (as :func:`boresight.predict.expected_residual` with
         hits; pairs at one place share their samples' departures, pairs apart do not); None for
         the fields at the pixel centres, where it is exact.
+    offsets : numpy.ndarray, complex, shape (pairs, 2, >= 5, npix), optional
+        Each pair's samples' offsets from their pixel centres weighted as its h_n are
+        (:func:`boresight.scanstats.centroid_moments` with the focal plane), for a sky read
+        exactly at each sample: every term of Y gains its fields' first-order change across the
+        pixel, as in :func:`boresight.predict.expected_residual`, each pair through its own
+        offsets.
     nthreads : int
 
     Returns
@@ -596,6 +715,8 @@ def expected_residual(
     FocalPlaneResidual
     """
     _check(stats, systematics)
+    if offsets is not None and stats.hwp is not None:
+        raise ValueError("the samples' offsets behind a HWP: not yet predicted")
     band = lmax if band is None else band
     nside, lw = hp.npix2nside(mask.size), lmax + band
     focal = stats.focalplane
@@ -632,26 +753,42 @@ def expected_residual(
                 term_fields.append(conj_field)
         return alms, spins, term_fields
 
+    def items(share, h, n, field, pairs):
+        """The terms of Y of a moment n over ``pairs``, each pair's ``share`` (pairs,) times its
+        h_n (pairs, npix), on ``field``; read exactly, also its first-order change across the
+        pixels (:func:`boresight.predict.expectation.offset_weights`)."""
+        w = weights[pairs]
+        out = [(np.einsum("i,ip,ip->p", share, w, h), n, field, fp_products.conjugate(field))]
+        if offsets is not None:
+            for by, raising in zip(offset_weights(offsets[pairs], n), (True, False)):
+                moved = fp_products.derivative(field, raising=raising)
+                spin = n - 1 if raising else n + 1
+                out.append((0.5 * np.einsum("i,ip,ip->p", share, w, by), spin, moved,
+                            fp_products.conjugate(moved)))  # fmt: skip
+        return out
+
     def leak(term_shares, pairs=slice(None)):
         """The terms of Y for coefficient shares over ``pairs``."""
         return [
-            (
-                np.einsum(
-                    "i,ip,ip->p", term_shares[name][pairs], weights[pairs], stats.pair_h[pairs, n]
-                ),
-                n,
-                fields[kind],
-                fields[CONJUGATE_FIELD[kind]],
-            )
+            item
             for name, (n, kind, _) in terms.items()
+            for item in items(
+                term_shares[name][pairs], _term_h(stats, name, n, pairs), n, fields[kind], pairs
+            )
         ]
 
     exact = read[2]
     beam = beam_terms(params, focal, fwhm_arcmin, band, n_max=stats.pair_h.shape[1] - 1)
     beams = [
-        (_beam_y(stats, weights, term), term.moment, field, fp_products.conjugate(field))
+        item
         for term in beam.values()
-        for field in (beam_sky_field(term.filter, term.moment, exact.window),)
+        for item in items(
+            term.shares,
+            _pair_moment(stats, term.moment),
+            term.moment,
+            beam_sky_field(term.filter, term.moment, exact.window),
+            slice(None),
+        )
     ]
 
     def bb(alms, spins, term_fields):

@@ -168,6 +168,43 @@ def test_its_sky_expectation_on_the_axis_is_the_shared_moments_one():
 
 
 @pytest.mark.slow
+def test_read_exactly_its_offsets_on_the_axis_are_the_shared_moments_ones():
+    """Pairs on the axis, the sky read exactly at every sample: the focal plane's expectation with
+    each pair's samples' offsets from their pixel centres equals predict.expected_residual with
+    the boresight's, to rounding, for a drawn pointing with a gain and for beams; the offsets
+    move it by more than 1 % in some band, so they are tested."""
+    schedule = toast_schedule()
+    theory = load_spectra()
+    pairs = focalplane.on_axis((0.0, 45.0))
+    stats = scanstats.characterise_focalplane(schedule, pairs, NSIDE, per_pair=True)
+    alone = scanstats.characterise_schedule(schedule, NSIDE)
+    mask = (alone.hits > 0).astype(float)
+    offsets = scanstats.centroid_moments(schedule, NSIDE, focalplane=pairs)
+    shared_offsets = scanstats.centroid_moments(schedule, NSIDE)
+    for sy in (
+        Systematics(dg=0.01, rho_arcmin=Spread(1.0, 0.5), chi_deg=20.0, seed=2),
+        Systematics(ellipticity_b=0.03, ellipticity_angle_b_deg=40.0, dfwhm_a_arcmin=5.0),
+    ):
+        ours, without = (
+            predict_fp.expected_residual(
+                stats, mask, sy, theory, 60.0, lmax=LMAX, evaluation="exact", offsets=o
+            )
+            for o in (offsets, None)
+        )
+        shared = predict.expected_residual(
+            alone.h, mask, sy, theory, 60.0, lmax=LMAX, instrument=Instrument(),
+            hits=alone.hits, evaluation="exact", offsets=shared_offsets,
+        )  # fmt: skip
+        for mine, theirs in ((ours.leaked, shared.leaked), (ours.residual, shared.residual)):
+            assert np.max(np.abs(mine - theirs)[2:]) < 1e-9 * np.max(np.abs(theirs))
+        moved = (
+            spectra.bin_spectrum(ours.leaked, EDGES)[1]
+            / spectra.bin_spectrum(without.leaked, EDGES)[1]
+        )
+        assert np.max(np.abs(moved - 1)) > 0.01, moved
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "sy",
     [
@@ -248,6 +285,53 @@ def test_the_beams_expectation_is_the_mean_of_16_tod_skies(deep, repeats):
         want = spectra.bin_spectrum(predicted, EDGES)[1]
         assert np.all(np.abs(mean - want) < np.maximum(0.05 * want, 2.5 * error)), mean / want
         assert np.all(error < 0.05 * want)
+
+
+@pytest.mark.slow
+def test_read_exactly_the_offsets_expectation_is_the_mean_of_32_tod_skies(deep):
+    """Off the axis, a pointing offset on every pair, a sky with structure at the pixel scale (30
+    arcmin) read exactly at every sample: the expectation with each pair's samples' offsets from
+    their pixel centres against the mean over 32 TOD skies of every pair on its own samples, the
+    leaked power and the total residual within 5 % or 2.5 standard errors in every band 40 <=
+    ell <= 2 Nside (measured 1.02-1.04 and 0.99-1.03), and the leaked power nearer the TOD than
+    without the offsets (1.02-1.10)."""
+    fp, schedules, stats, _ = deep
+    schedule, one = schedules[(0.0,)], stats[(0.0,)]
+    mask = predict_fp.valid(one).astype(float)
+    footprint = spectra.as_footprint(mask)
+    sy = Systematics(rho_arcmin=1.0, chi_deg=30.0)
+    offsets = scanstats.centroid_moments(schedule, NSIDE, focalplane=fp)
+    expected, without = (
+        predict_fp.expected_residual(
+            one, mask, sy, load_spectra(), 30.0, lmax=LMAX, evaluation="exact", offsets=o
+        )
+        for o in (offsets, None)
+    )
+    leaked, residual = [], []
+    for seed in range(32):
+        sky = make_sky(SkyConfig(nside=NSIDE, lmax=LMAX, fwhm_arcmin=30.0, seed=100 + seed))
+        maps = [
+            engine.simulate_focalplane(
+                sky, schedule, fp, s, evaluation="exact", rcond_min=predict_fp.RCOND_EXPECTATION
+            )
+            for s in (Systematics(), sy)
+        ]
+        ref, tod = (np.array([m.q, m.u])[:, footprint.pixels] for m in maps)
+        b = [footprint.alm(d, LMAX, 2)[1] for d in (tod - ref, tod, ref)]
+        leaked.append(harmonics.alm2cl(b[0]))
+        residual.append(harmonics.alm2cl(b[1]) - harmonics.alm2cl(b[2]))
+    for measured, predicted in ((leaked, expected.leaked), (residual, expected.residual)):
+        binned = spectra.bin_spectrum(np.array(measured), EDGES)[1]
+        mean, error = binned.mean(axis=0), binned.std(axis=0) / np.sqrt(len(binned))
+        want = spectra.bin_spectrum(predicted, EDGES)[1]
+        assert np.all(np.abs(mean - want) < np.maximum(0.05 * want, 2.5 * error)), mean / want
+        assert np.all(error < 0.05 * want)
+    mean = spectra.bin_spectrum(np.array(leaked), EDGES)[1].mean(axis=0)
+    gaps = [
+        np.sum(np.abs(mean / spectra.bin_spectrum(p.leaked, EDGES)[1] - 1))
+        for p in (expected, without)
+    ]
+    assert gaps[0] < 0.6 * gaps[1], gaps
 
 
 def test_a_gain_jitter_adds_the_white_power_of_each_pairs_hits():
