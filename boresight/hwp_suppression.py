@@ -12,7 +12,9 @@ an additive leak's T reach a bare pair's map through h_2 and a pair behind the p
 h_{2,4}, which a spinning plate averages away and boresight rotation cancels. A pointing
 offset's T gradient reaches it through h_1 and h_3 bare, h_{1,4} and h_{3,4} behind the plate
 (the offset turns with the crossing angle, not with the plate), which the spinning plate
-averages away too, leaving what detector B reads of P off its place, through h_1. The plate's own
+averages away too, leaving what detector B reads of P off its place, through h_1. A pair's
+polarisation-angle error turns the maps' P (h_0), reflected by the plate, and no plate or
+rotation touches it. The plate's own
 instrumental polarisation reaches it through h_{2,0}, the crossing angles' moment, which the plate
 cannot touch and only the sky's and the boresight's rotation cancel. The plate's angle offset
 turns the sky's P by 4 delta (h_0: no rotation touches it), and its angle's jitter leaves
@@ -90,6 +92,13 @@ CASES = (
         "grad T: h_1, h_3",
         "grad T: h_{1,4}, h_{3,4}; grad P: h_1",
         Systematics(rho_arcmin=1.0, chi_deg=30.0),
+    ),
+    Case(
+        "polarisation-angle error",
+        "theta = 0.5 deg",
+        "P: h_0 (turns P by -2 theta)",
+        "P: h_0 (reflected: turns P by +2 theta)",
+        Systematics(pol_angle_deg=0.5),
     ),
     Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate="ip"),
     Case("HWP angle offset", "delta", "-", "P: h_0 (turns P by 4 delta)", plate="angle"),
