@@ -504,6 +504,43 @@ def almxfl(alm: np.ndarray, fl: np.ndarray) -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=8)
+def _by_ell(lmax: int) -> tuple:
+    """The healpy-ordered alm of lmax reordered by l (m = 0..l within each l): the permutation,
+    each l's start in it, and each alm's weight in a real field's power (1 at m = 0, 2 else)."""
+    ell, m = hp.Alm.getlm(lmax)
+    order = np.lexsort((m, ell))
+    starts = np.concatenate([[0], np.cumsum(np.arange(1, lmax + 2))])
+    return order, starts, np.where(m[order] == 0, 1.0, 2.0)
+
+
+def alm_cross_spectra(alms: np.ndarray, lmax: int | None = None) -> np.ndarray:
+    """Every cross power spectrum of a set of healpy-ordered alm at once, as
+    :func:`alm2cl` of each pair: C^ab_l = sum_m w_m Re(a_lm conj(b_lm)) / (2 l + 1), w_m = 1 at
+    m = 0 and 2 else (one matrix product per l).
+
+    Parameters
+    ----------
+    alms : numpy.ndarray, complex128, shape (J, nalm)
+    lmax : int, optional
+        The spectra's band limit (default the alm's).
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape (J, J, lmax + 1)
+    """
+    full = alm_lmax(alms.shape[-1])
+    lmax = full if lmax is None else lmax
+    order, starts, weight = _by_ell(full)
+    x = alms[:, order[: starts[lmax + 1]]]
+    out = np.empty((alms.shape[0], alms.shape[0], lmax + 1))
+    for ell in range(lmax + 1):
+        run = slice(starts[ell], starts[ell + 1])
+        y = x[:, run]
+        out[:, :, ell] = ((y * weight[run]) @ y.conj().T).real / (2 * ell + 1)
+    return out
+
+
 def alm2cl(alm1: np.ndarray, alm2: np.ndarray | None = None) -> np.ndarray:
     """Cross power spectrum of healpy-ordered alm, as healpy.alm2cl.
 

@@ -192,17 +192,11 @@ def weight_cross_spectra(alms: Sequence[np.ndarray], spins: Sequence[int], lmax:
     / (2 l + 1) in the weights' own spin harmonics; with g_lm = alpha E + beta B they are
     sums of the real cross spectra of E and B (healpy's ``alm2cl``)."""
     k = len(alms)
-    w = np.zeros((k, k, lmax + 1), dtype=np.complex128)
-    v = np.zeros_like(w)
-    for i in range(k):
-        for j in range(i, k):
-            pi_, pj = spin_pair(spins[i]), spin_pair(spins[j])
-            for p in (0, 1):
-                for q in (0, 1):
-                    cl = np.asarray(harmonics.alm2cl(alms[i][p], alms[j][q]))[: lmax + 1]
-                    w[i, j] += pi_[p] * np.conj(pj[q]) * cl
-                    v[i, j] += pi_[p] * pj[q] * cl
-            w[j, i], v[j, i] = np.conj(w[i, j]), v[i, j]
+    cl = harmonics.alm_cross_spectra(np.reshape(alms, (2 * k, -1)), lmax)
+    cl = cl.reshape(k, 2, k, 2, lmax + 1)
+    pairs = np.array([spin_pair(s) for s in spins], dtype=np.complex128)  # (K, 2)
+    w = np.einsum("ip,jq,ipjql->ijl", pairs, np.conj(pairs), cl)
+    v = np.einsum("ip,jq,ipjql->ijl", pairs, pairs, cl)
     return w, v
 
 
@@ -275,8 +269,28 @@ def expected_pseudo_cl_alm(
     ``second`` and ``pseudo`` (K, K) are E[c_k conj(c_k')] and E[c_k c_k'] of random
     coefficients that multiply the weights (default: ones, the coefficients in the weights):
     the expectation is bilinear, through W^kk' c_k conj(c_k') and V^kk' c_k c_k'."""
+    w_cl, v_cl = weight_cross_spectra(alms, spins, lmax + fields[0].band)
+    return expected_pseudo_cl_spectra(
+        w_cl, v_cl, spins, fields, sky_cl, lmax, second=second, pseudo=pseudo
+    )
+
+
+def expected_pseudo_cl_spectra(
+    w_cl: np.ndarray,
+    v_cl: np.ndarray,
+    spins: Sequence[int],
+    fields: Sequence[SkyField],
+    sky_cl: np.ndarray,
+    lmax: int,
+    *,
+    second: np.ndarray | None = None,
+    pseudo: np.ndarray | None = None,
+) -> PseudoSpectra:
+    """:func:`expected_pseudo_cl_alm` from the weights' cross spectra W and V (K, K, lmax +
+    band + 1) (:func:`weight_cross_spectra`). It is linear in them, so the spectra of many sets
+    of weights with the same spins and fields, summed, give the sum of their expectations in one
+    quadrature (a focal plane's pairs' scattered leaks)."""
     q = _Quadrature(spins, fields, sky_cl, lmax, second, pseudo)
-    w_cl, v_cl = weight_cross_spectra(alms, spins, q.lw)
     a = np.zeros(q.x.size, dtype=np.complex128)
     b = np.zeros(q.x.size, dtype=np.complex128)
     for i, j, s, sp in q.pairs():

@@ -756,7 +756,10 @@ def expected_residual(
     def items(share, h, n, field, pairs):
         """The terms of Y of a moment n over ``pairs``, each pair's ``share`` (pairs,) times its
         h_n (pairs, npix), on ``field``; read exactly, also its first-order change across the
-        pixels (:func:`boresight.predict.expectation.offset_weights`)."""
+        pixels (:func:`boresight.predict.expectation.offset_weights`); none where every share
+        is 0 (a unit of a drawn parameter moves only its own terms)."""
+        if not np.any(share):
+            return []
         w = weights[pairs]
         out = [(np.einsum("i,ip,ip->p", share, w, h), n, field, fp_products.conjugate(field))]
         if offsets is not None:
@@ -792,6 +795,8 @@ def expected_residual(
     ]
 
     def bb(alms, spins, term_fields):
+        if not alms:  # no term has a share
+            return np.zeros(lmax + 1)
         return fp_products.expected_pseudo_cl_alm(alms, spins, term_fields, sky_cl, lmax).bb
 
     alms, spins, term_fields = weighted(leak(shares) + beams)
@@ -807,8 +812,23 @@ def expected_residual(
     residual = total - bb(sky, *sky_terms) + scatter
     scattered = np.zeros(lmax + 1)
     for _, rms, delta in unit_shares(params, drawn, shares, focal):
+        summed = {}  # the pairs' unit leaks are alike in their terms: their spectra add
         for i in range(focal.n_pairs):
-            scattered += rms**2 * bb(*weighted(leak(delta, slice(i, i + 1))))
+            alms, spins, term_fields = weighted(leak(delta, slice(i, i + 1)))
+            key = tuple(name for name in terms if np.any(delta[name][i]))
+            if not alms:
+                continue
+            w, v = fp_products.weight_cross_spectra(alms, spins, lw)
+            if key in summed:
+                summed[key][0][:] += w
+                summed[key][1][:] += v
+            else:
+                summed[key] = (w, v, spins, term_fields)
+        for w, v, spins, term_fields in summed.values():
+            scattered += (
+                rms**2
+                * fp_products.expected_pseudo_cl_spectra(w, v, spins, term_fields, sky_cl, lmax).bb
+            )
     return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
 
 
