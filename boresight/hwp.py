@@ -216,9 +216,10 @@ def check_systematics(systematics, *, pointing: bool = False) -> None:
     carried = THROUGH_HWP + REFLECTED_BY_HWP + (POINTING_BEHIND_HWP if pointing else ())
     others = [k for k in AMPLITUDES if k not in carried and _nonzero(getattr(systematics, k))]
     if others or _nonzero(systematics.dg_repeat):
+        where = "" if pointing else " (a pointing offset only on a schedule's focal plane)"
         raise ValueError(
-            f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted; "
-            f"a HWP's pairs carry {', '.join(carried)}"
+            f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted "
+            f"here; a HWP's pairs carry {', '.join(carried)}{where}"
         )
 
 
