@@ -34,7 +34,7 @@ if TYPE_CHECKING:
     from ..instrument import Instrument, Systematics
 
 #: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`
-_TERMS = {
+TERM_FIELDS = {
     "t2": (2, "temperature"),
     "s2": (2, "template"),
     "g1": (1, "gradient"),
@@ -53,7 +53,7 @@ class ExpectedResidual(NamedTuple):
     residual: np.ndarray
 
 
-def _fields(window, gradient_window):
+def fields_by_kind(window, gradient_window):
     """The sky's fields by name, to one band."""
     return {
         "temperature": fp.temperature(window),
@@ -264,7 +264,7 @@ def sky_fields(
         raise ValueError(f"evaluation must be one of {METHODS}, got {evaluation!r}")
     kinds = ("exact" if evaluation == "exact" else "value", "exact")
     value, exact = (_Reading(hits, nside, band, kind) for kind in kinds)
-    return _fields(value.window, exact.window), value, exact
+    return fields_by_kind(value.window, exact.window), value, exact
 
 
 def leak_terms(systematics: Systematics, read: tuple) -> dict:
@@ -276,7 +276,7 @@ def leak_terms(systematics: Systematics, read: tuple) -> dict:
     out = {}
     for name in MOMENT_NAMES:
         if _kept(name, systematics):
-            n, kind = _TERMS[name]
+            n, kind = TERM_FIELDS[name]
             out[name] = (n, kind, exact if "gradient" in kind else value)
     return out
 

@@ -38,7 +38,9 @@ from . import field_products as fp_products
 from .beam_fields import _beam_field, pairs_beam_filters
 from .coefficients import _pair_terms
 from .expectation import (
+    TERM_FIELDS,
     ExpectedResidual,
+    fields_by_kind,
     leak_terms,
     offset_weights,
     sky_fields,
@@ -281,27 +283,13 @@ def delta_p(
         y = y + _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads)
     if offsets is not None:
         window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
+        kinds = fields_by_kind(window, window)
         for name, n in TERMS:
-            if name not in fields:
-                continue
-            make, conjugate = SKY_FIELDS[name]
-            up, down = _derivative_maps(sky, make(window), nthreads)
-            if conjugate:  # d conj(F) = conj(dbar F), dbar conj(F) = conj(d F)
-                up, down = np.conj(down), np.conj(up)
-            for by, field in zip(offset_weights(offsets, n), (up, down)):
-                y = y + 0.5 * field * np.einsum("i,ip,ip->p", shares[name], weights, by)
+            if name in fields:
+                up, down = _derivative_maps(sky, kinds[TERM_FIELDS[name][1]], nthreads)
+                for by, field in zip(offset_weights(offsets, n), (up, down)):
+                    y = y + 0.5 * field * np.einsum("i,ip,ip->p", shares[name], weights, by)
     return _solve(y, _h4(stats, weights, shares))
-
-
-#: each term's sky field: how it is made from a window, and whether it is its conjugate
-SKY_FIELDS = {
-    "t2": (fp_products.temperature, False),
-    "s2": (fp_products.temperature, False),
-    "g1": (fp_products.gradient, False),
-    "g3": (fp_products.gradient, True),
-    "p0": (fp_products.polarisation, False),
-    "p4": (fp_products.polarisation, True),
-}
 
 
 def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
@@ -715,6 +703,11 @@ def expected_residual(
     FocalPlaneResidual
     """
     _check(stats, systematics)
+    if stats.hwp is not None and systematics.has_pointing:
+        raise ValueError(
+            "a pointing offset behind a HWP: its expectation over skies is not built yet "
+            "(delta_p predicts it for a sky)"
+        )
     if offsets is not None and stats.hwp is not None:
         raise ValueError("the samples' offsets behind a HWP: not yet predicted")
     band = lmax if band is None else band
