@@ -269,15 +269,14 @@ def expected_pseudo_cl_alm(
     ``second`` and ``pseudo`` (K, K) are E[c_k conj(c_k')] and E[c_k c_k'] of random
     coefficients that multiply the weights (default: ones, the coefficients in the weights):
     the expectation is bilinear, through W^kk' c_k conj(c_k') and V^kk' c_k c_k'."""
-    w_cl, v_cl = weight_cross_spectra(alms, spins, lmax + fields[0].band)
+    spectra = weight_cross_spectra(alms, spins, lmax + fields[0].band)
     return expected_pseudo_cl_spectra(
-        w_cl, v_cl, spins, fields, sky_cl, lmax, second=second, pseudo=pseudo
+        spectra, spins, fields, sky_cl, lmax, second=second, pseudo=pseudo
     )
 
 
 def expected_pseudo_cl_spectra(
-    w_cl: np.ndarray,
-    v_cl: np.ndarray,
+    spectra: tuple,
     spins: Sequence[int],
     fields: Sequence[SkyField],
     sky_cl: np.ndarray,
@@ -286,10 +285,11 @@ def expected_pseudo_cl_spectra(
     second: np.ndarray | None = None,
     pseudo: np.ndarray | None = None,
 ) -> PseudoSpectra:
-    """:func:`expected_pseudo_cl_alm` from the weights' cross spectra W and V (K, K, lmax +
-    band + 1) (:func:`weight_cross_spectra`). It is linear in them, so the spectra of many sets
+    """:func:`expected_pseudo_cl_alm` from the weights' cross spectra ``spectra`` = (W, V),
+    (K, K, lmax + band + 1) each (:func:`weight_cross_spectra`). It is linear in them, so the spectra of many sets
     of weights with the same spins and fields, summed, give the sum of their expectations in one
     quadrature (a focal plane's pairs' scattered leaks)."""
+    w_cl, v_cl = spectra
     q = _Quadrature(spins, fields, sky_cl, lmax, second, pseudo)
     a = np.zeros(q.x.size, dtype=np.complex128)
     b = np.zeros(q.x.size, dtype=np.complex128)

@@ -820,7 +820,9 @@ def expected_residual(
         for w, v, spins, term_fields in summed.values():
             scattered += (
                 rms**2
-                * fp_products.expected_pseudo_cl_spectra(w, v, spins, term_fields, sky_cl, lmax).bb
+                * fp_products.expected_pseudo_cl_spectra(
+                    (w, v), spins, term_fields, sky_cl, lmax
+                ).bb
             )
     return FocalPlaneResidual(ExpectedResidual(leaked, residual), scattered)
 
