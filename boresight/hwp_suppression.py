@@ -223,7 +223,9 @@ def run(
         ref = engine.simulate_focalplane(sky, scan, pairs, hwp=plate, **run_)
         mask = (ref.rcond > RCOND_FOOTPRINT).astype(float)
         footprint = spectra.as_footprint(mask)
-        stats = scanstats.characterise_focalplane(scan, pairs, sky.nside, per_pair=True, hwp=plate)
+        stats = scanstats.characterise_focalplane(
+            scan, pairs, sky.nside, per_pair=True, hwp=plate, pointing=True
+        )
         moments = None  # the boresight's hits and h_{n,m}, once a plate's own case needs them
         offsets = None  # the bare pairs' samples' offsets from their pixel centres
         for case in CASES:

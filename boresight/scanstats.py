@@ -718,6 +718,7 @@ def characterise_focalplane(
     *,
     per_pair: bool = False,
     hwp: HWP | None = None,
+    pointing: bool = False,
     scheduler: str | None = "serial",
     workers: int = 2,
     progress: bool = False,
@@ -747,6 +748,10 @@ def characterise_focalplane(
         Keep each pair's hits and h_n.
     hwp : boresight.hwp.HWP, optional
         A continuous or stepped HWP in front of every pair.
+    pointing : bool
+        Behind ``hwp``, with ``per_pair``: also each pair's moments of a pointing offset's terms
+        (:func:`pointing_behind`, 9 more maps per pair), which its prediction behind the plate
+        needs.
     scheduler : str, optional
         "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
         scheduler's address.
@@ -802,7 +807,7 @@ def characterise_focalplane(
             for b in blocks
         ]
         tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
-    behind = per_pair and hwp is not None and hwp.present
+    behind = pointing and per_pair and hwp is not None and hwp.present
     return FocalPlaneStats(
         combined=combined.stats(),
         sum_sq=sum_sq,

@@ -322,7 +322,9 @@ def _leak(schedule, sky, plate, systematics=GAIN):
         for s in (Systematics(), systematics)
     ]
     footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
-    stats = scanstats.characterise_focalplane(schedule, pairs, NSIDE, per_pair=True, hwp=plate)
+    stats = scanstats.characterise_focalplane(
+        schedule, pairs, NSIDE, per_pair=True, hwp=plate, pointing=True
+    )
 
     def bb(dp):
         d = dp[footprint.pixels]
@@ -447,6 +449,10 @@ def test_what_a_hwp_pair_does_not_yet_carry_is_refused(deep_bare):
     )
     with pytest.raises(ValueError, match="dfwhm_a_arcmin behind a HWP"):
         predict_fp.delta_p(sky, stats, beam)
+    with pytest.raises(ValueError, match="characterise with per_pair and pointing"):
+        predict_fp.delta_p(sky, stats, POINTING)
+    with pytest.raises(ValueError, match="rho_arcmin behind a HWP.*only on a schedule"):
+        hwp.reflected_systematics(HWP("stepped"), POINTING)  # a synthetic scan's or the design's
 
 
 def test_the_reflected_angle_moments_are_the_hwp_moments():

@@ -65,6 +65,11 @@ def _check(stats, systematics):
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:
         check_hwp_systematics(systematics, pointing=True)
+        if systematics.has_pointing and stats.hwp.present and stats.pair_pointing_h is None:
+            raise ValueError(
+                "a pointing offset behind a HWP needs each pair's pointing moments: "
+                "characterise with per_pair and pointing"
+            )
 
 
 def pair_shares(params, focalplane) -> dict:
