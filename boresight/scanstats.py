@@ -625,9 +625,9 @@ class FocalPlaneStats:
         Each pair's h_{n,i}, where asked.
     hwp : boresight.hwp.HWP, optional
         The HWP in front of the pairs: their moments are of their reflected angles.
-    pair_pointing_h : numpy.ndarray, complex128, shape (pairs, 5, npix), or None
-        Behind ``hwp``, with the per-pair maps: each pair's moments of a pointing offset's terms
-        (:func:`pointing_behind`).
+    pair_pointing_h : numpy.ndarray, complex128, shape (pairs, 9, npix), or None
+        Behind ``hwp``, with the per-pair maps and ``pointing``: each pair's moments of a
+        pointing offset's terms (:func:`pointing_behind`).
     """
 
     combined: ScanStats
