@@ -305,6 +305,16 @@ def unsmoothed_alm(alm: np.ndarray, fwhm: float) -> np.ndarray:
     return np.stack([harmonics.almxfl(alm[c], 1.0 / beam[:, c]) for c in range(3)])
 
 
+#: the sky's components each part of a detector's signal comes from (T, E, B)
+PARTS = {"all": (0, 1, 2), "T": (0,), "P": (1, 2)}
+
+
+def turned(beam: Beam, angle: float) -> Beam:
+    """The beam with its major axis ``angle`` [rad] further from its polarisation axis (a
+    circular beam as it is)."""
+    return beam._replace(angle=beam.angle + angle) if beam.ellipticity > 0 else beam
+
+
 class BeamConvolver:
     """Each detector's extra signal from its beam: the sky convolved with (beam - nominal beam).
 
@@ -344,28 +354,32 @@ class BeamConvolver:
             nthreads=nthreads,
         )
 
-    def _cube(self, beam):
-        """(plan, cube) of one beam: the planes of (beam - nominal) x sky, prepared for psi."""
-        if beam in self._cubes:
-            return self._cubes[beam]
+    def _cube(self, beam, part):
+        """(plan, cube) of one beam: the planes of (beam - nominal) x the sky's components of
+        ``part`` (:data:`PARTS`), prepared for psi."""
+        if (beam, part) in self._cubes:
+            return self._cubes[beam, part]
         diff, kmax = _difference(beam, self.nominal, self.lmax)
+        components = [c for c in PARTS[part] if c < diff.shape[0]]
         plan = self._plan(kmax, 1)
         cube = np.zeros((plan.Npsi(), plan.Ntheta(), plan.Nphi()))
 
         def planes(k):  # moment k of the beam: 1 plane for k = 0, else re and im
             rows = slice(0, 1) if k == 0 else slice(2 * k - 1, 2 * k + 1)
             own, out = self._plan(kmax, 1), np.empty_like(cube[rows])
-            for c in range(diff.shape[0]):
+            for c in components:
                 own.getPlane(self._sky[c], diff[c], k, out)
                 cube[rows] += out
 
         with ThreadPoolExecutor(max_workers=self.nthreads) as pool:
             list(pool.map(planes, range(kmax + 1)))
         plan.prepPsi(cube)
-        self._cubes[beam] = (self._plan(kmax, self.nthreads), cube)
-        return self._cubes[beam]
+        self._cubes[beam, part] = (self._plan(kmax, self.nthreads), cube)
+        return self._cubes[beam, part]
 
-    def extra(self, beam: Beam, theta: np.ndarray, phi: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    def extra(
+        self, beam: Beam, theta: np.ndarray, phi: np.ndarray, psi: np.ndarray, *, part: str = "all"
+    ) -> np.ndarray:
         """A detector's extra signal where it looks.
 
         Parameters
@@ -375,6 +389,9 @@ class BeamConvolver:
             Where the detector looks [rad]; phi in [0, 2 pi).
         psi : numpy.ndarray, shape (n,)
             Its polarisation angle [rad], any value.
+        part : {"all", "T", "P"}
+            The signal from the whole sky, its T alone or its polarisation alone (their sum is
+            the whole; behind a HWP they turn with different angles, :func:`behind_hwp`).
 
         Returns
         -------
@@ -384,7 +401,36 @@ class BeamConvolver:
         out = np.zeros(np.size(theta))
         if beam == self.nominal:
             return out
-        plan, cube = self._cube(beam)
+        plan, cube = self._cube(beam, part)
         as_array = (np.ascontiguousarray(x, dtype=np.float64) for x in (theta, phi, psi))
         plan.interpol(cube, 0, 0, *as_array, out)
         return out
+
+    def behind_hwp(self, beam, theta, phi, shape, delta) -> np.ndarray:
+        """A detector's extra signal behind a HWP: its beam's shape at ``shape`` (its own
+        polarisation angle, with the focal plane), its polarisation axis at ``shape + delta``
+        (where the HWP turns it).
+
+        The T part turns with the shape alone. The polarised part is Re(exp(-2 i delta) C), C of
+        the beam with both axes at ``shape``, so it is cos 2 delta times that beam's and
+        sin 2 delta times that of the beam whose polarisation axis is 45 deg further from its
+        major axis (:func:`turned` by -45 deg), read at ``shape`` + 45 deg (docs/conventions.md).
+
+        Parameters
+        ----------
+        beam : Beam
+        theta, phi, shape, delta : numpy.ndarray, shape (n,)
+            [rad].
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            [muK].
+        """
+        quarter = 0.25 * np.pi
+        return (
+            self.extra(beam, theta, phi, shape, part="T")
+            + np.cos(2 * delta) * self.extra(beam, theta, phi, shape, part="P")
+            + np.sin(2 * delta)
+            * self.extra(turned(beam, -quarter), theta, phi, shape + quarter, part="P")
+        )

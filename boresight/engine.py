@@ -363,36 +363,38 @@ class _Binner:
             return k.to_device(self.fields.in_pixel(ang2pix_array(self.fields.nside, theta, phi)))
         return self.fields.exact(theta, phi, self.nthreads)
 
-    def _beam_terms(self, theta, phi, psi):
-        """(2, H, K, M) extra signal of detectors A and B from their own beams, or (2, 0, K, M)."""
+    def _beam_terms(self, theta, phi, psi, own_psi=None):
+        """(2, H, K, M) extra signal of detectors A and B from their own beams, or (2, 0, K, M).
+        ``own_psi``, behind a HWP: the pairs' own crossing angle, which turns the beams' shapes
+        and B's offset, where ``psi`` (the reflected one) turns their polarisation
+        (:meth:`boresight.beams.BeamConvolver.behind_hwp`; detectors at their nominal angles)."""
         k = self.kernels
         out = np.zeros((2, 0 if self.beams is None else theta.size, self.rot.size, self.ang.size))
         if self.beams is None:
             return out
         theta, phi, psi = k.to_host(theta), k.to_host(phi), k.to_host(psi)
+        own = psi if own_psi is None else k.to_host(own_psi)
         if self.pointing:
             tb, pb = (
                 k.to_host(x)
-                for x in k.offset_points(theta, phi, psi, self.rot, self.ang, self.rho, self.chi)
+                for x in k.offset_points(theta, phi, own, self.rot, self.ang, self.rho, self.chi)
             )
         else:
             tb = np.broadcast_to(theta[:, None, None], out.shape[1:])
             pb = np.broadcast_to(phi[:, None, None], out.shape[1:])
-        angle = psi[:, None] + self.rot[None, :]
-        for m, (beam_a, beam_b) in enumerate(self.pair_beams):
-            base = angle + self.ang[m]
-            out[0, :, :, m] = self.beams.extra(
-                beam_a,
-                np.repeat(theta, self.rot.size),
-                np.repeat(phi, self.rot.size),
-                (base + self.angle_a[m]).ravel(),
-            ).reshape(base.shape)
-            out[1, :, :, m] = self.beams.extra(
-                beam_b,
-                np.ascontiguousarray(tb[:, :, m]).ravel(),
-                np.ascontiguousarray(pb[:, :, m]).ravel(),
-                (base + self.angle_b[m]).ravel(),
-            ).reshape(base.shape)
+        ta = np.broadcast_to(theta[:, None], out.shape[1:3]).ravel()
+        pa = np.broadcast_to(phi[:, None], out.shape[1:3]).ravel()
+        angle, shape = psi[:, None] + self.rot[None, :], own[:, None] + self.rot[None, :]
+        for m, beams in enumerate(self.pair_beams):
+            points = ((ta, pa), (np.ravel(tb[:, :, m]), np.ravel(pb[:, :, m])))
+            for x, (beam, offset) in enumerate(zip(beams, (self.angle_a[m], self.angle_b[m]))):
+                polarisation = (angle + self.ang[m] + offset).ravel()
+                if own_psi is None:
+                    value = self.beams.extra(beam, *points[x], polarisation)
+                else:
+                    turn = (shape + self.ang[m] + 0.5 * np.pi * x).ravel()
+                    value = self.beams.behind_hwp(beam, *points[x], turn, polarisation - turn)
+                out[x, :, :, m] = value.reshape(angle.shape)
         return out
 
     def _values(self, theta, phi, psi):
@@ -472,18 +474,19 @@ class _Binner:
         *,
         mapmaker="pairs",
         seen=None,
-        pointing_psi=None,
+        own_psi=None,
     ):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
         ``mapmaker`` bins them (:data:`MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
         by (seed, first + h). ``seen``, if given, maps the fields at the hits to what the pair
         sees there (a HWP's own signals, :func:`boresight.hwp.plate_signals`).
-        ``pointing_psi``, if given, is the angle detector B's offset turns with, where ``psi``
-        is another (behind a HWP, the pair's own crossing angle beside its reflected one)."""
-        values_a, values_b = self._values(theta, phi, psi if pointing_psi is None else pointing_psi)
+        ``own_psi``, if given, is the angle detector B's offset and the beams' shapes turn
+        with, where ``psi`` is another (behind a HWP, the pair's own crossing angle beside its
+        reflected one)."""
+        values_a, values_b = self._values(theta, phi, psi if own_psi is None else own_psi)
         if seen is not None:
             values_a = seen(self.kernels.to_host(values_a))
-        beams = self._beam_terms(theta, phi, psi)
+        beams = self._beam_terms(theta, phi, psi, own_psi)
         args = (pixels, psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
         if mapmaker == "pairs":
             self.kernels.accumulate_scatter(*args, seed, first, normal)
@@ -605,7 +608,7 @@ def simulate_focalplane(
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     if hwp is not None:
-        systematics = reflected_systematics(hwp, systematics, pointing=True)
+        systematics = reflected_systematics(hwp, systematics, own_angles=True)
     _check_mapmaker(mapmaker, backend)
     gammas = np.radians(focalplane.gamma_deg)
     instrument = Instrument(pair_angles_deg=focalplane.pair_angles_deg)
@@ -646,7 +649,7 @@ def simulate_focalplane(
                     key,
                     mapmaker=mapmaker,
                     seen=seen,
-                    pointing_psi=psi[i] if chi else None,
+                    own_psi=psi[i] if chi else None,
                 )
             first += theta.shape[1]
             bar.update(theta.size)

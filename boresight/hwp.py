@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .constants import DEG
-from .instrument import AMPLITUDES, Instrument, Spread, _nonzero
+from .instrument import AMPLITUDES, BEAM_KEYS, Instrument, Spread, _nonzero
 from .kernels.rng import HWP_SALT, normal_array
 from .scan import SyntheticScan
 from .validation import ConfigError
@@ -206,20 +206,31 @@ REFLECTED_BY_HWP = ("pol_angle_deg", "nonortho_deg")
 #: own crossing angle is known beside its reflected one (a schedule's pairs,
 #: :func:`boresight.engine.simulate_focalplane` and :mod:`boresight.predict.focalplane`)
 POINTING_BEHIND_HWP = ("rho_arcmin", "chi_deg")
+#: the detectors' beams: their shapes turn with the focal plane, their polarisation with the
+#: HWP; carried where a pointing offset is, on pairs without polarisation-angle errors
+BEAMS_BEHIND_HWP = tuple(k for keys in BEAM_KEYS.values() for k in keys)
 
 
-def check_systematics(systematics, *, pointing: bool = False) -> None:
+def check_systematics(systematics, *, own_angles: bool = False) -> None:
     """Refuse systematics the HWP's pairs do not yet carry (:data:`THROUGH_HWP`,
-    :data:`REFLECTED_BY_HWP`, and with ``pointing`` :data:`POINTING_BEHIND_HWP`): a pointing
-    offset or a beam turns with the focal plane, not with the HWP, so it needs the pairs' own
-    crossing angles; a beam is not carried yet."""
-    carried = THROUGH_HWP + REFLECTED_BY_HWP + (POINTING_BEHIND_HWP if pointing else ())
+    :data:`REFLECTED_BY_HWP`, and with ``own_angles`` :data:`POINTING_BEHIND_HWP` and
+    :data:`BEAMS_BEHIND_HWP`): a pointing offset or a beam turns with the focal plane, not with
+    the HWP, so it needs the pairs' own crossing angles; a beam beside an angle error is not
+    carried yet."""
+    behind = POINTING_BEHIND_HWP + BEAMS_BEHIND_HWP if own_angles else ()
+    carried = THROUGH_HWP + REFLECTED_BY_HWP + behind
     others = [k for k in AMPLITUDES if k not in carried and _nonzero(getattr(systematics, k))]
     if others or _nonzero(systematics.dg_repeat):
-        where = "" if pointing else " (a pointing offset only on a schedule's focal plane)"
+        where = "" if own_angles else " (pointing and beams only on a schedule's focal plane)"
         raise ValueError(
             f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted "
             f"here; a HWP's pairs carry {', '.join(carried)}{where}"
+        )
+    angles = [k for k in REFLECTED_BY_HWP if _nonzero(getattr(systematics, k))]
+    if systematics.has_beams and angles:
+        raise ValueError(
+            f"beams with {', '.join(angles)} behind a HWP: not yet simulated or predicted; a "
+            "HWP's pairs carry beams on detectors at their nominal angles"
         )
 
 
@@ -232,7 +243,7 @@ def _turned(value, sign: float, shift: float = 0.0):
     return sign * float(value) + shift
 
 
-def reflected_systematics(hwp: HWP, systematics, *, pointing: bool = False):
+def reflected_systematics(hwp: HWP, systematics, *, own_angles: bool = False):
     """The systematics of pairs behind the plate as the bare pairs at their reflected angles
     (:func:`reflected`) carry them, the plate's angle offset delta included.
 
@@ -250,15 +261,16 @@ def reflected_systematics(hwp: HWP, systematics, *, pointing: bool = False):
     hwp : HWP
     systematics : boresight.instrument.Systematics
         The pairs' own (:func:`check_systematics`).
-    pointing : bool
-        Whether the caller carries a pointing offset, which stays as it is: it turns with each
-        pair's own crossing angle (:data:`POINTING_BEHIND_HWP`).
+    own_angles : bool
+        Whether the caller carries pointing offsets and beams, which stay as they are: they turn
+        with each pair's own crossing angle (:data:`POINTING_BEHIND_HWP`,
+        :data:`BEAMS_BEHIND_HWP`).
 
     Returns
     -------
     boresight.instrument.Systematics
     """
-    check_systematics(systematics, pointing=pointing)
+    check_systematics(systematics, own_angles=own_angles)
     pol, nonortho = systematics.pol_angle_deg, systematics.nonortho_deg
     if hwp.angle_offset_deg == 0.0 and not (_nonzero(pol) or _nonzero(nonortho)):
         return systematics

@@ -628,6 +628,9 @@ class FocalPlaneStats:
     pair_pointing_h : numpy.ndarray, complex128, shape (pairs, 9, npix), or None
         Behind ``hwp``, with the per-pair maps and ``pointing``: each pair's moments of a
         pointing offset's terms (:func:`pointing_behind`).
+    pair_beam_h : numpy.ndarray, complex128, shape (pairs, 44, npix), or None
+        Behind ``hwp``, with the per-pair maps and ``beams``: each pair's moments of the beams'
+        terms (:func:`beams_behind`).
     """
 
     combined: ScanStats
@@ -638,6 +641,7 @@ class FocalPlaneStats:
     pair_h: np.ndarray | None = None
     hwp: HWP | None = None
     pair_pointing_h: np.ndarray | None = None
+    pair_beam_h: np.ndarray | None = None
 
     def scattered(self) -> np.ndarray:
         """sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
@@ -719,6 +723,7 @@ def characterise_focalplane(
     per_pair: bool = False,
     hwp: HWP | None = None,
     pointing: bool = False,
+    beams: bool = False,
     scheduler: str | None = "serial",
     workers: int = 2,
     progress: bool = False,
@@ -752,6 +757,8 @@ def characterise_focalplane(
         Behind ``hwp``, with ``per_pair``: also each pair's moments of a pointing offset's terms
         (:func:`pointing_behind`, 9 more maps per pair), which its prediction behind the plate
         needs.
+    beams : bool
+        Likewise for the beams' terms (:func:`beams_behind`, 44 more maps per pair).
     scheduler : str, optional
         "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
         scheduler's address.
@@ -807,7 +814,7 @@ def characterise_focalplane(
             for b in blocks
         ]
         tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
-    behind = pointing and per_pair and hwp is not None and hwp.present
+    behind = per_pair and hwp is not None and hwp.present
     return FocalPlaneStats(
         combined=combined.stats(),
         sum_sq=sum_sq,
@@ -818,7 +825,12 @@ def characterise_focalplane(
         hwp=hwp,
         pair_pointing_h=(
             pointing_behind(schedule, focalplane, hwp, nside, chunk_samples=chunk_samples)
-            if behind
+            if behind and pointing
+            else None
+        ),
+        pair_beam_h=(
+            beams_behind(schedule, focalplane, hwp, nside, chunk_samples=chunk_samples)
+            if behind and beams
             else None
         ),
     )
@@ -868,8 +880,16 @@ def pointing_behind(
     numpy.ndarray, complex128, shape (pairs, 9, npix)
         In :data:`POINTING_BEHIND_TERMS` order, 0 where a pair has no hits.
     """
+    return _moments_behind(schedule, focalplane, hwp, nside, POINTING_BEHIND_TERMS, chunk_samples)
+
+
+def _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples):
+    """Each pair's means over its samples per pixel of ``terms`` ((name, (n, m), offset) each:
+    exp(i n psi + i m (chi - gamma)), times the sample's offset delta from its pixel's centre as
+    ``offset`` says: "conj", "delta", "conj2", "delta2" or "abs2" for conj(delta), delta, their
+    squares and ``|delta|^2``), (pairs, len(terms), npix), 0 where a pair has no hits."""
     npix = 12 * nside**2
-    out = np.zeros((focalplane.n_pairs, len(POINTING_BEHIND_TERMS), npix), dtype=np.complex128)
+    out = np.zeros((focalplane.n_pairs, len(terms), npix), dtype=np.complex128)
     gamma = np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64))
     for i in range(focalplane.n_pairs):
         hits = np.zeros(npix)
@@ -879,10 +899,56 @@ def pointing_behind(
             pix, delta = sample_offsets(theta[0], phi[0], nside)
             hits += np.bincount(pix, minlength=npix)
             spin, turn = np.exp(1j * psi[0]), np.exp(1j * (chi - gamma[i]))
-            for k, (_, (n, m), offset) in enumerate(POINTING_BEHIND_TERMS):
-                w = spin**n * turn**m
-                if offset is not None:
-                    w = w * (np.conj(delta) if offset == "conj" else delta)
+            weights = {
+                None: 1.0, "conj": np.conj(delta), "delta": delta, "conj2": np.conj(delta) ** 2,
+                "delta2": delta**2, "abs2": np.abs(delta) ** 2,
+            }  # fmt: skip
+            for k, (_, (n, m), offset) in enumerate(terms):
+                w = spin**n * turn**m * weights[offset]
                 out[i, k] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
         out[i] = np.where(hits > 0, out[i] / np.maximum(hits, 1), 0.0)
     return out
+
+
+#: the largest abs(n) of a beam term behind a HWP, by m: its polarised part's (m = 0, 8) to h_6,
+#: the ellipticity's eth^2 P that a bare pair's prediction leaves out; its T part's (m = 4) to
+#: h_4, as a bare pair's
+BEAM_N_MAX = {0: 6, 4: N_MAX, 8: 6}
+#: :func:`beams_behind`'s moments, as :data:`POINTING_BEHIND_TERMS`: (n, m) for every moment an
+#: elliptical Gaussian beam's term takes (n even, abs(n) <= BEAM_N_MAX[m]) and m = 0, 4, 8, and
+#: the T part's (n, 4) weighted by each sample's offset from its pixel's centre to second order
+BEAM_BEHIND_TERMS = tuple(
+    (f"h({n},{m})", (n, m), None)
+    for m in (0, 4, 8)
+    for n in range(-BEAM_N_MAX[m], BEAM_N_MAX[m] + 1, 2)
+) + tuple(
+    (f"h({n},4) {offset}", (n, 4), offset)
+    for offset in ("conj", "delta", "conj2", "delta2", "abs2")
+    for n in range(-N_MAX, N_MAX + 1, 2)
+)
+
+
+def beams_behind(
+    schedule: Schedule,
+    focalplane: FocalPlane,
+    hwp: HWP,
+    nside: int,
+    *,
+    chunk_samples: int = 1 << 20,
+) -> np.ndarray:
+    """Each pair's moments of its beams' terms behind a HWP, on its own samples.
+
+    A beam's shape turns with the pair's own crossing angle psi, its polarisation and the
+    map-maker with the reflected psi' = psi + 2 chi - 2 gamma, so a bare pair's beam term at
+    h_n takes, behind the plate, h_{n,4} for the sky's T, and h_{n,0} and h_{n,8} for its
+    polarisation (:func:`boresight.predict.focalplane.delta_p`, docs/conventions.md). Behind a
+    spinning plate the T part's are incoherent sums, which the fields' change across the pixel
+    sets: so h_{n,4} weighted by the samples' offsets too, to second order (the beams' fields are
+    the sky's second derivatives).
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (pairs, 44, npix)
+        In :data:`BEAM_BEHIND_TERMS` order, 0 where a pair has no hits.
+    """
+    return _moments_behind(schedule, focalplane, hwp, nside, BEAM_BEHIND_TERMS, chunk_samples)

@@ -28,11 +28,12 @@ import healpy as hp
 import numpy as np
 
 from .. import harmonics
+from ..beams import PARTS
 from ..constants import DEG
 from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
-from ..scanstats import POINTING_BEHIND_TERMS
+from ..scanstats import BEAM_BEHIND_TERMS, BEAM_N_MAX, POINTING_BEHIND_TERMS
 from ..spectra import as_footprint
 from . import field_products as fp_products
 from .beam_fields import _beam_field, pairs_beam_filters
@@ -64,11 +65,16 @@ def _check(stats, systematics):
     if stats.pair_h is None:
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:
-        check_hwp_systematics(systematics, pointing=True)
+        check_hwp_systematics(systematics, own_angles=True)
         if systematics.has_pointing and stats.hwp.present and stats.pair_pointing_h is None:
             raise ValueError(
                 "a pointing offset behind a HWP needs each pair's pointing moments: "
                 "characterise with per_pair and pointing"
+            )
+        if systematics.has_beams and stats.hwp.present and stats.pair_beam_h is None:
+            raise ValueError(
+                "beams behind a HWP need each pair's beam moments: characterise with per_pair "
+                "and beams"
             )
 
 
@@ -90,7 +96,7 @@ class BeamTerm(NamedTuple):
     filter: np.ndarray
 
 
-def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max) -> dict:
+def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max, part="all") -> dict:
     """The pairs' beam terms, keyed ("beam", group, n), abs(n) <= n_max.
 
     A pair's G_n turns with its angle gamma as e^{i n gamma} (the filters' phase of
@@ -108,6 +114,9 @@ def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max) -> dict:
     fwhm_arcmin : float
         The sky's beam.
     band, n_max : int
+    part : {"all", "T", "P"}
+        The terms of the whole sky, of its T alone or of its polarisation alone
+        (:data:`boresight.beams.PARTS`).
 
     Returns
     -------
@@ -129,14 +138,10 @@ def beam_terms(params, focalplane, fwhm_arcmin, band, *, n_max) -> dict:
         )
         alike = which.ravel() == g
         for n, filt in filters.items():
+            filt = np.where(np.isin(np.arange(3), PARTS[part])[:, None], filt, 0.0)
             if np.any(filt):
                 out["beam", g, n] = BeamTerm(n, np.where(alike, np.exp(1j * n * angles), 0), filt)
     return out
-
-
-def _beam_y(stats, weights, term):
-    """sum_i share_i N_i / N h_n,i (npix,) complex of a beam term."""
-    return np.einsum("i,ip,ip->p", term.shares, weights, _pair_moment(stats, term.moment))
 
 
 def _pair_moment(stats, n):
@@ -157,16 +162,97 @@ def _spread_window(sky):
 
 def _sky_beam_y(sky, stats, params, weights, spread, nthreads):
     """The beams' part of Y on this sky, sum over the beam terms of their weight times G_n (npix,),
-    each G_n read exactly at the hits (their pixel mean with ``spread``)."""
+    each G_n read exactly at the hits (their pixel mean with ``spread``); behind a HWP, from
+    :func:`_beam_parts_behind`, the T part with its first-order change across the pixel."""
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     n_max = stats.pair_h.shape[1] - 1
     window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
-    terms = beam_terms(params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max)
-    for term in terms.values():
-        n = term.moment
-        field = _beam_field(sky, term.filter * window[: term.filter.shape[1]], abs(2 - n), nthreads)
-        y += _beam_y(stats, weights, term) * (np.conj(field) if n > 2 else field)
+    parts = (
+        [(params, "all", lambda n: ((1.0, _pair_moment(stats, n)),), False)]
+        if stats.pair_beam_h is None
+        else _beam_parts_behind(stats, params)
+    )
+    for pair_params, part, moments, across in parts:
+        if stats.pair_beam_h is not None:
+            n_max = BEAM_N_MAX[4] if across else BEAM_N_MAX[0]
+        terms = beam_terms(
+            pair_params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max, part=part
+        )
+        for term in terms.values():
+            n = term.moment
+            if not across:
+                value = _field_map(sky, beam_sky_field(term.filter, n, window), nthreads)
+                h = sum(scale * moment for scale, moment in moments(n))
+                y += _mean(term.shares, weights, h) * value
+                continue
+            # read at the samples: G at the centre and its Taylor terms to second order
+            centre = beam_sky_field(term.filter, n, np.ones(sky.lmax + 1))
+            for offset, (scale, field) in _taylor(centre).items():
+                h = stats.pair_beam_h[:, BEAM_BEHIND[n, 4, offset]]
+                y += scale * _mean(term.shares, weights, h) * _field_map(sky, field, nthreads)
     return y
+
+
+def _taylor(field):
+    """A field read at an offset delta from where it is known, to second order, as
+    {offset: (scale, field)}: F + (conj(delta) d F + delta dbar F) / 2 + (conj(delta)^2 d d F
+    + delta^2 dbar dbar F + 2 ``|delta|^2`` dbar d F) / 8
+    (:func:`boresight.predict.field_products.derivative`; the offsets' names as
+    :func:`boresight.scanstats.beams_behind` weights its moments)."""
+    up = fp_products.derivative(field, raising=True)
+    down = fp_products.derivative(field, raising=False)
+    return {
+        None: (1.0, field),
+        "conj": (0.5, up),
+        "delta": (0.5, down),
+        "conj2": (0.125, fp_products.derivative(up, raising=True)),
+        "delta2": (0.125, fp_products.derivative(down, raising=False)),
+        "abs2": (0.25, fp_products.derivative(up, raising=False)),
+    }
+
+
+def _mean(shares, weights, h):
+    """sum_i share_i N_i / N h_i (npix,) of each pair's map h (pairs, npix)."""
+    return np.einsum("i,ip,ip->p", shares, weights, h)
+
+
+def _beam_parts_behind(stats, params):
+    """Behind a HWP, the beams' terms as (pair parameters, part, moments of n, across): each a
+    bare pair's filters of that part, whose h_n become sums of scale x h_{n,m}, the T part's
+    with the fields' change across the pixel (:func:`_sky_beam_y`).
+
+    A beam's shape turns with the pair's own crossing angle psi, its polarisation axis with
+    a = psi' + 2 delta_h (the reflected angle, and the plate's angle offset); the map-maker
+    demodulates with psi'. So the T part's h_n is h_{n,4}. The polarised part is
+    Re(exp(-2 i (a - psi)) C), with C = S_0 + i S_45: S_0 the bare beam's, S_45 that of the beam
+    whose polarisation axis is 45 deg further from its shape (polarisation angle + 45 deg,
+    ellipticity angle - 45 deg). Its Y is (exp(-4 i delta_h) sum_n h_{n,0} (G_0,n + i G_45,n)
+    + exp(4 i delta_h) sum_n h_{n,8} (G_0,n - i G_45,n)) / 2 (docs/conventions.md); detectors
+    at their nominal angles (:func:`boresight.hwp.check_systematics`)."""
+    nominal = params._replace(
+        pol_angle=np.zeros_like(params.pol_angle), nonortho=np.zeros_like(params.nonortho)
+    )
+    quarter = 0.25 * np.pi
+    turned = nominal._replace(
+        pol_angle=nominal.pol_angle + quarter,
+        ellipticity_angle_a=nominal.ellipticity_angle_a - quarter,
+        ellipticity_angle_b=nominal.ellipticity_angle_b - quarter,
+    )
+    turn = np.exp(4j * stats.hwp.angle_offset_deg * DEG)
+
+    def moments(*scales):
+        def of(n):
+            return tuple(
+                (scale, stats.pair_beam_h[:, BEAM_BEHIND[n, m, None]]) for m, scale in scales
+            )
+
+        return of
+
+    return [
+        (nominal, "T", moments((4, 1.0)), True),
+        (nominal, "P", moments((0, 0.5 / turn), (8, 0.5 * turn)), False),
+        (turned, "P", moments((0, 0.5j / turn), (8, -0.5j * turn)), False),
+    ]
 
 
 def _fields(sky, systematics, template, spread, nthreads):
@@ -204,12 +290,14 @@ def _y(stats, weights, shares, fields, pairs=slice(None)):
     for name, n in TERMS:
         if name in fields:
             h = _term_h(stats, name, n, pairs)
-            y += fields[name] * np.einsum("i,ip,ip->p", shares[name][pairs], weights[pairs], h)
+            y += fields[name] * _mean(shares[name][pairs], weights[pairs], h)
     return y
 
 
 #: the places of :func:`boresight.scanstats.pointing_behind`'s moments, by name
 BEHIND = {name: k for k, (name, _, _) in enumerate(POINTING_BEHIND_TERMS)}
+#: the places of :func:`boresight.scanstats.beams_behind`'s moments, by (n, m, offset)
+BEAM_BEHIND = {(*nm, offset): k for k, (_, nm, offset) in enumerate(BEAM_BEHIND_TERMS)}
 
 
 def _term_h(stats, name, n, pairs=slice(None)):
@@ -227,7 +315,7 @@ def _solve(y, h4):
 
 
 def _h4(stats, weights, shares):
-    return np.einsum("i,ip,ip->p", shares["m4"], weights, stats.pair_h[:, 4])
+    return _mean(shares["m4"], weights, stats.pair_h[:, 4])
 
 
 def delta_p(
@@ -276,7 +364,7 @@ def delta_p(
     ):
         raise ValueError("the samples' offsets: not behind a HWP, with a template or with beams")
     if stats.hwp is not None:
-        systematics = reflected_systematics(stats.hwp, systematics, pointing=True)
+        systematics = reflected_systematics(stats.hwp, systematics, own_angles=True)
     params = systematics.per_pair(stats.focalplane.n_pairs)
     shares = pair_shares(params, stats.focalplane)
     fields = _fields(sky, systematics, template, spread, nthreads)
@@ -293,7 +381,7 @@ def delta_p(
             if name in fields:
                 up, down = _derivative_maps(sky, kinds[TERM_FIELDS[name][1]], nthreads)
                 for by, field in zip(offset_weights(offsets, n), (up, down)):
-                    y = y + 0.5 * field * np.einsum("i,ip,ip->p", shares[name], weights, by)
+                    y = y + 0.5 * field * _mean(shares[name], weights, by)
     return _solve(y, _h4(stats, weights, shares))
 
 
@@ -309,7 +397,7 @@ def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
     moments = stats.pair_pointing_h
 
     def mean(name, k):
-        return np.einsum("i,ip,ip->p", shares[name], weights, moments[:, BEHIND[k]])
+        return _mean(shares[name], weights, moments[:, BEHIND[k]])
 
     y = 0.5 * (mean("g1", "g1 conj(delta)") * up + mean("g1", "g1 delta") * down)
     y += 0.5 * (mean("g3", "g3 conj(delta)") * np.conj(down) + mean("g3", "g3 delta") * np.conj(up))
@@ -319,12 +407,16 @@ def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
 def _derivative_maps(sky, field, nthreads):
     """The maps of a sky field's raising and lowering derivatives d F and dbar F (npix,) complex
     each (:func:`boresight.predict.field_products.derivative`)."""
-    out = []
-    for raising in (True, False):
-        f = fp_products.derivative(field, raising=raising)
-        value = _beam_field(sky, f.filters, abs(f.spin), nthreads)
-        out.append(value if f.spin >= 0 else np.conj(value))  # a negative spin: a conjugate
-    return tuple(out)
+    return tuple(
+        _field_map(sky, fp_products.derivative(field, raising=raising), nthreads)
+        for raising in (True, False)
+    )
+
+
+def _field_map(sky, field, nthreads):
+    """The map of a sky field (npix,) complex; a negative spin is a conjugate."""
+    value = _beam_field(sky, field.filters, abs(field.spin), nthreads)
+    return value if field.spin >= 0 else np.conj(value)
 
 
 def _polarisation_gradient_y(sky, stats, params, weights, window, nthreads):
@@ -351,7 +443,7 @@ def _polarisation_gradient_y(sky, stats, params, weights, window, nthreads):
 
     def mean(phase, k, conjugate=False):
         h = np.conj(moments[:, BEHIND[k]]) if conjugate else moments[:, BEHIND[k]]
-        return np.einsum("i,ip,ip->p", 0.25 * params.rho * np.exp(1j * phase), weights, h)
+        return _mean(0.25 * params.rho * np.exp(1j * phase), weights, h)
 
     return (
         mean(-beta, "h1", conjugate=True) * up
@@ -708,10 +800,10 @@ def expected_residual(
     FocalPlaneResidual
     """
     _check(stats, systematics)
-    if stats.hwp is not None and systematics.has_pointing:
+    if stats.hwp is not None and (systematics.has_pointing or systematics.has_beams):
         raise ValueError(
-            "a pointing offset behind a HWP: its expectation over skies is not built yet "
-            "(delta_p predicts it for a sky)"
+            "a pointing offset or a beam behind a HWP: its expectation over skies is not built "
+            "yet (delta_p predicts it for a sky)"
         )
     if offsets is not None and stats.hwp is not None:
         raise ValueError("the samples' offsets behind a HWP: not yet predicted")
