@@ -316,18 +316,21 @@ GAIN = Systematics(dg=(0.01, -0.01))
 POINTING = Systematics(rho_arcmin=1.0, chi_deg=30.0)
 
 
-def _leak(schedule, sky, plate, systematics=GAIN):
+def _leak(schedule, sky, plate, systematics=GAIN, pairs=None):
     """The TOD's leaked pseudo-C_BB of ``systematics`` behind ``plate`` (the sky read exactly at
-    every sample), and its prediction from the pairs' reflected-angle moments."""
-    pairs = focalplane.on_axis((0.0, 45.0))
+    every sample, through each detector's beam), and its prediction from the pairs'
+    reflected-angle moments, less the plate's own (its angle offset's); ``pairs`` default to the
+    paper's Q and U pairs on the axis."""
+    pairs = focalplane.on_axis((0.0, 45.0)) if pairs is None else pairs
     maps = [
         engine.simulate_focalplane(sky, schedule, pairs, s, evaluation="exact", hwp=plate)
         for s in (Systematics(), systematics)
     ]
     footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
     stats = scanstats.characterise_focalplane(
-        schedule, pairs, NSIDE, per_pair=True, hwp=plate, pointing=True
-    )
+        schedule, pairs, NSIDE, per_pair=True, hwp=plate, pointing=True,
+        beams=systematics.has_beams,
+    )  # fmt: skip
 
     def bb(dp):
         d = dp[footprint.pixels]
@@ -335,7 +338,8 @@ def _leak(schedule, sky, plate, systematics=GAIN):
         return spectra.bin_spectrum(harmonics.alm2cl(b), EDGES)[1]
 
     measured = bb((maps[1].q - maps[0].q) + 1j * (maps[1].u - maps[0].u))
-    return measured, bb(predict_fp.delta_p(sky, stats, systematics))
+    own = predict_fp.delta_p(sky, stats, Systematics())
+    return measured, bb(predict_fp.delta_p(sky, stats, systematics) - own)
 
 
 @pytest.mark.parametrize(
@@ -536,29 +540,9 @@ def hexagon_sky(deep_bare):
 
 
 def _beam_leak(hexagon_sky, plate, sky=None):
-    """The TOD's leaked pseudo-C_BB of BEAMS behind ``plate`` (every pair on its own samples, the
-    sky read exactly through each detector's beam) and its prediction, less the plate's own."""
+    """:func:`_leak` of BEAMS on the hexagon, on the full sky or on ``sky``."""
     schedule, pairs, full, _ = hexagon_sky
-    sky = full if sky is None else sky
-    maps = [
-        engine.simulate_focalplane(sky, schedule, pairs, s, evaluation="exact", hwp=plate)
-        for s in (Systematics(), BEAMS)
-    ]
-    footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
-    stats = scanstats.characterise_focalplane(
-        schedule, pairs, NSIDE, per_pair=True, hwp=plate, beams=True
-    )
-
-    def bb(dp):
-        d = dp[footprint.pixels]
-        b = footprint.alm(np.array([d.real, d.imag]), 2 * NSIDE, 2)[1]
-        return spectra.bin_spectrum(harmonics.alm2cl(b), EDGES)[1]
-
-    measured = bb((maps[1].q - maps[0].q) + 1j * (maps[1].u - maps[0].u))
-    predicted = predict_fp.delta_p(sky, stats, BEAMS) - predict_fp.delta_p(
-        sky, stats, Systematics()
-    )
-    return measured, bb(predicted)
+    return _leak(schedule, full if sky is None else sky, plate, BEAMS, pairs)
 
 
 @pytest.mark.slow
