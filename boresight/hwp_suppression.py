@@ -100,6 +100,13 @@ CASES = (
         "P: h_0 (reflected: turns P by +2 theta)",
         Systematics(pol_angle_deg=0.5),
     ),
+    Case(
+        "detector beams",
+        "e_A = 0.02, FWHM_B + 1 arcmin",
+        "T: h_0, h_2, h_4",
+        "T: h_{n,4}; P: h_{n,0}, h_{n,8}",
+        Systematics(ellipticity_a=0.02, ellipticity_angle_a_deg=30.0, dfwhm_b_arcmin=1.0),
+    ),
     Case("HWP instrumental polarisation", "epsilon", "-", "T: h_{2,0}", plate="ip"),
     Case("HWP angle offset", "delta", "-", "P: h_0 (turns P by 4 delta)", plate="angle"),
     Case(
@@ -224,7 +231,7 @@ def run(
         mask = (ref.rcond > RCOND_FOOTPRINT).astype(float)
         footprint = spectra.as_footprint(mask)
         stats = scanstats.characterise_focalplane(
-            scan, pairs, sky.nside, per_pair=True, hwp=plate, pointing=True
+            scan, pairs, sky.nside, per_pair=True, hwp=plate, pointing=True, beams=True
         )
         moments = None  # the boresight's hits and h_{n,m}, once a plate's own case needs them
         offsets = None  # the bare pairs' samples' offsets from their pixel centres

@@ -160,10 +160,11 @@ def _spread_window(sky):
     return np.sqrt(np.clip(hit_spread_window(sky.nside, sky.lmax), 0.0, None))
 
 
-def _sky_beam_y(sky, stats, params, weights, spread, nthreads):
+def _sky_beam_y(sky, stats, params, weights, spread, nthreads, offsets=None):
     """The beams' part of Y on this sky, sum over the beam terms of their weight times G_n (npix,),
-    each G_n read exactly at the hits (their pixel mean with ``spread``); behind a HWP, from
-    :func:`_beam_parts_behind`, the T part with its first-order change across the pixel."""
+    each G_n read exactly at the hits (their pixel mean with ``spread``), with its first-order
+    change across the pixel where ``offsets`` are given (as :func:`delta_p` has them); behind a
+    HWP, from :func:`_beam_parts_behind`, the T part read across the pixel to second order."""
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     n_max = stats.pair_h.shape[1] - 1
     window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
@@ -181,9 +182,13 @@ def _sky_beam_y(sky, stats, params, weights, spread, nthreads):
         for term in terms.values():
             n = term.moment
             if not across:
-                value = _field_map(sky, beam_sky_field(term.filter, n, window), nthreads)
+                field = beam_sky_field(term.filter, n, window)
                 h = sum(scale * moment for scale, moment in moments(n))
-                y += _mean(term.shares, weights, h) * value
+                y += _mean(term.shares, weights, h) * _field_map(sky, field, nthreads)
+                if offsets is not None:
+                    maps = _derivative_maps(sky, field, nthreads)
+                    for by, value in zip(offset_weights(offsets, n), maps):
+                        y += 0.5 * value * _mean(term.shares, weights, by)
                 continue
             # read at the samples: G at the centre and its Taylor terms to second order
             centre = beam_sky_field(term.filter, n, np.ones(sky.lmax + 1))
@@ -349,8 +354,9 @@ def delta_p(
         Each pair's samples' offsets from their pixel centres weighted as its h_n are
         (:func:`boresight.scanstats.centroid_moments` with the focal plane), for a sky read
         exactly at each sample: each term of Y gains its field's first-order change across the
-        pixel, as :func:`expected_residual` has it. Not behind a HWP, whose pointing terms carry
-        their own (:func:`boresight.scanstats.pointing_behind`), and not with a template or beams.
+        pixel, as :func:`expected_residual` has it, the beams' terms too. Not behind a HWP, whose
+        pointing terms and beams carry their own (:func:`boresight.scanstats.pointing_behind`,
+        :func:`~boresight.scanstats.beams_behind`), and not with a template.
     nthreads : int
 
     Returns
@@ -359,10 +365,8 @@ def delta_p(
         [muK], 0 off the observed pixels.
     """
     _check(stats, systematics)
-    if offsets is not None and (
-        stats.hwp is not None or template is not None or systematics.has_beams
-    ):
-        raise ValueError("the samples' offsets: not behind a HWP, with a template or with beams")
+    if offsets is not None and (stats.hwp is not None or template is not None):
+        raise ValueError("the samples' offsets: not behind a HWP or with a template")
     if stats.hwp is not None:
         systematics = reflected_systematics(stats.hwp, systematics, own_angles=True)
     params = systematics.per_pair(stats.focalplane.n_pairs)
@@ -370,7 +374,7 @@ def delta_p(
     fields = _fields(sky, systematics, template, spread, nthreads)
     weights = _weights(stats)
     y = _y(stats, weights, shares, fields) + _sky_beam_y(
-        sky, stats, params, weights, spread, nthreads
+        sky, stats, params, weights, spread, nthreads, offsets
     )
     if systematics.has_pointing and stats.pair_pointing_h is not None:
         y = y + _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads)
