@@ -406,7 +406,7 @@ class BeamConvolver:
         plan.interpol(cube, 0, 0, *as_array, out)
         return out
 
-    def behind_hwp(self, beam, theta, phi, shape, delta) -> np.ndarray:
+    def behind_hwp(self, beam, theta, phi, *, shape, delta) -> np.ndarray:
         """A detector's extra signal behind a HWP: its beam's shape at ``shape`` (its own
         polarisation angle, with the focal plane), its polarisation axis at ``shape + delta``
         (where the HWP turns it).

@@ -393,7 +393,9 @@ class _Binner:
                     value = self.beams.extra(beam, *points[x], polarisation)
                 else:
                     turn = (shape + self.ang[m] + 0.5 * np.pi * x).ravel()
-                    value = self.beams.behind_hwp(beam, *points[x], turn, polarisation - turn)
+                    value = self.beams.behind_hwp(
+                        beam, *points[x], shape=turn, delta=polarisation - turn
+                    )
                 out[x, :, :, m] = value.reshape(angle.shape)
         return out
 

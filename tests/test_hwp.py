@@ -486,13 +486,13 @@ def test_a_beam_behind_a_plate_turns_its_shape_and_its_polarisation_apart():
     theta, phi = np.arccos(rng.uniform(-1, 1, 300)), rng.uniform(0, 2 * np.pi, 300)
     shape, delta = rng.uniform(-np.pi, np.pi, (2, 300))
     wide = Beam(130.0 * ARCMIN)
-    got = convolver.behind_hwp(wide, theta, phi, shape, delta)
+    got = convolver.behind_hwp(wide, theta, phi, shape=shape, delta=delta)
     want = convolver.extra(wide, theta, phi, shape + delta)
     assert np.max(np.abs(got - want)) < 1e-8 * np.max(np.abs(want))
     ellipse = Beam(120.0 * ARCMIN, 0.1, 0.3)
     polarised = np.max(np.abs(convolver.extra(ellipse, theta, phi, shape, part="P")))
     for d in (0.2, -1.1):
-        got = convolver.behind_hwp(ellipse, theta, phi, shape, np.full(300, d))
+        got = convolver.behind_hwp(ellipse, theta, phi, shape=shape, delta=np.full(300, d))
         want = convolver.extra(ellipse, theta, phi, shape, part="T") + convolver.extra(
             turned(ellipse, -d), theta, phi, shape + d, part="P"
         )
