@@ -814,7 +814,16 @@ def characterise_focalplane(
             for b in blocks
         ]
         tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
-    behind = per_pair and hwp is not None and hwp.present
+    behind = {}  # the pointing's and the beams' moments behind the plate, from one pass
+    if per_pair and hwp is not None and hwp.present and (pointing or beams):
+        tables = {"pointing": POINTING_BEHIND_TERMS, "beams": BEAM_BEHIND_TERMS}
+        wanted = [k for k, want in (("pointing", pointing), ("beams", beams)) if want]
+        terms = sum((tables[k] for k in wanted), ())
+        both = _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples)
+        start = 0
+        for k in wanted:
+            behind[k] = both[:, start : start + len(tables[k])]
+            start += len(tables[k])
     return FocalPlaneStats(
         combined=combined.stats(),
         sum_sq=sum_sq,
@@ -823,16 +832,8 @@ def characterise_focalplane(
         pair_hits=kept.get("pair_hits"),
         pair_h=kept.get("pair_h"),
         hwp=hwp,
-        pair_pointing_h=(
-            pointing_behind(schedule, focalplane, hwp, nside, chunk_samples=chunk_samples)
-            if behind and pointing
-            else None
-        ),
-        pair_beam_h=(
-            beams_behind(schedule, focalplane, hwp, nside, chunk_samples=chunk_samples)
-            if behind and beams
-            else None
-        ),
+        pair_pointing_h=behind.get("pointing"),
+        pair_beam_h=behind.get("beams"),
     )
 
 
@@ -883,6 +884,17 @@ def pointing_behind(
     return _moments_behind(schedule, focalplane, hwp, nside, POINTING_BEHIND_TERMS, chunk_samples)
 
 
+#: a sample's weight for each kind of offset moment, of its offset delta from its pixel's centre
+OFFSET_WEIGHTS = {
+    None: lambda delta: 1.0,
+    "conj": np.conj,
+    "delta": lambda delta: delta,
+    "conj2": lambda delta: np.conj(delta) ** 2,
+    "delta2": lambda delta: delta**2,
+    "abs2": lambda delta: np.abs(delta) ** 2,
+}
+
+
 def _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples):
     """Each pair's means over its samples per pixel of ``terms`` ((name, (n, m), offset) each:
     exp(i n psi + i m (chi - gamma)), times the sample's offset delta from its pixel's centre as
@@ -891,6 +903,7 @@ def _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples):
     npix = 12 * nside**2
     out = np.zeros((focalplane.n_pairs, len(terms), npix), dtype=np.complex128)
     gamma = np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64))
+    offsets = {offset for _, _, offset in terms}
     for i in range(focalplane.n_pairs):
         hits = np.zeros(npix)
         chunks = detector_pointing(schedule, focalplane.subset([i]), chunk_samples, hwp=hwp)
@@ -899,10 +912,7 @@ def _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples):
             pix, delta = sample_offsets(theta[0], phi[0], nside)
             hits += np.bincount(pix, minlength=npix)
             spin, turn = np.exp(1j * psi[0]), np.exp(1j * (chi - gamma[i]))
-            weights = {
-                None: 1.0, "conj": np.conj(delta), "delta": delta, "conj2": np.conj(delta) ** 2,
-                "delta2": delta**2, "abs2": np.abs(delta) ** 2,
-            }  # fmt: skip
+            weights = {offset: OFFSET_WEIGHTS[offset](delta) for offset in offsets}
             for k, (_, (n, m), offset) in enumerate(terms):
                 w = spin**n * turn**m * weights[offset]
                 out[i, k] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
