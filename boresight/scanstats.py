@@ -514,14 +514,19 @@ HWP_TERMS = ((0, 0), (0, 4), (0, 8)) + tuple(
 
 
 @numba.njit(cache=True)
-def _bin_spins(pix, psi, chi, terms, sums, hits):
-    """sums[k, p] += exp(i (n_k psi + m_k chi)) and hits[p] += 1 over samples, in sample order."""
+def _bin_spins(pix, psi, chi, terms, sums, hits, weights=None, kinds=None):
+    """sums[k, p] += exp(i (n_k psi + m_k chi)) w_k and hits[p] += 1 over samples, in sample
+    order; w_k = 1, or with ``weights`` (K, samples) the sample's weights[kinds[k]] where
+    kinds[k] >= 0."""
     for j in range(pix.size):
         p = pix[j]
         hits[p] += 1
         for k in range(terms.shape[0]):
             angle = terms[k, 0] * psi[j] + terms[k, 1] * chi[j]
-            sums[k, p] += complex(np.cos(angle), np.sin(angle))
+            value = complex(np.cos(angle), np.sin(angle))
+            if weights is not None and kinds[k] >= 0:
+                value *= weights[kinds[k], j]
+            sums[k, p] += value
 
 
 def hwp_moments(
@@ -886,7 +891,6 @@ def pointing_behind(
 
 #: a sample's weight for each kind of offset moment, of its offset delta from its pixel's centre
 OFFSET_WEIGHTS = {
-    None: lambda delta: 1.0,
     "conj": np.conj,
     "delta": lambda delta: delta,
     "conj2": lambda delta: np.conj(delta) ** 2,
@@ -903,20 +907,27 @@ def _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples):
     npix = 12 * nside**2
     out = np.zeros((focalplane.n_pairs, len(terms), npix), dtype=np.complex128)
     gamma = np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64))
-    offsets = {offset for _, _, offset in terms}
+    table = np.array([nm for _, nm, _ in terms], dtype=np.float64)
+    weighted = list(dict.fromkeys(offset for _, _, offset in terms if offset is not None))
+    kinds = np.array([-1 if o is None else weighted.index(o) for _, _, o in terms], dtype=np.int64)
     for i in range(focalplane.n_pairs):
-        hits = np.zeros(npix)
+        hits = np.zeros(npix, dtype=np.int64)
         chunks = detector_pointing(schedule, focalplane.subset([i]), chunk_samples, hwp=hwp)
         for theta, phi, psi, chi in chunks:
             interrupts.check()
             pix, delta = sample_offsets(theta[0], phi[0], nside)
-            hits += np.bincount(pix, minlength=npix)
-            spin, turn = np.exp(1j * psi[0]), np.exp(1j * (chi - gamma[i]))
-            weights = {offset: OFFSET_WEIGHTS[offset](delta) for offset in offsets}
-            for k, (_, (n, m), offset) in enumerate(terms):
-                w = spin**n * turn**m * weights[offset]
-                out[i, k] += np.bincount(pix, w.real, npix) + 1j * np.bincount(pix, w.imag, npix)
-        out[i] = np.where(hits > 0, out[i] / np.maximum(hits, 1), 0.0)
+            weights = np.array([OFFSET_WEIGHTS[o](delta) for o in weighted], dtype=np.complex128)
+            _bin_spins(
+                pix,
+                psi[0],
+                chi - gamma[i],
+                table,
+                out[i],
+                hits,
+                weights.reshape(-1, pix.size),
+                kinds,
+            )
+        out[i] /= np.maximum(hits, 1)  # unseen pixels summed nothing: 0
     return out
 
 

@@ -409,9 +409,10 @@ def test_a_pointing_offset_reads_p_off_its_place_which_no_plate_cures(deep_bare)
 
 
 def test_the_pointing_moments_behind_a_plate_are_its_hwp_moments():
-    """scanstats.pointing_behind against scanstats.hwp_moments (a separate binning) of each pair
-    of a 7-pixel hexagon behind a spinning plate: exp(-i m gamma) h_{n,m} to 1e-12; and its
-    offset-weighted moments against the samples' offsets binned by hand."""
+    """scanstats.pointing_behind against scanstats.hwp_moments (the plate's angle chi, not
+    chi - gamma) of each pair of a 7-pixel hexagon behind a spinning plate: exp(-i m gamma)
+    h_{n,m} to 1e-12; and its offset-weighted moments against the samples' offsets binned by hand
+    with numpy."""
     schedule = _wide_schedule(2)
     plate = HWP("continuous", frequency_hz=0.37)
     hexagon = focalplane.hexagon(7, 10.0)
