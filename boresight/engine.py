@@ -25,7 +25,7 @@ from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
-from .mapmaking import RCOND_MIN, Maps, solve, solve_iqu
+from .mapmaking import MAPMAKERS, RCOND_MIN, Maps, solve, solve_iqu
 from .pointing import detector_pointing
 from .sky import MAX_NSIDE
 from .threads import numba_threads
@@ -289,11 +289,6 @@ def _maps_from(kernels, normal, n_pairs, rcond_min):
     """
     hits = np.rint((normal[:, 0] + normal[:, 2]) / n_pairs).astype(np.int64)
     return tuple(kernels.to_host(x) for x in solve(normal, rcond_min) + (hits,))
-
-
-#: how a stream's samples become maps: pair differences -> (Q, U); each detector's own samples
-#: -> (I, Q, U), both of every pair's detectors or detector A alone (a single-detector instrument)
-MAPMAKERS = ("pairs", "detectors", "single")
 
 
 def _check_mapmaker(mapmaker, backend):

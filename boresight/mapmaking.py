@@ -22,6 +22,9 @@ import healpy as hp
 import numpy as np
 
 RCOND_MIN = 1e-6  #: below this the 2x2 system is treated as singular (one polarisation angle)
+#: how a stream's samples become maps: pair differences -> (Q, U); each detector's own samples
+#: -> (I, Q, U), both of every pair's detectors or detector A alone (a single-detector instrument)
+MAPMAKERS = ("pairs", "detectors", "single")
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from ..constants import DEG
 from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
+from ..mapmaking import MAPMAKERS, solve_iqu
 from ..scanstats import BEAM_BEHIND_TERMS, BEAM_N_MAX, POINTING_BEHIND_TERMS
 from ..spectra import as_footprint
 from . import field_products as fp_products
@@ -467,6 +468,11 @@ def _pair_mean_w4(moments, terms, what, pair_angles_deg):
 
 #: the h_{n,m} of (psi, chi) the plate's instrumental polarisation reaches a pair's map through
 IP_TERMS = ((2, 0), (2, 8), (4, 8))
+#: with detector A alone (the "single" map-maker), those of its I row too, which a plate that
+#: does not spin within a pixel's samples couples to P
+SINGLE_IP_TERMS = IP_TERMS + ((0, 4), (2, 4))
+#: below this rcond a pixel's 3x3 system has no solution (the map-maker flags it)
+SINGULAR = 1e-12
 
 
 def ip_delta_p(
@@ -475,11 +481,13 @@ def ip_delta_p(
     hwp: HWP,
     pair_angles_deg,
     *,
+    mapmaker: str = "pairs",
     spread: bool = True,
     nthreads: int = 0,
 ) -> np.ndarray:
     """The spurious P = Q + i U of a HWP's instrumental polarisation (:func:`boresight.hwp.plate_signals`)
-    in the pair differences' map of pairs on the axis (and both detectors' own: the same Q, U).
+    in the map of pairs on the axis, as ``mapmaker`` (:data:`boresight.mapmaking.MAPMAKERS`)
+    makes it.
 
     A pair at gamma behind the plate sees a = psi - gamma + 2 chi and the plate's epsilon I
     exp(i (2 psi + phase)) on the sky, so with w_i = exp(-4 i gamma_i) averaged over the pairs::
@@ -487,19 +495,28 @@ def ip_delta_p(
       Y = epsilon T [exp(i phase) h_{2,0} + exp(-i phase) <w> h_{2,8}],   H_4 = <w> h_{4,8}
       dP = (Y - H_4 Y*) / (1 - ``|H_4|^2``)
 
-    the 2x2 solve of :func:`delta_p`. A spinning plate leaves h_{2,8} and h_{4,8} near zero:
+    the 2x2 solve of :func:`delta_p`, for the pair differences and for both detectors' own maps
+    (whose I rows cancel). A spinning plate leaves h_{2,8} and h_{4,8} near zero:
     dP = epsilon T exp(i phase) h_{2,0}, the crossing angles' own moment, which boresight
     rotation cancels as it cancels a bare pair's h_2 (0/90 to rounding).
+
+    Detector A alone (``mapmaker="single"``) solves I beside P from its one angle per sample, and
+    sees the IP as epsilon T cos(4 chi - 2 gamma - phase), so its 3x3 system per pixel
+    (:func:`boresight.mapmaking.solve_iqu`) couples I to P through <exp(2 i a)> =
+    <exp(-2 i gamma)> h_{2,4} and takes the IP's mean, Re[epsilon T exp(i phase)
+    <exp(2 i gamma)> h_{0,4}*], in its I row: both near zero behind a spinning plate, not behind
+    one that steps per CES.
 
     Parameters
     ----------
     sky : boresight.sky.Sky
     moments : dict
         (n, m) -> (npix,) h_{n,m} of the boresight's samples with :data:`IP_TERMS`
-        (:func:`boresight.scanstats.hwp_moments`).
+        (:data:`SINGLE_IP_TERMS` for detector A alone; :func:`boresight.scanstats.hwp_moments`).
     hwp : boresight.hwp.HWP
     pair_angles_deg : sequence of float
         Detector A's angle gamma of each pair [deg], all on the axis sharing the samples.
+    mapmaker : {"pairs", "detectors", "single"}
     spread, nthreads
         As in :func:`delta_p`.
 
@@ -508,11 +525,27 @@ def ip_delta_p(
     numpy.ndarray, complex128, shape (npix,)
         [muK], 0 off the observed pixels.
     """
-    w = _pair_mean_w4(moments, IP_TERMS, "instrumental polarisation", pair_angles_deg)
+    if mapmaker not in MAPMAKERS:
+        raise ValueError(f"mapmaker must be one of {MAPMAKERS}, got {mapmaker!r}")
+    single = mapmaker == "single"
+    terms = SINGLE_IP_TERMS if single else IP_TERMS
+    w = _pair_mean_w4(moments, terms, "instrumental polarisation", pair_angles_deg)
     t = _fields(sky, Systematics(), None, spread, nthreads)["t2"]
     phase = np.exp(1j * hwp.ip_phase_deg * DEG)
     y = hwp.ip * t * (phase * moments[2, 0] + np.conj(phase) * w * moments[2, 8])
-    return _solve(y, w * moments[4, 8])
+    if not single:
+        return _solve(y, w * moments[4, 8])
+    w2 = np.mean(np.exp(-2j * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
+    z2, z4 = w2 * moments[2, 4], w * moments[4, 8]
+    mean = np.real(hwp.ip * t * phase * np.conj(w2 * moments[0, 4]))
+    ones = np.ones_like(t)
+    normal = np.stack(
+        [ones, z2.real, z2.imag, (1 + z4.real) / 2, z4.imag / 2, (1 - z4.real) / 2, mean]
+        + [y.real / 2, y.imag / 2],
+        axis=1,
+    )  # per sample, as the map-maker's sums over them: unseen pixels solve to 0
+    _, q, u, _ = solve_iqu(normal, rcond_min=SINGULAR)
+    return np.where(q != hp.UNSEEN, q + 1j * u, 0.0)  # 0 where the map-maker has no solution
 
 
 #: the h_{n,m} the plate's synchronous 2 chi signal reaches a pair's map through
