@@ -15,7 +15,7 @@ from boresight.cli import main
 from boresight.constants import ARCMIN
 from boresight.cosmology import load_spectra
 from boresight.hwp import HWP
-from boresight.instrument import Instrument, Systematics
+from boresight.instrument import Instrument, Spread, Systematics
 from boresight.predict import focalplane as predict_fp
 from boresight.schedule import CES, Schedule, Site, load_schedule
 from boresight.sky import Sky, SkyConfig, make_sky
@@ -544,6 +544,33 @@ def _beam_leak(hexagon_sky, plate, sky=None):
     """:func:`_leak` of BEAMS on the hexagon, on the full sky or on ``sky``."""
     schedule, pairs, full, _ = hexagon_sky
     return _leak(schedule, full if sky is None else sky, plate, BEAMS, pairs)
+
+
+#: a gain and a pointing offset drawn per pair, scattered over a focal plane
+SCATTERED = {
+    "gain": Systematics(dg=Spread(0.0, 0.01), seed=5),
+    "pointing": Systematics(rho_arcmin=Spread(1.0, 0.5), chi_deg=Spread(0.0, 90.0), seed=5),
+}
+
+
+@pytest.mark.parametrize("name", list(SCATTERED))
+def test_leaks_scattered_over_a_focal_plane_behind_a_hwp_are_their_moments_prediction(
+    hexagon_sky, name
+):
+    """A gain and a pointing offset drawn per pair of a 7-pixel hexagon 20 deg wide, each pair on
+    its own samples: bare, behind a plate stepped per CES and behind a spinning one, the leaked
+    pseudo-C_BB is the prediction from each pair's own moments (predict.focalplane.delta_p)
+    within 10 % in every band 40 <= ell <= 2 Nside (measured 1.02-1.08 bare, 1.00-1.01 stepped,
+    1.04-1.08 spinning). The spinning plate takes the bare leak down 4.4x (gain) and 15x
+    (pointing) at 40 <= ell < 48, and the gain's 2x at the top band, where its incoherent sums of
+    h_{2,4} are whitest."""
+    schedule, pairs, sky, _ = hexagon_sky
+    bare, predicted = _leak(schedule, sky, None, SCATTERED[name], pairs)
+    assert np.all(np.abs(predicted / bare - 1) < 0.10), predicted / bare
+    for plate in (HWP("stepped"), HWP("continuous", frequency_hz=0.37)):
+        measured, predicted = _leak(schedule, sky, plate, SCATTERED[name], pairs)
+        assert np.all(np.abs(predicted / measured - 1) < 0.10), (plate.mode, predicted / measured)
+    assert measured[0] < bare[0] / 4 and np.all(measured < bare / 1.5), bare / measured
 
 
 @pytest.mark.slow
