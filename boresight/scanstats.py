@@ -537,6 +537,7 @@ def hwp_moments(
     *,
     chunk_samples: int = 1 << 20,
     focalplane: FocalPlane | None = None,
+    relative: bool = False,
     each=None,
     progress: bool = False,
 ) -> tuple[np.ndarray, dict]:
@@ -558,6 +559,11 @@ def hwp_moments(
         (:func:`boresight.pointing.detector_pointing`), one pair at a time, so memory is one
         pair's maps and the combination's; default: the boresight's samples (the pairs on the
         axis).
+    relative : bool
+        With a focal plane: chi is the plate's angle from each pair's half angle, chi - gamma / 2,
+        so that the reflected angle is psi + 2 chi, and the combination carries each pair's
+        exp(-i m gamma / 2) (the plate's IP on a focal plane,
+        :func:`boresight.predict.focalplane.ip_delta_p`).
     each : callable, optional
         With a focal plane, called as ``each(i, hits_i, h_i)`` with pair i's own moments as they
         are made.
@@ -574,6 +580,8 @@ def hwp_moments(
 
     if not hwp.present:
         raise ValueError("h_{n,m} needs a continuous or a stepped HWP")
+    if relative and focalplane is None:
+        raise ValueError("relative h_{n,m} are of a focal plane's pairs: give focalplane")
     table = np.array([(int(n), int(m)) for n, m in terms], dtype=np.float64).reshape(-1, 2)
     if len({tuple(t) for t in table}) != len(table):
         raise ValueError(f"repeated (n, m) in {list(terms)}")
@@ -592,10 +600,11 @@ def hwp_moments(
         for i in range(pairs if focalplane is not None else 0):
             own_sums, own_hits = np.zeros_like(sums), np.zeros_like(hits)
             one = focalplane.subset([i])
+            half = np.radians(focalplane.gamma_deg[i]) / 2 if relative else 0.0
             for theta, phi, psi, chi in detector_pointing(schedule, one, chunk_samples, hwp=hwp):
                 interrupts.check()
                 pix = ang2pix_array(nside, theta[0], phi[0])
-                _bin_spins(pix, psi[0], chi, table, own_sums, own_hits)
+                _bin_spins(pix, psi[0], chi - half, table, own_sums, own_hits)
                 bar.update(theta.size)
             if each is not None:
                 each(i, own_hits, _moments(own_sums, own_hits, table))

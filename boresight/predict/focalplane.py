@@ -507,15 +507,21 @@ def ip_delta_p(
     <exp(2 i gamma)> h_{0,4}*], in its I row: both near zero behind a spinning plate, not behind
     one that steps per CES.
 
+    Pairs off the axis, each on its own samples, take the map-maker's combination of their
+    moments, each weighted by its exp(-i m gamma / 2): those of chi - gamma / 2
+    (``hwp_moments(..., focalplane=, relative=True)``), with ``pair_angles_deg`` None.
+
     Parameters
     ----------
     sky : boresight.sky.Sky
     moments : dict
-        (n, m) -> (npix,) h_{n,m} of the boresight's samples with :data:`IP_TERMS`
-        (:data:`SINGLE_IP_TERMS` for detector A alone; :func:`boresight.scanstats.hwp_moments`).
+        (n, m) -> (npix,) h_{n,m} with :data:`IP_TERMS` (:data:`SINGLE_IP_TERMS` for detector A
+        alone; :func:`boresight.scanstats.hwp_moments`): of the boresight's samples, or a focal
+        plane's relative ones.
     hwp : boresight.hwp.HWP
-    pair_angles_deg : sequence of float
-        Detector A's angle gamma of each pair [deg], all on the axis sharing the samples.
+    pair_angles_deg : sequence of float, or None
+        Detector A's angle gamma of each pair [deg], all on the axis sharing the samples; None
+        for a focal plane's relative moments, which carry them.
     mapmaker : {"pairs", "detectors", "single"}
     spread, nthreads
         As in :func:`delta_p`.
@@ -529,6 +535,7 @@ def ip_delta_p(
         raise ValueError(f"mapmaker must be one of {MAPMAKERS}, got {mapmaker!r}")
     single = mapmaker == "single"
     terms = SINGLE_IP_TERMS if single else IP_TERMS
+    pair_angles_deg = (0.0,) if pair_angles_deg is None else pair_angles_deg
     w = _pair_mean_w4(moments, terms, "instrumental polarisation", pair_angles_deg)
     t = _fields(sky, Systematics(), None, spread, nthreads)["t2"]
     phase = np.exp(1j * hwp.ip_phase_deg * DEG)
