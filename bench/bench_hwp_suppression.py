@@ -10,6 +10,9 @@ its prediction over it, and the leak over its systematic's first row.
 
 Usage: python bench/bench_hwp_suppression.py [NSIDE] [deep|wide] [RATE_HZ]
 
+Writes the table to bench/results/hwp_suppression[_wide].json and its figure
+(boresight.plots.hwp_suppression_figure) to docs/figures/hwp_suppression_{deep,wide}.png.
+
 RATE_HZ resamples the schedule (default its own): the wide example at 5 Hz keeps a 2 Hz plate's
 4 chi turning 0.6 of a turn per sample, at a quarter of the samples.
 """
@@ -22,12 +25,13 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
-from boresight import hwp_suppression
+from boresight import hwp_suppression, plots
 from boresight.hwp import HWP
 from boresight.schedule import load_schedule
 from boresight.sky import SkyConfig, make_sky
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
 SCHEDULES = {"deep": "schedule_deep_sat.toml", "wide": "schedule_wide_lat.toml"}
 PLATE = HWP("continuous", frequency_hz=2.0, ip=1e-3)
 
@@ -40,6 +44,8 @@ def main(nside, survey, rate_hz=None):
     t0 = time.perf_counter()
     result = hwp_suppression.run(schedule, sky, PLATE, progress=True)
     seconds = time.perf_counter() - t0
+    figure = ROOT / "docs" / "figures" / f"hwp_suppression_{survey}"
+    plots.hwp_suppression_figure(result, figure, formats=("png",))
     rows = [{k: _cell(v) for k, v in row.items() if k != "amplitude"} for row in result.rows]
     suffix = "" if survey == "deep" else f"_{survey}"
     report(

@@ -434,7 +434,9 @@ def suppression_figure(result, nside: int, path_stem: str | os.PathLike) -> None
     _save(fig, path_stem)
 
 
-def hwp_suppression_figure(result, path_stem: str | os.PathLike) -> None:
+def hwp_suppression_figure(
+    result, path_stem: str | os.PathLike, *, formats: tuple = ("png", "pdf")
+) -> None:
     """What boresight rotation still buys behind a HWP: one panel per systematic, its leaked
     pseudo-C_BB per boresight schedule behind the plate (solid) and without it (dashed), each
     smoothed over bins of 4 in ell; leaks cancelled to rounding stay below the axis.
@@ -443,7 +445,8 @@ def hwp_suppression_figure(result, path_stem: str | os.PathLike) -> None:
     ----------
     result : boresight.hwp_suppression.Result
     path_stem : pathlib.Path
-        Writes .png and .pdf.
+    formats : tuple of str
+        The files written, by extension.
     """
     labels = list(dict.fromkeys(key[2] for key in result.spectra))
     columns = 3
@@ -488,4 +491,4 @@ def hwp_suppression_figure(result, path_stem: str | os.PathLike) -> None:
         "(a leak cancelled to rounding stays below the axis)",
         fontsize=10,
     )
-    _save(fig, path_stem)
+    _save(fig, path_stem, formats)
