@@ -930,6 +930,26 @@ def test_the_plates_instrumental_polarisation_on_a_focal_plane_is_its_relative_m
         assert away > 0.5, (mapmaker, away)
 
 
+def _ip_leak(schedule, sky, pairs, plate, mapmaker):
+    """The leaked pseudo-C_BB of the plate's IP in ``mapmaker``'s map (the sky read exactly at
+    every sample), and the binning that measured it, for a spurious P map."""
+    ideal = dataclasses.replace(plate, ip=0.0)
+    maps = [
+        engine.simulate_focalplane(
+            sky, schedule, pairs, evaluation="exact", hwp=p, mapmaker=mapmaker
+        )
+        for p in (ideal, plate)
+    ]
+    footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
+
+    def bb(dp):
+        d = dp[footprint.pixels]
+        b = footprint.alm(np.array([d.real, d.imag]), 2 * NSIDE, 2)[1]
+        return spectra.bin_spectrum(harmonics.alm2cl(b), EDGES)[1]
+
+    return bb((maps[1].q - maps[0].q) + 1j * (maps[1].u - maps[0].u)), bb
+
+
 @pytest.mark.parametrize(
     "plate, repeats",
     [
@@ -951,23 +971,9 @@ def test_the_plates_instrumental_polarisation_leaks_as_h20_predicts(deep_bare, p
     schedule = dataclasses.replace(base, repeat_boresight_deg=repeats)
     pairs = focalplane.on_axis((0.0, 45.0))
     hits, h = scanstats.hwp_moments(schedule, plate, NSIDE, predict_fp.SINGLE_IP_TERMS)
-    ideal = dataclasses.replace(plate, ip=0.0)
     for mapmaker in ("pairs", "single"):
         predicted = predict_fp.ip_delta_p(sky, h, plate, pairs.pair_angles_deg, mapmaker=mapmaker)
-        maps = [
-            engine.simulate_focalplane(
-                sky, schedule, pairs, evaluation="exact", hwp=p, mapmaker=mapmaker
-            )
-            for p in (ideal, plate)
-        ]
-        footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
-
-        def bb(dp, footprint=footprint):
-            d = dp[footprint.pixels]
-            b = footprint.alm(np.array([d.real, d.imag]), 2 * NSIDE, 2)[1]
-            return spectra.bin_spectrum(harmonics.alm2cl(b), EDGES)[1]
-
-        measured = bb((maps[1].q - maps[0].q) + 1j * (maps[1].u - maps[0].u))
+        measured, bb = _ip_leak(schedule, sky, pairs, plate, mapmaker)
         if repeats == (0.0, 90.0):
             assert measured.max() < 1e-28, measured
             continue
@@ -991,25 +997,11 @@ def test_the_plates_instrumental_polarisation_on_a_focal_plane_leaks_as_predicte
     is ip_delta_p's from the pairs' relative moments within 10 % in every band 40 <= ell <=
     2 Nside (measured 1.01-1.05)."""
     schedule, pairs, sky, _ = hexagon_sky
-    ideal = dataclasses.replace(plate, ip=0.0)
     _, h = scanstats.hwp_moments(
         schedule, plate, NSIDE, predict_fp.SINGLE_IP_TERMS, focalplane=pairs, relative=True
     )
     for mapmaker in ("pairs", "single"):
-        maps = [
-            engine.simulate_focalplane(
-                sky, schedule, pairs, evaluation="exact", hwp=p, mapmaker=mapmaker
-            )
-            for p in (ideal, plate)
-        ]
-        footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
-
-        def bb(dp, footprint=footprint):
-            d = dp[footprint.pixels]
-            b = footprint.alm(np.array([d.real, d.imag]), 2 * NSIDE, 2)[1]
-            return spectra.bin_spectrum(harmonics.alm2cl(b), EDGES)[1]
-
-        measured = bb((maps[1].q - maps[0].q) + 1j * (maps[1].u - maps[0].u))
+        measured, bb = _ip_leak(schedule, sky, pairs, plate, mapmaker)
         predicted = bb(predict_fp.ip_delta_p(sky, h, plate, None, mapmaker=mapmaker))
         assert measured.min() > 1e-10, measured
         np.testing.assert_allclose(predicted / measured, 1.0, atol=0.10)
