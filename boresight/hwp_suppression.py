@@ -263,7 +263,11 @@ def run(
                 if plate is None and offsets is None:
                     offsets = scanstats.centroid_moments(scan, sky.nside, focalplane=pairs)
                 dp = predict_fp.delta_p(
-                    sky, stats, case.systematics, offsets=offsets if plate is None else None
+                    sky,
+                    stats,
+                    case.systematics,
+                    offsets=offsets if plate is None else None,
+                    second_order=plate is None,
                 )
             measured = _pseudo_bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u), sky.nside)
             predicted = _pseudo_bb(footprint, dp, sky.nside) + white

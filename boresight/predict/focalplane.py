@@ -332,11 +332,13 @@ def delta_p(
     template: np.ndarray | None = None,
     spread: bool = True,
     offsets: np.ndarray | None = None,
+    second_order: bool = False,
     nthreads: int = 0,
 ) -> np.ndarray:
     """The spurious P = Q + i U of a focal plane's own draw of its pairs' systematics: the
-    module's dP, pointing to first order in rho, the beams to first order in their ellipticity
-    and FWHM change (up to h_4: the ellipticity's eth^2 P at h_6 is left out).
+    module's dP, pointing to first order in rho (to second with ``second_order``), the beams to
+    first order in their ellipticity and FWHM change (up to h_4: the ellipticity's eth^2 P at
+    h_6 is left out).
 
     Parameters
     ----------
@@ -358,6 +360,9 @@ def delta_p(
         pixel, as :func:`expected_residual` has it, the beams' terms too. Not behind a HWP, whose
         pointing terms and beams carry their own (:func:`boresight.scanstats.pointing_behind`,
         :func:`~boresight.scanstats.beams_behind`), and not with a template.
+    second_order : bool
+        Bare pairs: add a pointing offset's second order in rho (:func:`_pointing_second_order_y`),
+        all that is left where the boresight's rotation cancels h_1 and h_3 (0/180).
     nthreads : int
 
     Returns
@@ -365,6 +370,8 @@ def delta_p(
     numpy.ndarray, complex128, shape (npix,)
         [muK], 0 off the observed pixels.
     """
+    if second_order and stats.hwp is not None:
+        raise ValueError("a pointing offset's second order: bare pairs only, not behind a HWP")
     _check(stats, systematics)
     if offsets is not None and (stats.hwp is not None or template is not None):
         raise ValueError("the samples' offsets: not behind a HWP or with a template")
@@ -379,6 +386,8 @@ def delta_p(
     )
     if systematics.has_pointing and stats.pair_pointing_h is not None:
         y = y + _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads)
+    if systematics.has_pointing and second_order:
+        y = y + _pointing_second_order_y(sky, stats, params, weights, spread, nthreads)
     if offsets is not None:
         window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
         kinds = fields_by_kind(window, window)
@@ -407,6 +416,37 @@ def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
     y = 0.5 * (mean("g1", "g1 conj(delta)") * up + mean("g1", "g1 delta") * down)
     y += 0.5 * (mean("g3", "g3 conj(delta)") * np.conj(down) + mean("g3", "g3 delta") * np.conj(up))
     return y + _polarisation_gradient_y(sky, stats, params, weights, window, nthreads)
+
+
+def _pointing_second_order_y(sky, stats, params, weights, spread, nthreads):
+    """A bare pair's pointing offset to second order in rho, its part of Y (npix,) complex.
+
+    Detector B at delta = rho exp(i beta), beta = psi + gamma + chi_rho, reads T there as
+    T + (conj(delta) d T + delta dbar T) / 2 + (conj(delta)^2 d^2 T + 2 ``|delta|^2`` dbar d T
+    + delta^2 dbar^2 T) / 8 (:func:`boresight.predict.field_products.derivative`, applied
+    twice), and the pair difference's -(1/2) of it, demodulated with a = psi + gamma, gives::
+
+      Y += -rho^2 / 8 [e^{-2 i chi_rho} h_0 d^2 T + e^{i (4 gamma + 2 chi_rho)} h_4 conj(d^2 T)]
+           - rho^2 / 4 e^{2 i gamma} h_2 dbar d T
+
+    The h_0 term, d^2 T turned by the offset's angle, is what no rotation cancels: where 0/180
+    cancels the first order's h_1 and h_3, this is the leak (docs/conventions.md)."""
+    window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
+    gradient = fp_products.derivative(fp_products.temperature(window), raising=True)
+    d2, laplacian = (
+        _field_map(sky, fp_products.derivative(gradient, raising=raising), nthreads)
+        for raising in (True, False)
+    )
+    gamma = np.asarray(stats.focalplane.pair_angles_deg, dtype=np.float64) * DEG
+    rho2, chi, h = params.rho**2, params.chi, stats.pair_h
+    return (
+        -(
+            _mean(rho2 * np.exp(-2j * chi), weights, h[:, 0]) * d2
+            + _mean(rho2 * np.exp(4j * gamma + 2j * chi), weights, h[:, 4]) * np.conj(d2)
+        )
+        / 8
+        - _mean(rho2 * np.exp(2j * gamma), weights, h[:, 2]) * laplacian / 4
+    )
 
 
 def _derivative_maps(sky, field, nthreads):
