@@ -97,6 +97,23 @@ def test_it_follows_the_tod_of_every_pair_in_every_band(deep, repeats):
         assert np.all(np.abs(predicted / measured - 1) < 0.10), (sy, predicted / measured)
 
 
+def _pointing_leak(sky, schedule, fp, sy):
+    """A pointing offset's leaked pseudo-C_BB in the TOD (the sky read exactly at every sample),
+    and its prediction to first and to second order in rho."""
+    ref, tod = (
+        engine.simulate_focalplane(sky, schedule, fp, s, evaluation="exact")
+        for s in (Systematics(), sy)
+    )
+    footprint = spectra.as_footprint((ref.rcond > 0.05).astype(float))
+    stats = scanstats.characterise_focalplane(schedule, fp, NSIDE, per_pair=True)
+    offsets = scanstats.centroid_moments(schedule, NSIDE, focalplane=fp)
+    first, both = (
+        _bb(footprint, predict_fp.delta_p(sky, stats, sy, offsets=offsets, second_order=second))
+        for second in (False, True)
+    )
+    return _bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u)), first, both
+
+
 @pytest.mark.parametrize("pairs", ["on the axis", "hexagon"])
 def test_a_pointing_offsets_second_order_is_what_0_180_leaves(deep, pairs):
     """On the axis 0/180 cancels a pointing offset's first order (h_1, h_3) to rounding; what the
@@ -113,23 +130,28 @@ def test_a_pointing_offsets_second_order_is_what_0_180_leaves(deep, pairs):
         else Systematics(rho_arcmin=Spread(10.0, 5.0), chi_deg=Spread(0.0, 90.0), seed=3)
     )
     schedule = dataclasses.replace(schedules[(0.0,)], repeat_boresight_deg=(0.0, 180.0))
-    ref, tod = (
-        engine.simulate_focalplane(sky, schedule, fp, s, evaluation="exact")
-        for s in (Systematics(), sy)
-    )
-    footprint = spectra.as_footprint((ref.rcond > 0.05).astype(float))
-    measured = _bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u))
-    stats = scanstats.characterise_focalplane(schedule, fp, NSIDE, per_pair=True)
-    offsets = scanstats.centroid_moments(schedule, NSIDE, focalplane=fp)
-    first, both = (
-        _bb(footprint, predict_fp.delta_p(sky, stats, sy, offsets=offsets, second_order=second))
-        for second in (False, True)
-    )
+    measured, first, both = _pointing_leak(sky, schedule, fp, sy)
     assert np.all(np.abs(both / measured - 1) < 0.10), both / measured
     if pairs == "on the axis":
         assert np.all(first < 1e-20 * measured), first / measured
     else:
         assert np.all(np.abs(both / measured - 1) < 0.01), both / measured
+
+
+def test_a_pointing_offsets_second_order_has_the_sign_that_brings_the_tod(deep):
+    """The sign of the second order, which 0/180's test cannot see (it leaks in power alone):
+    a 40 arcmin offset at chi = 100 deg without rotation, where the second order's cross term
+    with the first is large, goes from 1.02-1.12 of the TOD to 1.01-1.02 with it (the other sign
+    would give 1.04-1.26)."""
+    _, schedules, _, sky = deep
+    fp, sy, schedule = (
+        focalplane.on_axis((0.0, 45.0)),
+        Systematics(rho_arcmin=40.0, chi_deg=100.0),
+        schedules[(0.0,)],
+    )
+    measured, first, both = _pointing_leak(sky, schedule, fp, sy)
+    assert np.all(np.abs(both / measured - 1) < 0.03), both / measured
+    assert np.max(np.abs(first / measured - 1)) > 0.08, first / measured
 
 
 @pytest.mark.slow
