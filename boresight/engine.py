@@ -25,7 +25,7 @@ from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
-from .mapmaking import MAPMAKERS, RCOND_MIN, Maps, solve, solve_iqu
+from .mapmaking import RCOND_MIN, Maps, check_mapmaker, solve, solve_iqu
 from .pointing import detector_pointing
 from .sky import MAX_NSIDE
 from .threads import numba_threads
@@ -292,8 +292,7 @@ def _maps_from(kernels, normal, n_pairs, rcond_min):
 
 
 def _check_mapmaker(mapmaker, backend):
-    if mapmaker not in MAPMAKERS:
-        raise ValueError(f"mapmaker must be one of {MAPMAKERS}, got {mapmaker!r}")
+    check_mapmaker(mapmaker)
     if mapmaker != "pairs" and backend != "cpu":
         raise ValueError(f"mapmaker {mapmaker!r} (I, Q, U) runs on the CPU backend only")
 
@@ -474,7 +473,7 @@ class _Binner:
         own_psi=None,
     ):
         """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
-        ``mapmaker`` bins them (:data:`MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
+        ``mapmaker`` bins them (:data:`boresight.mapmaking.MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
         by (seed, first + h). ``seen``, if given, maps the fields at the hits to what the pair
         sees there (a HWP's own signals, :func:`boresight.hwp.plate_signals`).
         ``own_psi``, if given, is the angle detector B's offset and the beams' shapes turn
@@ -521,7 +520,7 @@ def simulate_samples(
         As in :func:`simulate`, or each map's value in the sample's pixel (TOAST's
         ``ScanHealpixMap``).
     mapmaker : {"pairs", "detectors", "single"}
-        Pair differences -> Q, U; or each detector's own samples -> I, Q, U (:data:`MAPMAKERS`),
+        Pair differences -> Q, U; or each detector's own samples -> I, Q, U (:data:`boresight.mapmaking.MAPMAKERS`),
         on the CPU backend.
 
     Returns

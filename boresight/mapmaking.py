@@ -27,6 +27,12 @@ RCOND_MIN = 1e-6  #: below this the 2x2 system is treated as singular (one polar
 MAPMAKERS = ("pairs", "detectors", "single")
 
 
+def check_mapmaker(mapmaker: str) -> None:
+    """Refuse a map-maker not in :data:`MAPMAKERS`, in one clear error."""
+    if mapmaker not in MAPMAKERS:
+        raise ValueError(f"mapmaker must be one of {MAPMAKERS}, got {mapmaker!r}")
+
+
 @dataclass(frozen=True)
 class Maps:
     """Reconstructed maps, RING, held on the observed pixels; full-sky maps on access.

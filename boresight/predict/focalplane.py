@@ -33,7 +33,7 @@ from ..constants import DEG
 from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
-from ..mapmaking import MAPMAKERS, solve_iqu
+from ..mapmaking import check_mapmaker, solve_iqu
 from ..scanstats import BEAM_BEHIND_TERMS, BEAM_N_MAX, POINTING_BEHIND_TERMS
 from ..spectra import as_footprint
 from . import field_products as fp_products
@@ -571,8 +571,7 @@ def ip_delta_p(
     numpy.ndarray, complex128, shape (npix,)
         [muK], 0 off the observed pixels.
     """
-    if mapmaker not in MAPMAKERS:
-        raise ValueError(f"mapmaker must be one of {MAPMAKERS}, got {mapmaker!r}")
+    check_mapmaker(mapmaker)
     single = mapmaker == "single"
     terms = SINGLE_IP_TERMS if single else IP_TERMS
     pair_angles_deg = (0.0,) if pair_angles_deg is None else pair_angles_deg
