@@ -12,7 +12,9 @@ an additive leak's T reach a bare pair's map through h_2 and a pair behind the p
 h_{2,4}, which a spinning plate averages away and boresight rotation cancels. A pointing
 offset's T gradient reaches it through h_1 and h_3 bare, h_{1,4} and h_{3,4} behind the plate
 (the offset turns with the crossing angle, not with the plate), which the spinning plate
-averages away too, leaving what detector B reads of P off its place, through h_1. A pair's
+averages away too, leaving what detector B reads of P off its place, through h_1. Where 0/180
+cancels every odd n, what is left of it is its second order in rho, d^2 T turned by the offset's
+angle through h_0 bare and h_{0,4} behind the plate (which the plate averages away). A pair's
 polarisation-angle error turns the maps' P (h_0), reflected by the plate, and no plate or
 rotation touches it. The plate's own
 instrumental polarisation reaches it through h_{2,0}, the crossing angles' moment, which the plate
@@ -89,8 +91,8 @@ CASES = (
     Case(
         "pointing offset",
         "rho = 1 arcmin",
-        "grad T: h_1, h_3",
-        "grad T: h_{1,4}, h_{3,4}; grad P: h_1",
+        "grad T: h_1, h_3; d^2 T: h_0",
+        "grad T: h_{1,4}, h_{3,4}; grad P: h_1; d^2 T: h_{0,4}",
         Systematics(rho_arcmin=1.0, chi_deg=30.0),
     ),
     Case(
@@ -267,7 +269,7 @@ def run(
                     stats,
                     case.systematics,
                     offsets=offsets if plate is None else None,
-                    second_order=plate is None,
+                    second_order=True,
                 )
             measured = _pseudo_bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u), sky.nside)
             predicted = _pseudo_bb(footprint, dp, sky.nside) + white

@@ -639,12 +639,12 @@ class FocalPlaneStats:
         Each pair's h_{n,i}, where asked.
     hwp : boresight.hwp.HWP, optional
         The HWP in front of the pairs: their moments are of their reflected angles.
-    pair_pointing_h : numpy.ndarray, complex128, shape (pairs, 9, npix), or None
-        Behind ``hwp``, with the per-pair maps and ``pointing``: each pair's moments of a
-        pointing offset's terms (:func:`pointing_behind`).
-    pair_beam_h : numpy.ndarray, complex128, shape (pairs, 44, npix), or None
-        Behind ``hwp``, with the per-pair maps and ``beams``: each pair's moments of the beams'
-        terms (:func:`beams_behind`).
+    pair_behind_h : numpy.ndarray, complex128, shape (pairs, len(behind_terms), npix), or None
+        Behind ``hwp``, with the per-pair maps and ``pointing`` or ``beams``: each pair's moments
+        of a pointing offset's terms (:func:`pointing_behind`), of the beams' terms
+        (:func:`beams_behind`) or of both, each once (:meth:`behind`).
+    behind_terms : tuple of (int, int, str or None)
+        The (n, m, offset) of each of ``pair_behind_h``'s moments (:func:`_moments_behind`).
     """
 
     combined: ScanStats
@@ -654,8 +654,16 @@ class FocalPlaneStats:
     pair_hits: np.ndarray | None = None
     pair_h: np.ndarray | None = None
     hwp: HWP | None = None
-    pair_pointing_h: np.ndarray | None = None
-    pair_beam_h: np.ndarray | None = None
+    pair_behind_h: np.ndarray | None = None
+    behind_terms: tuple = ()
+
+    def behind(self, n: int, m: int, offset: str | None = None) -> np.ndarray:
+        """Each pair's moment (n, m, offset) behind the plate, (pairs, npix) (:func:`_moments_behind`)."""
+        return self.pair_behind_h[:, self.behind_terms.index((n, m, offset))]
+
+    def has_behind(self, terms) -> bool:
+        """Whether every (n, m, offset) of ``terms`` was characterised behind the plate."""
+        return self.pair_behind_h is not None and set(terms) <= set(self.behind_terms)
 
     def scattered(self) -> np.ndarray:
         """sum_i N_i^2 ``|h_{n,i}|^2`` / N^2 per pixel, (N_MAX + 1, npix): n = 0 is the effective 1 /
@@ -769,7 +777,7 @@ def characterise_focalplane(
         A continuous or stepped HWP in front of every pair.
     pointing : bool
         Behind ``hwp``, with ``per_pair``: also each pair's moments of a pointing offset's terms
-        (:func:`pointing_behind`, 9 more maps per pair), which its prediction behind the plate
+        (:func:`pointing_behind`, 18 more maps per pair), which its prediction behind the plate
         needs.
     beams : bool
         Likewise for the beams' terms (:func:`beams_behind`, 44 more maps per pair).
@@ -828,16 +836,13 @@ def characterise_focalplane(
             for b in blocks
         ]
         tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
-    behind = {}  # the pointing's and the beams' moments behind the plate, from one pass
-    if per_pair and hwp is not None and hwp.present and (pointing or beams):
-        tables = {"pointing": POINTING_BEHIND_TERMS, "beams": BEAM_BEHIND_TERMS}
-        wanted = [k for k, want in (("pointing", pointing), ("beams", beams)) if want]
-        terms = sum((tables[k] for k in wanted), ())
-        both = _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples)
-        start = 0
-        for k in wanted:
-            behind[k] = both[:, start : start + len(tables[k])]
-            start += len(tables[k])
+    terms = ()  # the pointing's and the beams' moments behind the plate, each once, one pass
+    if per_pair and hwp is not None and hwp.present:
+        wanted = (POINTING_BEHIND_TERMS if pointing else ()) + (BEAM_BEHIND_TERMS if beams else ())
+        terms = tuple(dict.fromkeys(wanted))
+    behind = (
+        _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples) if terms else None
+    )
     return FocalPlaneStats(
         combined=combined.stats(),
         sum_sq=sum_sq,
@@ -846,24 +851,29 @@ def characterise_focalplane(
         pair_hits=kept.get("pair_hits"),
         pair_h=kept.get("pair_h"),
         hwp=hwp,
-        pair_pointing_h=behind.get("pointing"),
-        pair_beam_h=behind.get("beams"),
+        pair_behind_h=behind,
+        behind_terms=terms,
     )
 
 
-#: :func:`pointing_behind`'s moments, by name: each (n, m) is exp(i n psi + i m (chi - gamma)),
-#: times delta or conj(delta) where named
+#: the offsets from a pixel's centre a moment behind a plate can be weighted by, to second order
+OFFSETS = (None, "conj", "delta", "conj2", "delta2", "abs2")
+#: :func:`pointing_behind`'s moments, each (n, m, offset): the mean over a pair's samples per pixel
+#: of exp(i n psi + i m (chi - gamma)), times the sample's offset from its pixel's centre as
+#: ``offset`` names it (:data:`OFFSET_WEIGHTS`)
 POINTING_BEHIND_TERMS = (
-    ("g1", (1, 4), None),
-    ("g3", (3, 4), None),
-    ("h1", (1, 0), None),
-    ("q3", (3, 8), None),
-    ("q5", (5, 8), None),
-    ("g1 conj(delta)", (1, 4), "conj"),
-    ("g1 delta", (1, 4), "delta"),
-    ("g3 conj(delta)", (3, 4), "conj"),
-    ("g3 delta", (3, 4), "delta"),
+    (1, 4, None),  # the T gradient's
+    (3, 4, None),
+    (1, 0, None),  # the P gradient's
+    (3, 8, None),
+    (5, 8, None),
+    (1, 4, "conj"),  # the T gradient's change across the pixel
+    (1, 4, "delta"),
+    (3, 4, "conj"),
+    (3, 4, "delta"),
 )
+POINTING_BEHIND_TERMS += tuple((n, 4, o) for o in OFFSETS for n in (0, 2, 4))  # T's second order
+POINTING_BEHIND_TERMS += ((2, 0, None), (2, 8, None), (4, 8, None), (6, 8, None))  # P's
 
 
 def pointing_behind(
@@ -888,11 +898,16 @@ def pointing_behind(
     * read exactly at each sample, the T gradient's terms gain their first-order change across
       the pixel: ``g1`` and ``g3`` weighted by each sample's offset delta from its pixel's centre
       and by its conjugate (:func:`sample_offsets`, :func:`centroid_moments`). Behind a spinning
-      plate the terms are incoherent sums of the size of these (docs/conventions.md).
+      plate the terms are incoherent sums of the size of these (docs/conventions.md);
+    * the offset's second order in rho, a bare pair's h_0 d^2 T, h_2 dbar d T and h_4 conj(d^2 T),
+      takes <exp(i (2 psi' - 2 psi + n psi))>, (n, m) = (0, 4), (2, 4), (4, 4), with their
+      change across the pixel to second order, as the beams' T part (:func:`beams_behind`); and
+      what B reads of P off its place to second order, h_{2,0}, h_{2,8}, h_{4,8} and h_{6,8}:
+      what is left where 0/180 cancels every odd n.
 
     Returns
     -------
-    numpy.ndarray, complex128, shape (pairs, 9, npix)
+    numpy.ndarray, complex128, shape (pairs, 31, npix)
         In :data:`POINTING_BEHIND_TERMS` order, 0 where a pair has no hits.
     """
     return _moments_behind(schedule, focalplane, hwp, nside, POINTING_BEHIND_TERMS, chunk_samples)
@@ -909,14 +924,14 @@ OFFSET_WEIGHTS = {
 
 
 def _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples):
-    """Each pair's means over its samples per pixel of ``terms`` ((name, (n, m), offset) each:
+    """Each pair's means over its samples per pixel of ``terms`` ((n, m, offset) each:
     exp(i n psi + i m (chi - gamma)), times the sample's offset delta from its pixel's centre as
     ``offset`` says: "conj", "delta", "conj2", "delta2" or "abs2" for conj(delta), delta, their
     squares and ``|delta|^2``), (pairs, len(terms), npix), 0 where a pair has no hits."""
     npix = 12 * nside**2
     out = np.zeros((focalplane.n_pairs, len(terms), npix), dtype=np.complex128)
     gamma = np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64))
-    table = np.array([nm for _, nm, _ in terms], dtype=np.float64)
+    table = np.array([(n, m) for n, m, _ in terms], dtype=np.float64)
     weighted = list(dict.fromkeys(offset for _, _, offset in terms if offset is not None))
     kinds = np.array([-1 if o is None else weighted.index(o) for _, _, o in terms], dtype=np.int64)
     for i in range(focalplane.n_pairs):
@@ -948,14 +963,8 @@ BEAM_N_MAX = {0: 6, 4: N_MAX, 8: 6}
 #: elliptical Gaussian beam's term takes (n even, abs(n) <= BEAM_N_MAX[m]) and m = 0, 4, 8, and
 #: the T part's (n, 4) weighted by each sample's offset from its pixel's centre to second order
 BEAM_BEHIND_TERMS = tuple(
-    (f"h({n},{m})", (n, m), None)
-    for m in (0, 4, 8)
-    for n in range(-BEAM_N_MAX[m], BEAM_N_MAX[m] + 1, 2)
-) + tuple(
-    (f"h({n},4) {offset}", (n, 4), offset)
-    for offset in ("conj", "delta", "conj2", "delta2", "abs2")
-    for n in range(-N_MAX, N_MAX + 1, 2)
-)
+    (n, m, None) for m in (0, 4, 8) for n in range(-BEAM_N_MAX[m], BEAM_N_MAX[m] + 1, 2)
+) + tuple((n, 4, o) for o in OFFSETS[1:] for n in range(-N_MAX, N_MAX + 1, 2))
 
 
 def beams_behind(

@@ -107,16 +107,12 @@ def test_every_prediction_follows_the_tod(table):
     beams). The plate's angle
     jitter is one draw of white noise on this footprint's few hundred modes (0.84-1.33 of its
     expectation here): tests/test_hwp.py checks it over 16 draws, the bench at Nside 512.
-    0/180 cancels a pointing offset's first order: the bare pairs' second order is predicted
-    (0.92-0.97); behind the plate it is not, and that leak is < 1e-4 of the unrotated one
-    (measured 5e-6)."""
+    0/180 cancels a pointing offset's first order: what it leaks is the second order, predicted
+    for the bare pairs (0.99-1.02) and behind the plate (1.03-1.04), where it is 5e-6 of the
+    unrotated leak."""
     checked = 0
-    for (name, behind, schedule), row in table.items():
+    for (name, _, _), row in table.items():
         if name == "HWP angle jitter":
-            continue
-        if name == "pointing offset" and behind and schedule == "0/180":
-            unrotated = _leak(table[name, True, "0"])
-            assert np.all(_leak(row) < 1e-4 * unrotated), _leak(row) / unrotated
             continue
         leaks, ratios = _leak(row), _ratio(row, "predicted/TOD")
         for leak, ratio in zip(leaks, ratios):

@@ -145,6 +145,59 @@ def conjugate(field: SkyField) -> SkyField:
     return SkyField(-field.spin, field.filters)
 
 
+class StepTerm(NamedTuple):
+    """One term of :func:`coordinate_step`: ``scale`` cot(theta)^``cot`` sin(theta)^(-2 ``csc2``)
+    times ``field``."""
+
+    scale: float
+    cot: int
+    csc2: int
+    field: SkyField
+
+
+def coordinate_step(field: SkyField) -> dict:
+    """A spin-s field F read one step away in the coordinates, (theta + rho cos(beta), phi + rho
+    sin(beta) / sin(theta)) as detector B of a pair looks
+    (:func:`boresight.kernels.cpu.offset_points`), in its components there, to second order in
+    delta = rho exp(i beta): F(step) - F = sum over kinds of w(delta) times the sum of that kind's
+    :class:`StepTerm`, the weights w = conj(delta), delta, conj(delta)^2, delta^2 and
+    ``|delta|^2`` for ``"conj"``, ``"delta"``, ``"conj2"``, ``"delta2"`` and ``"abs2"``.
+
+    The step is a Taylor series in the coordinates: with M = delta_theta d_theta + delta_phi
+    (1 / sin(theta)) d_phi = (conj(delta) (d + s cot(theta)) + delta (dbar - s cot(theta))) / 2
+    on spin s (:func:`derivative`), F(step) - F = M F + (M^2 F + delta_theta delta_phi cot(theta)
+    (1 / sin(theta)) d_phi F) / 2. Beside the covariant terms (d^2 F, dbar^2 F, dbar d F, d dbar F
+    over 8), a step along the great circle would not have the cot(theta) and 1 / sin^2(theta) ones.
+    """
+    t = field.spin
+    up, down = derivative(field, raising=True), derivative(field, raising=False)
+    return {
+        "conj": (StepTerm(0.5, 0, 0, up), StepTerm(0.5 * t, 1, 0, field)),
+        "delta": (StepTerm(0.5, 0, 0, down), StepTerm(-0.5 * t, 1, 0, field)),
+        "conj2": (
+            StepTerm(1 / 8, 0, 0, derivative(up, raising=True)),
+            StepTerm((4 * t + 3) / 16, 1, 0, up),
+            StepTerm(-1 / 16, 1, 0, down),
+            StepTerm((t * t + t) / 8, 2, 0, field),
+            StepTerm(-t / 8, 0, 1, field),
+        ),
+        "delta2": (
+            StepTerm(1 / 8, 0, 0, derivative(down, raising=False)),
+            StepTerm(-(4 * t - 3) / 16, 1, 0, down),
+            StepTerm(-1 / 16, 1, 0, up),
+            StepTerm((t * t - t) / 8, 2, 0, field),
+            StepTerm(t / 8, 0, 1, field),
+        ),
+        "abs2": (
+            StepTerm(1 / 8, 0, 0, derivative(up, raising=False)),
+            StepTerm(1 / 8, 0, 0, derivative(down, raising=True)),
+            StepTerm(-(2 * t + 1) / 8, 1, 0, up),
+            StepTerm((2 * t - 1) / 8, 1, 0, down),
+            StepTerm(-t * t / 4, 2, 0, field),
+        ),
+    }
+
+
 class Weight(NamedTuple):
     """A fixed spin-s weight field g (a RING map, complex) and the sky field it multiplies."""
 

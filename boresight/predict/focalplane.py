@@ -67,16 +67,26 @@ def _check(stats, systematics):
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:
         check_hwp_systematics(systematics, own_angles=True)
-        if systematics.has_pointing and stats.hwp.present and stats.pair_pointing_h is None:
+        if (
+            systematics.has_pointing
+            and stats.hwp.present
+            and not stats.has_behind(POINTING_BEHIND_TERMS)
+        ):
             raise ValueError(
                 "a pointing offset behind a HWP needs each pair's pointing moments: "
                 "characterise with per_pair and pointing"
             )
-        if systematics.has_beams and stats.hwp.present and stats.pair_beam_h is None:
+        if systematics.has_beams and stats.hwp.present and not stats.has_behind(BEAM_BEHIND_TERMS):
             raise ValueError(
                 "beams behind a HWP need each pair's beam moments: characterise with per_pair "
                 "and beams"
             )
+
+
+def _behind_plate(stats):
+    """Whether the pairs sit behind a plate, whose pointing and beam terms take their own
+    moments (:meth:`boresight.scanstats.FocalPlaneStats.behind`)."""
+    return stats.hwp is not None and stats.hwp.present
 
 
 def pair_shares(params, focalplane) -> dict:
@@ -171,11 +181,11 @@ def _sky_beam_y(sky, stats, params, weights, spread, nthreads, offsets=None):
     window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
     parts = (
         [(params, "all", lambda n: ((1.0, _pair_moment(stats, n)),), False)]
-        if stats.pair_beam_h is None
+        if not _behind_plate(stats)
         else _beam_parts_behind(stats, params)
     )
     for pair_params, part, moments, across in parts:
-        if stats.pair_beam_h is not None:
+        if _behind_plate(stats):
             n_max = BEAM_N_MAX[4] if across else BEAM_N_MAX[0]
         terms = beam_terms(
             pair_params, stats.focalplane, sky.fwhm_arcmin, sky.lmax, n_max=n_max, part=part
@@ -194,7 +204,7 @@ def _sky_beam_y(sky, stats, params, weights, spread, nthreads, offsets=None):
             # read at the samples: G at the centre and its Taylor terms to second order
             centre = beam_sky_field(term.filter, n, np.ones(sky.lmax + 1))
             for offset, (scale, field) in _taylor(centre).items():
-                h = stats.pair_beam_h[:, BEAM_BEHIND[n, 4, offset]]
+                h = stats.behind(n, 4, offset)
                 y += scale * _mean(term.shares, weights, h) * _field_map(sky, field, nthreads)
     return y
 
@@ -205,8 +215,7 @@ def _taylor(field):
     + delta^2 dbar dbar F + 2 ``|delta|^2`` dbar d F) / 8
     (:func:`boresight.predict.field_products.derivative`; the offsets' names as
     :func:`boresight.scanstats.beams_behind` weights its moments)."""
-    up = fp_products.derivative(field, raising=True)
-    down = fp_products.derivative(field, raising=False)
+    up, down = _derivative_fields(field)
     return {
         None: (1.0, field),
         "conj": (0.5, up),
@@ -248,9 +257,7 @@ def _beam_parts_behind(stats, params):
 
     def moments(*scales):
         def of(n):
-            return tuple(
-                (scale, stats.pair_beam_h[:, BEAM_BEHIND[n, m, None]]) for m, scale in scales
-            )
+            return tuple((scale, stats.behind(n, m)) for m, scale in scales)
 
         return of
 
@@ -300,17 +307,11 @@ def _y(stats, weights, shares, fields, pairs=slice(None)):
     return y
 
 
-#: the places of :func:`boresight.scanstats.pointing_behind`'s moments, by name
-BEHIND = {name: k for k, (name, _, _) in enumerate(POINTING_BEHIND_TERMS)}
-#: the places of :func:`boresight.scanstats.beams_behind`'s moments, by (n, m, offset)
-BEAM_BEHIND = {(*nm, offset): k for k, (_, nm, offset) in enumerate(BEAM_BEHIND_TERMS)}
-
-
 def _term_h(stats, name, n, pairs=slice(None)):
     """Each pair's moment of a term (pairs, npix): its h_n; behind a HWP a pointing term's own
     (the offset turns with the pair's crossing angle, the map-maker with its reflected one)."""
-    if stats.pair_pointing_h is not None and name in ("g1", "g3"):
-        return stats.pair_pointing_h[pairs, BEHIND[name]]
+    if _behind_plate(stats) and name in ("g1", "g3"):
+        return stats.behind(n, 4)[pairs]
     return stats.pair_h[pairs, n]
 
 
@@ -361,8 +362,9 @@ def delta_p(
         pointing terms and beams carry their own (:func:`boresight.scanstats.pointing_behind`,
         :func:`~boresight.scanstats.beams_behind`), and not with a template.
     second_order : bool
-        Bare pairs: add a pointing offset's second order in rho (:func:`_pointing_second_order_y`),
-        all that is left where the boresight's rotation cancels h_1 and h_3 (0/180).
+        Add a pointing offset's second order in rho (:func:`_pointing_second_order_y`), all that
+        is left where the boresight's rotation cancels h_1 and h_3 (0/180), bare or behind a
+        plate.
     nthreads : int
 
     Returns
@@ -370,8 +372,6 @@ def delta_p(
     numpy.ndarray, complex128, shape (npix,)
         [muK], 0 off the observed pixels.
     """
-    if second_order and stats.hwp is not None:
-        raise ValueError("a pointing offset's second order: bare pairs only, not behind a HWP")
     _check(stats, systematics)
     if offsets is not None and (stats.hwp is not None or template is not None):
         raise ValueError("the samples' offsets: not behind a HWP or with a template")
@@ -384,10 +384,10 @@ def delta_p(
     y = _y(stats, weights, shares, fields) + _sky_beam_y(
         sky, stats, params, weights, spread, nthreads, offsets
     )
-    if systematics.has_pointing and stats.pair_pointing_h is not None:
+    if systematics.has_pointing and _behind_plate(stats):
         y = y + _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads)
     if systematics.has_pointing and second_order:
-        y = y + _pointing_second_order_y(sky, stats, params, weights, spread, nthreads)
+        y = y + _pointing_second_order_y(sky, stats, params, weights, spread, offsets, nthreads)
     if offsets is not None:
         window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
         kinds = fields_by_kind(window, window)
@@ -405,57 +405,89 @@ def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
     those terms' first-order change across the pixels, (conj(delta) d G + delta dbar G) / 2
     weighted as each term is (:func:`boresight.predict.field_products.derivative`; d G* =
     conj(dbar G)), and what detector B reads of P off its place
-    (:func:`_polarisation_gradient_y`)."""
+    (:func:`_polarisation_offset_y`)."""
     window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
     up, down = _derivative_maps(sky, fp_products.gradient(window), nthreads)
-    moments = stats.pair_pointing_h
 
-    def mean(name, k):
-        return _mean(shares[name], weights, moments[:, BEHIND[k]])
+    def mean(name, n, offset):
+        return _mean(shares[name], weights, stats.behind(n, 4, offset))
 
-    y = 0.5 * (mean("g1", "g1 conj(delta)") * up + mean("g1", "g1 delta") * down)
-    y += 0.5 * (mean("g3", "g3 conj(delta)") * np.conj(down) + mean("g3", "g3 delta") * np.conj(up))
-    return y + _polarisation_gradient_y(sky, stats, params, weights, window, nthreads)
+    y = 0.5 * (mean("g1", 1, "conj") * up + mean("g1", 1, "delta") * down)
+    y += 0.5 * (mean("g3", 3, "conj") * np.conj(down) + mean("g3", 3, "delta") * np.conj(up))
+    return y + _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, order=1)
 
 
-def _pointing_second_order_y(sky, stats, params, weights, spread, nthreads):
-    """A bare pair's pointing offset to second order in rho, its part of Y (npix,) complex.
+def _pointing_second_order_y(sky, stats, params, weights, spread, offsets, nthreads):
+    """A pointing offset to second order in rho, its part of Y (npix,) complex.
 
-    Detector B at delta = rho exp(i beta), beta = psi + gamma + chi_rho, reads T there as
-    T + (conj(delta) d T + delta dbar T) / 2 + (conj(delta)^2 d^2 T + 2 ``|delta|^2`` dbar d T
-    + delta^2 dbar^2 T) / 8 (:func:`boresight.predict.field_products.derivative`, applied
-    twice), and the pair difference's -(1/2) of it, demodulated with a = psi + gamma, gives::
+    Detector B looks one step delta = rho exp(i beta) away in the coordinates, beta = psi +
+    gamma + chi_rho, and reads T there to second order as conj(delta)^2 C + delta^2 conj(C)
+    + ``|delta|^2`` A (:func:`boresight.predict.field_products.coordinate_step`: C = d^2 T / 8
+    and A = dbar d T / 4 on a great circle, with the step's own cot(theta) terms). The pair
+    difference's -(1/2) of it, demodulated with a = psi + gamma, gives::
 
-      Y += -rho^2 / 8 [e^{-2 i chi_rho} h_0 d^2 T + e^{i (4 gamma + 2 chi_rho)} h_4 conj(d^2 T)]
-           - rho^2 / 4 e^{2 i gamma} h_2 dbar d T
+      Y += -rho^2 [e^{-2 i chi_rho} h_0 C + e^{i (4 gamma + 2 chi_rho)} h_4 conj(C)
+                   + e^{2 i gamma} h_2 A]
 
     The h_0 term, d^2 T turned by the offset's angle, is what no rotation cancels: where 0/180
-    cancels the first order's h_1 and h_3, this is the leak (docs/conventions.md)."""
-    window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
-    gradient = fp_products.derivative(fp_products.temperature(window), raising=True)
-    d2, laplacian = (
-        _field_map(sky, fp_products.derivative(gradient, raising=raising), nthreads)
-        for raising in (True, False)
-    )
+    cancels the first order's h_1 and h_3, this is the leak (docs/conventions.md). Behind a
+    plate the map-maker demodulates with a = psi' + gamma, which turns each h_n into h_{n,4}
+    (:func:`boresight.scanstats.pointing_behind`): incoherent sums behind a spinning plate, so
+    each field is read across the pixel to second order, as the beams' T part is
+    (:func:`_taylor`, cot(theta) at the pixel's centre); and B's P off its place adds its own
+    second order (:func:`_polarisation_offset_y`)."""
+    behind = _behind_plate(stats)
+    window = _spread_window(sky) if spread and not behind else np.ones(sky.lmax + 1)
+    step = fp_products.coordinate_step(fp_products.temperature(window))
     gamma = np.asarray(stats.focalplane.pair_angles_deg, dtype=np.float64) * DEG
-    rho2, chi, h = params.rho**2, params.chi, stats.pair_h
-    return (
-        -(
-            _mean(rho2 * np.exp(-2j * chi), weights, h[:, 0]) * d2
-            + _mean(rho2 * np.exp(4j * gamma + 2j * chi), weights, h[:, 4]) * np.conj(d2)
-        )
-        / 8
-        - _mean(rho2 * np.exp(2j * gamma), weights, h[:, 2]) * laplacian / 4
+    rho2, chi = params.rho**2, params.chi
+    terms = (  # (n, each pair's coefficient, the step's terms h_n multiplies)
+        (0, -rho2 * np.exp(-2j * chi), step["conj2"]),
+        (4, -rho2 * np.exp(4j * gamma + 2j * chi), step["delta2"]),
+        (2, -rho2 * np.exp(2j * gamma), step["abs2"]),
     )
+    geometry = _geometry(sky.nside)
+    y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
+    for n, share, parts in terms:
+        for part in parts:
+            factor = part.scale * geometry(part)
+            if behind:
+                for offset, (scale, value) in _taylor(part.field).items():
+                    h = _mean(share, weights, stats.behind(n, 4, offset))
+                    y += factor * scale * h * _field_map(sky, value, nthreads)
+                continue
+            y += (
+                factor
+                * _mean(share, weights, stats.pair_h[:, n])
+                * _field_map(sky, part.field, nthreads)
+            )
+            if offsets is not None:
+                maps = _derivative_maps(sky, part.field, nthreads)
+                for by, value in zip(offset_weights(offsets, n), maps):
+                    y += factor * 0.5 * value * _mean(share, weights, by)
+    if behind:
+        y += _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, order=2)
+    return y
+
+
+def _geometry(nside):
+    """A :class:`boresight.predict.field_products.StepTerm`'s factor of cot(theta) and 1 /
+    sin^2(theta) at the pixels' centres (npix,), as a function of the term."""
+    theta = hp.pix2ang(nside, np.arange(12 * nside**2))[0]
+    cot, csc2 = 1.0 / np.tan(theta), 1.0 / np.sin(theta) ** 2
+    return lambda part: cot**part.cot * csc2**part.csc2
+
+
+def _derivative_fields(field):
+    """A sky field's raising and lowering derivatives, d F and dbar F
+    (:func:`boresight.predict.field_products.derivative`)."""
+    return tuple(fp_products.derivative(field, raising=raising) for raising in (True, False))
 
 
 def _derivative_maps(sky, field, nthreads):
     """The maps of a sky field's raising and lowering derivatives d F and dbar F (npix,) complex
     each (:func:`boresight.predict.field_products.derivative`)."""
-    return tuple(
-        _field_map(sky, fp_products.derivative(field, raising=raising), nthreads)
-        for raising in (True, False)
-    )
+    return tuple(_field_map(sky, f, nthreads) for f in _derivative_fields(field))
 
 
 def _field_map(sky, field, nthreads):
@@ -464,38 +496,62 @@ def _field_map(sky, field, nthreads):
     return value if field.spin >= 0 else np.conj(value)
 
 
-def _polarisation_gradient_y(sky, stats, params, weights, window, nthreads):
-    """Behind a HWP, the part of Y of detector B reading P at its offset rho (npix,) complex: the
-    term a spinning plate leaves of a pointing offset, where the T gradient's averages away
-    (docs/conventions.md).
+def _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, *, order):
+    """Behind a HWP, what detector B reads of P off its place, its part of Y (npix,) complex, to
+    first or second ``order`` in rho: at order 1 the term a spinning plate leaves of a pointing
+    offset, where the T gradient's averages away (docs/conventions.md).
 
-    With the offset delta = rho exp(i beta), beta = psi + gamma + chi_rho, P read there is
-    P + (conj(delta) d P + delta dbar P) / 2 (:func:`boresight.predict.field_products.derivative`:
-    d P of spin 3, dbar P of spin 1), and the pair difference's (1/2) Re(dP exp(-2 i a)) gives,
-    with a = psi' + gamma and the moments of :func:`boresight.scanstats.pointing_behind`::
+    B looks one step delta = rho exp(i beta) away in the coordinates, beta = psi + gamma +
+    chi_rho, and reads P + Delta there, Delta = conj(delta) X + delta Z to first order and
+    conj(delta)^2 C + delta^2 L + ``|delta|^2`` A to second
+    (:func:`boresight.predict.field_products.coordinate_step`: X = d P / 2 + cot(theta) P, and
+    Z = dbar P / 2 - cot(theta) P). The pair difference's (1/2) Re(Delta exp(-2 i a)),
+    demodulated with a = psi' + gamma and beta' = gamma + chi_rho, gives::
 
-      Y += rho/4 [e^{-i beta'} conj(h_1) d P + e^{i beta'} h_1 dbar P
-                  + e^{i (4 gamma + beta')} <e^{i (4 psi' + psi)}> conj(d P)
-                  + e^{i (4 gamma - beta')} <e^{i (4 psi' - psi)}> conj(dbar P)]
+      Y += rho/2 [e^{-i beta'} h_{-1,0} X + e^{i beta'} h_{1,0} Z
+                  + e^{i (4 gamma + beta')} <e^{i (4 psi' + psi)}> conj(X)
+                  + e^{i (4 gamma - beta')} <e^{i (4 psi' - psi)}> conj(Z)]
+      Y += rho^2/2 [e^{-2 i beta'} h_{-2,0} C + e^{2 i beta'} h_{2,0} L + A
+                    + e^{i (4 gamma + 2 beta')} <e^{i (4 psi' + 2 psi)}> conj(C)
+                    + e^{i (4 gamma - 2 beta')} <e^{i (4 psi' - 2 psi)}> conj(L)
+                    + e^{4 i gamma} <e^{4 i psi'}> conj(A)]
 
-    with beta' = gamma + chi_rho: h_1 of the pairs' own crossing angles, which only the sky's and
-    the boresight's rotation cancel. On a bare pair the term is P-sized against the T gradient's
-    and left out, as :func:`boresight.predict.delta_p` does."""
-    up, down = _derivative_maps(sky, fp_products.polarisation(window), nthreads)
+    h_{n,0} of the pairs' own crossing angles, which only the sky's and the boresight's rotation
+    cancel, and at second order A, through no moment at all, which nothing cancels. These
+    moments are coherent sums, so the fields are read as their means over hits spread over the
+    pixel (``spread``). On a bare pair the term is P-sized against the T gradient's and left
+    out, as :func:`boresight.predict.delta_p` does."""
+    window = _spread_window(sky) if spread else np.ones(sky.lmax + 1)
+    step = fp_products.coordinate_step(fp_products.polarisation(window))
     gamma = np.asarray(stats.focalplane.pair_angles_deg, dtype=np.float64) * DEG
     beta = gamma + params.chi
-    moments = stats.pair_pointing_h
-
-    def mean(phase, k, conjugate=False):
-        h = np.conj(moments[:, BEHIND[k]]) if conjugate else moments[:, BEHIND[k]]
-        return _mean(0.25 * params.rho * np.exp(1j * phase), weights, h)
-
-    return (
-        mean(-beta, "h1", conjugate=True) * up
-        + mean(beta, "h1") * down
-        + mean(4 * gamma + beta, "q5") * np.conj(up)
-        + mean(4 * gamma - beta, "q3") * np.conj(down)
-    )
+    half = 0.5 * params.rho**order
+    if order == 1:
+        h = stats.behind(1, 0)
+        terms = (  # (each pair's coefficient, its moment, the step's terms, conjugated)
+            (half * np.exp(-1j * beta), np.conj(h), step["conj"], False),
+            (half * np.exp(1j * beta), h, step["delta"], False),
+            (half * np.exp(1j * (4 * gamma + beta)), stats.behind(5, 8), step["conj"], True),
+            (half * np.exp(1j * (4 * gamma - beta)), stats.behind(3, 8), step["delta"], True),
+        )
+    else:
+        h = stats.behind(2, 0)
+        terms = (
+            (half * np.exp(-2j * beta), np.conj(h), step["conj2"], False),
+            (half * np.exp(2j * beta), h, step["delta2"], False),
+            (half, stats.pair_h[:, 0], step["abs2"], False),  # h_0: 1 where a pair has hits
+            (half * np.exp(4j * gamma + 2j * beta), stats.behind(6, 8), step["conj2"], True),
+            (half * np.exp(4j * gamma - 2j * beta), stats.behind(2, 8), step["delta2"], True),
+            (half * np.exp(4j * gamma), stats.behind(4, 8), step["abs2"], True),
+        )
+    geometry = _geometry(sky.nside)
+    y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
+    for share, moment, parts, conjugated in terms:
+        mean = _mean(share, weights, moment)
+        for part in parts:
+            field = fp_products.conjugate(part.field) if conjugated else part.field
+            y += part.scale * geometry(part) * mean * _field_map(sky, field, nthreads)
+    return y
 
 
 def _pair_mean_w4(moments, terms, what, pair_angles_deg):
