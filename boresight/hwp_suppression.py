@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -40,6 +40,7 @@ from .predict import focalplane as predict_fp
 from .validation import ConfigError
 
 if TYPE_CHECKING:
+    from .focalplane import FocalPlane
     from .hwp import HWP
     from .schedule import Schedule
     from .sky import Sky
@@ -163,6 +164,41 @@ def check_plate(hwp: HWP) -> None:
         )
 
 
+class PlateMoments(NamedTuple):
+    """The moments the plate's own cases are predicted from: the hits, h_{n,m} of
+    :data:`PLATE_TERMS`, those of the synchronous signal, and the pairs' angles the predictions
+    average exp(-4 i gamma) over (None where the moments carry each pair's own)."""
+
+    hits: np.ndarray
+    h: dict
+    synchronous: dict
+    pair_angles_deg: tuple | None
+
+
+def plate_moments(scan, plate, nside, pairs) -> PlateMoments:
+    """:class:`PlateMoments` of ``pairs`` behind ``plate``: the boresight's where every pair is on
+    the axis; else each pair on its own samples, combined as the map-maker combines them, those
+    of chi - gamma / 2 (the IP's and the jitter's: each pair's exp(-i m gamma / 2)) and the
+    synchronous signal's with :func:`boresight.predict.focalplane.synchronous_weights`. The
+    jitter's white part then takes the pairs' samples in a pixel as independent draws, as they
+    are for pairs more than a pixel apart."""
+    if not np.any(pairs.radius_deg > 0):
+        hits, h = scanstats.hwp_moments(scan, plate, nside, PLATE_TERMS)
+        return PlateMoments(hits, h, h, pairs.pair_angles_deg)
+    hits, h = scanstats.hwp_moments(
+        scan, plate, nside, PLATE_TERMS, focalplane=pairs, relative=True
+    )
+    _, synchronous = scanstats.hwp_moments(
+        scan,
+        plate,
+        nside,
+        predict_fp.SYNCHRONOUS_TERMS,
+        focalplane=pairs,
+        pair_weights=predict_fp.synchronous_weights(pairs),
+    )
+    return PlateMoments(hits, h, synchronous, None)
+
+
 def boresight_label(repeats) -> str:
     return "/".join(f"{r:g}" for r in repeats)
 
@@ -173,7 +209,7 @@ def run(
     hwp: HWP,
     *,
     schedules=SCHEDULES,
-    pair_angles_deg=(0.0, 45.0),
+    focalplane: FocalPlane | None = None,
     progress: bool = False,
 ) -> Result:
     """Every case without a plate and behind ``hwp``, through each boresight schedule.
@@ -191,8 +227,10 @@ def run(
         :data:`DEFAULT_SYNCHRONOUS_MUK`).
     schedules : sequence of sequence of float
         Boresight angles of the CES set's repeats [deg].
-    pair_angles_deg : sequence of float
-        The pairs, on the axis (default the paper's Q and U pairs).
+    focalplane : boresight.focalplane.FocalPlane, optional
+        The pairs (default the paper's Q and U pairs on the axis). Off the axis each pair's
+        moments enter the plate's own cases as the map-maker combines them
+        (:func:`plate_moments`).
     progress : bool
 
     Returns
@@ -200,7 +238,7 @@ def run(
     Result
     """
     check_plate(hwp)
-    pairs = on_axis(pair_angles_deg)
+    pairs = on_axis((0.0, 45.0)) if focalplane is None else focalplane
     # the plate's own signals and offset, each alone in its case
     ideal = dataclasses.replace(
         hwp, ip=0.0, angle_offset_deg=0.0, angle_jitter_deg=0.0, synchronous_muk=(0.0, 0.0)
@@ -243,31 +281,35 @@ def run(
             if case.plate:
                 tod = engine.simulate_focalplane(sky, scan, pairs, hwp=own[case.plate], **run_)
             if case.plate and moments is None:
-                moments = scanstats.hwp_moments(scan, ideal, sky.nside, PLATE_TERMS)
+                moments = plate_moments(scan, ideal, sky.nside, pairs)
             white = 0.0
             if case.plate == "ip":
-                dp = predict_fp.ip_delta_p(sky, moments[1], own["ip"], pairs.pair_angles_deg)
+                dp = predict_fp.ip_delta_p(sky, moments.h, own["ip"], moments.pair_angles_deg)
             elif case.plate == "jitter":
                 dp, _, white = predict_fp.angle_jitter_leak(
-                    sky, *moments, own["jitter"], pair_angles_deg=pairs.pair_angles_deg, mask=mask
+                    sky,
+                    moments.hits,
+                    moments.h,
+                    own["jitter"],
+                    pair_angles_deg=moments.pair_angles_deg,
+                    mask=mask,
                 )
             elif case.plate == "synchronous":
                 dp = predict_fp.synchronous_delta_p(
-                    moments[1], own["synchronous"], pairs.pair_angles_deg
+                    moments.synchronous, own["synchronous"], moments.pair_angles_deg
                 )
             elif case.plate == "angle":
                 offset = dataclasses.replace(stats, hwp=own["angle"])
                 dp = predict_fp.delta_p(sky, offset, Systematics())
             else:
-                tod = engine.simulate_focalplane(
-                    sky, scan, pairs, case.systematics, hwp=plate, **run_
-                )
+                systematics = _on(pairs, case.systematics)
+                tod = engine.simulate_focalplane(sky, scan, pairs, systematics, hwp=plate, **run_)
                 if plate is None and offsets is None:
                     offsets = scanstats.centroid_moments(scan, sky.nside, focalplane=pairs)
                 dp = predict_fp.delta_p(
                     sky,
                     stats,
-                    case.systematics,
+                    systematics,
                     offsets=offsets if plate is None else None,
                     second_order=True,
                 )
@@ -291,6 +333,17 @@ def run(
                 row[f"over first {band}"] = float(mb / fb) if real and fb > ROUNDING else np.nan
             rows.append(row)
     return Result(rows, cls, edges)
+
+
+def _on(pairs, systematics):
+    """A case's systematics on ``pairs``: a gain given per pair alternates its values over them
+    (+-0.01 for the Q and U pairs, and on a focal plane)."""
+    dg = systematics.dg
+    if isinstance(dg, tuple) and len(dg) != pairs.n_pairs:
+        return dataclasses.replace(
+            systematics, dg=tuple(dg[i % len(dg)] for i in range(pairs.n_pairs))
+        )
+    return systematics
 
 
 def _amplitude(case, own):

@@ -538,6 +538,7 @@ def hwp_moments(
     chunk_samples: int = 1 << 20,
     focalplane: FocalPlane | None = None,
     relative: bool = False,
+    pair_weights: np.ndarray | None = None,
     each=None,
     progress: bool = False,
 ) -> tuple[np.ndarray, dict]:
@@ -563,10 +564,15 @@ def hwp_moments(
         With a focal plane: chi is the plate's angle from each pair's half angle, chi - gamma / 2,
         so that the reflected angle is psi + 2 chi, and the combination carries each pair's
         exp(-i m gamma / 2) (the plate's IP on a focal plane,
-        :func:`boresight.predict.focalplane.ip_delta_p`).
+        :func:`boresight.predict.focalplane.ip_delta_p`): each pair's sums weighted by
+        exp(-i m gamma / 2).
+    pair_weights : numpy.ndarray, complex, shape (pairs, len(terms)), optional
+        With a focal plane and not ``relative``: each pair's weight of each term in the
+        combination (the plate's synchronous signal,
+        :func:`boresight.predict.focalplane.synchronous_weights`).
     each : callable, optional
         With a focal plane, called as ``each(i, hits_i, h_i)`` with pair i's own moments as they
-        are made.
+        are made (weighted as they enter the combination).
     progress : bool
 
     Returns
@@ -580,11 +586,25 @@ def hwp_moments(
 
     if not hwp.present:
         raise ValueError("h_{n,m} needs a continuous or a stepped HWP")
-    if relative and focalplane is None:
-        raise ValueError("relative h_{n,m} are of a focal plane's pairs: give focalplane")
+    if (relative or pair_weights is not None) and focalplane is None:
+        raise ValueError(
+            "relative or weighted h_{n,m} are of a focal plane's pairs: give focalplane"
+        )
+    if relative and pair_weights is not None:
+        raise ValueError("relative h_{n,m} carry their own weights: not with pair_weights")
     table = np.array([(int(n), int(m)) for n, m in terms], dtype=np.float64).reshape(-1, 2)
     if len({tuple(t) for t in table}) != len(table):
         raise ValueError(f"repeated (n, m) in {list(terms)}")
+    if relative:
+        half = np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64)) / 2
+        pair_weights = np.exp(-1j * np.outer(half, table[:, 1]))
+    if pair_weights is not None:
+        pair_weights = np.asarray(pair_weights, dtype=np.complex128)
+        if pair_weights.shape != (focalplane.n_pairs, len(table)):
+            raise ValueError(
+                f"pair_weights: shape {pair_weights.shape}, want "
+                f"{(focalplane.n_pairs, len(table))} (pairs, terms)"
+            )
     npix = 12 * nside**2
     sums = np.zeros((len(table), npix), dtype=np.complex128)
     hits = np.zeros(npix, dtype=np.int64)
@@ -600,12 +620,13 @@ def hwp_moments(
         for i in range(pairs if focalplane is not None else 0):
             own_sums, own_hits = np.zeros_like(sums), np.zeros_like(hits)
             one = focalplane.subset([i])
-            half = np.radians(focalplane.gamma_deg[i]) / 2 if relative else 0.0
             for theta, phi, psi, chi in detector_pointing(schedule, one, chunk_samples, hwp=hwp):
                 interrupts.check()
                 pix = ang2pix_array(nside, theta[0], phi[0])
-                _bin_spins(pix, psi[0], chi - half, table, own_sums, own_hits)
+                _bin_spins(pix, psi[0], chi, table, own_sums, own_hits)
                 bar.update(theta.size)
+            if pair_weights is not None:
+                own_sums *= pair_weights[i][:, None]
             if each is not None:
                 each(i, own_hits, _moments(own_sums, own_hits, table))
             sums += own_sums
@@ -777,10 +798,12 @@ def characterise_focalplane(
         A continuous or stepped HWP in front of every pair.
     pointing : bool
         Behind ``hwp``, with ``per_pair``: also each pair's moments of a pointing offset's terms
-        (:func:`pointing_behind`, 18 more maps per pair), which its prediction behind the plate
+        (:func:`pointing_behind`, 31 maps per pair), which its prediction behind the plate
         needs.
     beams : bool
-        Likewise for the beams' terms (:func:`beams_behind`, 44 more maps per pair).
+        Likewise for the beams' terms (:func:`beams_behind`, 44 maps per pair). Behind a plate
+        with ``per_pair`` each pair keeps :data:`T_BEHIND_TERMS` too (5 maps), the pairs' leaks
+        of T read across the pixel; every moment is kept once (:meth:`FocalPlaneStats.behind`).
     scheduler : str, optional
         "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
         scheduler's address.
@@ -836,10 +859,10 @@ def characterise_focalplane(
             for b in blocks
         ]
         tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
-    terms = ()  # the pointing's and the beams' moments behind the plate, each once, one pass
+    terms = ()  # the moments behind the plate: T's, the pointing's and the beams', each once
     if per_pair and hwp is not None and hwp.present:
         wanted = (POINTING_BEHIND_TERMS if pointing else ()) + (BEAM_BEHIND_TERMS if beams else ())
-        terms = tuple(dict.fromkeys(wanted))
+        terms = tuple(dict.fromkeys(T_BEHIND_TERMS + wanted))
     behind = (
         _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples) if terms else None
     )
@@ -858,6 +881,10 @@ def characterise_focalplane(
 
 #: the offsets from a pixel's centre a moment behind a plate can be weighted by, to second order
 OFFSETS = (None, "conj", "delta", "conj2", "delta2", "abs2")
+#: the moments behind a plate of the pairs' leaks of T (a gain, an additive leak): h_{2,4}, the
+#: reflected angles' h_2, weighted by each sample's offset from its pixel's centre to second
+#: order, for T read across the pixel where the spinning plate leaves incoherent sums
+T_BEHIND_TERMS = tuple((2, 4, o) for o in OFFSETS[1:])
 #: :func:`pointing_behind`'s moments, each (n, m, offset): the mean over a pair's samples per pixel
 #: of exp(i n psi + i m (chi - gamma)), times the sample's offset from its pixel's centre as
 #: ``offset`` names it (:data:`OFFSET_WEIGHTS`)

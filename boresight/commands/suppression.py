@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+from typing import TYPE_CHECKING
 
 from .. import hwp_suppression, io, plots, provenance, resources, suppression
 from ..config import OutputOptions, Study, check_systematics
@@ -16,6 +17,9 @@ from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import ConfigError, require_finite
 from . import _common
+
+if TYPE_CHECKING:
+    from ..focalplane import FocalPlane
 
 log = logging.getLogger(__name__)
 
@@ -100,6 +104,7 @@ def run_hwp(
     plate: HWP,
     out_dir: str,
     *,
+    focalplane: FocalPlane | None = None,
     force: bool = False,
     progress: bool = False,
 ) -> list[dict]:
@@ -119,6 +124,8 @@ def run_hwp(
     plate : boresight.hwp.HWP
         Continuous or stepped (per CES or per day).
     out_dir : str
+    focalplane : boresight.focalplane.FocalPlane, optional
+        The pairs, each on its own samples (default the paper's Q and U pairs on the axis).
     force, progress : bool
 
     Returns
@@ -138,7 +145,7 @@ def run_hwp(
     with timer("sky"):
         sky = make_sky(sky_config)
     with timer("simulations and predictions"):
-        result = hwp_suppression.run(schedule, sky, plate, progress=progress)
+        result = hwp_suppression.run(schedule, sky, plate, focalplane=focalplane, progress=progress)
     with io.staged_dir(out_dir, force) as stage:
         io.write_csv(stage / "hwp_suppression.csv", result.rows, list(result.rows[0]))
         io.write_text(stage / "hwp_suppression.md", hwp_suppression.markdown(result.rows))
@@ -150,6 +157,7 @@ def run_hwp(
                     "schedule": schedule_path,
                     "hwp": dataclasses.asdict(plate),
                     "sky": dataclasses.asdict(sky_config),
+                    "focalplane": None if focalplane is None else focalplane.names,
                 },
                 {"sky": sky_config.seed},
                 timer.stages,
@@ -193,6 +201,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--schedule",
         help="with --hwp: the schedule file whose CES set the HWP table repeats (required there)",
     )
+    _common.focalplane_flag(parser, "; with --hwp only")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -218,11 +227,13 @@ def main(args: argparse.Namespace) -> int:
             args.schedule,
             plate,
             args.out,
+            focalplane=_common.focalplane(args),
             force=args.force,
             progress=_common.progress(args),
         )
         return 0
-    given = [f for f in ("--schedule", *PLATE_FLAGS) if getattr(args, _dest(f)) is not None]
+    flags = ("--schedule", "--focalplane", *PLATE_FLAGS)
+    given = [f for f in flags if getattr(args, _dest(f)) is not None]
     if given:
         raise ConfigError(f"{', '.join(given)} belong to the HWP table: give --hwp too")
     run(

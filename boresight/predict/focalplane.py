@@ -34,7 +34,7 @@ from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
 from ..mapmaking import check_mapmaker, solve_iqu
-from ..scanstats import BEAM_BEHIND_TERMS, BEAM_N_MAX, POINTING_BEHIND_TERMS
+from ..scanstats import BEAM_BEHIND_TERMS, BEAM_N_MAX, POINTING_BEHIND_TERMS, T_BEHIND_TERMS
 from ..spectra import as_footprint
 from . import field_products as fp_products
 from .beam_fields import _beam_field, pairs_beam_filters
@@ -67,6 +67,11 @@ def _check(stats, systematics):
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:
         check_hwp_systematics(systematics, own_angles=True)
+        if stats.hwp.present and not stats.has_behind(T_BEHIND_TERMS):
+            raise ValueError(
+                "pairs behind a HWP need each pair's moments behind it: characterise with "
+                "per_pair and hwp"
+            )
         if (
             systematics.has_pointing
             and stats.hwp.present
@@ -381,8 +386,15 @@ def delta_p(
     shares = pair_shares(params, stats.focalplane)
     fields = _fields(sky, systematics, template, spread, nthreads)
     weights = _weights(stats)
-    y = _y(stats, weights, shares, fields) + _sky_beam_y(
-        sky, stats, params, weights, spread, nthreads, offsets
+    across = 0.0
+    if _behind_plate(stats):
+        fields, across = _temperature_across(
+            sky, stats, shares, weights, fields, template, nthreads
+        )
+    y = (
+        _y(stats, weights, shares, fields)
+        + across
+        + _sky_beam_y(sky, stats, params, weights, spread, nthreads, offsets)
     )
     if systematics.has_pointing and _behind_plate(stats):
         y = y + _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads)
@@ -397,6 +409,26 @@ def delta_p(
                 for by, field in zip(offset_weights(offsets, n), (up, down)):
                     y = y + 0.5 * field * _mean(shares[name], weights, by)
     return _solve(y, _h4(stats, weights, shares))
+
+
+def _temperature_across(sky, stats, shares, weights, fields, template, nthreads):
+    """Behind a HWP, the pairs' leaks of T (a gain's t2, an additive leak's s2 of the sky's T)
+    read across each pixel to second order (:func:`_taylor`, the moments of
+    :data:`boresight.scanstats.T_BEHIND_TERMS`): behind a spinning plate their h_{2,4} are
+    incoherent sums, for which the spread window's mean over the pixel does not hold. Returns the
+    fields with T at the pixels' centres, and the rest of the series' part of Y (npix,)."""
+    names = [n for n in ("t2", "s2") if n in fields and (n == "t2" or template is None)]
+    series = _taylor(fp_products.temperature(np.ones(sky.lmax + 1)))
+    fields = dict(fields)
+    for name in names:
+        fields[name] = _field_map(sky, series[None][1], nthreads).real
+    y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
+    for offset, (scale, field) in series.items():
+        if offset is not None and names:
+            value = _field_map(sky, field, nthreads)
+            for name in names:
+                y += scale * _mean(shares[name], weights, stats.behind(2, 4, offset)) * value
+    return fields, y
 
 
 def _pointing_behind_y(sky, stats, params, shares, weights, spread, nthreads):
@@ -554,12 +586,15 @@ def _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, *, ord
     return y
 
 
-def _pair_mean_w4(moments, terms, what, pair_angles_deg):
-    """<exp(-4 i gamma)> over the pairs, once the moments hold ``terms``."""
+def _pair_mean_w(moments, terms, what, pair_angles_deg, k=4):
+    """<exp(-k i gamma)> over the pairs on the axis, once the moments hold ``terms``; 1 for a
+    focal plane's combined moments, which carry each pair's (``pair_angles_deg`` None)."""
     missing = [t for t in terms if t not in moments]
     if missing:
         raise ValueError(f"the HWP's {what} needs h_(n,m) {missing}")
-    return np.mean(np.exp(-4j * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
+    if pair_angles_deg is None:
+        return 1.0
+    return np.mean(np.exp(-1j * k * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
 
 
 #: the h_{n,m} of (psi, chi) the plate's instrumental polarisation reaches a pair's map through
@@ -630,14 +665,13 @@ def ip_delta_p(
     check_mapmaker(mapmaker)
     single = mapmaker == "single"
     terms = SINGLE_IP_TERMS if single else IP_TERMS
-    pair_angles_deg = (0.0,) if pair_angles_deg is None else pair_angles_deg
-    w = _pair_mean_w4(moments, terms, "instrumental polarisation", pair_angles_deg)
+    w = _pair_mean_w(moments, terms, "instrumental polarisation", pair_angles_deg)
     t = _fields(sky, Systematics(), None, spread, nthreads)["t2"]
     phase = np.exp(1j * hwp.ip_phase_deg * DEG)
     y = hwp.ip * t * (phase * moments[2, 0] + np.conj(phase) * w * moments[2, 8])
     if not single:
         return _solve(y, w * moments[4, 8])
-    w2 = np.mean(np.exp(-2j * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
+    w2 = _pair_mean_w(moments, terms, "instrumental polarisation", pair_angles_deg, k=2)
     z2, z4 = w2 * moments[2, 4], w * moments[4, 8]
     mean = np.real(hwp.ip * t * phase * np.conj(w2 * moments[0, 4]))
     ones = np.ones_like(t)
@@ -654,33 +688,47 @@ def ip_delta_p(
 SYNCHRONOUS_TERMS = ((2, 2), (2, 6), (4, 8))
 
 
+def synchronous_weights(focalplane) -> np.ndarray:
+    """Each pair's weights of :data:`SYNCHRONOUS_TERMS` in the map-maker's combination, 1,
+    exp(-4 i gamma) and exp(-4 i gamma), (pairs, 3) complex
+    (``boresight.scanstats.hwp_moments(..., focalplane=, pair_weights=)``)."""
+    w = np.exp(-4j * np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64)))
+    return np.stack([np.ones_like(w), w, w], axis=1)
+
+
 def synchronous_delta_p(moments: dict, hwp: HWP, pair_angles_deg) -> np.ndarray:
     """The spurious P of a HWP's synchronous signal (:func:`boresight.hwp.plate_signals`) in the
-    pair differences' map of pairs on the axis, the plate at its nominal angle.
+    pair differences' map, the plate at its nominal angle.
 
     The 4 chi part is common to a pair and leaves its difference. The 2 chi part, A_2 cos(2 chi -
     2 gamma - phi_2), is its difference; with a = psi - gamma + 2 chi and w = exp(-4 i gamma)
-    averaged over the pairs::
+    averaged over the pairs on the axis::
 
       Y = A_2 [exp(i phi_2) h_{2,2} + exp(-i phi_2) <w> h_{2,6}],   H_4 = <w> h_{4,8}
 
-    solved as in :func:`delta_p`. A spinning plate takes every term to zero; a stepped one
-    leaves h_{2,2} = exp(2 i chi_k) h_2 per step, which boresight rotation cancels with h_2.
+    solved as in :func:`delta_p`. Pairs off the axis, each on its own samples, take the
+    map-maker's combination of their moments, each pair's h_{2,6} and h_{4,8} weighted by its own
+    w (:func:`synchronous_weights`), with ``pair_angles_deg`` None. A spinning plate takes every
+    term to zero; a stepped one leaves h_{2,2} = exp(2 i chi_k) h_2 per step, which boresight
+    rotation cancels with h_2.
 
     Parameters
     ----------
     moments : dict
         (n, m) -> (npix,) h_{n,m} with :data:`SYNCHRONOUS_TERMS`
-        (:func:`boresight.scanstats.hwp_moments`).
+        (:func:`boresight.scanstats.hwp_moments`): of the boresight's samples, or a focal
+        plane's weighted ones.
     hwp : boresight.hwp.HWP
-    pair_angles_deg : sequence of float
+    pair_angles_deg : sequence of float, or None
+        Detector A's angle gamma of each pair [deg], all on the axis sharing the samples; None
+        for a focal plane's weighted moments, which carry them.
 
     Returns
     -------
     numpy.ndarray, complex128, shape (npix,)
         [muK], 0 off the observed pixels.
     """
-    w = _pair_mean_w4(moments, SYNCHRONOUS_TERMS, "synchronous signal", pair_angles_deg)
+    w = _pair_mean_w(moments, SYNCHRONOUS_TERMS, "synchronous signal", pair_angles_deg)
     phase = np.exp(1j * hwp.synchronous_phase_deg[0] * DEG)
     a2 = hwp.synchronous_muk[0]
     y = a2 * (phase * moments[2, 2] + np.conj(phase) * w * moments[2, 6])
@@ -695,7 +743,7 @@ def angle_jitter_leak(
     sky: Sky, hits: np.ndarray, moments: dict, hwp: HWP, *, pair_angles_deg, mask: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """What a HWP angle's white jitter (:func:`boresight.hwp.plate_signals`) leaves in the pair
-    differences' map of pairs on the axis, over its draws: the spurious P of its mean, and the
+    differences' map, over its draws: the spurious P of its mean, and the
     variance and white pseudo-C_BB of the rest.
 
     A jitter j of rms sigma turns the pair's P to P exp(-4 i j), whose mean over the draws is
@@ -711,18 +759,24 @@ def angle_jitter_leak(
       E``|dP|^2`` = (E``|Y|^2`` (1 + ``|H_4|^2``) - 2 Re(H_4* E[Y^2])) / (1 - ``|H_4|^2``)^2
 
     through the 2x2 solve (as :func:`jitter_bb` has it for a gain's jitter), white from pixel to
-    pixel; half of it is B.
+    pixel; half of it is B. Pairs off the axis, each on its own samples, see a pixel at other
+    times, so their draws there are independent: each sample is its own pair's, with its own
+    exp(-4 i gamma), which moments of chi - gamma / 2 carry (``hwp_moments(..., focalplane=,
+    relative=True)``, ``pair_angles_deg`` None): the same formulas with W = 1 and n_t every
+    pair's samples (pairs sharing a pixel at one time, closer than a pixel, are left out).
 
     Parameters
     ----------
     sky : boresight.sky.Sky
     hits : numpy.ndarray, shape (npix,)
-        The boresight's samples per pixel (:func:`boresight.scanstats.hwp_moments`).
+        The boresight's samples per pixel, or every pair's off the axis
+        (:func:`boresight.scanstats.hwp_moments`).
     moments : dict
         (n, m) -> (npix,) h_{n,m} with :data:`JITTER_TERMS`.
     hwp : boresight.hwp.HWP
         Its ``angle_jitter_deg``; no angle offset (the offset's own is :func:`delta_p`'s).
-    pair_angles_deg : sequence of float
+    pair_angles_deg : sequence of float, or None
+        Detector A's angle of each pair on the axis [deg]; None off the axis (above).
     mask : numpy.ndarray, shape (npix,)
         The weights of the solved pixels.
 
@@ -735,7 +789,7 @@ def angle_jitter_leak(
     white : float
         Its pseudo-C_BB, the same at every multipole [muK^2].
     """
-    w = _pair_mean_w4(moments, JITTER_TERMS, "angle jitter", pair_angles_deg)
+    w = _pair_mean_w(moments, JITTER_TERMS, "angle jitter", pair_angles_deg)
     sigma = hwp.angle_jitter_deg * DEG
     mu, v = np.exp(-8.0 * sigma**2), -np.expm1(-16.0 * sigma**2)
     c = np.exp(-32.0 * sigma**2) - np.exp(-16.0 * sigma**2)

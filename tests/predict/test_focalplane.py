@@ -197,8 +197,8 @@ def test_what_it_does_not_cover_is_refused(deep):
     with pytest.raises(ValueError, match="per-pair maps"):
         predict_fp.delta_p(sky, bare, Systematics(dg=0.01))
     behind = dataclasses.replace(one, hwp=HWP("continuous", frequency_hz=0.37))
-    with pytest.raises(ValueError, match="pointing moments: characterise with per_pair"):
-        predict_fp.delta_p(sky, behind, Systematics(rho_arcmin=1.0), second_order=True)
+    with pytest.raises(ValueError, match="moments behind it: characterise with per_pair and hwp"):
+        predict_fp.delta_p(sky, behind, Systematics(dg=0.01))
 
 
 def test_its_sky_expectation_on_the_axis_is_the_shared_moments_one():
