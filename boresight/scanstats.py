@@ -661,9 +661,10 @@ class FocalPlaneStats:
     hwp : boresight.hwp.HWP, optional
         The HWP in front of the pairs: their moments are of their reflected angles.
     pair_behind_h : numpy.ndarray, complex128, shape (pairs, len(behind_terms), npix), or None
-        Behind ``hwp``, with the per-pair maps and ``pointing`` or ``beams``: each pair's moments
-        of a pointing offset's terms (:func:`pointing_behind`), of the beams' terms
-        (:func:`beams_behind`) or of both, each once (:meth:`behind`).
+        Behind ``hwp``, with the per-pair maps: each pair's moments of its T leaks' terms
+        (:data:`T_BEHIND_TERMS`), and with ``pointing`` or ``beams`` of a pointing offset's terms
+        (:func:`pointing_behind`) and the beams' (:func:`beams_behind`), each once
+        (:meth:`behind`).
     behind_terms : tuple of (int, int, str or None)
         The (n, m, offset) of each of ``pair_behind_h``'s moments (:func:`_moments_behind`).
     """
