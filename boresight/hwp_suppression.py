@@ -230,7 +230,8 @@ def run(
     focalplane : boresight.focalplane.FocalPlane, optional
         The pairs (default the paper's Q and U pairs on the axis). Off the axis each pair's
         moments enter the plate's own cases as the map-maker combines them
-        (:func:`plate_moments`).
+        (:func:`plate_moments`), and its IP takes T across the pixel
+        (:func:`boresight.predict.focalplane.ip_delta_p_across`).
     progress : bool
 
     Returns
@@ -239,6 +240,7 @@ def run(
     """
     check_plate(hwp)
     pairs = on_axis((0.0, 45.0)) if focalplane is None else focalplane
+    off_axis = bool(np.any(pairs.radius_deg > 0))
     # the plate's own signals and offset, each alone in its case
     ideal = dataclasses.replace(
         hwp, ip=0.0, angle_offset_deg=0.0, angle_jitter_deg=0.0, synchronous_muk=(0.0, 0.0)
@@ -271,8 +273,9 @@ def run(
         mask = (ref.rcond > RCOND_FOOTPRINT).astype(float)
         footprint = spectra.as_footprint(mask)
         stats = scanstats.characterise_focalplane(
-            scan, pairs, sky.nside, per_pair=True, hwp=plate, pointing=True, beams=True
-        )
+            scan, pairs, sky.nside, per_pair=True, hwp=plate, pointing=True, beams=True,
+            ip=plate is not None and off_axis,
+        )  # fmt: skip
         moments = None  # the boresight's hits and h_{n,m}, once a plate's own case needs them
         offsets = None  # the bare pairs' samples' offsets from their pixel centres
         for case in CASES:
@@ -283,7 +286,9 @@ def run(
             if case.plate and moments is None:
                 moments = plate_moments(scan, ideal, sky.nside, pairs)
             white = 0.0
-            if case.plate == "ip":
+            if case.plate == "ip" and off_axis:
+                dp = predict_fp.ip_delta_p_across(sky, stats, own["ip"])
+            elif case.plate == "ip":
                 dp = predict_fp.ip_delta_p(sky, moments.h, own["ip"], moments.pair_angles_deg)
             elif case.plate == "jitter":
                 dp, _, white = predict_fp.angle_jitter_leak(

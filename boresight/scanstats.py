@@ -768,6 +768,7 @@ def characterise_focalplane(
     hwp: HWP | None = None,
     pointing: bool = False,
     beams: bool = False,
+    ip: bool = False,
     scheduler: str | None = "serial",
     workers: int = 2,
     progress: bool = False,
@@ -805,6 +806,9 @@ def characterise_focalplane(
         Likewise for the beams' terms (:func:`beams_behind`, 44 maps per pair). Behind a plate
         with ``per_pair`` each pair keeps :data:`T_BEHIND_TERMS` too (5 maps), the pairs' leaks
         of T read across the pixel; every moment is kept once (:meth:`FocalPlaneStats.behind`).
+    ip : bool
+        Likewise for the plate's instrumental polarisation (:data:`IP_BEHIND_TERMS`, 12 maps per
+        pair), for :func:`boresight.predict.focalplane.ip_delta_p_across`.
     scheduler : str, optional
         "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
         scheduler's address.
@@ -863,6 +867,7 @@ def characterise_focalplane(
     terms = ()  # the moments behind the plate: T's, the pointing's and the beams', each once
     if per_pair and hwp is not None and hwp.present:
         wanted = (POINTING_BEHIND_TERMS if pointing else ()) + (BEAM_BEHIND_TERMS if beams else ())
+        wanted += IP_BEHIND_TERMS if ip else ()
         terms = tuple(dict.fromkeys(T_BEHIND_TERMS + wanted))
     behind = (
         _moments_behind(schedule, focalplane, hwp, nside, terms, chunk_samples) if terms else None
@@ -886,6 +891,9 @@ OFFSETS = (None, "conj", "delta", "conj2", "delta2", "abs2")
 #: reflected angles' h_2, weighted by each sample's offset from its pixel's centre to second
 #: order, for T read across the pixel where the spinning plate leaves incoherent sums
 T_BEHIND_TERMS = tuple((2, 4, o) for o in OFFSETS[1:])
+#: the moments of the plate's instrumental polarisation on a pair's samples: h_{2,0} of its own
+#: crossing angles and its h_{2,8}, each weighted by the samples' offsets to second order
+IP_BEHIND_TERMS = tuple((2, m, o) for m in (0, 8) for o in OFFSETS)
 #: :func:`pointing_behind`'s moments, each (n, m, offset): the mean over a pair's samples per pixel
 #: of exp(i n psi + i m (chi - gamma)), times the sample's offset from its pixel's centre as
 #: ``offset`` names it (:data:`OFFSET_WEIGHTS`)

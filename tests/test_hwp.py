@@ -499,6 +499,8 @@ def test_what_a_hwp_pair_does_not_yet_carry_is_refused(deep_bare):
         predict_fp.delta_p(sky, stats, beam)
     with pytest.raises(ValueError, match="characterise with per_pair and pointing"):
         predict_fp.delta_p(sky, stats, POINTING)
+    with pytest.raises(ValueError, match=r"characterise_focalplane\(..., hwp=, ip=True\)"):
+        predict_fp.ip_delta_p_across(sky, stats, HWP("stepped", ip=1e-3))
     stats = scanstats.characterise_focalplane(
         schedule.single(), pairs, 8, per_pair=True, hwp=HWP("stepped"), beams=True
     )

@@ -34,7 +34,13 @@ from ..hwp import check_systematics as check_hwp_systematics
 from ..hwp import reflected_systematics
 from ..instrument import LIMITS, UNITS, PairParameters, Spread, Systematics
 from ..mapmaking import check_mapmaker, solve_iqu
-from ..scanstats import BEAM_BEHIND_TERMS, BEAM_N_MAX, POINTING_BEHIND_TERMS, T_BEHIND_TERMS
+from ..scanstats import (
+    BEAM_BEHIND_TERMS,
+    BEAM_N_MAX,
+    IP_BEHIND_TERMS,
+    POINTING_BEHIND_TERMS,
+    T_BEHIND_TERMS,
+)
 from ..spectra import as_footprint
 from . import field_products as fp_products
 from .beam_fields import _beam_field, pairs_beam_filters
@@ -682,6 +688,51 @@ def ip_delta_p(
     )  # per sample, as the map-maker's sums over them: unseen pixels solve to 0
     _, q, u, _ = solve_iqu(normal, rcond_min=SINGULAR)
     return np.where(q != hp.UNSEEN, q + 1j * u, 0.0)  # 0 where the map-maker has no solution
+
+
+def ip_delta_p_across(sky: Sky, stats: FocalPlaneStats, hwp: HWP, *, nthreads: int = 0):
+    """The spurious P of a HWP's instrumental polarisation in the pair differences' map of a focal
+    plane, from each pair's own moments with T read across the pixel.
+
+    Pair i on its own samples gives, with the moments of :func:`boresight.scanstats.
+    _moments_behind` (chi - gamma)::
+
+      Y = epsilon sum_i (N_i / N) [exp(i phase) <T h_{2,0}> + exp(-i phase) exp(4 i gamma_i)
+          <T h_{2,8}>],   H_4 = sum_i (N_i / N) exp(4 i gamma_i) h_{4,8}
+
+    :func:`ip_delta_p`'s formula with T read at each pair's samples to second order in their
+    offsets from the pixel's centre (:func:`_taylor`) rather than as its mean over the pixel: few
+    samples per pixel, and h_{2,8} an incoherent sum behind a spinning plate, make that mean
+    10 % off on a short schedule (docs/conventions.md).
+
+    Parameters
+    ----------
+    sky : boresight.sky.Sky
+    stats : boresight.scanstats.FocalPlaneStats
+        Behind the plate with the IP's moments (``characterise_focalplane(..., per_pair=True,
+        hwp=, ip=True)``).
+    hwp : boresight.hwp.HWP
+        Its ``ip`` and ``ip_phase_deg``.
+    nthreads : int
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (npix,)
+        [muK], 0 off the observed pixels.
+    """
+    if not (_behind_plate(stats) and stats.has_behind(IP_BEHIND_TERMS)):
+        raise ValueError(
+            "the IP across the pixel needs characterise_focalplane(..., hwp=, ip=True)"
+        )
+    weights = _weights(stats)
+    turn = np.exp(4j * np.radians(np.asarray(stats.focalplane.gamma_deg, dtype=np.float64)))
+    phase = np.exp(1j * hwp.ip_phase_deg * DEG)
+    y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
+    for offset, (scale, field) in _taylor(fp_products.temperature(np.ones(sky.lmax + 1))).items():
+        h = phase * _mean(np.ones_like(turn), weights, stats.behind(2, 0, offset))
+        h += np.conj(phase) * _mean(turn, weights, stats.behind(2, 8, offset))
+        y += scale * h * _field_map(sky, field, nthreads)
+    return _solve(hwp.ip * y, _mean(turn, weights, stats.pair_h[:, 4]))
 
 
 #: the h_{n,m} the plate's synchronous 2 chi signal reaches a pair's map through
