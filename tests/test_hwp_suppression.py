@@ -144,15 +144,22 @@ def test_on_a_focal_plane_every_prediction_follows_the_tod(hexagon_table):
     (hwp_suppression.plate_moments). predicted / TOD within 10 % in every band above rounding
     (measured 0.96-1.05, the IP 0.998-1.000 where T as its pixel mean gave 1.00-1.11, the
     synchronous signal to rounding), but the jitter's one draw (tests/test_hwp.py checks it on a
-    hexagon over 16 draws). The plate still cures the pairs' leaks: a gain's T falls 39x behind
-    it in the lowest band."""
+    hexagon over 16 draws). The two read across the pixel are held closer: the IP within 1 %, a
+    gain's and a leak's T behind the plate within 2 % (0.997-1.005; 0.89-1.15 as T's pixel mean).
+    The plate still cures the pairs' leaks: a gain's T falls 39x behind it in the lowest band."""
     checked = 0
-    for (name, _, _), row in hexagon_table.items():
+    across = {
+        "HWP instrumental polarisation": 0.01,
+        "differential gain": 0.02,
+        "additive leak": 0.02,
+    }
+    for (name, behind, _), row in hexagon_table.items():
         if name == "HWP angle jitter":
             continue
+        bound = across.get(name, 0.10) if behind else 0.10
         for leak, ratio in zip(_leak(row), _ratio(row, "predicted/TOD")):
             if leak > hwp_suppression.ROUNDING:
-                assert abs(ratio - 1) < 0.10, (row["systematic"], row["boresight"], ratio)
+                assert abs(ratio - 1) < bound, (row["systematic"], row["boresight"], ratio)
                 checked += 1
     assert checked >= 100
     bare, behind = (_leak(hexagon_table["differential gain", b, "0"]) for b in (False, True))

@@ -484,7 +484,7 @@ def _pointing_second_order_y(sky, stats, params, weights, spread, offsets, nthre
         (4, -rho2 * np.exp(4j * gamma + 2j * chi), step["delta2"]),
         (2, -rho2 * np.exp(2j * gamma), step["abs2"]),
     )
-    geometry = _geometry(sky.nside)
+    geometry, read = _geometry(sky.nside), _field_maps(sky, nthreads)
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     for n, share, parts in terms:
         for part in parts:
@@ -492,17 +492,13 @@ def _pointing_second_order_y(sky, stats, params, weights, spread, offsets, nthre
             if behind:
                 for offset, (scale, value) in _taylor(part.field).items():
                     h = _mean(share, weights, stats.behind(n, 4, offset))
-                    y += factor * scale * h * _field_map(sky, value, nthreads)
+                    y += factor * scale * h * read(value)
                 continue
-            y += (
-                factor
-                * _mean(share, weights, stats.pair_h[:, n])
-                * _field_map(sky, part.field, nthreads)
-            )
+            y += factor * _mean(share, weights, stats.pair_h[:, n]) * read(part.field)
             if offsets is not None:
-                maps = _derivative_maps(sky, part.field, nthreads)
-                for by, value in zip(offset_weights(offsets, n), maps):
-                    y += factor * 0.5 * value * _mean(share, weights, by)
+                fields = _derivative_fields(part.field)
+                for by, value in zip(offset_weights(offsets, n), fields):
+                    y += factor * 0.5 * read(value) * _mean(share, weights, by)
     if behind:
         y += _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, order=2)
     return y
@@ -532,6 +528,20 @@ def _field_map(sky, field, nthreads):
     """The map of a sky field (npix,) complex; a negative spin is a conjugate."""
     value = _beam_field(sky, field.filters, abs(field.spin), nthreads)
     return value if field.spin >= 0 else np.conj(value)
+
+
+def _field_maps(sky, nthreads):
+    """:func:`_field_map` that synthesises each field once: the coordinate step's and the pixel's
+    Taylor series share most of their derivatives."""
+    made = {}
+
+    def read(field):
+        key = (field.spin, np.asarray(field.filters).tobytes())
+        if key not in made:
+            made[key] = _field_map(sky, field, nthreads)
+        return made[key]
+
+    return read
 
 
 def _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, *, order):
@@ -582,13 +592,13 @@ def _polarisation_offset_y(sky, stats, params, weights, spread, nthreads, *, ord
             (half * np.exp(4j * gamma - 2j * beta), stats.behind(2, 8), step["delta2"], True),
             (half * np.exp(4j * gamma), stats.behind(4, 8), step["abs2"], True),
         )
-    geometry = _geometry(sky.nside)
+    geometry, read = _geometry(sky.nside), _field_maps(sky, nthreads)
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
     for share, moment, parts, conjugated in terms:
         mean = _mean(share, weights, moment)
         for part in parts:
-            field = fp_products.conjugate(part.field) if conjugated else part.field
-            y += part.scale * geometry(part) * mean * _field_map(sky, field, nthreads)
+            value = read(part.field)
+            y += part.scale * geometry(part) * mean * (np.conj(value) if conjugated else value)
     return y
 
 
