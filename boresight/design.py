@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import healpy as hp
-import numba
 import numpy as np
 
 from . import coupling, interrupts, predict, validation
@@ -41,6 +40,7 @@ from .evaluation import METHODS
 from .focalplane import FocalPlane, focalplane_of_table
 from .hwp import HWP, chunk_angles, pairs_behind
 from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
+from .jit import njit
 from .noise import SurveyNoise
 from .pointing import chunk_arguments, pointing
 from .scanstats import N_MAX, ces_hits, sample_offsets
@@ -233,7 +233,7 @@ class UnitMoments:
         return replace(schedule, ces=tuple(rows), repeat_boresight_deg=(0.0,))
 
 
-@numba.njit(cache=True)
+@njit
 def _rotate_and_sum(offsets, index, sums, phases, out):
     """out[n, pixel] += S_n of each entry times exp(i n a) of its unit (n = 1..N_MAX)."""
     for u in range(offsets.size - 1):

@@ -32,13 +32,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
-import numba
 import numpy as np
 
 from . import coupling, interrupts, predict
 from .constants import DEG
 from .design import Design
 from .hwp import pairs_behind
+from .jit import njit
 from .predict import field_products as fp
 from .scanstats import N_MAX
 
@@ -408,7 +408,7 @@ class QuadraticForm:
         return (per_l @ lam.reshape(4, -1).T).reshape(2, 2, 2, 2)
 
 
-@numba.njit(cache=True)
+@njit
 def _apply(lam, ell, factor, x, lo, hi, out):
     """out[j, i] = factor[i] sum_{lo <= k < hi} lam[j, k, ell[i]] x[k, i]."""
     for i in range(x.shape[1]):

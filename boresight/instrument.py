@@ -32,11 +32,11 @@ table too, drawn per repeat.
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from . import validation
 from .constants import ARCMIN, DEG
+from .jit import njit
 from .kernels import rng
 from .validation import option
 
@@ -443,7 +443,7 @@ def response(rotations, pair_angles, params, dg_repeat):
     return table
 
 
-@numba.njit(cache=True)
+@njit
 def _response(rotations, pair_angles, off_a, off_b, dg, dg_repeat):
     out = np.empty((rotations.size, pair_angles.size, 7))
     for k in range(rotations.size):

@@ -22,6 +22,7 @@ import numpy as np
 
 from . import io, validation
 from .constants import DEG
+from .jit import njit
 from .validation import ConfigError, option
 
 FOOTPRINTS = {
@@ -58,7 +59,7 @@ def footprint(ra_deg: tuple, dec_deg: tuple, galactic_cut_deg: float, nside: int
     return mask
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _inside(theta, phi, box, pole, sin_cut):
     """Whether each point (theta, phi [rad], equatorial) lies in the RA/Dec box (RA low, high, Dec
     low, high [deg]) with ``|z|`` along the Galactic pole (a unit vector) above ``sin_cut`` (-1:

@@ -25,6 +25,7 @@ from . import frames
 from .constants import DEG
 from .frames import to_frame
 from .hwp import chunk_angles
+from .jit import njit
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
@@ -96,7 +97,7 @@ def _scan_offset(t, throw, speed, turnaround):
     return -0.5 * throw - speed * u + speed * u * u / turnaround, True
 
 
-@numba.njit(cache=True)
+@njit
 def _scan_offsets(t, throw, speed, turnaround):
     out = np.empty(t.size)
     turning = np.empty(t.size, dtype=np.bool_)
@@ -173,7 +174,7 @@ def sample_pointing(k, chunk, terms):
     return z, r, phi, c, s, turning
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _ces_pointing(k0, n, chunk, terms):
     """theta, phi, psi [rad] and the turnaround flag of samples k0..k0+n-1 of a CES
     (:func:`sample_pointing`), psi with the CES's boresight angle."""
@@ -234,7 +235,7 @@ def offset_sample(z, r, cp, sp, c, s, v):
     return nz, rn, phi, c_det, s_det
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _ces_detector_pointing(k0, n, chunk, terms, vectors):
     """theta, phi, psi [rad] of each detector at ``vectors`` (m, 6), (m, n), and the turnaround
     flag (n,), of samples k0..k0+n-1 of a CES."""

@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import heapq
 import importlib
-import os
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -29,6 +28,7 @@ from typing import TYPE_CHECKING
 from numba import types as nt
 
 from . import interrupts
+from .jit import cache_dir
 from .threads import default_threads
 
 if TYPE_CHECKING:
@@ -232,7 +232,8 @@ def precompile(names: Sequence[str], nthreads: int = 0, timer: Timer | None = No
     if not todo:
         return []
     workers = min(nthreads if nthreads > 0 else default_threads(), len(todo))
-    shares = _balance(todo, workers if sys.executable else 1)
+    # helpers share their kernels through the cache: with none, this process compiles alone
+    shares = _balance(todo, workers if sys.executable and cache_dir() is not None else 1)
     label = f"compile {len(todo)} numba kernels on {len(shares)} cores (first run only)"
     with timer(label) if timer else contextlib.nullcontext():
         helpers = [_start_helper(share) for share in shares[1:]]
@@ -269,13 +270,16 @@ def _balance(names, workers):
 
 
 def _start_helper(share):
-    """A process that compiles ``share`` into numba's cache, importing this boresight."""
-    package_root = str(Path(__file__).resolve().parent.parent)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [package_root, env.get("PYTHONPATH")]))
+    """A process that compiles ``share`` into numba's cache, importing this boresight.
+
+    ``python -m`` puts its working folder first on the path, so the helper runs in the folder
+    that holds this package: from a checkout's root it would otherwise import the checkout, not
+    the installed copy that this process runs.
+    """
+    package_root = Path(__file__).resolve().parent.parent
     return subprocess.Popen(
         [sys.executable, "-m", "boresight.precompile", *share],
-        env=env,
+        cwd=package_root,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,

@@ -20,6 +20,7 @@ import numpy as np
 from . import interrupts, tasks
 from .engine import check_samples
 from .hwp import chunk_angles
+from .jit import njit
 from .kernels.pixels import ang2pix_array, zphi2pix
 from .pointing import (
     ces_chunks,
@@ -52,7 +53,7 @@ def _angle_bin(c, s, nbins):
     return int(a / (2 * np.pi) * nbins) % nbins
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _unit_angles(psi, nbins):
     """cos psi, sin psi and the angle bin of each sample."""
     c = np.empty(psi.size)
@@ -64,7 +65,7 @@ def _unit_angles(psi, nbins):
     return c, s, b
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
     """Add samples to per-pixel sums of exp(i n psi) (n = 0..N_MAX), counts and angle bitmaps.
 
@@ -90,7 +91,7 @@ def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
             occupancy[p, b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def ces_hits(k0, n, chunk, terms, nside, nbins, exclude_turnarounds):
     """Pixel, cos psi, sin psi and angle bin of samples k0..k0+n-1 of a CES
     (:func:`boresight.pointing.sample_pointing`), without forming theta or psi; pixel -1 for a
@@ -109,7 +110,7 @@ def ces_hits(k0, n, chunk, terms, nside, nbins, exclude_turnarounds):
     return pix, cos_psi, sin_psi, angle_bin
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vectors, chi, gammas):
     """:func:`ces_hits` of each pair of a focal plane at ``vectors`` (m, 6)
     (:func:`boresight.pointing.offset_sample`): arrays (m, n). Behind a HWP at ``chi`` (n,)
@@ -137,7 +138,7 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
     return pix, cos_psi, sin_psi, angle_bin
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _bin_pairs(
     pixels, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, nparts
 ):
@@ -167,7 +168,7 @@ def _bin_pairs(
                 occupancy[p, b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _runs(occupancy, nbins, observed):
     """Distinct angles, range and centre [bins] of each observed pixel's angle bitmap.
 
@@ -513,7 +514,7 @@ HWP_TERMS = ((0, 0), (0, 4), (0, 8)) + tuple(
 )
 
 
-@numba.njit(cache=True)
+@njit
 def _bin_spins(pix, psi, chi, terms, sums, hits, weights=None, kinds=None):
     """sums[k, p] += exp(i (n_k psi + m_k chi)) w_k and hits[p] += 1 over samples, in sample
     order; w_k = 1, or with ``weights`` (K, samples) the sample's weights[kinds[k]] where

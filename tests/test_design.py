@@ -2,10 +2,10 @@
 budgets and the command."""
 
 import csv
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import EXAMPLES
 
 from boresight import cli, cosmology, design, predict, scanstats
 from boresight.commands import design as design_command
@@ -21,7 +21,7 @@ NSIDE = 32
 @pytest.fixture(scope="module")
 def schedule():
     """Eight 5-minute CESs of the deep example at 2 Hz, observed again at +90 deg."""
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(
         CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3]
     )  # fmt: skip
@@ -196,12 +196,12 @@ def test_design_command_on_the_deep_example(tmp_path):
     import csv
 
     budget = tmp_path / "budget.toml"
-    text = open("examples/budget_deep_sat.toml").read().replace("nside = 128", "nside = 64")
+    text = open(EXAMPLES / "budget_deep_sat.toml").read().replace("nside = 128", "nside = 64")
     budget.write_text(text + "restarts = 1\nvalidation_skies = 2\n")
     out = tmp_path / "d"
     schedule = tmp_path / "deep.toml"  # at 4 Hz: about 4 samples per crossing of an Nside-64 pixel
     schedule.write_text(
-        Path("examples/schedule_deep_sat.toml")
+        (EXAMPLES / "schedule_deep_sat.toml")
         .read_text()
         .replace("sample_rate_hz = 20.0", "sample_rate_hz = 4.0")
     )

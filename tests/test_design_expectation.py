@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import EXAMPLES
 
 from boresight import design, engine, predict, scanstats, spectra
 from boresight.config import RunOptions
@@ -27,7 +28,7 @@ BUDGET = Systematics(dg=(0.01, -0.01), rho_arcmin=3.0, chi_deg=30.0, ellipticity
 @pytest.fixture(scope="module")
 def schedule():
     """Eight 5-minute CESs of the deep example at 2 Hz: 8 units, 3^8 assignments."""
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3])
     return Schedule(ces, base.site, 2.0)
 

@@ -3,6 +3,7 @@ per-pair moments against the exact expectation, and its search against enumerati
 
 import numpy as np
 import pytest
+from helpers import EXAMPLES
 
 from boresight import coupling, design, focalplane, predict
 from boresight.cosmology import load_spectra
@@ -34,7 +35,7 @@ BEAMS = Systematics(
 def problem():
     """Eight 5-minute CESs of the deep example at 2 Hz (8 units), the theory, and the hexagon's
     mask: the boresight's footprint, well conditioned at 0 and 90 deg."""
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3])
     schedule = Schedule(ces, base.site, 2.0)
     moments = design.unit_moments(schedule, NSIDE, "ces")

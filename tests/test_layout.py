@@ -26,6 +26,7 @@ LAYERS = {
         "io",
         "provenance",
         "precompile",
+        "jit",
     },
     "kernels": {"kernels", "harmonics"},
     "inputs": {

@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import pytest
+from helpers import EXAMPLES
 
 from boresight import precompile
 from boresight.schedule import Schedule, load_schedule
@@ -24,7 +25,7 @@ real = precompile.precompile
 precompile.precompile = lambda names, *args, **kw: asked.update(names) or real(names, *args, **kw)
 paper.run_study(paper.preset(nside=16, lmax=47, seed=3))
 # two 2-minute CESs of the deep example at 1 Hz, and a gain + pointing budget at Nside 16
-base = load_schedule("examples/schedule_deep_sat.toml")
+base = load_schedule(Path(sys.argv[2]) / "schedule_deep_sat.toml")
 ces = tuple(CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:2])
 write_schedule(Schedule(ces, base.site, 1.0), tmp / "s.toml", "toml")
 (tmp / "b.toml").write_text(
@@ -64,7 +65,7 @@ def test_a_schedule_in_integers_or_floats_calls_the_ces_kernels_at_one_signature
 
     from boresight import pointing
 
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     as_int = [replace(c, start_unix=int(c.start_unix), turnaround_s=0) for c in base.ces[:2]]
     as_float = [replace(c, start_unix=c.start_unix + 0.5, turnaround_s=2.5) for c in base.ces[:2]]
     for ces, rate in ((as_int, 20), (as_float, 12.5)):
@@ -81,7 +82,7 @@ def test_every_job_calls_its_kernels_at_their_registered_signatures(tmp_path):
     # a fresh process, in which each job precompiles its kernels: a kernel called with other
     # argument types would compile a second signature
     proc = subprocess.run(
-        [sys.executable, "-c", EVERY_JOB_ON_REGISTERED_KERNELS, str(tmp_path)],
+        [sys.executable, "-c", EVERY_JOB_ON_REGISTERED_KERNELS, str(tmp_path), str(EXAMPLES)],
         capture_output=True,
         text=True,
     )

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..jit import njit
 from .fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import (
@@ -62,7 +63,7 @@ def _draw_hit(key, j, nside, ix, iy, face, range_rad, centre_rad, centred):
     return theta, phi, psi
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def generate_hits(seed, nside, pixels, offsets, range_rad, centre_rad, centred):
     """Position and crossing angle of every hit of a chunk of pixels.
 
@@ -94,7 +95,7 @@ def _fold(t, f):
     return t, f
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def offset_points(theta, phi, psi, rotations, pair_angles, rho, chi):
     """Where detector B of each pair looks, for every (hit, rotation, pair).
 
@@ -224,7 +225,7 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
     return t0, t1, t2, t3, t4, t5, t6, t7, t8
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def accumulate(offsets, psi, values_a, values_b, beams, response, leak, jitter, seed, pixels):
     """Pair differences binned into each pixel's 2x2 least-squares system for (Q, U).
 
@@ -264,7 +265,7 @@ def accumulate(offsets, psi, values_a, values_b, beams, response, leak, jitter, 
     return out
 
 
-@numba.njit(cache=True)
+@njit
 def _scatter(
     pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, mode, out
 ):
@@ -368,7 +369,7 @@ def bin_scan(
     return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def moments(offsets, psi, rotations, n_max):
     """Spin moments of each pixel's hits, every rotation included.
 

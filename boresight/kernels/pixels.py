@@ -13,6 +13,8 @@ inside a pixel's sub-square is uniform in solid angle inside the pixel.
 import numba
 import numpy as np
 
+from ..jit import njit
+
 _JRLL = np.array([2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4], dtype=np.int64)
 _JPLL = np.array([1, 3, 5, 7, 0, 2, 4, 6, 1, 3, 5, 7], dtype=np.int64)
 _HALFPI = 0.5 * np.pi
@@ -175,7 +177,7 @@ def _ring_layout(nside, ring):
     return startpix, ringpix, shifted
 
 
-@numba.njit(cache=True)
+@njit
 def ring_colatitudes(nside):
     """Colatitude of every ring, as Healpix C++ ``get_ring_info2``.
 
@@ -339,7 +341,7 @@ def zphi2pix(nside, z, sin_theta, phi):
     return 12 * nside * nside - 2 * ir * (ir + 1) + ip
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def ang2pix_array(nside, theta, phi):
     """Vectorised :func:`ang2pix`.
 
@@ -359,7 +361,7 @@ def ang2pix_array(nside, theta, phi):
     return out
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def pixel_points(nside, pixels, u, v):
     """Vectorised :func:`pixel_point`.
 
@@ -381,7 +383,7 @@ def pixel_points(nside, pixels, u, v):
     return theta, phi
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def interpolate_interleaved(maps, nside, theta, phi):
     """Bilinear interpolation of an interleaved stack at many points.
 

@@ -15,6 +15,8 @@ Box-Muller transform of two uniforms of one count.
 import numba
 import numpy as np
 
+from ..jit import njit
+
 N_STREAMS = 4  #: independent draws per hit: crossing angle, in-pixel u, in-pixel v, spare
 STREAM_PSI, STREAM_U, STREAM_V = 0, 1, 2
 SEED_SALT = np.uint64(0x9E3779B97F4A7C15)
@@ -98,7 +100,7 @@ def uniform(seed, pixel, hit, stream):
     return uniform_from_key(pixel_key(seed, pixel), hit, stream)
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def uniform_array(seed, pixels, hits, stream):
     """Vectorised :func:`uniform`.
 
@@ -152,7 +154,7 @@ def normal_from_key(key, count):
     return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
 
 
-@numba.njit(cache=True)
+@njit
 def normal_array(seed, pixel, salt, n, first=0):
     """n standard normal deviates of the key (seed, pixel) and a salt, counts first .. first +
     n - 1 (a stream's draws, whatever its chunks).

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from .. import harmonics, interrupts
+from ..jit import njit
 from ..spectra import Footprint, as_footprint
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .coefficients import (
@@ -87,7 +88,7 @@ class PixelBlocks:
         return total, coherent
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _block_sums(hn, obs, weight, parent, nblock):
     """w |h|^2 at each observed pixel, and the sums of w h over each block (none when nblock is
     0) in pixel order, as numpy's bincount adds them: the same sums whatever the thread count."""

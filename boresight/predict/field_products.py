@@ -33,10 +33,10 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import ducc0
 import healpy as hp
-import numba
 import numpy as np
 
 from .. import harmonics
+from ..jit import njit
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -482,7 +482,7 @@ def wigner_d(m: int, mp: int, lmax: int, x: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@njit
 def _recurse(start, m, mp, l0, x, out):
     """d^l for l > l0 from d^l0 = start (Varshalovich 4.8.2 (3)), into out."""
     lmax = out.shape[0] - 1

@@ -10,6 +10,7 @@ import numba
 import numpy as np
 
 from .. import harmonics
+from ..jit import njit
 from ..threads import numba_threads
 from .beam_fields import _beam_field, beam_filters
 from .coefficients import coefficients
@@ -117,7 +118,7 @@ def _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads):
     return out
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _delta_p(every, pixels, h, t, q, u, s, grad_theta, grad_phi, beam, c, out):
     """dP at ``pixels`` (or every pixel) into ``out``: the leak term if s is not empty,
     pointing if grad (given where out is) is not empty, the beams' part of Y if beam is not

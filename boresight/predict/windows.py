@@ -10,6 +10,7 @@ import healpy as hp
 import numba
 import numpy as np
 
+from ..jit import njit
 from ..kernels.cpu import generate_hits
 
 SPREAD_PIXELS = 1 << 16  #: pixels whose hit pairs sample the window of hits spread over pixels
@@ -66,7 +67,7 @@ def _legendre_means(x, weight, band):
     return partial.sum(axis=0) / x.shape[-1]
 
 
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True)
 def _legendre_sums(x, weight, out):
     """out[k, l] = sum of weight P_l(x) over block k of x (the blocks fixed by out's rows); the
     recurrence runs over ell for a whole block at once, so the inner loop is SIMD."""

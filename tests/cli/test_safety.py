@@ -11,7 +11,7 @@ import sys
 import healpy as hp
 import numpy as np
 import pytest
-from helpers import CSV_HEADER, STUDY, sweep_file, toast_text
+from helpers import CSV_HEADER, EXAMPLES, STUDY, sweep_file, toast_text
 
 from boresight import engine, io, sweep, tasks
 from boresight.cli import main
@@ -545,7 +545,7 @@ def _design(tmp_path, capsys, systematics, *extra):
     budget = tmp_path / "budget.toml"
     budget.write_text(BUDGET.format(systematics=systematics))
     schedule = tmp_path / "schedule.toml"
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:4])
     write_schedule(Schedule(ces, base.site, 1.0, repeat_boresight_deg=(0.0, 90.0)),
                           schedule, "toml")  # fmt: skip

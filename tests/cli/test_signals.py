@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import EXAMPLES
 
 from boresight import cli, interrupts
 from boresight.schedule import CES, Schedule, load_schedule, write_schedule
@@ -75,7 +76,7 @@ def inputs(tmp_path_factory):
     )
     (d / "budget.toml").write_text(BUDGET)
     (d / "sweep.toml").write_text(SWEEP)
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 240.0}) for c in base.ces[:6])
     schedule = Schedule(ces, base.site, 2.0, repeat_boresight_deg=(0.0, 90.0))
     write_schedule(schedule, d / "schedule.toml", "toml")

@@ -4,6 +4,7 @@ and its coefficients' moments against the mean of many drawn focal planes."""
 
 import numpy as np
 import pytest
+from helpers import EXAMPLES
 
 from boresight import coupling, design, engine, masks, predict
 from boresight.instrument import Instrument, Spread, Systematics
@@ -38,7 +39,7 @@ def test_with_white_h_it_is_the_papers_cl_prediction(theory, sysm):
 @pytest.fixture(scope="module")
 def schedule_h():
     """A real schedule's striped h_n: 8 five-minute CESs of the deep example at random angles."""
-    base = load_schedule("examples/schedule_deep_sat.toml")
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3])
     moments = design.unit_moments(Schedule(ces, base.site, 2.0), NSIDE, "ces")
     angles = np.random.default_rng(1).choice([0.0, 45.0, 90.0], moments.n_units)
