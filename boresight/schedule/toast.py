@@ -368,7 +368,19 @@ def rows(schedule: Schedule) -> list[dict]:
     list of dict
         start, stop [datetime, UTC], rotation, azmin, azmax, el [deg], name, scan_index,
         subscan_index; in observing order (the CES set once per repeat angle).
+
+    Notes
+    -----
+    ``SimGround`` names each observation's session ``name-pass-subpass`` and, when a session
+    repeats the one before, re-uses its pointing: every row would then be simulated as the first.
+    So where two rows share (name, scan_index, subscan_index), as every CES of a boresight TOML
+    or CSV schedule does ("ces", 0, 0) and as a repeat does its CES, each row's pass becomes its
+    place in observing order, 0, 1, 2, ... (the sub-passes kept); labels that are already unique
+    are written as they are.
     """
+    expanded = schedule.expanded()
+    labels = [(c.name, c.scan_index, c.subscan_index) for c in expanded]
+    unique = len(set(labels)) == len(labels)
     return [
         dict(
             start=datetime.fromtimestamp(c.start_unix, timezone.utc),
@@ -378,10 +390,10 @@ def rows(schedule: Schedule) -> list[dict]:
             azmin=c.az_centre_deg - 0.5 * c.az_throw_deg,
             azmax=c.az_centre_deg + 0.5 * c.az_throw_deg,
             el=c.elevation_deg,
-            scan_index=c.scan_index,
+            scan_index=c.scan_index if unique else i,
             subscan_index=c.subscan_index,
         )
-        for c in schedule.expanded()
+        for i, c in enumerate(expanded)
     ]
 
 

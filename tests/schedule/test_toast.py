@@ -9,7 +9,7 @@ import json
 import healpy as hp
 import numpy as np
 import pytest
-from helpers import toast_schedule, toast_text
+from helpers import EXAMPLES, toast_schedule, toast_text
 
 from boresight import cli, pointing, scanstats
 from boresight.schedule import (
@@ -307,8 +307,11 @@ def test_written_schedules_read_back_to_the_same_pointing(tmp_path, name):
     expanded = [
         (c, rep) for rep in schedule.repeat_boresight_deg for c in schedule.ces
     ]  # observing order
-    for b, (c, rep) in zip(back.ces, expanded):
-        assert (b.name, b.scan_index, b.subscan_index) == (c.name, c.scan_index, c.subscan_index)
+    # a repeat shares its CES's label, so the rows' passes are their places in observing order
+    passes = [r["scan_index"] for r in toast.rows(schedule)]
+    assert passes == list(range(4))
+    for b, (c, rep), n in zip(back.ces, expanded, passes):
+        assert (b.name, b.scan_index, b.subscan_index) == (c.name, n, c.subscan_index)
         assert b.boresight_deg == pytest.approx(c.boresight_deg + rep, abs=1e-8)
         assert b.start_unix == c.start_unix and b.duration_s == pytest.approx(c.duration_s)
         assert b.az_throw_deg == pytest.approx(c.az_throw_deg, abs=1e-8)
@@ -390,3 +393,81 @@ def test_ecsv_units_and_passes_are_checked_by_column(tmp_path):
     fraction.write_text("\n".join(header + body) + "\n")
     with pytest.raises(ScheduleError, match=r"row 1: the pass 1.5 is not an integer"):
         toast.read(fraction)
+
+
+def test_every_exported_row_has_its_own_simground_session():
+    """A boresight schedule labels every CES ("ces", 0, 0), and a repeat its CES: the rows get
+    passes in observing order, so SimGround's session names differ; unique labels stay."""
+    schedule = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
+    rows = toast.rows(schedule)
+    assert len(rows) == 2 * len(schedule.ces) == 48
+    assert [r["scan_index"] for r in rows] == list(range(48))
+    sessions = {f"{r['name']}-{r['scan_index']}-{r['subscan_index']}" for r in rows}
+    assert len(sessions) == 48
+    labelled = Schedule(
+        tuple(dataclasses.replace(c, scan_index=7 + i) for i, c in enumerate(schedule.ces)),
+        schedule.site,
+        schedule.sample_rate_hz,
+    )
+    assert [r["scan_index"] for r in toast.rows(labelled)] == list(range(7, 31))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["deep.txt", "deep.ecsv"])
+def test_simground_simulates_every_exported_ces_as_the_schedule_says(tmp_path, name):
+    """TOAST's SimGround on the exported deep example (24 CESs, then all again at 90 deg): every
+    observation starts when its row does, scans its own azimuth range (rising or setting) and
+    carries its row's boresight angle."""
+    pytest.importorskip("toast")
+    from astropy import units as u
+    from toast import Data, mpi, qarray
+    from toast.instrument import GroundSite, Telescope
+    from toast.instrument_sim import fake_boresight_focalplane
+    from toast.ops import SimGround
+    from toast.schedule import GroundSchedule
+
+    _no_iers_download()
+    schedule = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
+    toast.write(schedule, tmp_path / name)
+    theirs = GroundSchedule()
+    theirs.read(str(tmp_path / name))
+    rate = 0.5
+    focalplane = fake_boresight_focalplane(n_pix=1, sample_rate=rate * u.Hz)
+    site = GroundSite(theirs.site_name, theirs.site_lat, theirs.site_lon, theirs.site_alt)
+    data = Data(mpi.Comm())
+    settings, _ = toast.simground_settings(schedule)
+    SimGround(
+        telescope=Telescope("sat", focalplane=focalplane, site=site),
+        schedule=theirs,
+        detset_key="pixel",
+        scan_rate_az=settings["scan_rate_az"] * u.deg / u.s,
+        fix_rate_on_sky=settings["fix_rate_on_sky"],
+        scan_accel_az=settings["scan_accel_az"] * u.deg / u.s**2,
+        randomize_phase=False,
+    ).apply(data)
+    rows = toast.rows(schedule)
+    assert len(data.obs) == len(rows) == 48
+    assert len({ob.session.name for ob in data.obs}) == 48
+    for ob, row in zip(data.obs, rows, strict=True):
+        times = np.asarray(ob.shared["times"])
+        assert abs(times[0] - row["start"].timestamp()) < 1 / rate
+        assert abs(times[-1] - row["stop"].timestamp()) < 2 / rate
+        az = np.degrees(np.unwrap(np.asarray(ob.shared["azimuth"])))
+        scanning = np.zeros(az.size, dtype=bool)
+        for span in ob.intervals["scanning"]:
+            scanning[span.first : span.last + 1] = True
+        lo, hi = az[scanning].min(), az[scanning].max()
+        # the mount scans the row's range: within one sample's step (1 deg/s / rate)
+        assert abs(lo - row["azmin"]) < 1.5 / rate and abs(hi - row["azmax"]) < 1.5 / rate
+        # the boresight angle: SimGround turns the Az/El quaternion about its z axis
+        bore = np.asarray(ob.shared["boresight_azel"])
+        el = np.asarray(ob.shared["elevation"])
+        plain = qarray.from_lonlat_angles(-np.radians(az), el, np.zeros_like(el))
+        turn = qarray.mult(qarray.inv(plain), bore)
+        angle = np.degrees(2 * np.arctan2(turn[:, 2], turn[:, 3]))
+        wrapped = (angle - row["rotation"] + 180) % 360 - 180
+        assert np.max(np.abs(wrapped)) < 1e-6
+    angles = [r["rotation"] for r in rows]
+    assert sorted(set(angles)) == [0.0, 90.0]
+    setting = [r for r in rows if r["azmin"] > 180]
+    assert setting, "the example has setting CESs"
