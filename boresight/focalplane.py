@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io
 from .constants import DEG
+from .io import tomllib
 from .validation import ConfigError
 
 #: a detector's position may sit this far from its partner's [deg] (TOAST's quaternions round
@@ -94,6 +94,11 @@ class FocalPlane:
     def radius_deg(self) -> np.ndarray:
         """Each pair's angular distance from the boresight [deg], (pairs,)."""
         return np.degrees(np.arcsin(np.hypot(self.xi_deg * DEG, self.eta_deg * DEG)))
+
+    @property
+    def files(self) -> list[str]:
+        """The file it was read from, as a list for an output's checks (empty for a preset)."""
+        return [self.source] if self.source and Path(self.source).is_file() else []
 
     @property
     def is_on_axis(self) -> bool:
@@ -203,6 +208,10 @@ def on_axis(pair_angles_deg=(0.0, 45.0)) -> FocalPlane:
     )
 
 
+#: the largest hexagon built (20,000 pairs is more than any one focal plane's optics tube)
+MAX_HEXAGON_PIXELS = 20_000
+
+
 def _hex_rings(n_pix):
     """Rings of a hexagon of n_pix positions (TOAST's ``hex_nring``)."""
     rings, left = 1, n_pix - 1
@@ -253,6 +262,11 @@ def hexagon(n_pix: int, width_deg: float) -> FocalPlane:
     """
     if not 0 <= width_deg < 2 * MAX_RADIUS_DEG:
         raise FocalPlaneError(f"hexagon: width_deg = {width_deg} must be in [0, 120)")
+    if not 1 <= n_pix <= MAX_HEXAGON_PIXELS:  # refused before it is built, pixel by pixel
+        raise FocalPlaneError(
+            f"hexagon: {n_pix} pixels; at most {MAX_HEXAGON_PIXELS} (a focal plane's "
+            "per-pair work grows with its pairs: read a larger one from a file)"
+        )
     rings = _hex_rings(n_pix)
     spacing = width_deg * DEG / max(2 * rings - 2, 1)
     xi, eta, gamma = np.zeros(n_pix), np.zeros(n_pix), np.zeros(n_pix)
@@ -280,15 +294,41 @@ def hexagon(n_pix: int, width_deg: float) -> FocalPlane:
     )
 
 
+def _text(path):
+    """A table's text: UTF-8 (a byte-order mark dropped), refusing what a reader would misread:
+    binary data, UTF-16 (NUL bytes), gzip or another encoding."""
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise FocalPlaneError(f"{path}: {err.strerror}") from None
+    if data[:2] == b"\x1f\x8b":
+        raise FocalPlaneError(f"{path}: gzip-compressed; decompress it first")
+    if b"\0" in data:
+        raise FocalPlaneError(
+            f"{path}: binary (or UTF-16) data; a focal-plane table is UTF-8 text (CSV or TOML)"
+        )
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise FocalPlaneError(
+            f"{path}: not UTF-8 text (byte {err.start}); save it as UTF-8"
+        ) from None
+
+
 def _table_rows(path):
     """Rows of a CSV or TOML focal-plane table, as dicts of text or numbers."""
+    text = _text(path)
     if path.suffix.lower() == ".toml":
-        rows = io.toml_text(str(path)).get("detector")
+        try:
+            rows = tomllib.loads(text).get("detector")
+        except tomllib.TOMLDecodeError as err:
+            raise FocalPlaneError(f"{path}: not valid TOML ({err})") from None
         if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
             raise FocalPlaneError(f"{path}: expected a [[detector]] table per detector")
         return rows
-    with open(path, newline="") as f:
-        lines = [line for line in f if line.strip() and not line.lstrip().startswith("#")]
+    lines = [
+        line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")
+    ]
     return list(csv.DictReader(lines, skipinitialspace=True))
 
 
@@ -358,8 +398,13 @@ def _read_toast_hdf5(path):
     for column in ("name", "quat"):
         if column not in table.colnames:
             raise FocalPlaneError(f"{path}: missing column {column!r} in its focalplane table")
+    if len(table) == 0:
+        raise FocalPlaneError(f"{path}: its focalplane table has no detectors")
     names = [n.decode() if isinstance(n, bytes) else str(n) for n in table["name"]]
-    quats = np.asarray(table["quat"], dtype=np.float64)
+    try:
+        quats = np.asarray(table["quat"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FocalPlaneError(f"{path}: column 'quat' must hold numbers") from None
     if quats.ndim != 2 or quats.shape[1] != 4:
         raise FocalPlaneError(f"{path}: column 'quat' must hold 4 numbers per detector")
     for name, q in zip(names, quats):
@@ -372,14 +417,23 @@ def _read_toast_hdf5(path):
             )
     xi, eta, gamma = quaternion_xieta(quats)
     if "pol_angle" in table.colnames:
-        pol = np.asarray(u.Quantity(table["pol_angle"], u.rad).value, dtype=np.float64)
+        try:
+            pol = np.asarray(u.Quantity(table["pol_angle"], u.rad).value, dtype=np.float64)
+        except (TypeError, ValueError, u.UnitsError) as err:
+            raise FocalPlaneError(f"{path}: column 'pol_angle' must be an angle ({err})") from None
+        for name, angle in zip(names, pol):
+            if not np.isfinite(angle):
+                raise FocalPlaneError(f"{path}: detector {name}: pol_angle {angle} is not finite")
     else:
         pol = toast_pol_angles(quats)
     pairs = None
     if "pixel" in table.colnames:
         pairs = [p.decode() if isinstance(p, bytes) else str(p) for p in table["pixel"]]
     fov = table.meta.get("field_of_view")
-    fov = None if fov is None else float(u.Quantity(fov, u.rad).value)
+    try:
+        fov = None if fov is None else float(u.Quantity(fov, u.rad).value)
+    except (TypeError, ValueError, u.UnitsError) as err:
+        raise FocalPlaneError(f"{path}: field_of_view must be an angle ({err})") from None
     return names, xi, eta, gamma, pol, pairs, fov
 
 
@@ -413,6 +467,10 @@ def _pairs(path, names, pairs):
             what = "no partner" if len(members) == 1 else f"{len(members)} detectors in one pair"
             raise FocalPlaneError(f"{path}: detector {who}: {what}")
         (la, a), (lb, b) = members
+        if la is not None and la == lb:  # PA1 and P1A: one pair's name, both detector A
+            raise FocalPlaneError(
+                f"{path}: detectors {names[a]}, {names[b]}: both are detector {la} of pair {key}"
+            )
         if la == "B" and lb == "A":
             a, b = b, a
         out.append((a, b, key))
@@ -438,8 +496,12 @@ def read_focalplane(path: str | Path) -> FocalPlane:
         of view the file states (or beyond :data:`MAX_RADIUS_DEG`).
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FocalPlaneError(f"focal plane {str(path)!r}: no such file")
+    if not path.is_file():  # a FIFO would block the reader
+        raise FocalPlaneError(
+            f"focal plane {str(path)!r}: not a regular file (a directory, FIFO or device)"
+        )
     if path.suffix.lower() in HDF5_SUFFIXES:
         names, xi, eta, gamma, pol, pairs, fov = _read_toast_hdf5(path)
     else:
@@ -502,8 +564,10 @@ def load_focalplane(spec: str) -> FocalPlane:
     if spec.startswith("hexagon:"):
         parts = spec.split(":")
         try:
+            if len(parts) != 3:
+                raise ValueError(spec)
             n_pix, width = int(parts[1]), float(parts[2])
-        except (IndexError, ValueError):
+        except ValueError:
             raise FocalPlaneError(
                 f"focal plane {spec!r}: a hexagon is 'hexagon:N:WIDTH_DEG', e.g. 'hexagon:37:35'"
             ) from None

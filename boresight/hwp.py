@@ -41,7 +41,7 @@ from .constants import DEG
 from .instrument import AMPLITUDES, BEAM_KEYS, Instrument, Spread, _nonzero
 from .kernels.rng import HWP_SALT, normal_array
 from .scan import SyntheticScan
-from .validation import ConfigError
+from .validation import ConfigError, number
 
 MODES = ("none", "continuous", "stepped")
 #: what a stepped HWP steps with: each CES, each UTC day, each repeat of the CES set
@@ -99,31 +99,23 @@ class HWP:
     def __post_init__(self):
         if self.mode not in MODES:
             raise ConfigError(f"hwp {self.mode!r}; allowed: {MODES}")
-        if not (math.isfinite(self.frequency_hz) and self.frequency_hz > 0):
-            raise ConfigError(f"hwp frequency {self.frequency_hz!r} Hz must be finite and > 0")
-        if not math.isfinite(self.phase_deg):
-            raise ConfigError(f"hwp phase {self.phase_deg!r} deg must be finite")
-        angles = tuple(float(a) for a in self.angles_deg)
-        if not angles or not all(math.isfinite(a) for a in angles):
-            raise ConfigError(f"hwp angles {self.angles_deg!r}: one or more finite angles [deg]")
-        object.__setattr__(self, "angles_deg", angles)
         if self.step not in STEPS:
             raise ConfigError(f"hwp step {self.step!r}; allowed: {STEPS}")
-        if not (math.isfinite(self.ip) and math.isfinite(self.ip_phase_deg)):
-            raise ConfigError(
-                f"hwp ip {self.ip!r}, phase {self.ip_phase_deg!r} deg: finite numbers"
-            )
+        for name, lo, hi in _BOUNDS:
+            try:  # a bool, a string or a number past its bounds is refused, not taken as 1 or 0
+                value = number(f"hwp {name}", getattr(self, name), lo, hi)
+            except (TypeError, ValueError) as err:
+                raise ConfigError(str(err)) from None
+            object.__setattr__(self, name, value)
+        if not self.frequency_hz > 0:
+            raise ConfigError(f"hwp frequency_hz must be > 0, got {self.frequency_hz!r}")
         if not abs(self.angle_offset_deg) < 45.0:
             raise ConfigError(f"hwp angle offset {self.angle_offset_deg!r} deg: within (-45, 45)")
-        if not 0.0 <= self.angle_jitter_deg < 45.0:
+        if not self.angle_jitter_deg < 45.0:
             raise ConfigError(f"hwp angle jitter {self.angle_jitter_deg!r} deg: within [0, 45)")
+        object.__setattr__(self, "angles_deg", _numbers("angles_deg", self.angles_deg, None))
         for name in ("synchronous_muk", "synchronous_phase_deg"):
-            pair = tuple(float(x) for x in getattr(self, name))
-            if len(pair) != 2 or not all(math.isfinite(x) for x in pair):
-                raise ConfigError(
-                    f"hwp {name} {getattr(self, name)!r}: two finite numbers (2f, 4f)"
-                )
-            object.__setattr__(self, name, pair)
+            object.__setattr__(self, name, _numbers(name, getattr(self, name), 2))
 
     @property
     def present(self) -> bool:
@@ -134,6 +126,52 @@ class HWP:
         """Whether the pairs see more through the plate than the sky at its angle: its own
         signals or its angle's jitter (:func:`plate_signals`)."""
         return bool(self.ip) or any(self.synchronous_muk) or self.angle_jitter_deg > 0.0
+
+
+#: each number of a HWP and its bounds: angles and phases within ten turns (past that float
+#: digits are lost to the modulo), frequencies to 1 kHz, an IP fraction within [-1, 1]
+_BOUNDS = (
+    ("frequency_hz", 0.0, 1e3),
+    ("phase_deg", -3600.0, 3600.0),
+    ("ip", -1.0, 1.0),
+    ("ip_phase_deg", -3600.0, 3600.0),
+    ("angle_offset_deg", -45.0, 45.0),
+    ("angle_jitter_deg", 0.0, 45.0),
+)
+_LISTS = {  # bounds of each element of the lists
+    "angles_deg": (-3600.0, 3600.0),
+    "synchronous_muk": (-1e6, 1e6),
+    "synchronous_phase_deg": (-3600.0, 3600.0),
+}
+
+
+def _numbers(name, values, count):
+    """A HWP's list field as a tuple of floats: a list or tuple (a string is not one) of
+    ``count`` numbers (one or more where None), each within :data:`_LISTS`."""
+    lo, hi = _LISTS[name]
+    if isinstance(values, (str, bytes)) or not isinstance(values, (list, tuple, np.ndarray)):
+        raise ConfigError(f"hwp {name} = {values!r}: a list of numbers")
+    if (count is None and len(values) == 0) or (count is not None and len(values) != count):
+        want = "one or more numbers" if count is None else f"{count} numbers"
+        raise ConfigError(f"hwp {name} = {values!r}: {want}")
+    try:
+        return tuple(number(f"hwp {name}", v, lo, hi) for v in values)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(str(err)) from None
+
+
+def check_sampling(hwp: HWP | None, sample_rate_hz: float) -> None:
+    """Refuse, before any work, a continuous plate whose 4 chi turns by whole turns from sample
+    to sample: its modulation aliases to a constant."""
+    if hwp is None or hwp.mode != "continuous":
+        return
+    per_sample = 4.0 * hwp.frequency_hz / sample_rate_hz
+    if abs(per_sample - round(per_sample)) < 1e-6:
+        raise ConfigError(
+            f"a {hwp.frequency_hz:g} Hz HWP sampled at {sample_rate_hz:g} Hz turns 4 chi "
+            "by whole turns from sample to sample: its modulation aliases to a constant; give "
+            "another frequency or sample rate"
+        )
 
 
 def step_index(hwp: HWP, schedule, repeat: int, index: int) -> int:
@@ -181,13 +219,7 @@ def chunk_angles(hwp: HWP, schedule, repeat: int, index: int, *, first: int, n: 
         return np.full(n, (angle * DEG) % (2 * np.pi))
     if hwp.mode != "continuous":
         raise ValueError("a HWP angle needs a continuous or a stepped HWP")
-    per_sample = 4.0 * hwp.frequency_hz / schedule.sample_rate_hz
-    if abs(per_sample - round(per_sample)) < 1e-6:
-        raise ConfigError(
-            f"a {hwp.frequency_hz:g} Hz HWP sampled at {schedule.sample_rate_hz:g} Hz turns 4 chi "
-            "by whole turns from sample to sample: its modulation aliases to a constant; give "
-            "another frequency or sample rate"
-        )
+    check_sampling(hwp, schedule.sample_rate_hz)
     # the whole turns of the CES's start are taken out first, so that 2 pi f t keeps its digits
     start = schedule.ces[index].start_unix
     turns = math.fmod(hwp.frequency_hz * start, 1.0)

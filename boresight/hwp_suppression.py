@@ -152,6 +152,31 @@ def bands(nside: int) -> np.ndarray:
     return np.array([30, nside, 3 * nside // 2, 2 * nside + 1])
 
 
+#: the narrowest beam, in pixels, at which the table's predictions hold to 10 %: behind a plate T
+#: is read across the pixel to second order in the samples' offsets, which fails as the pixel
+#: nears the beam (the deep example with a 2 Hz plate, the beams' row: 1.74-2.30 of the TOD at
+#: 1.1 pixels, 1.08-1.10 at 2.2, 0.96-1.07 at 3.3, 1.02 at 4.4, 1.00 at 8.7)
+MIN_BEAM_PIXELS = 4.0
+
+
+def check_resolution(nside: int, fwhm_arcmin: float) -> None:
+    """Refuse a sky whose beam is under :data:`MIN_BEAM_PIXELS` pixels, naming the finest
+    setting of each flag that would do."""
+    pixel = float(np.degrees(np.sqrt(4 * np.pi / (12 * nside**2)))) * 60
+    if fwhm_arcmin >= MIN_BEAM_PIXELS * pixel:
+        return
+    if not fwhm_arcmin > 0:
+        raise ConfigError(f"--fwhm-arcmin {fwhm_arcmin:g}: the sky's beam must be > 0")
+    need = nside
+    while fwhm_arcmin < MIN_BEAM_PIXELS * pixel * nside / need:
+        need *= 2
+    raise ConfigError(
+        f"--fwhm-arcmin {fwhm_arcmin:g} at --nside {nside}: the HWP table's predictions hold to "
+        f"10 % for a beam of {MIN_BEAM_PIXELS:g} pixels or more ({MIN_BEAM_PIXELS * pixel:.0f} "
+        f"arcmin here); give --nside {need} or --fwhm-arcmin {np.ceil(MIN_BEAM_PIXELS * pixel):g}"
+    )
+
+
 def check_plate(hwp: HWP) -> None:
     """Refuse a plate the table cannot take: none, or one stepped per repeat of the CES set (the
     table's boresight schedules are those repeats)."""

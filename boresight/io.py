@@ -447,6 +447,22 @@ def remove_output_dir(path: str | os.PathLike) -> None:
     shutil.rmtree(path)
 
 
+def _swap_in(stage, target, path):
+    """Rename ``stage`` to ``target`` unless something else wrote ``target`` since the checks:
+    the rename replaces at most an empty directory, in one step, so a second run into the same
+    ``--out`` cannot replace the first's output without ``--force``."""
+    try:
+        os.rename(stage, target)
+    except OSError as err:
+        if not target.exists():
+            raise
+        raise OutputExistsError(
+            f"output directory {path} gained files while this run ran (another run's output, or "
+            "the user's); it is kept as it is and this run's output was discarded (use --force "
+            "to replace boresight's own output)"
+        ) from err
+
+
 @contextlib.contextmanager
 def staged_dir(
     path: str | os.PathLike, force: bool = False, inputs: Iterable[str] = ()
@@ -479,6 +495,9 @@ def staged_dir(
         yield stage
         interrupts.check()  # the last moment at which nothing has been replaced
         old = None
+        if not force:
+            _swap_in(stage, target, path)
+            return
         if target.exists() and not is_own(target):
             os.rmdir(target)  # an empty directory of the user's; fails if it has gained files
         elif target.exists():

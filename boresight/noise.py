@@ -19,7 +19,9 @@ and sigma(r) = (sum_b F_b)^(-1/2): the uncertainty of the inverse-variance weigh
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import healpy as hp
@@ -148,9 +150,9 @@ class SurveyNoise:
         if self.nl_bb_file is not None:
             table_ell, table_nl = self._table
             if lmax > table_ell[-1]:
-                raise ValueError(
+                raise validation.ConfigError(
                     f"noise nl_bb_file {self.nl_bb_file}: N_ell reaches ell = {table_ell[-1]:g}, "
-                    f"the bands need {lmax}"
+                    f"the bands need {lmax}; extend the table"
                 )
             out = np.interp(ell, table_ell, table_nl)
             out[:2] = out[2] if lmax >= 2 else out[:2]
@@ -165,11 +167,31 @@ class SurveyNoise:
 
 
 def _read_nl(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """(ell, N_ell) of a noise table, checked: increasing ell from <= 2, N_ell > 0, finite."""
+    """(ell, N_ell) of a noise table, checked: a regular UTF-8 text file (a FIFO or a device
+    would block), increasing ell from <= 2, N_ell > 0, finite."""
+    what = "noise nl_bb_file"
+    if isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
+        raise ValueError(
+            f"{what} = {path!r}: give the path of a text table of ell, N_ell rows, as a string"
+        )
+    if not Path(path).exists():
+        raise ValueError(f"{what} {path}: no such file")
+    if not Path(path).is_file():
+        raise ValueError(f"{what} {path}: not a regular file (a directory, FIFO or device)")
     try:
-        text = open(path).read()
+        data = Path(path).read_bytes()
     except OSError as err:
-        raise ValueError(f"noise nl_bb_file {path}: {err.strerror}") from None
+        raise ValueError(f"{what} {path}: {err.strerror}") from None
+    if b"\0" in data:
+        raise ValueError(
+            f"{what} {path}: binary (or UTF-16) data; give a UTF-8 text table of ell, N_ell rows"
+        )
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise ValueError(
+            f"{what} {path}: not UTF-8 text (byte {err.start}); save it as UTF-8"
+        ) from None
     rows = []
     for number, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].replace(",", " ").split()

@@ -381,3 +381,98 @@ def test_scan_stats_runs_a_focal_planes_blocks_on_a_local_cluster(tmp_path):
         maps[scheduler] = [hp.read_map(out / name) for name in ("hn_maps.fits", "hn_scatter.fits")]
     for a, b in zip(maps["serial"], maps["local"]):
         np.testing.assert_array_equal(a, b)
+
+
+GOOD_CSV = "name,xi_deg,eta_deg,gamma_deg\nA0A,0,0,0\nA0B,0,0,90\n"
+
+
+@pytest.mark.parametrize(
+    "kind, message",
+    [
+        ("directory", "not a regular file"),
+        ("fifo", "not a regular file"),  # the reader would block on it
+        ("gzip", "gzip-compressed"),
+        ("utf16", "binary .or UTF-16."),
+        ("binary", "binary"),
+        ("latin1", "not UTF-8 text"),
+        ("toml", "not valid TOML"),
+        ("both A", "PA1, P1A: both are detector A of pair P1"),  # they were paired
+    ],
+)
+def test_focal_plane_files_no_reader_can_read_are_one_clear_error(tmp_path, kind, message):
+    import gzip
+    import os
+
+    path = tmp_path / ("fp.toml" if kind == "toml" else "fp.csv")
+    if kind == "directory":
+        path.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(path)
+    else:
+        data = {
+            "gzip": gzip.compress(GOOD_CSV.encode()),
+            "utf16": GOOD_CSV.encode("utf-16"),
+            "binary": bytes(range(256)),
+            "latin1": ("# \xe9t\xe9\n" + GOOD_CSV).encode("latin-1"),
+            "toml": b"[[detector]\nname = 1\n",
+            "both A": b"name,xi_deg,eta_deg,gamma_deg\nPA1,0,0,0\nP1A,0,0,90\n",
+        }[kind]
+        path.write_bytes(data)
+    with pytest.raises(FocalPlaneError, match=message):
+        focalplane.read_focalplane(path)
+
+
+def test_a_csv_with_a_byte_order_mark_keeps_its_name_column(tmp_path):
+    path = tmp_path / "fp.csv"
+    path.write_bytes(GOOD_CSV.encode("utf-8-sig"))
+    assert focalplane.read_focalplane(path).detectors == (("A0A", "A0B"),)
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("hexagon:7:20:1", "a hexagon is 'hexagon:N:WIDTH_DEG'"),  # a fourth field was taken
+        ("hexagon:9997351:20", "at most 20000"),  # was built pixel by pixel
+        ("hexagon:0:20", "at most 20000"),
+    ],
+)
+def test_a_bad_hexagon_is_refused_before_it_is_built(spec, message):
+    import time
+
+    start = time.perf_counter()
+    with pytest.raises(FocalPlaneError, match=message):
+        focalplane.load_focalplane(spec)
+    assert time.perf_counter() - start < 0.5
+
+
+def test_toast_files_with_bad_columns_are_one_clear_error(tmp_path):
+    from astropy import units as u
+    from astropy.io.misc.hdf5 import write_table_hdf5
+    from astropy.table import QTable
+
+    pytest.importorskip("toast")
+    from toast.instrument_coords import xieta_to_quat
+
+    quats = xieta_to_quat(np.zeros(2), np.zeros(2), np.radians([0.0, 90.0]))
+    names = ["D0A", "D0B"]
+
+    def write(name, **columns):
+        table = QTable({"name": names, "quat": quats, **columns})
+        table.meta["field_of_view"] = 10.0 * u.deg
+        write_table_hdf5(table, str(tmp_path / name), path="focalplane", serialize_meta=True)
+        return tmp_path / name
+
+    with pytest.raises(FocalPlaneError, match="column 'pol_angle' must be an angle"):
+        focalplane.read_focalplane(write("metres.h5", pol_angle=[0.0, 1.0] * u.m))
+    with pytest.raises(FocalPlaneError, match="D0B: pol_angle nan is not finite"):
+        focalplane.read_focalplane(write("nan.h5", pol_angle=[0.0, np.nan] * u.rad))
+    with pytest.raises(FocalPlaneError, match="D0A: pol_angle inf is not finite"):
+        focalplane.read_focalplane(write("inf.h5", pol_angle=[np.inf, 0.0] * u.rad))
+    empty = QTable({"name": np.array([], dtype="U3"), "quat": np.zeros((0, 4))})
+    write_table_hdf5(empty, str(tmp_path / "empty.h5"), path="focalplane", serialize_meta=True)
+    with pytest.raises(FocalPlaneError, match="has no detectors"):
+        focalplane.read_focalplane(tmp_path / "empty.h5")
+    text = QTable({"name": names, "quat": np.array([["a", "b", "c", "d"]] * 2)})
+    write_table_hdf5(text, str(tmp_path / "text.h5"), path="focalplane", serialize_meta=True)
+    with pytest.raises(FocalPlaneError, match="'quat' must hold numbers"):
+        focalplane.read_focalplane(tmp_path / "text.h5")

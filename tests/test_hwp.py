@@ -187,9 +187,20 @@ def test_the_pointing_carries_the_hwp_angle_and_keeps_its_own_numbers():
         (dict(mode="stepped", angles_deg=(0.0, float("nan"))), "angles"),
         (dict(mode="stepped", step="hour"), "step"),
         (dict(mode="continuous", ip=float("nan")), "ip"),
-        (dict(mode="continuous", angle_offset_deg=50.0), "angle offset"),
-        (dict(mode="continuous", synchronous_muk=(1.0,)), "two finite numbers"),
-        (dict(mode="continuous", synchronous_phase_deg=(0.0, float("inf"))), "two finite numbers"),
+        (dict(mode="continuous", angle_offset_deg=50.0), "angle_offset_deg must be >= -45"),
+        (dict(mode="continuous", synchronous_muk=(1.0,)), "2 numbers"),
+        (dict(mode="continuous", synchronous_phase_deg=(0.0, float("inf"))), "synchronous_phase"),
+        # a bool is no number: true was taken as 1
+        (dict(mode="continuous", ip=True), "hwp ip must be a number"),
+        (dict(mode="continuous", frequency_hz=True), "hwp frequency_hz must be a number"),
+        # a string is no list: "045" was read as steps of 0, 4 and 5 deg
+        (dict(mode="stepped", angles_deg="045"), "a list of numbers"),
+        # past ten turns the modulo leaves no digits; 1e308 Hz overflowed
+        (dict(mode="stepped", angles_deg=(0.0, 1e300)), "angles_deg must be >= -3600"),
+        (dict(mode="continuous", phase_deg=1e300), "phase_deg must be >= -3600"),
+        (dict(mode="continuous", frequency_hz=1e308), "frequency_hz must be >= 0"),
+        (dict(mode="continuous", ip=1e300), "ip must be >= -1"),
+        (dict(mode="continuous", synchronous_muk=(1e300, 1.0)), "synchronous_muk must be"),
     ],
 )
 def test_a_bad_hwp_is_one_clear_error(keys, message):

@@ -66,3 +66,19 @@ def test_an_output_may_not_hold_an_input(tmp_path):
     (tmp_path / "study.toml").write_text("[sky]\nnside = 16\n")
     with pytest.raises(OutputError, match="holds the input"):
         io.check_output_dir(tmp_path, force=True, inputs=[str(tmp_path / "study.toml")])
+
+
+def test_a_run_does_not_replace_an_output_another_run_wrote_meanwhile(tmp_path):
+    """Two runs into one --out at once: the checks pass for both, the first to finish writes, the
+    second is refused at the swap (not replacing it without --force) and leaves nothing behind."""
+    out = tmp_path / "out"
+    with pytest.raises(OutputExistsError, match="gained files while this run ran"):
+        with io.staged_dir(out) as stage:
+            (stage / "mine.txt").write_text("second")
+            with io.staged_dir(out) as other:  # the other run, finishing first
+                (other / "theirs.txt").write_text("first")
+    assert sorted(p.name for p in out.iterdir()) == [io.MARKER, "theirs.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no staging directory left
+    with io.staged_dir(out, force=True) as stage:  # --force still replaces it
+        (stage / "mine.txt").write_text("forced")
+    assert sorted(p.name for p in out.iterdir()) == [io.MARKER, "mine.txt"]

@@ -136,3 +136,44 @@ def test_a_given_sigma_r_is_the_yardstick(theory):
 def test_a_bad_noise_table_is_one_clear_error(tmp_path, rows, message):
     with pytest.raises(ValueError, match=message):
         noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, nl_bb_file=_table(tmp_path, rows))
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (0, "as a string"),  # open(0) would read standard input
+        (True, "as a string"),
+        (["nl.txt"], "as a string"),
+        ("DIRECTORY", "not a regular file"),
+        ("FIFO", "not a regular file"),  # open() would block on it
+        ("BINARY", "binary"),
+        ("UTF16", "UTF-16"),
+        ("LATIN1", "not UTF-8"),
+    ],
+)
+def test_a_noise_table_that_is_no_text_file_is_refused_without_reading_it(tmp_path, value, message):
+    import os
+
+    if value == "DIRECTORY":
+        value = str(tmp_path)
+    elif value == "FIFO":
+        value = str(tmp_path / "fifo")
+        os.mkfifo(value)
+    elif value in ("BINARY", "UTF16", "LATIN1"):
+        path = tmp_path / "nl.txt"
+        data = {"BINARY": b"\x00\x01\x02", "UTF16": "2 1e-5\n3 1e-5\n".encode("utf-16"),
+                "LATIN1": "# \xe9t\xe9\n2 1e-5\n".encode("latin-1")}[value]  # fmt: skip
+        path.write_bytes(data)
+        value = str(path)
+    with pytest.raises(ValueError, match=message):
+        noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, nl_bb_file=value)
+
+
+def test_a_table_short_of_the_bands_is_a_config_error(tmp_path):
+    from boresight.validation import ConfigError
+
+    table = noise.SurveyNoise(
+        fsky=0.1, fwhm_arcmin=30.0, nl_bb_file=_table(tmp_path, [(2, 1e-5), (100, 1e-5)])
+    )
+    with pytest.raises(ConfigError, match="reaches ell = 100, the bands need 300"):
+        table.n_ell(300)

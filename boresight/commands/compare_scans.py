@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import logging
 from dataclasses import fields, replace
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import healpy as hp
@@ -104,8 +103,8 @@ def run(
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin: {err}") from None
     inputs = [schedule_path]
-    if focalplane is not None and Path(focalplane.source).is_file():
-        inputs.append(focalplane.source)
+    if focalplane is not None:
+        inputs += focalplane.files
     io.check_output_dir(out_dir, force, inputs)
     # the real scan once and with its repeats, each with and without the systematic
     pointed = 0 if focalplane is None else focalplane.n_pairs

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
 import numpy as np
+from tqdm import tqdm
 
 from .. import engine, interrupts, io, plots, precompile, provenance, resources, spectra
 from ..config import RunOptions
@@ -19,6 +20,7 @@ from ..design_expectation import exact_objective, search
 from ..design_focalplane import Target, exact_delta_r, unit_sums
 from ..design_focalplane import search as focalplane_search
 from ..focalplane import on_axis
+from ..hwp import check_sampling
 from ..instrument import Systematics
 from ..noise import sigma_r
 from ..predict import R_RANGE, delta_r, expected_residual
@@ -27,7 +29,7 @@ from ..residual import residual
 from ..scanstats import centroid_moments
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..sky import SkyConfig, make_sky
-from ..validation import require_finite
+from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
@@ -97,6 +99,11 @@ def run(
         sigma_r, the strategies' rows, the designed angles per unit and the validation's rows.
     """
     budget = load_budget(budget_path)
+    if focalplane is not None and budget.hwp is not None:  # the budget's own check, for the flag
+        raise ConfigError(
+            f"--focalplane with budget {budget_path}'s [hwp]: a design behind a plate is of "
+            "pairs on the axis, not of a focal plane yet; leave out one of them"
+        )
     if focalplane is not None:
         budget = dataclasses.replace(
             budget, focalplane=focalplane, instrument=search_instrument(focalplane)
@@ -104,7 +111,8 @@ def run(
     focal = budget.focalplane
     opts = budget.design
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
-    inputs = [budget_path, schedule_path]
+    check_sampling(budget.hwp, schedule.sample_rate_hz)
+    inputs = [budget_path, schedule_path, *(focal.files if focal is not None else [])]
     io.check_output_dir(out_dir, force, inputs)
     estimate = resources.schedule_estimate(
         "design",
@@ -164,15 +172,11 @@ def run(
             "the budget's systematics do not depend on the boresight angles (h_0 and white "
             "terms only): every schedule has the same predicted delta_r"
         )
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        total = (opts.restarts + 1) * opts.sweeps * moments.n_units
-        if focal is not None:
-            total = moments.n_units * len(opts.angles_deg) + total
-        bar = tqdm(total=total, desc="design", unit="unit")
-    tick = bar.update if bar else None
+    total = (opts.restarts + 1) * opts.sweeps * moments.n_units
+    if focal is not None:
+        total = moments.n_units * len(opts.angles_deg) + total
+    bar = tqdm(total=total, desc="design search", unit="unit", disable=not progress)
+    tick = bar.update if progress else None
     if focal is None:
         with timer("search"):
             found = search(
@@ -182,10 +186,13 @@ def run(
             )  # fmt: skip
     else:
         found, expected = _search_focalplane(
-            budget, moments, obj, schedule, strategies, startable, theory, timer, tick
-        )
-    if bar:
-        bar.close()
+            budget, moments, obj, schedule, strategies, startable, theory, timer, tick,
+            progress=progress,
+        )  # fmt: skip
+    if bar.n < total:  # the search converged before its last sweep: say so, at 100 %
+        bar.total = bar.n
+        bar.set_postfix_str("converged", refresh=False)
+    bar.close()
     strategies["optimised"] = found.angles_deg
     steps = {name: plate.baseline for name in strategies}
     steps["optimised"] = found.steps_deg
@@ -213,7 +220,8 @@ def run(
                 expected = {
                     n: _expected(budget, moments, obj, schedule, theory, plate, strategies[n],
                                  steps[n])
-                    for n in h_maps
+                    for n in tqdm(h_maps, desc="expected residual", unit="strategy",
+                                  disable=not progress)
                 }  # fmt: skip
     else:
         with timer("the optimised schedule on the focal plane"):
@@ -231,8 +239,9 @@ def run(
         try:
             with timer("TOD simulation of every strategy"):
                 validation = _validate(
-                    budget, moments, obj, schedule, (strategies, steps, plate), expected
-                )
+                    budget, moments, obj, schedule, (strategies, steps, plate), expected,
+                    progress=progress,
+                )  # fmt: skip
             checked = "done"
         except interrupts.Interrupted as err:  # the search is done: keep it, without validation
             stopped, checked = err, "interrupted"
@@ -371,12 +380,14 @@ def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):
     )
 
 
-def _search_focalplane(budget, moments, obj, schedule, strategies, startable, theory, timer, tick):
+def _search_focalplane(
+    budget, moments, obj, schedule, strategies, startable, theory, timer, tick, *, progress
+):
     """The search on the focal plane (:func:`boresight.design_focalplane.search`) from the best
     baseline there; every baseline's exact expectation on the mask they share."""
     opts, focal = budget.design, budget.focalplane
     with timer("every baseline on the focal plane"):
-        expected = _on_focalplane(budget, moments, obj, schedule, strategies, theory)
+        expected = _on_focalplane(budget, moments, obj, schedule, strategies, theory, progress)
     exact = {n: delta_r(e.residual, obj.template) for n, e in expected.items()}
     start = (
         strategies[min(startable, key=lambda n: exact[n] + opts.change_cost * obj.changes(
@@ -403,12 +414,15 @@ def _target(budget, theory, moments, obj):
     )  # fmt: skip
 
 
-def _on_focalplane(budget, moments, obj, schedule, strategies, theory):
+def _on_focalplane(budget, moments, obj, schedule, strategies, theory, progress):
     """Each strategy's exact expected residual on the focal plane, every pair on its own samples
     (:func:`boresight.design_focalplane.exact_delta_r`), on the boresight's footprint."""
     target = _target(budget, theory, moments, obj)
     expected = {}
-    for name, angles in strategies.items():
+    for name, angles in tqdm(
+        strategies.items(), desc="baselines on the focal plane", unit="strategy",
+        disable=not progress,
+    ):  # fmt: skip
         interrupts.check()
         _, expected[name] = exact_delta_r(
             moments, schedule, budget.focalplane, angles, target=target
@@ -429,7 +443,7 @@ def _focalplane_columns(expected, template, sigma, row):
     )
 
 
-def _validate(budget, moments, obj, schedule, assignments, expected):
+def _validate(budget, moments, obj, schedule, assignments, expected, *, progress=False):
     """Every strategy's predicted delta_r against the mean of TOD simulations of it.
 
     The simulation runs the budget's systematics through the TOD engine on the schedule's own
@@ -442,11 +456,17 @@ def _validate(budget, moments, obj, schedule, assignments, expected):
     strategy); each mean with its standard error. ``assignments``: the strategies' angles and
     steps, and the budget's :class:`_Plate`, behind which the pairs on the axis are simulated
     as a focal plane.
+
+    Every strategy runs on the same skies, so its difference from the optimised one is measured
+    sky by sky (``minus_optimised_*``, paired): ``difference_resolved`` says whether that mean
+    difference is more than 2 of its standard errors from zero, that is whether the skies
+    resolve the difference the prediction reports.
     """
     nside, lmax = moments.nside, 2 * moments.nside
     skies = budget.design.validation_skies
     strategies, steps, plate = assignments
-    out = []
+    out, per_sky = [], {}
+    bar = tqdm(total=len(strategies) * skies, desc="TOD check", unit="sky", disable=not progress)
     for name, angles in strategies.items():
         scan = moments.schedule(schedule, angles)
         seen = plate.seen(moments, steps[name])
@@ -459,14 +479,15 @@ def _validate(budget, moments, obj, schedule, assignments, expected):
             cross, auto = _tod_parts(sky, scan, systematics, budget, moments.mask, lmax, seen)
             total.append(delta_r(cross + auto, obj.template))
             leaked.append(delta_r(auto, obj.template))
+            bar.update()
+        per_sky[name] = np.array(total)
         row = dict(strategy=name, skies=skies)
         for key, values, cl in (
             ("", total, expected[name].residual),
             ("leaked_", leaked, expected[name].leaked),
         ):
             predicted = delta_r(cl, obj.template)
-            mean = float(np.mean(values))
-            se = float(np.std(values, ddof=1) / np.sqrt(skies)) if skies > 1 else float("nan")
+            mean, se = _mean_se(values)
             row.update(
                 {
                     f"predicted_{key}delta_r": predicted,
@@ -476,7 +497,74 @@ def _validate(budget, moments, obj, schedule, assignments, expected):
                 }
             )
         out.append(row)
+    bar.close()
+    best = next(row for row in out if row["strategy"] == "optimised")
+    for row in out:
+        mean, se = _mean_se(per_sky[row["strategy"]] - per_sky[best["strategy"]])
+        row["predicted_minus_optimised"] = row["predicted_delta_r"] - best["predicted_delta_r"]
+        row["simulated_minus_optimised"] = mean
+        row["simulated_minus_optimised_se"] = se
+        row["difference_resolved"] = bool(abs(mean) > 2 * se) if se > 0 else False
     return out
+
+
+def _mean_se(values):
+    """The mean of a few skies' values and its standard error (NaN from one sky)."""
+    values = np.asarray(values, dtype=float)
+    se = float(np.std(values, ddof=1) / np.sqrt(values.size)) if values.size > 1 else float("nan")
+    return float(np.mean(values)), se
+
+
+def validation_report(rows: list[dict]) -> tuple[list[str], list[str]]:
+    """The TOD check as lines to print, and its warnings.
+
+    Per strategy: the predicted and simulated total delta_r, the simulation's standard error and
+    how many of them it lies from the prediction; whether the skies resolve its difference from
+    the optimised strategy. A warning for every strategy whose simulation is more than 2 standard
+    errors from its prediction, and one naming the differences the skies do not resolve.
+
+    Parameters
+    ----------
+    rows : list of dict
+        ``validation.csv``'s rows.
+
+    Returns
+    -------
+    (list of str, list of str)
+    """
+    lines = [
+        f"TOD check ({rows[0]['skies']} skies per strategy; total delta_r):",
+        f"  {'strategy':<14} {'predicted':>10} {'simulated':>10} {'+-':>9} {'off by':>8}  "
+        "vs optimised",
+    ]
+    warnings, unresolved = [], []
+    for row in rows:
+        predicted, mean = row["predicted_delta_r"], row["simulated_delta_r"]
+        se = row["simulated_delta_r_se"]
+        pull = (mean - predicted) / se if se > 0 else float("nan")
+        if row["strategy"] == "optimised":
+            versus = "-"
+        elif row["difference_resolved"]:
+            versus = "resolved"
+        else:
+            versus = "not resolved"
+            unresolved.append(row["strategy"])
+        lines.append(
+            f"  {row['strategy']:<14} {predicted:>10.3g} {mean:>10.3g} {se:>9.2g} "
+            f"{pull:>7.1f}s  {versus}"
+        )
+        if abs(pull) > 2:
+            warnings.append(
+                f"the TOD check: {row['strategy']}'s simulated delta_r {mean:.3g} +- {se:.2g} is "
+                f"{abs(pull):.1f} standard errors from its prediction {predicted:.3g}"
+            )
+    if unresolved:
+        warnings.append(
+            f"the TOD check's {rows[0]['skies']} skies do not resolve the optimised strategy's "
+            f"difference from {', '.join(unresolved)} (within 2 standard errors of zero); "
+            "raise [design] validation_skies to test it"
+        )
+    return lines, warnings
 
 
 def _tod_parts(sky, scan, systematics, budget, mask, lmax, hwp=None):
@@ -544,4 +632,10 @@ def main(args: argparse.Namespace) -> int:
             row["delta_r"],
             row["delta_r_over_sigma_r"],
         )
+    if result["validation"]:
+        lines, warnings = validation_report(result["validation"])
+        for line in lines:
+            log.info("%s", line)
+        for warning in warnings:
+            log.warning("%s", warning)
     return 0

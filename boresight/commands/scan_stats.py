@@ -8,7 +8,6 @@ import dataclasses
 import logging
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import healpy as hp
@@ -27,6 +26,7 @@ from .. import (
     so_maps,
 )
 from ..config import Study, as_dict, load_study
+from ..hwp import check_sampling
 from ..schedule import is_schedule, load_schedule
 from ..sky import SkyConfig
 from ..validation import ConfigError, require_finite
@@ -238,6 +238,7 @@ def run_schedule(
             "--format so"
         )
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
+    check_sampling(hwp, schedule.sample_rate_hz)  # before the work, not in its first chunk
     if layout.format == "litebird":
         litebird_maps.check_frame(schedule.frame)
     try:
@@ -285,8 +286,7 @@ def run_schedule(
             )
             stats = planes.combined
             config["focalplane"] = focalplane.source
-            if Path(focalplane.source).is_file():
-                inputs.append(focalplane.source)
+            inputs += focalplane.files
     moments = None
     if hwp is not None and hwp.present:
 

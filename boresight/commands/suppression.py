@@ -10,8 +10,10 @@ import logging
 from typing import TYPE_CHECKING
 
 from .. import hwp_suppression, io, plots, provenance, resources, suppression
+from ..beams import MIN_AXIS_FWHM
 from ..config import OutputOptions, Study, check_systematics
-from ..hwp import HWP
+from ..constants import ARCMIN
+from ..hwp import HWP, check_sampling
 from ..instrument import Instrument
 from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
@@ -138,15 +140,18 @@ def run_hwp(
             f"--nside = {sky_config.nside}: the HWP table's bands start at ell = 30; give a power "
             f"of two >= {hwp_suppression.MIN_NSIDE}"
         )
+    hwp_suppression.check_resolution(sky_config.nside, sky_config.fwhm_arcmin)
     schedule = load_schedule(schedule_path)
     hwp_suppression.check_plate(plate)
-    io.check_output_dir(out_dir, force, inputs=[schedule_path])
+    check_sampling(plate, schedule.sample_rate_hz)
+    inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
+    io.check_output_dir(out_dir, force, inputs)
     timer = provenance.Timer(log)
     with timer("sky"):
         sky = make_sky(sky_config)
     with timer("simulations and predictions"):
         result = hwp_suppression.run(schedule, sky, plate, focalplane=focalplane, progress=progress)
-    with io.staged_dir(out_dir, force) as stage:
+    with io.staged_dir(out_dir, force, inputs) as stage:
         io.write_csv(stage / "hwp_suppression.csv", result.rows, list(result.rows[0]))
         io.write_text(stage / "hwp_suppression.md", hwp_suppression.markdown(result.rows))
         plots.hwp_suppression_figure(result, stage / "hwp_suppression")
@@ -190,9 +195,21 @@ def _dest(flag):
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--force", action="store_true", help="replace an earlier output")
-    parser.add_argument("--nside", type=int, default=256, help="HEALPix Nside (lmax = 2 Nside)")
+    parser.add_argument(
+        "--nside",
+        type=int,
+        default=256,
+        help="HEALPix Nside: the spectra to lmax = 2 Nside, the sky to 3 Nside - 1 (with --hwp "
+        "to 2 Nside, as its bench)",
+    )
     parser.add_argument("--survey", choices=("deep", "wide"), default="deep")
-    parser.add_argument("--fwhm-arcmin", type=float, default=30.0, help="the sky's beam")
+    parser.add_argument(
+        "--fwhm-arcmin",
+        type=float,
+        default=None,
+        help="the sky's beam [arcmin] (30; with --hwp 60, as its bench: its predictions need a "
+        "beam of 3 pixels)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="the sky's seed")
     _common.hwp_flags(parser)
     for flag, (_, nargs, what) in PLATE_FLAGS.items():
@@ -205,16 +222,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    plate = _common.hwp(args)
+    narrowest = MIN_AXIS_FWHM / ARCMIN  # the beam entries need a sky beam they can analyse
+    if args.fwhm_arcmin is not None and not args.fwhm_arcmin >= narrowest:
+        raise ConfigError(
+            f"--fwhm-arcmin {args.fwhm_arcmin:g}: the table's beam entries act on the sky's beam; "
+            f"give at least {narrowest:.2f} arcmin"
+        )
     try:
         sky_config = SkyConfig(
             nside=args.nside,
-            lmax=3 * args.nside - 1,
-            fwhm_arcmin=args.fwhm_arcmin,
+            lmax=2 * args.nside if plate is not None else 3 * args.nside - 1,
+            fwhm_arcmin=(60.0 if plate is not None else 30.0)
+            if args.fwhm_arcmin is None
+            else args.fwhm_arcmin,
             seed=args.seed,
         )
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin / --seed: {err}") from None
-    plate = _common.hwp(args)
     if plate is not None:
         if args.schedule is None:
             raise ConfigError("--hwp: give --schedule, the schedule file the HWP table repeats")

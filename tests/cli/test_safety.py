@@ -84,6 +84,29 @@ def test_out_may_not_hold_an_input(tmp_path, study_file, capsys):
     assert study_file.exists()
 
 
+@pytest.mark.parametrize("command", ["design", "suppression"])
+def test_force_never_deletes_a_focal_plane_file_inside_out(tmp_path, capsys, command):
+    """A focal-plane file (from --focalplane) that lies inside --out is an input: refused before
+    any work, with --force too, and the file kept."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / io.MARKER).touch()  # boresight's own output: --force would replace it
+    plane = out / "fp.csv"
+    plane.write_text(
+        "name,xi_deg,eta_deg,gamma_deg,pol_angle_deg\n"
+        "q_A,0,0,0,0\nq_B,0,0,90,90\nu_A,0,0,45,45\nu_B,0,0,135,135\n"
+    )
+    schedule = str(EXAMPLES / "schedule_deep_sat.toml")
+    flags = ["--out", str(out), "--force", "--focalplane", str(plane)]
+    if command == "design":
+        args = ["design", str(EXAMPLES / "budget_deep_sat.toml"), schedule, *flags]
+    else:
+        args = ["suppression", "--hwp", "continuous", "--schedule", schedule, *flags]
+    assert main(args) == 2
+    assert "holds the input" in _error(capsys)
+    assert plane.is_file()
+
+
 def test_a_directory_of_the_user_gaining_files_during_the_run_is_kept(tmp_path, study_file):
     out = tmp_path / "out"
     out.mkdir()  # empty: accepted as the output path
