@@ -10,6 +10,7 @@ output behind (a sweep keeps its finished points, a design its best schedule).
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import os
 import sys
@@ -20,6 +21,7 @@ from . import interrupts
 log = logging.getLogger("boresight")
 
 BAD_INPUT, BUG = 2, 3  #: exit codes
+FULL = (errno.ENOSPC, errno.EDQUOT)  #: a full disk or quota: the machine's state, not a bug
 
 
 def parser() -> argparse.ArgumentParser:
@@ -27,7 +29,12 @@ def parser() -> argparse.ArgumentParser:
     after the subcommand, ``--version``, and each command's own flags."""
     from . import __version__, commands
 
-    p = argparse.ArgumentParser(prog="boresight", description=__doc__.splitlines()[0])
+    p = _Parser(
+        prog="boresight",
+        description=DESCRIPTION,
+        epilog=EXIT_CODES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--version", action="version", version=f"boresight {__version__}")
     _common_flags(p, default=False)
     # the same flags after the subcommand: unset there, they leave the main parser's value
@@ -39,6 +46,26 @@ def parser() -> argparse.ArgumentParser:
         command.add_arguments(parser_)
         parser_.set_defaults(main=command.main)
     return p
+
+
+#: what ``boresight --help`` says first, in plain text (the module's docstring is reST)
+DESCRIPTION = (
+    "How much false B-mode do a CMB telescope's pair-differencing systematics leave, and how much\n"
+    "of it does rotating the instrument about its boresight remove? One subcommand per job;\n"
+    "'boresight COMMAND --help' lists its flags."
+)
+EXIT_CODES = (
+    "exit codes: 0 success, 1 a claim of 'reproduce' not reproduced, 2 bad input (nothing is\n"
+    "written), 3 a bug in boresight (with its traceback), 130 interrupted, 143 terminated."
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose errors are one line naming the flag and where help is, not the
+    whole usage (17 lines for a command with many flags)."""
+
+    def error(self, message):
+        self.exit(BAD_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
 def _common_flags(p, default):
@@ -112,7 +139,15 @@ def main(argv: list[str] | None = None) -> int:
         except BoresightError as err:
             print(f"boresight: error: {err}", file=sys.stderr)
             return BAD_INPUT
-        except Exception:  # anything else is a bug: say so, with the traceback
+        except Exception as err:  # a full disk is the machine's state; anything else a bug
+            if isinstance(err, OSError) and err.errno in FULL:
+                where = f" writing {err.filename}" if err.filename else ""
+                print(
+                    f"boresight: error: {err.strerror}{where}; nothing was written (an earlier "
+                    "output is kept): free some space, or give --out on another disk",
+                    file=sys.stderr,
+                )
+                return BAD_INPUT
             traceback.print_exc()
             print(
                 "boresight: internal error: this is a bug in boresight, not in your input; "

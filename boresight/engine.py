@@ -29,6 +29,7 @@ from .mapmaking import RCOND_MIN, Maps, check_mapmaker, solve, solve_iqu
 from .pointing import detector_pointing
 from .sky import MAX_NSIDE
 from .threads import numba_threads
+from .validation import integer
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -706,6 +707,7 @@ def scan_moments(
     """
     kernels = get_backend(backend)
     _check_nside(nside)
+    integer("n_max", n_max, 0, 64)
     npix = 12 * nside**2
     pix = _pixel_list(pixels, npix)
     chunk_pixels = DEFAULT_CHUNK_PIXELS[backend] if chunk_pixels is None else chunk_pixels

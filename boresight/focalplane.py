@@ -81,6 +81,35 @@ class FocalPlane:
     hn_offset_deg: np.ndarray
     source: str = ""
 
+    def __post_init__(self):
+        n = len(self.names)
+        if n == 0:
+            raise FocalPlaneError("a focal plane needs one pair or more; it has none")
+        if len(self.detectors) != n:
+            raise FocalPlaneError(f"focal plane: {len(self.detectors)} detector pairs, {n} names")
+        for name, shape in (
+            ("xi_deg", (n,)),
+            ("eta_deg", (n,)),
+            ("gamma_deg", (n,)),
+            ("hn_offset_deg", (n, 2)),
+        ):
+            try:
+                values = np.asarray(getattr(self, name), dtype=np.float64)
+            except (TypeError, ValueError):
+                raise FocalPlaneError(f"focal plane {name}: numbers, one per pair") from None
+            if values.shape != shape:
+                raise FocalPlaneError(
+                    f"focal plane {name}: shape {shape} expected, got {values.shape}"
+                )
+            if not np.isfinite(values).all():
+                raise FocalPlaneError(f"focal plane {name}: NaN or infinite values")
+            object.__setattr__(self, name, values)
+        if not np.all(np.hypot(self.xi_deg * DEG, self.eta_deg * DEG) < 1):
+            raise FocalPlaneError(
+                "focal plane: a pair off the boresight's hemisphere (xi^2 + eta^2 >= 1 in sine "
+                "units, xi and eta given in degrees as xi [rad] x 180 / pi)"
+            )
+
     @property
     def n_pairs(self) -> int:
         return len(self.names)
@@ -194,6 +223,8 @@ def on_axis(pair_angles_deg=(0.0, 45.0)) -> FocalPlane:
     -------
     FocalPlane
     """
+    if isinstance(pair_angles_deg, (str, bytes)) or np.ndim(pair_angles_deg) != 1:
+        raise TypeError(f"pair_angles_deg = {pair_angles_deg!r}: a sequence of angles [deg]")
     gamma = np.asarray(pair_angles_deg, dtype=np.float64)
     names = tuple(f"P{i:0{len(str(gamma.size))}d}" for i in range(gamma.size))
     zero = np.zeros(gamma.size)

@@ -31,6 +31,7 @@ from .pointing import (
     sample_pointing,
 )
 from .scan import SyntheticScan
+from .validation import integer
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -530,6 +531,19 @@ def _bin_spins(pix, psi, chi, terms, sums, hits, weights=None, kinds=None):
             sums[k, p] += value
 
 
+def _integer_terms(terms):
+    """(n, m) pairs of integers, one or more: 1.5 was taken as 1, a bare pair as two terms."""
+    try:
+        pairs = [tuple(t) for t in terms]
+    except TypeError:
+        raise TypeError(f"terms = {terms!r}: a sequence of (n, m) pairs of integers") from None
+    if not pairs or any(len(t) != 2 for t in pairs):
+        raise ValueError(f"terms = {terms!r}: one or more (n, m) pairs of integers")
+    return [
+        (integer("a term's n", n, -64, 64), integer("a term's m", m, -64, 64)) for n, m in pairs
+    ]
+
+
 def hwp_moments(
     schedule: Schedule,
     hwp: HWP,
@@ -593,7 +607,7 @@ def hwp_moments(
         )
     if relative and pair_weights is not None:
         raise ValueError("relative h_{n,m} carry their own weights: not with pair_weights")
-    table = np.array([(int(n), int(m)) for n, m in terms], dtype=np.float64).reshape(-1, 2)
+    table = np.array(_integer_terms(terms), dtype=np.float64).reshape(-1, 2)
     if len({tuple(t) for t in table}) != len(table):
         raise ValueError(f"repeated (n, m) in {list(terms)}")
     if relative:

@@ -7,6 +7,7 @@ index and adds in task order, so that nothing depends on which worker finished f
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING
 
 from . import interrupts
@@ -42,6 +43,20 @@ def check_workers(workers: object) -> int:
     return workers
 
 
+def check_scheduler(scheduler: object) -> str | None:
+    """``scheduler`` checked before any work: "serial", None (a local cluster) or a Dask
+    scheduler's address, ``host:port`` or ``protocol://host:port``."""
+    if scheduler is None or scheduler == "serial":
+        return scheduler
+    address = r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9a-fA-F:]+\]|[^\s/:\[\]]+):\d{1,5}"
+    if not isinstance(scheduler, str) or re.fullmatch(address, scheduler) is None:
+        raise ConfigError(
+            f"--scheduler {scheduler!r}: 'serial', 'local' or a Dask scheduler's address "
+            "(host:port or tcp://host:port)"
+        )
+    return scheduler
+
+
 def run(
     function: Callable,
     arguments: Sequence[tuple],
@@ -64,6 +79,7 @@ def run(
         address of an existing scheduler.
     workers : int
     """
+    check_scheduler(scheduler)
     if scheduler == "serial":
         for i, args in enumerate(arguments):
             interrupts.check()

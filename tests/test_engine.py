@@ -252,3 +252,9 @@ def test_a_focal_plane_on_the_axis_with_beams_simulates_as_the_boresight():
     b = engine.simulate_focalplane(sky, schedule, focalplane.on_axis((0.0, 45.0)), sy)
     assert np.max(np.abs(a.q_obs)) > 0.1  # the beams leak
     assert np.max(np.abs(a.q_obs - b.q_obs)) < 1e-12 and np.max(np.abs(a.u_obs - b.u_obs)) < 1e-12
+
+
+@pytest.mark.parametrize("n_max", [-1, 1.5, True])
+def test_scan_moments_refuses_an_n_max_that_is_no_count(n_max):
+    with pytest.raises((TypeError, ValueError), match="n_max"):
+        engine.scan_moments(SyntheticScan(n_phi=2), 8, n_max=n_max)

@@ -476,3 +476,21 @@ def test_toast_files_with_bad_columns_are_one_clear_error(tmp_path):
     write_table_hdf5(text, str(tmp_path / "text.h5"), path="focalplane", serialize_meta=True)
     with pytest.raises(FocalPlaneError, match="'quat' must hold numbers"):
         focalplane.read_focalplane(tmp_path / "text.h5")
+
+
+def test_a_focal_plane_without_pairs_or_off_the_hemisphere_is_refused():
+    """They returned empty or NaN results: no pairs, a pair at 80 deg in sine units (xi = sin
+    of 80 deg in radians > 1), angles that are no sequence."""
+    with pytest.raises(FocalPlaneError, match="one pair or more"):
+        focalplane.on_axis([])
+    with pytest.raises(TypeError, match="a sequence of angles"):
+        focalplane.on_axis(None)
+    with pytest.raises(TypeError, match="a sequence of angles"):
+        focalplane.on_axis("045")
+    one = focalplane.on_axis((0.0,))
+    with pytest.raises(FocalPlaneError, match="off the boresight's hemisphere"):
+        dataclasses.replace(one, xi_deg=np.array([80.0]))
+    with pytest.raises(FocalPlaneError, match="gamma_deg: NaN"):
+        dataclasses.replace(one, gamma_deg=np.array([np.nan]))
+    with pytest.raises(FocalPlaneError, match=r"shape \(1,\) expected"):
+        dataclasses.replace(one, eta_deg=np.zeros(2))

@@ -209,3 +209,21 @@ def test_a_focal_planes_centroid_moments_are_each_pairs_own():
     alone = scanstats.centroid_moments(schedule, nside, n_max=n_max)
     for pair in scanstats.centroid_moments(schedule, nside, n_max=n_max, focalplane=on_axis):
         np.testing.assert_allclose(pair, alone, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    "terms, error, message",
+    [
+        ([(1.5, 4)], TypeError, "a term's n = 1.5 is not an integer"),  # was taken as (1, 4)
+        ([(2, 4.0)], TypeError, "a term's m = 4.0"),
+        ([], ValueError, "one or more"),
+        ([(2, 4, 8)], ValueError, "pairs of integers"),
+        (7, TypeError, "a sequence of"),
+    ],
+)
+def test_hwp_moments_refuse_terms_that_are_not_integer_pairs(terms, error, message):
+    from boresight.hwp import HWP
+
+    ces = CES(T0, 60.0, 50.0, 130.0, 20.0)
+    with pytest.raises(error, match=message):
+        scanstats.hwp_moments(Schedule((ces,), Site(), 2.0), HWP("continuous"), 8, terms=terms)

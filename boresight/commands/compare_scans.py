@@ -30,6 +30,8 @@ NAME = "compare-scans"
 HELP = "residual B-modes of a CES schedule and its twin"
 #: the systematic each choice of ``systematic`` runs
 SYSTEMATICS = {"gain": PAPER_GAIN, "pointing": PAPER_POINTING}
+FIRST_BIN_ELL = 10  #: the first band's lowest ell
+MIN_NSIDE = 8  #: the lowest Nside whose lmax = 2 Nside reaches past it
 
 
 def on_focalplane(systematics: Systematics, focalplane: FocalPlane) -> Systematics:
@@ -102,6 +104,11 @@ def run(
         sky_config = SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=fwhm_arcmin, seed=seed)
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin: {err}") from None
+    if 2 * nside <= FIRST_BIN_ELL:  # before the simulations, not at the bands after them
+        raise ConfigError(
+            f"--nside {nside}: the bands start at ell = {FIRST_BIN_ELL}, beyond lmax = 2 Nside = "
+            f"{2 * nside}; give --nside {MIN_NSIDE} or more"
+        )
     inputs = [schedule_path]
     if focalplane is not None:
         inputs += focalplane.files
@@ -163,7 +170,7 @@ def run(
                 reference=reference,
                 focalplane=focal[name],
             ).total
-    rows = band_rows(log_bins(10, lmax, 12), curves)
+    rows = band_rows(log_bins(FIRST_BIN_ELL, lmax, 12), curves)
     require_finite("the residual spectra", list(curves.values()))
     twin_h, _ = engine.scan_moments(twin, nside, pixels=obs)
     table = [

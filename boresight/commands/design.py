@@ -13,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .. import engine, interrupts, io, plots, precompile, provenance, resources, spectra
-from ..config import RunOptions
+from ..config import RunOptions, check_systematics
 from ..cosmology import load_spectra
 from ..design import baselines, load_budget, objective, search_instrument, unit_moments
 from ..design_expectation import exact_objective, search
@@ -108,6 +108,15 @@ def run(
         budget = dataclasses.replace(
             budget, focalplane=focalplane, instrument=search_instrument(focalplane)
         )
+        try:  # the checks the budget's own [instrument] focalplane gets
+            check_systematics(
+                budget.systematics, budget.instrument, (0.0,), budget.noise.fwhm_arcmin
+            )
+        except ValueError as err:
+            raise ConfigError(
+                f"--focalplane {focalplane.source} with budget {budget_path}'s [systematics]: "
+                f"{err}"
+            ) from None
     focal = budget.focalplane
     opts = budget.design
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)

@@ -24,6 +24,7 @@ from .. import (
     resources,
     scanstats,
     so_maps,
+    tasks,
 )
 from ..config import Study, as_dict, load_study
 from ..hwp import check_sampling
@@ -501,7 +502,7 @@ def main(args: argparse.Namespace) -> int:
             focalplane=_common.focalplane(args),
             per_detector=args.per_detector,
             hwp=_common.hwp(args),
-            scheduler=None if args.scheduler == "local" else args.scheduler,
+            scheduler=tasks.check_scheduler(None if args.scheduler == "local" else args.scheduler),
             workers=args.workers,
             progress=_common.progress(args),
             checks=_common.checks(args),

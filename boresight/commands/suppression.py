@@ -9,7 +9,7 @@ import dataclasses
 import logging
 from typing import TYPE_CHECKING
 
-from .. import hwp_suppression, io, plots, provenance, resources, suppression
+from .. import hwp_suppression, io, plots, precompile, provenance, resources, suppression
 from ..beams import MIN_AXIS_FWHM
 from ..config import OutputOptions, Study, check_systematics
 from ..constants import ARCMIN
@@ -147,6 +147,10 @@ def run_hwp(
     inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
     io.check_output_dir(out_dir, force, inputs)
     timer = provenance.Timer(log)
+    # compiled before the stages (on all cores, once), so that Ctrl-C is not held up by a compile
+    kernels = precompile.kernels_for("validation", pointing=True)
+    kernels += precompile.kernels_for("focalplane-stats")
+    precompile.precompile(kernels, timer=timer)
     with timer("sky"):
         sky = make_sky(sky_config)
     with timer("simulations and predictions"):

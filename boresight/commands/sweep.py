@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from .. import plots, sweep
+from .. import plots, sweep, tasks
 from . import _common
 
 log = logging.getLogger(__name__)
@@ -35,7 +35,7 @@ def main(args: argparse.Namespace) -> int:
     rows = sweep.run_sweep(
         args.sweep_file,
         args.out,
-        scheduler=args.scheduler,
+        scheduler=tasks.check_scheduler(args.scheduler),
         workers=args.workers,
         force=args.force,
         progress=_common.progress(args),

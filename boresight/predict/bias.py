@@ -89,4 +89,7 @@ def delta_r(
     if lmin >= lmax:
         raise ValueError(f"empty multipole range [{lmin}, {lmax}] for delta_r")
     s = slice(lmin, lmax + 1)
-    return float(np.sum(residual[s] * template[s]) / np.sum(template[s] ** 2))
+    norm = np.sum(template[s] ** 2)
+    if not (np.isfinite(norm) and norm > 0):
+        raise ValueError(f"delta_r: the template is zero (or not finite) over [{lmin}, {lmax}]")
+    return float(np.sum(residual[s] * template[s]) / norm)

@@ -673,3 +673,118 @@ def test_suppression_arguments_are_checked_before_any_simulation(tmp_path, capsy
 def test_a_study_too_coarse_for_its_bands_says_where_lmax_came_from(tmp_path):
     with pytest.raises(ConfigError, match=r"lmin = 20 must be below lmax = 16 \(min\(sky.lmax, 2"):
         parse_study({"sky": {"nside": 8, "lmax": 23}})
+
+
+# Round 4: the new surfaces with bad input --------------------------------------------------------
+
+
+def _short_schedule(tmp_path, rate=1.0):
+    """Two 2-minute CESs of the deep example."""
+    base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
+    ces = tuple(CES(**{**c.__dict__, "duration_s": 120.0}) for c in base.ces[:2])
+    path = tmp_path / "schedule.toml"
+    write_schedule(Schedule(ces, base.site, rate), path, "toml")
+    return path
+
+
+def test_a_budget_plate_with_a_focal_plane_flag_is_refused(tmp_path, capsys):
+    """The budget's [hwp] was silently dropped with --focalplane on the command line: the
+    strategies were those without a plate."""
+    plate = 'dg = [0.01, -0.01]\n[hwp]\nmode = "continuous"\nfrequency_hz = 1.3'
+    code, out, err = _design(tmp_path, capsys, plate, "--focalplane", "hexagon:7:20")
+    assert code == 2 and not out.exists()
+    assert "a design behind a plate is of pairs on the axis" in err
+    assert len(err.strip().splitlines()) == 1, err
+
+
+def test_a_gain_of_two_pairs_on_a_seven_pair_focal_plane_is_one_clear_error(tmp_path, capsys):
+    """It was a traceback from the objective, after the moments were computed."""
+    code, out, err = _design(
+        tmp_path, capsys, "dg = [0.01, -0.01]", "--focalplane", "hexagon:7:20", "--no-validate"
+    )
+    assert code == 2 and not out.exists()
+    assert "dg has 2 entries but the instrument has 7 pairs" in err
+    assert "--focalplane hexagon:7:20" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_noise_table_short_of_the_bands_is_one_clear_error(tmp_path, capsys):
+    table = tmp_path / "nl.txt"
+    table.write_text("2 1e-5\n40 1e-5\n")
+    budget_text = BUDGET.format(systematics="dg = [0.01, -0.01]").replace(
+        "depth_uk_arcmin = 3.0", f"nl_bb_file = '{table}'"
+    )
+    (tmp_path / "budget.toml").write_text(budget_text)
+    args = ["-q", "design", str(tmp_path / "budget.toml"), str(_short_schedule(tmp_path))]
+    assert main([*args, "--out", str(tmp_path / "d"), "--no-validate"]) == 2
+    err = _error(capsys)
+    assert "N_ell reaches ell = 40" in err and "extend the table" in err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--hwp", "spinning"], "argument --hwp: invalid choice: 'spinning'"),
+        (["--hwp", "stepped", "--hwp-step", "hour"], "argument --hwp-step: invalid choice"),
+        (["--focalplane", "hexagon:7:10", "--scheduler", "bogus"], "--scheduler 'bogus'"),
+        # a continuous plate whose 4 chi turns whole turns per sample: refused before the work
+        (["--hwp", "continuous", "--hwp-frequency", "0.5"], "aliases to a constant"),
+    ],
+)
+def test_scan_stats_refuses_bad_flags_in_one_line(tmp_path, capsys, args, message):
+    schedule = _short_schedule(tmp_path, rate=2.0)
+    out = tmp_path / "out"
+    try:
+        code = main(["scan-stats", str(schedule), "--out", str(out), "--nside", "16", *args])
+    except SystemExit as stop:  # argparse's own refusals
+        code = stop.code
+    assert code == 2 and not out.exists()
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err  # not 17 lines of usage
+
+
+def test_compare_scans_refuses_a_resolution_below_its_bands_before_simulating(tmp_path, capsys):
+    schedule = _short_schedule(tmp_path)
+    out = tmp_path / "out"
+    assert main(["compare-scans", str(schedule), "--out", str(out), "--nside", "1"]) == 2
+    assert "the bands start at ell = 10, beyond lmax = 2 Nside = 2" in _error(capsys)
+    assert not out.exists()
+
+
+def test_a_full_disk_is_one_clear_error_and_the_old_output_is_kept(tmp_path, capsys, monkeypatch):
+    import errno
+
+    schedule = str(_short_schedule(tmp_path))
+    out = tmp_path / "out"
+    assert main(["-q", "scan-stats", schedule, "--out", str(out), "--nside", "16"]) == 0
+    before = _listing(out)
+
+    def full(path, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(io, "write_json", full)
+    assert main(["-q", "scan-stats", schedule, "--out", str(out), "--nside", "16", "--force"]) == 2
+    err = _error(capsys)
+    assert "No space left on device" in err and "nothing was written" in err
+    assert _listing(out) == before
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+@pytest.mark.parametrize("fwhm", ["0", "nan", "0.1"])
+@pytest.mark.parametrize("hwp", [[], ["--hwp", "continuous"]])
+def test_suppression_names_its_own_flag_for_a_beam_it_cannot_use(tmp_path, capsys, fwhm, hwp):
+    """--fwhm-arcmin 0 named '[sky] fwhm_arcmin', a key of a study file this command has not."""
+    args = ["suppression", "--fwhm-arcmin", fwhm, "--out", str(tmp_path / "out"), *hwp]
+    args += ["--schedule", str(_short_schedule(tmp_path))] if hwp else []
+    assert main(args) == 2
+    err = _error(capsys)
+    assert f"--fwhm-arcmin {fwhm}" in err and "[sky]" not in err
+
+
+def test_the_hwp_table_refuses_a_pixel_too_coarse_for_its_beam(tmp_path, capsys):
+    """The guide's own example (Nside 64, 60 arcmin) predicted the beams behind the plate at
+    1.74-2.30 of the TOD: refused in one line naming the settings that would do."""
+    args = ["suppression", "--hwp", "continuous", "--schedule", str(_short_schedule(tmp_path))]
+    assert main([*args, "--nside", "64", "--fwhm-arcmin", "60", "--out", str(tmp_path / "o")]) == 2
+    err = _error(capsys)
+    assert "--fwhm-arcmin 60 at --nside 64" in err
+    assert "give --nside 256 or --fwhm-arcmin 220" in err

@@ -38,3 +38,8 @@ def test_reference_curves_scale_with_r_and_the_lensing_amplitude(deep, theory):
 def test_an_empty_range_is_refused(deep):
     with pytest.raises(ValueError, match="empty multipole range"):
         predict.delta_r(deep[1], deep[1], 60, 40)
+
+
+def test_delta_r_of_a_zero_template_is_an_error_not_nan():
+    with pytest.raises(ValueError, match="the template is zero"):
+        predict.delta_r(np.ones(400), np.zeros(400))
