@@ -13,7 +13,7 @@ import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from . import harmonics, interrupts
 from .beams import BeamConvolver, pair_beams

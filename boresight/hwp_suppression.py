@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from . import engine, harmonics, interrupts, scanstats, spectra
 from .focalplane import on_axis
@@ -222,6 +222,15 @@ def plate_moments(scan, plate, nside, pairs) -> PlateMoments:
         pair_weights=predict_fp.synchronous_weights(pairs),
     )
     return PlateMoments(hits, h, synchronous, None)
+
+
+def tod_runs(schedules=SCHEDULES) -> int:
+    """The TOD simulations of the table, counted in passes of the CES set: per boresight schedule
+    (as many passes as its angles), a reference and every pair case without a plate, and a
+    reference, every pair case and every case of the plate's own behind it."""
+    pairs = sum(1 for case in CASES if not case.plate)
+    plate = sum(1 for case in CASES if case.plate)
+    return sum(len(r) for r in schedules) * ((1 + pairs) + (1 + pairs + plate))
 
 
 def boresight_label(repeats) -> str:

@@ -56,9 +56,22 @@ BYTES_PER_PIXEL = {
     "compare-scans": 320.0,
     "design": 280.0,
     "suppression": 380.0,
+    # the HWP table: 53 maps of moments per pair behind the plate, and the sky at every sample
+    # (4.6 GB at Nside 256, 17 GB at 512 on the deep example)
+    "hwp-suppression": 5400.0,
 }
-COMMANDS = {"schedule-stats": "scan-stats"}  #: the command of a job whose name differs
-SKY_JOBS = {"simulate", "reproduce", "compare-scans", "design", "suppression"}  #: make a sky
+COMMANDS = {
+    "schedule-stats": "scan-stats",
+    "hwp-suppression": "suppression --hwp",
+}  #: the command of a job whose name differs
+SKY_JOBS = {
+    "simulate",
+    "reproduce",
+    "compare-scans",
+    "design",
+    "suppression",
+    "hwp-suppression",
+}  #: make a sky
 ALM_BYTES = 48.0  #: the sky's T, E, B alm, complex128
 #: a process with every stage of boresight imported (what some jobs import only after their
 #: check) [bytes]
@@ -69,7 +82,16 @@ LATE_IMPORTS_BYTES = 0.06 * GIB
 #: synthetic scan's, a real schedule's pointing and binning (scan-stats), its TOD
 #: (simulate_samples, per pair), the design's per-unit moments (bench/bench_memory.py prints
 #: the estimated and the measured seconds of each command)
-SAMPLE_RATES = {"synthetic": 5.0e7, "pointing": 1.5e7, "tod": 1.6e7, "moments": 8.0e6}
+SAMPLE_RATES = {
+    "synthetic": 5.0e7,
+    "pointing": 1.5e7,
+    "tod": 1.6e7,
+    "moments": 8.0e6,
+    "exact tod": 1.3e6,  # the sky synthesised at each sample (the HWP table), pair-samples/s
+}
+#: seconds per HEALPix pixel of a job's map-level work (the HWP table's predictions: 120 s +
+#: 5e-4 s per pixel fits its runs on the deep example at Nside 64-512 on 2 cores)
+PIXEL_SECONDS = {"hwp-suppression": 5.0e-4}
 TIME_LIMIT_S = 3600.0  #: longest estimated run that needs no --yes
 TIME_NOTICE_S = 60.0  #: longest estimated run that is not announced
 #: bytes per point of a beam's analysis grid: colatitude and azimuth meshes, the beam, its
@@ -312,7 +334,8 @@ def schedule_estimate(
     seconds = samples * max(1, pointed_pairs) / SAMPLE_RATES["pointing"]
     if job == "design":
         seconds += samples / SAMPLE_RATES["moments"]
-    seconds += tod_runs * samples * n_pairs / SAMPLE_RATES["tod"]
+    rate = SAMPLE_RATES["exact tod" if job == "hwp-suppression" else "tod"]
+    seconds += tod_runs * samples * n_pairs / rate + PIXEL_SECONDS.get(job, 0.0) * 12 * nside**2
     return Estimate(job, parts, seconds, samples * max(1, tod_runs * n_pairs))
 
 

@@ -398,7 +398,7 @@ def characterise_schedule(
     -------
     ScanStats
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     exclude = schedule.turnarounds == "exclude"
 
@@ -597,7 +597,7 @@ def hwp_moments(
         (n, m) -> (npix,) complex128, 0 where unseen: with a focal plane, the combination the
         map-maker makes, every pair's samples binned together.
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     if not hwp.present:
         raise ValueError("h_{n,m} needs a continuous or a stepped HWP")
@@ -834,7 +834,7 @@ def characterise_focalplane(
     -------
     FocalPlaneStats
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     vectors = focalplane.vectors()
     npix = 12 * nside**2

@@ -26,7 +26,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from . import __version__, coupling, interrupts, io, masks, predict, residual, resources, tasks
 from .config import parse_study, read_toml

@@ -114,8 +114,7 @@ def run(
             )
         except ValueError as err:
             raise ConfigError(
-                f"--focalplane {focalplane.source} with budget {budget_path}'s [systematics]: "
-                f"{err}"
+                f"--focalplane {focalplane.source} with budget {budget_path}'s [systematics]: {err}"
             ) from None
     focal = budget.focalplane
     opts = budget.design

@@ -15,6 +15,7 @@ import numpy as np
 
 from .. import (
     engine,
+    interrupts,
     io,
     litebird_maps,
     masks,
@@ -335,6 +336,7 @@ def _write_focalplane(stage, planes, layout, frame):
     fp = planes.focalplane
     n = np.arange(scanstats.N_MAX + 1)[:, None]
     for i, pair in enumerate(fp.detectors):
+        interrupts.check()  # hundreds of files: Ctrl-C stops between them
         for det, offset in zip(pair, np.radians(fp.hn_offset_deg[i])):
             h = planes.pair_h[i] * np.exp(1j * n * offset)  # sotodlib's Hn psi: + gamma - pol
             so_maps.write(stage, f"{layout.prefix}_{det}", h, planes.pair_hits[i], frame=frame)
@@ -385,6 +387,7 @@ def _write(
             if layout.format == "litebird" and planes is not None:
 
                 def each(i, hits, h):
+                    interrupts.check()
                     for det in planes.focalplane.detectors[i]:
                         litebird_maps.write(stage, det, hits, h, **lite)
 

@@ -109,6 +109,7 @@ def run_hwp(
     focalplane: FocalPlane | None = None,
     force: bool = False,
     progress: bool = False,
+    checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """What boresight rotation still buys behind a HWP, on a real schedule
     (:mod:`boresight.hwp_suppression`).
@@ -129,6 +130,8 @@ def run_hwp(
     focalplane : boresight.focalplane.FocalPlane, optional
         The pairs, each on its own samples (default the paper's Q and U pairs on the axis).
     force, progress : bool
+    checks : boresight.resources.Checks
+        The memory and time checks to make.
 
     Returns
     -------
@@ -146,6 +149,16 @@ def run_hwp(
     check_sampling(plate, schedule.sample_rate_hz)
     inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
     io.check_output_dir(out_dir, force, inputs)
+    once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
+    estimate = resources.schedule_estimate(
+        "hwp-suppression",
+        once,
+        sky_config.nside,
+        lmax=sky_config.lmax,
+        n_pairs=2 if focalplane is None else focalplane.n_pairs,
+        tod_runs=hwp_suppression.tod_runs(),
+    )
+    resources.require(estimate, checks)
     timer = provenance.Timer(log)
     # compiled before the stages (on all cores, once), so that Ctrl-C is not held up by a compile
     kernels = precompile.kernels_for("validation", pointing=True)
@@ -170,6 +183,7 @@ def run_hwp(
                 },
                 {"sky": sky_config.seed},
                 timer.stages,
+                estimate.as_dict(),
             ),
         )
     return result.rows
@@ -259,6 +273,7 @@ def main(args: argparse.Namespace) -> int:
             focalplane=_common.focalplane(args),
             force=args.force,
             progress=_common.progress(args),
+            checks=_common.checks(args),
         )
         return 0
     flags = ("--schedule", "--focalplane", *PLATE_FLAGS)

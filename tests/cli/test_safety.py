@@ -788,3 +788,36 @@ def test_the_hwp_table_refuses_a_pixel_too_coarse_for_its_beam(tmp_path, capsys)
     err = _error(capsys)
     assert "--fwhm-arcmin 60 at --nside 64" in err
     assert "give --nside 256 or --fwhm-arcmin 220" in err
+
+
+def test_the_hwp_table_at_nside_2048_is_refused_by_its_estimate_before_any_work(tmp_path, capsys):
+    """It was not estimated: at Nside 2048 it needs 254 GB (5.4 kB a pixel, 17 GB measured at
+    Nside 512) and it was not refused; at 4096 it raised from the spectra after the sky."""
+    import time
+
+    schedule = str(_short_schedule(tmp_path, rate=5.0))
+    args = ["suppression", "--hwp", "continuous", "--schedule", schedule]
+    start = time.perf_counter()
+    assert main([*args, "--nside", "2048", "--out", str(tmp_path / "o")]) == 2
+    assert "memory" in _error(capsys)
+    assert time.perf_counter() - start < 20 and not (tmp_path / "o").exists()
+
+
+def test_the_hwp_tables_estimate_follows_its_measured_runs():
+    """Memory and time of the deep example's table as measured on 2 cores (Nside 64: 150 s;
+    128: 210 s; 256: 510 s and 4.6 GB; 512: 1665 s and 17 GB): within 1.5 of each."""
+    import dataclasses
+
+    from boresight import hwp_suppression, resources
+
+    once = dataclasses.replace(
+        load_schedule(EXAMPLES / "schedule_deep_sat.toml"), repeat_boresight_deg=(0.0,)
+    )
+    measured = {64: (150, None), 128: (210, None), 256: (510, 4.6), 512: (1665, 17.0)}
+    for nside, (seconds, gb) in measured.items():
+        estimate = resources.schedule_estimate(
+            "hwp-suppression", once, nside, n_pairs=2, tod_runs=hwp_suppression.tod_runs()
+        )
+        assert 1 / 1.5 < estimate.seconds / seconds < 1.5, nside
+        if gb is not None:
+            assert 1 / 1.5 < estimate.bytes / 1e9 / gb < 1.5, nside
