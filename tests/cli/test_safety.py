@@ -821,3 +821,36 @@ def test_the_hwp_tables_estimate_follows_its_measured_runs():
         assert 1 / 1.5 < estimate.seconds / seconds < 1.5, nside
         if gb is not None:
             assert 1 / 1.5 < estimate.bytes / 1e9 / gb < 1.5, nside
+
+
+def test_design_prints_its_tod_check_and_says_what_it_cannot_resolve(tmp_path, capsys, caplog):
+    """The check's verdict was only in validation.csv: the table is logged at the end, a
+    simulation more than 2 standard errors from its prediction is a warning, and so are the
+    differences from the optimised strategy that its skies do not resolve."""
+    import csv
+    import logging
+
+    from boresight.commands.design import validation_report
+
+    caplog.set_level(logging.INFO, logger="boresight")
+    budget = tmp_path / "budget.toml"
+    budget.write_text(BUDGET.format(systematics="dg = [0.01, -0.01]"))
+    schedule = _short_schedule(tmp_path)
+    assert main(["design", str(budget), str(schedule), "--out", str(tmp_path / "d")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "d" / "validation.csv")))
+    assert {"simulated_minus_optimised", "difference_resolved"} <= set(rows[0])
+    text = caplog.text
+    assert "TOD check (4 skies per strategy; total delta_r)" in text
+    for row in rows:
+        assert row["strategy"] in text
+    # the verdicts, on rows made to need them
+    row = dict(skies=4, predicted_delta_r=1.0, simulated_delta_r=1.3, simulated_delta_r_se=0.1)
+    made = [
+        {**row, "strategy": "none", "difference_resolved": False},
+        {**row, "strategy": "optimised", "simulated_delta_r": 1.05, "difference_resolved": False},
+    ]
+    lines, warnings = validation_report(made)
+    assert len(lines) == 4 and "3.0s" in lines[2] and "not resolved" in lines[2]
+    assert "none's simulated delta_r 1.3 +- 0.1 is 3.0 standard errors" in warnings[0]
+    assert "do not resolve the optimised strategy's difference from none" in warnings[1]
+    assert len(warnings) == 2
