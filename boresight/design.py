@@ -103,6 +103,11 @@ class DesignOptions:
         angles = validation.numbers_array("design.angles_deg", self.angles_deg, -3600.0, 3600.0)
         if angles.ndim != 1 or angles.size == 0:
             raise ValueError("angles_deg must list at least one allowed angle")
+        if angles.size > MAX_ANGLES:  # the search's work grows with them, unestimated
+            raise ValueError(
+                f"angles_deg lists {angles.size} angles; at most {MAX_ANGLES} (one every half "
+                "degree of a turn)"
+            )
         object.__setattr__(self, "angles_deg", tuple(float(a) for a in angles))
         if self.group not in GROUPS:
             raise ValueError(f"group must be one of {GROUPS}, got {self.group!r}")
@@ -116,6 +121,10 @@ class DesignOptions:
         validation.integer("nside", self.nside, 16, 2048)
         if self.nside & (self.nside - 1):
             raise ValueError(f"nside must be a power of two, got {self.nside}")
+
+
+#: the most allowed angles a design takes: its search tries each one for each unit, every sweep
+MAX_ANGLES = 720
 
 
 def units_of(rows: tuple, group: str) -> list[list[int]]:

@@ -138,6 +138,7 @@ _BOUNDS = (
     ("angle_offset_deg", -45.0, 45.0),
     ("angle_jitter_deg", 0.0, 45.0),
 )
+MAX_STEPS = 720  #: a stepped plate's angles at most (one every quarter degree of its half turn)
 _LISTS = {  # bounds of each element of the lists
     "angles_deg": (-3600.0, 3600.0),
     "synchronous_muk": (-1e6, 1e6),
@@ -154,6 +155,8 @@ def _numbers(name, values, count):
     if (count is None and len(values) == 0) or (count is not None and len(values) != count):
         want = "one or more numbers" if count is None else f"{count} numbers"
         raise ConfigError(f"hwp {name} = {values!r}: {want}")
+    if len(values) > MAX_STEPS:  # 18,000 steps allocated 21.7 GiB in the design
+        raise ConfigError(f"hwp {name}: {len(values)} values; at most {MAX_STEPS}")
     try:
         return tuple(number(f"hwp {name}", v, lo, hi) for v in values)
     except (TypeError, ValueError) as err:

@@ -293,6 +293,7 @@ def schedule_estimate(
     fwhm_arcmin: float = 0.0,
     pointed_pairs: int = 0,
     pair_maps: int = 0,
+    design_units: int = 0,
 ) -> Estimate:
     """The estimate of a schedule's job: ``schedule-stats``, ``compare-scans``, ``design``.
 
@@ -314,6 +315,9 @@ def schedule_estimate(
         Pairs of a focal plane pointed each from its own place (0: the boresight alone).
     pair_maps : int
         Per-pair maps held at once (:func:`boresight.scanstats.pair_blocks`).
+    design_units : int
+        The units a design assigns angles to: its exact objective holds each unit's (E, B) alm
+        of up to 4 channels to 2 lmax (:class:`boresight.design_expectation.ExactObjective`).
 
     Returns
     -------
@@ -327,6 +331,8 @@ def schedule_estimate(
         parts["beams"] = beam_bytes(
             systematics, instrument or Instrument(), fwhm_arcmin, lmax, cubes=True
         )
+    if design_units:
+        parts["unit alm"] = 16.0 * design_units * 4 * 2 * _n_alm(2 * lmax)
     if pair_maps:
         parts["pair maps"] = 88.0 * 12 * nside**2 * pair_maps  # sums (5 complex) and hits
         parts["chunk"] *= 28.0 / 48.0  # pixel, cos, sin, angle bin per pair-sample

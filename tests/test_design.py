@@ -465,3 +465,20 @@ def test_design_behind_a_continuous_plate_is_its_objective(tmp_path, schedule, m
     units = list(csv.DictReader(open(out / "units.csv")))
     assert "hwp_step_deg" not in units[0]
     assert float(rows["optimised"]["delta_r"]) < 0.1 * float(rows["none"]["delta_r"])
+
+
+def test_a_design_of_thousands_of_allowed_angles_is_refused_and_units_are_estimated():
+    """7,200 allowed angles ran for hours; 4,000 units died allocating their alm after the search
+    began: the angles are bounded, and each unit's alm is in the estimate."""
+    from boresight import resources
+    from boresight.design import DesignOptions
+
+    with pytest.raises(ValueError, match="lists 7200 angles; at most 720"):
+        DesignOptions(angles_deg=tuple(np.arange(7200) * 0.05))
+    schedule = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
+    few, many = (
+        resources.schedule_estimate("design", schedule, 128, design_units=n) for n in (48, 4000)
+    )
+    # 4 channels x (E, B) x the alm to 2 lmax, complex: 1.1 MB a unit at Nside 128
+    assert many.parts["unit alm"] / 4000 == few.parts["unit alm"] / 48
+    assert many.parts["unit alm"] / 4000 == pytest.approx(16 * 8 * 513 * 514 / 2)

@@ -1288,3 +1288,10 @@ def test_a_constant_plate_jitter_is_its_angle_offset_and_draws_ignore_the_chunks
     want = engine.simulate_focalplane(plain_sky, schedule, pairs, evaluation="pixel", hwp=offset)
     np.testing.assert_allclose(held.q, want.q, rtol=0, atol=1e-9)
     np.testing.assert_allclose(held.u, want.u, rtol=0, atol=1e-9)
+
+
+def test_a_stepped_plate_of_thousands_of_angles_is_refused():
+    """18,000 steps were taken and the design allocated 21.7 GiB for them."""
+    with pytest.raises(ConfigError, match="721 values; at most 720"):
+        HWP("stepped", angles_deg=tuple(np.linspace(0, 180, 721)))
+    assert len(HWP("stepped", angles_deg=tuple(np.linspace(0, 180, 720))).angles_deg) == 720

@@ -15,7 +15,14 @@ from tqdm import tqdm
 from .. import engine, interrupts, io, plots, precompile, provenance, resources, spectra
 from ..config import RunOptions, check_systematics
 from ..cosmology import load_spectra
-from ..design import baselines, load_budget, objective, search_instrument, unit_moments
+from ..design import (
+    baselines,
+    load_budget,
+    objective,
+    search_instrument,
+    unit_moments,
+    units_of,
+)
 from ..design_expectation import exact_objective, search
 from ..design_focalplane import Target, exact_delta_r, unit_sums
 from ..design_focalplane import search as focalplane_search
@@ -132,6 +139,7 @@ def run(
         systematics=budget.systematics,
         instrument=budget.instrument,
         fwhm_arcmin=budget.noise.fwhm_arcmin,
+        design_units=len(units_of(schedule.expanded(), opts.group)),
     )
     resources.require(estimate, checks)
     timer = provenance.Timer(log)
