@@ -117,3 +117,32 @@ def test_offsets_of_zero_change_nothing_and_the_wrong_size_is_refused(theory, sc
     np.testing.assert_allclose(same.leaked, base.leaked, rtol=1e-10, atol=1e-20)
     with pytest.raises(ValueError, match="offsets hold n <= 2"):
         predict.expected_residual(*args, lmax=LMAX, offsets=zero[:, :3])
+
+
+def test_a_gain_with_h2_cancelled_leaves_h4_ps_cross_with_the_sky_not_a_leak(theory):
+    """Issue 56, item 9. The deep example's gain-only design (0/45/90 deg per CES, Nside 128)
+    reported the optimised strategy (<|h_2|^2> = 3e-33) with a leaked delta_r of 3.81e-05,
+    simulated 3.87e-05 +- 1.5e-06, read as 3.81 and 3.87 +- 1.54: 23,000 times below the
+    unrotated 0.88, not four times above it, and its total 3.2e-04 is ten times its leaked power.
+    Where that comes from, on a scan whose h_2 is zero in every pixel (0 and 90 deg): the gain's
+    -(dg_1 - dg_2)/4 h_4 P* term. Its B is proportional to the sky's own B, so the total holds a
+    cross term linear in dg (twice dg, twice the cross) beside the leaked power, quadratic in dg
+    (twice dg, four times), both far below the unrotated h_2 T leak."""
+    mask = masks.survey_mask("deep", NSIDE)
+    band = slice(30, LMAX + 1)
+
+    def parts(rotations, dg):
+        scan = SyntheticScan(n_phi=3, range_rad=0.8, rotations_deg=rotations, in_pixel="centre")
+        h, _ = engine.scan_moments(scan, NSIDE, pixels=mask > 0)
+        if rotations == (0.0, 90.0):
+            assert np.max(np.abs(h[2][mask > 0])) < 1e-12  # h_2 cancelled in every pixel
+        e = predict.expected_residual(h, mask, Systematics(dg=(dg, -dg)), theory, FWHM, lmax=LMAX)
+        return np.sum(e.leaked[band]), np.sum(e.residual[band] - e.leaked[band])
+
+    leaked, cross = parts((0.0, 90.0), 0.01)
+    leaked2, cross2 = parts((0.0, 90.0), 0.02)
+    assert leaked2 / leaked == pytest.approx(4.0, rel=1e-6)  # |dB|^2: quadratic in dg
+    assert cross2 / cross == pytest.approx(2.0, rel=1e-6)  # 2 <dB, B>: linear in dg
+    assert abs(cross) > leaked  # the total is the cross term's, as the design's 3.2e-04
+    unrotated, _ = parts((0.0,), 0.01)
+    assert leaked < 1e-3 * unrotated
