@@ -120,7 +120,7 @@ def test_offsets_of_zero_change_nothing_and_the_wrong_size_is_refused(theory, sc
 
 
 def test_a_gain_with_h2_cancelled_leaves_h4_ps_cross_with_the_sky_not_a_leak(theory):
-    """Issue 56, item 9. The deep example's gain-only design (0/45/90 deg per CES, Nside 128)
+    """The deep example's gain-only design (0/45/90 deg per CES, Nside 128)
     reported the optimised strategy (<|h_2|^2> = 3e-33) with a leaked delta_r of 3.81e-05,
     simulated 3.87e-05 +- 1.5e-06, read as 3.81 and 3.87 +- 1.54: 23,000 times below the
     unrotated 0.88, not four times above it, and its total 3.2e-04 is ten times its leaked power.
