@@ -656,7 +656,10 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_work(tmp_path, ca
     "args, message",
     [
         (["suppression", "--nside", "8"], "--nside = 8: the suppression map's first band"),
-        (["suppression", "--nside", "16", "--fwhm-arcmin", "0"], "--fwhm-arcmin 0: the table's beam entries"),
+        (
+            ["suppression", "--nside", "16", "--fwhm-arcmin", "0"],
+            "--fwhm-arcmin 0: the table's beam entries",
+        ),
     ],
 )
 def test_suppression_arguments_are_checked_before_any_simulation(tmp_path, capsys, args, message):
