@@ -60,6 +60,9 @@ BYTES_PER_PIXEL = {
     # (4.6 GB at Nside 256, 17 GB at 512 on the deep example)
     "hwp-suppression": 5400.0,
 }
+#: bytes per pixel of each h_{n,m} of scan-stats --hwp: its sums, the moments and their maps
+#: (1.27 kB a pixel for the 23 default terms, measured at Nside 256 and 512)
+HWP_TERM_BYTES = 56.0
 COMMANDS = {
     "schedule-stats": "scan-stats",
     "hwp-suppression": "suppression --hwp",
@@ -294,6 +297,7 @@ def schedule_estimate(
     pointed_pairs: int = 0,
     pair_maps: int = 0,
     design_units: int = 0,
+    hwp_terms: int = 0,
 ) -> Estimate:
     """The estimate of a schedule's job: ``schedule-stats``, ``compare-scans``, ``design``.
 
@@ -315,6 +319,9 @@ def schedule_estimate(
         Pairs of a focal plane pointed each from its own place (0: the boresight alone).
     pair_maps : int
         Per-pair maps held at once (:func:`boresight.scanstats.pair_blocks`).
+    hwp_terms : int
+        The h_{n,m} a schedule's statistics behind a HWP make (:data:`HWP_TERM_BYTES` a pixel
+        each).
     design_units : int
         The units a design assigns angles to: its exact objective holds each unit's (E, B) alm
         of up to 4 channels to 2 lmax (:class:`boresight.design_expectation.ExactObjective`).
@@ -331,6 +338,8 @@ def schedule_estimate(
         parts["beams"] = beam_bytes(
             systematics, instrument or Instrument(), fwhm_arcmin, lmax, cubes=True
         )
+    if hwp_terms:
+        parts["hwp moments"] = HWP_TERM_BYTES * hwp_terms * 12.0 * nside**2
     if design_units:
         parts["unit alm"] = 16.0 * design_units * 4 * 2 * _n_alm(2 * lmax)
     if pair_maps:

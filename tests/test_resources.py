@@ -21,7 +21,8 @@ CASES = [
     *((c, 64) for c in ("simulate", "simulate (beams)", "predict", "scan-stats (schedule)",
                         "scan-stats (focal plane)", "compare-scans", "design", "suppression",
                         "reproduce")),
-    *((c, 256) for c in ("simulate", "predict (beams)", "scan-stats", "compare-scans")),
+    *((c, 256) for c in ("simulate", "predict (beams)", "scan-stats", "compare-scans",
+                         "scan-stats (hwp)")),
     ("predict", 512),
 ]  # fmt: skip
 

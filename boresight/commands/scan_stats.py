@@ -256,6 +256,7 @@ def run_schedule(
         nside,
         pointed_pairs=pairs,
         pair_maps=max((len(b) for b in blocks), default=0),  # with per_detector: every pair
+        hwp_terms=len(scanstats.HWP_TERMS) if hwp is not None and hwp.present else 0,
     )
     resources.require(estimate, checks)
     timer = provenance.Timer(log)
