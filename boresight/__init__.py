@@ -41,7 +41,16 @@ Plumbing, not for use from outside: :mod:`~boresight.kernels`, :mod:`~boresight.
 docs/architecture.md draws their layers.
 """
 
+import os as _os
+import sys as _sys
 from importlib import import_module
+
+if _sys.argv and _os.path.basename(_sys.argv[0]) == "boresight":
+    # the console script: a Ctrl-C from here on, while the command line imports, is noted and
+    # ends the command in one line (boresight.cli), not in a KeyboardInterrupt traceback
+    from .interrupts import install_early as _install_early
+
+    _install_early()
 
 #: the public names and the module of each
 _EXPORTS = {

@@ -105,6 +105,14 @@ def result(future: concurrent.futures.Future):
             continue
 
 
+def install_early() -> None:
+    """Note SIGINT and SIGTERM from the console script's first import of boresight on, so that a
+    Ctrl-C while the command line imports ends in one line, not in a traceback:
+    :func:`handled` keeps what was noted here."""
+    for s in EXIT_CODES:
+        signal.signal(s, _note)
+
+
 @contextlib.contextmanager
 def handled() -> Iterator[None]:
     """Inside the block, SIGINT and SIGTERM are noted for :func:`check` instead of raising.
@@ -113,7 +121,8 @@ def handled() -> Iterator[None]:
     caller has seen it through :func:`check` or :func:`pending`).
     """
     previous = {s: signal.signal(s, _note) for s in EXIT_CODES}
-    _pending.clear()
+    if any(handler is not _note for handler in previous.values()):
+        _pending.clear()  # noted before by another block; kept if noted since install_early()
     try:
         yield
     finally:

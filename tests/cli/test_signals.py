@@ -10,6 +10,7 @@ during the command line's imports, before any handler could exist, are sent to f
 
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -213,6 +214,33 @@ def test_signals_during_the_imports_exit_cleanly(signum, inputs, tmp_path):
             if line.rstrip().endswith("boresight.validation"):  # imported inside the handlers
                 break
         time.sleep(rng.uniform(0.0, 0.4))
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=30)
+        err = "".join(x for x in err.splitlines(keepends=True) if not x.startswith("import time"))
+        assert proc.returncode == interrupts.EXIT_CODES[signum], err
+        assert "Traceback" not in err and "nothing was written" in err, err
+        assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_signals_during_the_console_scripts_own_imports_exit_cleanly(signum, inputs, tmp_path):
+    """The installed ``boresight`` script imports boresight.cli before main() installs its
+    handlers: a signal there was a KeyboardInterrupt traceback. The package notes signals from
+    its own first line in that script (seen through PYTHONPROFILEIMPORTTIME), and the command
+    ends in one line."""
+    script = shutil.which("boresight") or str(Path(sys.executable).with_name("boresight"))
+    if not Path(script).exists():
+        pytest.skip("no installed boresight script")
+    rng = random.Random(f"script {signum}")
+    env = dict(os.environ, PYTHONPROFILEIMPORTTIME="1")
+    cmd = [script, *_args("simulate", inputs, tmp_path / "o")]
+    for _ in range(3):
+        proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env=env)
+        for line in proc.stderr:
+            if re.search(r"\|\s+boresight$", line.rstrip()):  # the package, before its cli
+                break
+        time.sleep(rng.uniform(0.0, 0.002))  # while boresight.cli imports argparse, logging
         proc.send_signal(signum)
         _, err = proc.communicate(timeout=30)
         err = "".join(x for x in err.splitlines(keepends=True) if not x.startswith("import time"))
