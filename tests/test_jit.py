@@ -64,30 +64,22 @@ def test_the_per_user_folder_is_keyed_by_numba_and_python(tmp_path):
     assert out["warnings"] == []
 
 
-def test_an_unwritable_home_falls_back_to_the_temporary_folder(tmp_path):
-    # a path under a file cannot be made, even by root
+def _unwritable(tmp_path, **env):
+    """A probe whose home and cache folders cannot be made, even by root (paths under a file)."""
     blocker = tmp_path / "file"
     blocker.write_text("")
-    out = _probe(
-        tmp_path,
-        HOME=str(blocker / "home"),
-        XDG_CACHE_HOME=str(blocker / "xdg"),
-        NUMBA_CACHE_DIR=str(blocker / "given"),
-        PROBE_TEMPDIR=str(tmp_path / "tmp"),
-    )
+    blocked = {"HOME": "home", "XDG_CACHE_HOME": "xdg", "NUMBA_CACHE_DIR": "given"}
+    return _probe(tmp_path, **{k: str(blocker / v) for k, v in blocked.items()}, **env)
+
+
+def test_an_unwritable_home_falls_back_to_the_temporary_folder(tmp_path):
+    out = _unwritable(tmp_path, PROBE_TEMPDIR=str(tmp_path / "tmp"))
     assert out["folder"].startswith(str(tmp_path / "tmp" / "boresight-"))
     assert out["warnings"] == []
 
 
 def test_no_writable_folder_at_all_compiles_without_a_cache_and_warns_once(tmp_path):
-    blocker = tmp_path / "file"
-    blocker.write_text("")
-    out = _probe(
-        tmp_path,
-        HOME=str(blocker / "home"),
-        XDG_CACHE_HOME=str(blocker / "xdg"),
-        PROBE_TEMPDIR=str(blocker / "tmp"),
-    )
+    out = _unwritable(tmp_path, PROBE_TEMPDIR=str(tmp_path / "file" / "tmp"))
     assert out["folder"] is None
     assert len(out["warnings"]) == 1
     assert "NUMBA_CACHE_DIR" in out["warnings"][0]

@@ -214,12 +214,17 @@ def test_signals_during_the_imports_exit_cleanly(signum, inputs, tmp_path):
             if line.rstrip().endswith("boresight.validation"):  # imported inside the handlers
                 break
         time.sleep(rng.uniform(0.0, 0.4))
-        proc.send_signal(signum)
-        _, err = proc.communicate(timeout=30)
-        err = "".join(x for x in err.splitlines(keepends=True) if not x.startswith("import time"))
-        assert proc.returncode == interrupts.EXIT_CODES[signum], err
-        assert "Traceback" not in err and "nothing was written" in err, err
-        assert not (tmp_path / "o").exists()
+        _signal_ends_cleanly(proc, signum, tmp_path / "o")
+
+
+def _signal_ends_cleanly(proc, signum, out):
+    """Send ``signum``: the command exits with its code, one line and no output left."""
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=30)
+    err = "".join(x for x in err.splitlines(keepends=True) if not x.startswith("import time"))
+    assert proc.returncode == interrupts.EXIT_CODES[signum], err
+    assert "Traceback" not in err and "nothing was written" in err, err
+    assert not out.exists()
 
 
 @pytest.mark.slow
@@ -241,9 +246,4 @@ def test_signals_during_the_console_scripts_own_imports_exit_cleanly(signum, inp
             if re.search(r"\|\s+boresight$", line.rstrip()):  # the package, before its cli
                 break
         time.sleep(rng.uniform(0.0, 0.002))  # while boresight.cli imports argparse, logging
-        proc.send_signal(signum)
-        _, err = proc.communicate(timeout=30)
-        err = "".join(x for x in err.splitlines(keepends=True) if not x.startswith("import time"))
-        assert proc.returncode == interrupts.EXIT_CODES[signum], err
-        assert "Traceback" not in err and "nothing was written" in err, err
-        assert not (tmp_path / "o").exists()
+        _signal_ends_cleanly(proc, signum, tmp_path / "o")
