@@ -285,7 +285,7 @@ def test_interrupt_during_the_validation_keeps_the_finished_design(
     (out / "strategies.csv").write_text("an older design\n")
     for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
 
-        def stopped(*args, signum=signum):
+        def stopped(*args, signum=signum, **options):
             raise interrupts.Interrupted(signum)
 
         monkeypatch.setattr(design_command, "_validate", stopped)
