@@ -318,7 +318,7 @@ def report_markdown(claims: list[Claim], study: Study, stages: dict) -> str:
     str
     """
     lines = [
-        "# boresight: reproduction of Thomas, McCallum & Brown (2020)",
+        "# boresight: reproduction of [Thomas, McCallum & Brown (2020)](https://arxiv.org/abs/1905.12647)",
         "",
         f"Nside {study.sky.nside}, lmax {study.sky.lmax}, beam {study.sky.fwhm_arcmin:g} arcmin, "
         f"seed {study.sky.seed}, evaluation `{study.run.evaluation}`, band edges "
