@@ -282,7 +282,7 @@ def unit_moments(
     -------
     UnitMoments
     """
-    if hwp is not None and hwp.mode != "continuous":
+    if hwp is not None and not hwp.spinning:
         raise ValueError("unit_moments turns the angles by a continuous HWP's only")
     rows = schedule.expanded()
     units = units_of(rows, group)

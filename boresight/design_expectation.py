@@ -320,7 +320,7 @@ def _channels(model, hwp, moments, plate_moments, with_ip):
     pairs = any(n for n in model.term_n[: model.n_leak - with_ip])
     channels = list(PAIRS) if pairs else []
     sources = [moments] * len(channels)
-    if pairs and hwp.mode == "continuous":
+    if pairs and hwp.spinning:
         if plate_moments is None:
             raise ValueError(
                 "the pairs' systematics behind a continuous HWP: give plate_moments "

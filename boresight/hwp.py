@@ -119,7 +119,30 @@ class HWP:
 
     @property
     def present(self) -> bool:
+        """Whether there is a plate (mode "none" is none)."""
         return self.mode != "none"
+
+    @property
+    def spinning(self) -> bool:
+        """Whether the plate spins continuously."""
+        return self.mode == "continuous"
+
+    @property
+    def stepped(self) -> bool:
+        """Whether the plate steps through its angles."""
+        return self.mode == "stepped"
+
+    @property
+    def steps_with_repeats(self) -> bool:
+        """Whether a stepped plate moves to its next angle with each repeat of the CES set."""
+        return self.stepped and self.step == "repeat"
+
+    def label(self) -> str:
+        """The plate in words, for tables: "continuous 2 Hz", "stepped per ces (0, 45 deg)"."""
+        if self.spinning:
+            return f"continuous {self.frequency_hz:g} Hz"
+        angles = ", ".join(f"{a:g}" for a in self.angles_deg)
+        return f"stepped per {self.step} ({angles} deg)"
 
     @property
     def has_signals(self) -> bool:
@@ -166,7 +189,7 @@ def _numbers(name, values, count):
 def check_sampling(hwp: HWP | None, sample_rate_hz: float) -> None:
     """Refuse, before any work, a continuous plate whose 4 chi turns by whole turns from sample
     to sample: its modulation aliases to a constant."""
-    if hwp is None or hwp.mode != "continuous":
+    if hwp is None or not hwp.spinning:
         return
     per_sample = 4.0 * hwp.frequency_hz / sample_rate_hz
     if abs(per_sample - round(per_sample)) < 1e-6:
@@ -217,10 +240,10 @@ def chunk_angles(hwp: HWP, schedule, repeat: int, index: int, *, first: int, n: 
     -------
     numpy.ndarray, float64, shape (n,)
     """
-    if hwp.mode == "stepped":
+    if hwp.stepped:
         angle = hwp.angles_deg[step_index(hwp, schedule, repeat, index) % len(hwp.angles_deg)]
         return np.full(n, (angle * DEG) % (2 * np.pi))
-    if hwp.mode != "continuous":
+    if not hwp.spinning:
         raise ValueError("a HWP angle needs a continuous or a stepped HWP")
     check_sampling(hwp, schedule.sample_rate_hz)
     # the whole turns of the CES's start are taken out first, so that 2 pi f t keeps its digits
@@ -387,9 +410,9 @@ def behind(hwp: HWP, scan: SyntheticScan, instrument: Instrument):
     instrument : boresight.instrument.Instrument
     """
     pairs = mirrored(instrument)
-    if hwp.mode == "continuous":
+    if hwp.spinning:
         return replace(scan, range_rad=2 * np.pi, centre_rad=0.0), pairs
-    if hwp.mode != "stepped":
+    if not hwp.stepped:
         raise ValueError("behind() needs a continuous or a stepped HWP")
     if hwp.step != "repeat":
         raise ConfigError(

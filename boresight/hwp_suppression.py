@@ -182,7 +182,7 @@ def check_plate(hwp: HWP) -> None:
     table's boresight schedules are those repeats)."""
     if not hwp.present:
         raise ConfigError("the HWP table needs a continuous or a stepped plate")
-    if hwp.mode == "stepped" and hwp.step == "repeat":
+    if hwp.steps_with_repeats:
         raise ConfigError(
             "hwp step 'repeat': the table repeats the CES set at each boresight angle, which would "
             "step the plate with it; step per ces or per day"
@@ -361,7 +361,7 @@ def run(
             row = {
                 "systematic": case.name,
                 "amplitude": _amplitude(case, own),
-                "plate": "none" if plate is None else _plate_label(hwp),
+                "plate": "none" if plate is None else hwp.label(),
                 "boresight": label,
                 "through": case.bare if plate is None else case.behind,
             }
@@ -396,13 +396,6 @@ def _amplitude(case, own):
         a2, a4 = own["synchronous"].synchronous_muk
         return f"A_2 = {a2:g}, A_4 = {a4:g} muK"
     return case.amplitude
-
-
-def _plate_label(hwp):
-    if hwp.mode == "continuous":
-        return f"continuous {hwp.frequency_hz:g} Hz"
-    angles = ", ".join(f"{a:g}" for a in hwp.angles_deg)
-    return f"stepped per {hwp.step} ({angles} deg)"
 
 
 def _pseudo_bb(footprint, dp, nside):

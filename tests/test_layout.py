@@ -277,3 +277,25 @@ def test_the_tests_and_the_processes_they_start_import_this_checkout():
     )
     here = ROOT / "boresight" / "__init__.py"
     assert Path(boresight.__file__).resolve() == Path(found.stdout.strip()).resolve() == here
+
+
+def test_a_plates_mode_is_compared_only_in_its_own_module():
+    """hwp.mode and hwp.step are asked through HWP's properties (present, spinning, stepped,
+    steps_with_repeats, label) everywhere but boresight/hwp.py: no string comparison of them
+    elsewhere."""
+    found = []
+    for module, path in MODULES.items():
+        if module == "boresight.hwp":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Compare):
+                continue
+            sides = [node.left, *node.comparators]
+            attribute = any(
+                isinstance(x, ast.Attribute) and x.attr in ("mode", "step") for x in sides
+            )
+            text = any(isinstance(x, ast.Constant) and x.value in ("none", "continuous", "stepped",
+                       "ces", "day", "repeat") for x in sides)  # fmt: skip
+            if attribute and text:
+                found.append(f"{module}:{node.lineno}")
+    assert found == []

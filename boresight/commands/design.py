@@ -347,7 +347,7 @@ class _Plate(NamedTuple):
         hwp = budget.hwp
         if hwp is None:
             return cls()
-        if hwp.mode == "stepped":
+        if hwp.stepped:
             turn = np.asarray(hwp.angles_deg)[np.arange(moments.n_units) % len(hwp.angles_deg)]
             return cls(hwp, allowed=hwp.angles_deg, baseline=turn)
         opts = budget.design
@@ -360,13 +360,13 @@ class _Plate(NamedTuple):
         """The h_n of the pairs' reflected angle (their own without a plate)."""
         if self.hwp is None:
             return moments.h(angles)
-        if self.hwp.mode == "stepped":
+        if self.hwp.stepped:
             return moments.h(np.asarray(angles) + 2 * np.asarray(steps))
         return (self.moments or moments).h(angles)  # no pair terms where there are none
 
     def seen(self, moments, steps):
         """The HWP the TOD sees on an assignment (a stepped plate at its units' steps)."""
-        if self.hwp is None or self.hwp.mode == "continuous":
+        if self.hwp is None or self.hwp.spinning:
             return self.hwp
         return moments.stepped_plate(self.hwp, steps)
 
