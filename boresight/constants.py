@@ -4,4 +4,3 @@ import numpy as np
 
 DEG = np.pi / 180.0  #: one degree in radians
 ARCMIN = np.pi / 10800.0  #: one arcminute in radians
-FWHM_TO_SIGMA = 1.0 / np.sqrt(8.0 * np.log(2.0))  #: Gaussian beam sigma / FWHM

@@ -263,7 +263,7 @@ def linearised(
     -------
     DenseForm
     """
-    systematics, theory, fwhm_arcmin, mask, template, lmax, evaluation = target
+    systematics, _theory, fwhm_arcmin, mask, _template, lmax, _evaluation = target
     focal, npix = sums.focalplane, mask.size
     params, drawn = predict_fp.at_means(systematics, focal.n_pairs)
     shares = predict_fp.pair_shares(params, focal)

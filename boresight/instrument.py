@@ -380,15 +380,6 @@ class Systematics:
     def has_jitter(self):
         return _nonzero(self.dg_jitter)
 
-    @property
-    def per_pair_gain_only(self):
-        """Whether the only polarisation-response error is a constant per-pair gain (no angle
-        errors, drift or jitter): what the GPU kernels implement."""
-        return not any(
-            _nonzero(getattr(self, n))
-            for n in ("pol_angle_deg", "nonortho_deg", "dg_jitter", "dg_repeat")
-        )
-
 
 #: columns of a :func:`response` table
 RESPONSE_COLUMNS = ("c", "s", "c_a", "s_a", "c_b", "s_b", "g_b")

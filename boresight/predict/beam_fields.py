@@ -259,7 +259,7 @@ def beam_h0_bb(
     if sky is not None:
         field = _beam_field(sky, g0, 2, 0)
         qu = np.array([field.real, field.imag])
-        e_alm, b_alm = masked_pol_alm(qu, mask, lmax, analysis=analysis)
+        _e_alm, b_alm = masked_pol_alm(qu, mask, lmax, analysis=analysis)
         window = spread.pair[: lmax + 1] if spread is not None and spread.on else 1.0
         scatter = coupling.pseudo_bb(np.full(band + 1, white), np.full(band + 1, white))
         out = harmonics.alm2cl(b_alm) * window + scatter

@@ -42,7 +42,6 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 OUTPUT_SPIN = 2  #: the spurious polarisation P = Q + i U
-SKY = ("T", "E", "B")  #: the sky's fields, in the order of a field's filters
 
 
 @dataclass(frozen=True)
