@@ -39,7 +39,7 @@ from .constants import DEG
 from .evaluation import METHODS
 from .focalplane import FocalPlane, focalplane_of_table
 from .hwp import HWP, chunk_angles, pairs_behind
-from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, _nonzero
+from .instrument import AMPLITUDES, LIMITS, Instrument, Spread, Systematics, is_nonzero
 from .jit import njit
 from .noise import SurveyNoise
 from .pointing import chunk_arguments, pointing
@@ -665,7 +665,7 @@ def load_budget(path: str) -> Budget:
             "ellipticity angles only orient a pointing offset or a beam); give one of "
             f"{', '.join(AMPLITUDES)}"
         )
-    if _nonzero(sysm.dg_repeat):
+    if is_nonzero(sysm.dg_repeat):
         raise ConfigError(
             f"budget {path}: [systematics] dg_repeat is a gain drift between the rotation "
             "repeats of a synthetic scan; a schedule's repeats are CESs of their own, each with "

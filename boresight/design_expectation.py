@@ -96,7 +96,7 @@ def options(allowed_deg, steps_deg=None) -> np.ndarray:
     return np.array([(float(a), float(b)) for a in allowed_deg for b in steps])
 
 
-def _changes(choice) -> int:
+def angle_changes(choice) -> int:
     """Changes of angle (or of step) between consecutive units, of angles (U,) or choices (U, 2)."""
     moved = np.diff(np.asarray(choice, dtype=float), axis=0) != 0
     return int(np.sum(moved if moved.ndim == 1 else moved.any(axis=1)))
@@ -174,7 +174,7 @@ class ExactObjective:
 
     def changes(self, angles_deg: np.ndarray, steps_deg: np.ndarray | None = None) -> int:
         """Changes of angle, or of step, between consecutive units."""
-        return _changes(choices(angles_deg, steps_deg))
+        return angle_changes(choices(angles_deg, steps_deg))
 
     def __call__(self, angles_deg: np.ndarray, steps_deg: np.ndarray | None = None) -> float:
         """The search's objective: delta_r + change_cost x changes."""
@@ -184,7 +184,7 @@ class ExactObjective:
 
     def value_at(self, choice: np.ndarray) -> float:
         """The search's objective of (angle, step) rows (n_units, 2)."""
-        return self.value_of(self.alm_of(choice)) + self.change_cost * _changes(choice)
+        return self.value_of(self.alm_of(choice)) + self.change_cost * angle_changes(choice)
 
 
 def exact_objective(
@@ -280,10 +280,10 @@ def exact_objective(
         spins, fields, model.sky_cl, weight_l, second=second, pseudo=pseudo
     )
     j_count = 2 + 2 * len(channels)
-    form = _form(spins, kappa_w, kappa_v, lw, rows, j_count)
+    form = kernel_form(spins, kappa_w, kappa_v, lw, rows=rows, j_count=j_count)
     alone = fp.bb_kernels((0,), model.fields[-1:], model.sky_cl, weight_l)
     sky_alm = fp.weight_alm(fp.Weight(0, mask + 0j, None), lw, nthreads)
-    sky_form = _form((0,), *alone, lw)
+    sky_form = kernel_form((0,), *alone, lw)
     const = model.scatter(mask) * float(np.sum(weight_l)) - sky_form.value(_padded(sky_alm))
     unit_alm = _unit_alm(moments, sources, channels, mask, lw, nthreads)
     return ExactObjective(
@@ -349,7 +349,7 @@ def _within(model, n_max):
     )
 
 
-def _form(ns, kappa_w, kappa_v, lw, rows=None, j_count=2 * (N_MAX + 1)):
+def kernel_form(ns, kappa_w, kappa_v, lw, *, rows=None, j_count=2 * (N_MAX + 1)):
     """omega of the terms' kernels: W and V are sums over (p, q) of the real cross spectra of the
     (E, B) alm times alpha_p conj(alpha'_q) or alpha_p alpha'_q (the spin's sign pair,
     :func:`boresight.predict.field_products.weight_cross_spectra`), symmetrised. Term k's (E, B)
@@ -546,7 +546,7 @@ def exhaustive(
     value = value + np.einsum("muan,uan->m", vec, lin)
     value = value + np.einsum("muan,uvanbk,mvbk->m", vec, q, vec, optimize=True)
     chosen = opts[picks]  # (M, U, 2)
-    cost = np.array([obj.change_cost * _changes(c) for c in chosen]) if obj.change_cost else 0
+    cost = np.array([obj.change_cost * angle_changes(c) for c in chosen]) if obj.change_cost else 0
     total = value + cost
     best = int(np.argmin(total))
     history = [dict(start=0, sweep=0, objective=float(total[best]), moves=0)]
@@ -639,7 +639,7 @@ def _sweep(obj, state, opts, single, cross, rng, progress):
         step = np.stack([c, s], axis=1)  # (K, 2, C)
         lin = np.einsum("kan,an->k", step, state.linear(u))
         quad = np.einsum("kan,anbm,kbm->k", step, single[u], step)
-        change = lin + quad + _cost(obj, state.choice, u, opts)
+        change = lin + quad + change_cost_delta(obj, state.choice, u, opts)
         best = int(np.argmin(change))
         if change[best] < -tol and _differs(opts[best], state.choice[u]):
             state.apply(u, c[best], s[best], opts[best])
@@ -665,7 +665,7 @@ def _pair_move(obj, state, opts, single, q_uv, u, tol):
     quad_v = np.einsum("kan,anbm,kbm->k", step_v, single[v], step_v)
     both = 2 * np.einsum("kan,anbm,lbm->kl", step_u, q_uv, step_v)
     gain = (lin_u + quad_u)[:, None] + (lin_v + quad_v)[None, :] + both
-    change = gain + _pair_cost(obj, state.choice, u, opts)
+    change = gain + pair_change_cost_delta(obj, state.choice, u, opts)
     i, j = np.unravel_index(int(np.argmin(change)), change.shape)
     if change[i, j] >= -tol or not (
         _differs(opts[i], state.choice[u]) or _differs(opts[j], state.choice[v])
@@ -682,7 +682,7 @@ def _differs(a, b) -> bool:
     return bool(np.any(np.asarray(a) != np.asarray(b)))
 
 
-def _cost(obj, choice, u, opts):
+def change_cost_delta(obj, choice, u, opts):
     """The change cost's change (K,) of moving unit u to each option (an allowed angle, or an
     (angle, step) row)."""
     if not obj.change_cost:
@@ -692,16 +692,16 @@ def _cost(obj, choice, u, opts):
     return obj.change_cost * (count - sum(_differs(choice[u], b) for b in near))
 
 
-def _pair_cost(obj, choice, u, opts):
+def pair_change_cost_delta(obj, choice, u, opts):
     """The change cost's change (K, K) of moving units u and u + 1."""
     if not obj.change_cost:
         return np.zeros((len(opts), len(opts)))
     v = u + 1
-    before = _changes(choice[max(u - 1, 0) : v + 2])
+    before = angle_changes(choice[max(u - 1, 0) : v + 2])
     out = np.zeros((len(opts), len(opts)))
     trial = np.array(choice, dtype=float)
     for i, a in enumerate(opts):
         for j, b in enumerate(opts):
             trial[u], trial[v] = a, b
-            out[i, j] = _changes(trial[max(u - 1, 0) : v + 2]) - before
+            out[i, j] = angle_changes(trial[max(u - 1, 0) : v + 2]) - before
     return obj.change_cost * out

@@ -32,10 +32,10 @@ from .design import Design
 from .design_expectation import (
     EXHAUSTIVE_LIMIT,
     QuadraticForm,
-    _changes,
-    _cost,
-    _form,
-    _pair_cost,
+    angle_changes,
+    change_cost_delta,
+    kernel_form,
+    pair_change_cost_delta,
 )
 from .predict import R_RANGE, delta_r
 from .predict import field_products as fp
@@ -185,12 +185,12 @@ class DenseForm:
 
     def changes(self, angles_deg: np.ndarray) -> int:
         """Changes of angle between consecutive units."""
-        return _changes(angles_deg)
+        return angle_changes(angles_deg)
 
     def __call__(self, angles_deg: np.ndarray) -> float:
         """The search's objective of angles (U,): delta_r + change_cost x changes."""
         index = _index(self.allowed_deg, angles_deg)
-        return self.value(index) + self.change_cost * _changes(angles_deg)
+        return self.value(index) + self.change_cost * angle_changes(angles_deg)
 
 
 class _Terms:
@@ -223,7 +223,7 @@ class _Terms:
         sky_cl = smoothed_spectra(theory, fwhm_arcmin, lmax)
         kappa = fp.bb_kernels(spins, term_fields, sky_cl, weight_l)
         rows = list(range(len(spins)))
-        self.form = _form(spins, *kappa, self.lw, rows, 2 * len(spins))
+        self.form = kernel_form(spins, *kappa, self.lw, rows=rows, j_count=2 * len(spins))
         # the rows a drawn parameter moves: the named terms' (first); the beams' are not drawn
         self.drawn, self.drawn_form = slice(None), self.form
         if beams:
@@ -462,7 +462,7 @@ class _DenseState:
         form, allowed, moves = self.form, self.form.allowed_deg, 0
         for u in rng.permutation(self.choice.size):
             interrupts.check()
-            change = self.gains(u) + _cost(form, self.angles(), u, allowed)
+            change = self.gains(u) + change_cost_delta(form, self.angles(), u, allowed)
             best = int(np.argmin(change))
             if change[best] < -1e-14 and best != self.choice[u]:
                 self.move(u, best)
@@ -478,7 +478,7 @@ class _DenseState:
         ku, kv = self.choice[u], self.choice[v]
         cross = g[u, :, v, :] - g[u, :, v, kv][:, None] - g[u, ku, v, :][None, :] + g[u, ku, v, kv]
         change = self.gains(u)[:, None] + self.gains(v)[None, :] + 2 * cross
-        change = change + _pair_cost(self.form, self.angles(), u, allowed)
+        change = change + pair_change_cost_delta(self.form, self.angles(), u, allowed)
         i, j = np.unravel_index(int(np.argmin(change)), change.shape)
         if change[i, j] >= -1e-14 or (i == ku and j == kv):
             return 0
@@ -511,7 +511,7 @@ def search(
 
     reference = np.asarray(start_deg, dtype=float)
     value = exact(reference)
-    best = Design(reference, value + change_cost * _changes(reference), [])
+    best = Design(reference, value + change_cost * angle_changes(reference), [])
     history = []
     try:
         for r in range(rounds):
@@ -526,7 +526,7 @@ def search(
             if np.array_equal(found.angles_deg, reference):
                 break
             value = exact(found.angles_deg)
-            total = value + change_cost * _changes(found.angles_deg)
+            total = value + change_cost * angle_changes(found.angles_deg)
             history.append(dict(start=-1, sweep=-1, objective=total, moves=0, round=r))
             reference = found.angles_deg
             if total < best.value:

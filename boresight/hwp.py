@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .constants import DEG
-from .instrument import AMPLITUDES, BEAM_KEYS, Instrument, Spread, _nonzero
+from .instrument import AMPLITUDES, BEAM_KEYS, Instrument, Spread, is_nonzero
 from .kernels.rng import HWP_SALT, normal_array
 from .scan import SyntheticScan
 from .validation import ConfigError, number
@@ -277,14 +277,14 @@ def check_systematics(systematics, *, own_angles: bool = False) -> None:
     carried yet."""
     behind = POINTING_BEHIND_HWP + BEAMS_BEHIND_HWP if own_angles else ()
     carried = THROUGH_HWP + REFLECTED_BY_HWP + behind
-    others = [k for k in AMPLITUDES if k not in carried and _nonzero(getattr(systematics, k))]
-    if others or _nonzero(systematics.dg_repeat):
+    others = [k for k in AMPLITUDES if k not in carried and is_nonzero(getattr(systematics, k))]
+    if others or is_nonzero(systematics.dg_repeat):
         where = "" if own_angles else " (pointing and beams only on a schedule's focal plane)"
         raise ValueError(
             f"{', '.join(others) or 'dg_repeat'} behind a HWP: not yet simulated or predicted "
             f"here; a HWP's pairs carry {', '.join(carried)}{where}"
         )
-    angles = [k for k in REFLECTED_BY_HWP if _nonzero(getattr(systematics, k))]
+    angles = [k for k in REFLECTED_BY_HWP if is_nonzero(getattr(systematics, k))]
     if systematics.has_beams and angles:
         raise ValueError(
             f"beams with {', '.join(angles)} behind a HWP: not yet simulated or predicted; a "
@@ -330,7 +330,7 @@ def reflected_systematics(hwp: HWP, systematics, *, own_angles: bool = False):
     """
     check_systematics(systematics, own_angles=own_angles)
     pol, nonortho = systematics.pol_angle_deg, systematics.nonortho_deg
-    if hwp.angle_offset_deg == 0.0 and not (_nonzero(pol) or _nonzero(nonortho)):
+    if hwp.angle_offset_deg == 0.0 and not (is_nonzero(pol) or is_nonzero(nonortho)):
         return systematics
     return replace(
         systematics,

@@ -212,7 +212,7 @@ def _values(name, value, n, seed, salt, index, what):
     return np.broadcast_to(v, (n,)).astype(np.float64)
 
 
-def _nonzero(value):
+def is_nonzero(value):
     if isinstance(value, Spread):
         return value.mean != 0 or value.rms != 0
     return bool(np.any(np.asarray(value) != 0))
@@ -361,24 +361,24 @@ class Systematics:
     @property
     def has_amplitude(self):
         """Whether any systematic has a non-zero amplitude (a drift or a per-pair one)."""
-        return _nonzero(self.dg_repeat) or any(_nonzero(getattr(self, k)) for k in AMPLITUDES)
+        return is_nonzero(self.dg_repeat) or any(is_nonzero(getattr(self, k)) for k in AMPLITUDES)
 
     @property
     def has_pointing(self):
-        return _nonzero(self.rho_arcmin)
+        return is_nonzero(self.rho_arcmin)
 
     @property
     def has_leak(self):
-        return _nonzero(self.leak)
+        return is_nonzero(self.leak)
 
     @property
     def has_beams(self):
         """Whether a detector's beam differs from the sky's (FWHM or ellipticity)."""
-        return any(_nonzero(getattr(self, k)) for keys in BEAM_KEYS.values() for k in keys[:2])
+        return any(is_nonzero(getattr(self, k)) for keys in BEAM_KEYS.values() for k in keys[:2])
 
     @property
     def has_jitter(self):
-        return _nonzero(self.dg_jitter)
+        return is_nonzero(self.dg_jitter)
 
 
 #: columns of a :func:`response` table

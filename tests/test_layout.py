@@ -299,3 +299,25 @@ def test_a_plates_mode_is_compared_only_in_its_own_module():
             if attribute and text:
                 found.append(f"{module}:{node.lineno}")
     assert found == []
+
+
+def test_no_private_name_is_imported_across_modules():
+    """A name with a leading underscore stays in its module (private modules such as
+    commands._common are imported whole, as plumbing)."""
+    found = []
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (
+                node.level or "boresight" in (node.module or "")
+            ):
+                found += [
+                    f"{module}: {a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                    and f"{node.module}.{a.name}".split(".")[-1] not in PRIVATE_MODULES
+                ]  # fmt: skip
+    assert found == []
+
+
+#: private modules, imported whole
+PRIVATE_MODULES = {"_common"}

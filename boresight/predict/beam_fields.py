@@ -15,7 +15,7 @@ from .. import harmonics
 from ..beams import moment_filters, pair_beams
 from ..constants import ARCMIN
 from ..spectra import masked_pol_alm
-from .coefficients import _drawn
+from .coefficients import drawn_pairs
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from ..instrument import Instrument, PairParameters, Systematics
     from ..sky import Sky
     from .sky_spectra import FieldSpectra
-    from .windows import _HitSpread
+    from .windows import HitSpread
 
 
 BEAM_N_MAX = 6  #: the beams' terms reach h_6 at first order in the ellipticity (eth^2 P)
@@ -64,7 +64,7 @@ def beam_filters(
     dict of int to numpy.ndarray
         n -> complex array of shape (3, lmax + 1); h_{-n} = conj(h_n).
     """
-    instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
+    instrument, alpha, par = drawn_pairs(systematics, instrument, rotations_deg)
     return pairs_beam_filters(
         par,
         instrument.pair_angles_rad,
@@ -158,7 +158,7 @@ def beam_power(filt: np.ndarray, cl: np.ndarray) -> np.ndarray:
     )
 
 
-def _beam_field(sky, filt, spin, nthreads):
+def beam_field(sky, filt, spin, nthreads):
     """The spin-``spin`` field with coefficients sum_c filt[c] a^c_lm of the sky's T, E, B,
     (npix,) complex (for spin > 0, Q + i U of healpy's (E', B') = -(Re, Im) of the sum)."""
     n = min(filt.shape[1], sky.lmax + 1)
@@ -214,7 +214,7 @@ def beam_h0_bb(
     cl: np.ndarray,
     *,
     leaked: bool = False,
-    spread: _HitSpread | None = None,
+    spread: HitSpread | None = None,
     sky: Sky | None = None,
     mask: np.ndarray | None = None,
     analysis: str = "auto",
@@ -235,7 +235,7 @@ def beam_h0_bb(
         TT, EE, BB, TE [muK^2] (:func:`beam_spectra`).
     leaked : bool
         The leaked power alone.
-    spread : _HitSpread, optional
+    spread : HitSpread, optional
         Hits spread over their pixels, the field read exactly at each (default: pixel centres).
     sky, mask : optional
         The simulated sky and the mask: G_0 is then made on the sphere and its leaked power is
@@ -257,7 +257,7 @@ def beam_h0_bb(
     )
     white = 0.5 * (noise_b + noise_e)  # the scatter's phase is random: half in each of E, B
     if sky is not None:
-        field = _beam_field(sky, g0, 2, 0)
+        field = beam_field(sky, g0, 2, 0)
         qu = np.array([field.real, field.imag])
         _e_alm, b_alm = masked_pol_alm(qu, mask, lmax, analysis=analysis)
         window = spread.pair[: lmax + 1] if spread is not None and spread.on else 1.0

@@ -19,14 +19,14 @@ from ..jit import njit
 from ..spectra import Footprint, as_footprint
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .coefficients import (
-    _check_supported,
+    check_supported,
     coefficients,
     expected_coefficients,
     expected_power,
     jitter_variance,
 )
 from .sky_spectra import FieldSpectra, field_spectra
-from .windows import _HitSpread, _inverse_hits
+from .windows import HitSpread, mean_inverse_hits
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -243,7 +243,7 @@ def systematic_cl(
         Crossings per pixel in one repeat; needed with gain jitter or random in-pixel hits.
     in_pixel : {"centre", "random"}
         Where the scan's hits fall in their pixels (``SyntheticScan.in_pixel``): "random" adds
-        the pixel window and the in-pixel scatter of every field (:class:`_HitSpread`).
+        the pixel window and the in-pixel scatter of every field (:class:`HitSpread`).
     expected : bool
         The average over the per-pair draws of {mean, rms} parameters (:func:`expected_power`)
         instead of the drawn focal plane.
@@ -263,7 +263,7 @@ def systematic_cl(
         m_4 != 0 (:func:`supports`), or jitter or random hits without ``crossings``.
     """
     coefs = coefficients(systematics, instrument, rotations_deg)
-    _check_supported(coefs)
+    check_supported(coefs)
     t2_mean = None
     if expected:
         power = expected_power(systematics, instrument, rotations_deg)
@@ -281,12 +281,12 @@ def systematic_cl(
         n_max = min(BEAM_N_MAX, h.shape[0] - 1)
         beam = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max=n_max)
         beam_cl = beam_spectra(theory, band, fwhm_arcmin, field_cl)
-    inverse_hits = _inverse_hits(in_pixel, footprint, crossings)
-    exact = _HitSpread(in_pixel, nside, band, inverse_hits)
-    value = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
+    inverse_hits = mean_inverse_hits(in_pixel, footprint, crossings)
+    exact = HitSpread(in_pixel, nside, band, inverse_hits)
+    value = HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
     slope = value  # replaced for the pointing terms below
     if systematics.has_pointing:
-        slope = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated, gradient=True)
+        slope = HitSpread(in_pixel, nside, band, inverse_hits, interpolated, gradient=True)
     terms = leak_terms(
         coefs,
         systematics,
@@ -490,7 +490,7 @@ def residual_pseudo_bb(
     field_cl, leaked = prediction.resolved_field_cl(), prediction.leaked
     lmax, band = coupling.lmax, coupling.band
     mask = as_footprint(mask)  # the observed pixels, once for every use below
-    inverse_hits = _inverse_hits(in_pixel, mask, crossings)
+    inverse_hits = mean_inverse_hits(in_pixel, mask, crossings)
     cl_sys = systematic_cl(
         h,
         mask,
@@ -516,7 +516,7 @@ def residual_pseudo_bb(
     if masked is not None and masked.shape[1] < lmax + 1:
         raise ValueError(f"field_cl holds the maps' spectra to {masked.shape[1] - 1} < lmax {lmax}")
     if in_pixel == "random":  # the maps' P as the hits read it: windowed, plus in-pixel scatter
-        spread = _HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
+        spread = HitSpread(in_pixel, nside, band, inverse_hits, interpolated)
         (cl_ee, noise_e), (cl_bb, noise_b) = spread(cl_ee), spread(cl_bb)
         white = 0.5 * (noise_e + noise_b)
         cl_ee, cl_bb = cl_ee + white, cl_bb + white
@@ -541,7 +541,7 @@ def residual_pseudo_bb(
     if systematics.has_beams:
         g0 = beam_filters(systematics, instrument, rotations_deg, fwhm_arcmin, band, n_max=0)[0]
         beam_cl = beam_spectra(theory, band, fwhm_arcmin, field_cl)
-        spread = _HitSpread(in_pixel, nside, band, inverse_hits)
+        spread = HitSpread(in_pixel, nside, band, inverse_hits)
         h0 = beam_h0_bb(
             coupling,
             g0,

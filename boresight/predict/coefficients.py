@@ -75,8 +75,8 @@ def coefficients(
     -------
     Coefficients
     """
-    instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
-    terms = _pair_terms(par, instrument.pair_angles_rad, alpha, systematics.per_repeat(alpha.size))
+    instrument, alpha, par = drawn_pairs(systematics, instrument, rotations_deg)
+    terms = pair_terms(par, instrument.pair_angles_rad, alpha, systematics.per_repeat(alpha.size))
     return Coefficients(
         **{name: complex(np.mean(f)) for name, f in terms.items()},
         jitter_var=float(np.mean(par.dg_jitter**2)),
@@ -84,14 +84,14 @@ def coefficients(
     )
 
 
-def _drawn(systematics, instrument, rotations_deg):
+def drawn_pairs(systematics, instrument, rotations_deg):
     """(instrument, rotations [rad], the pairs' parameters): the paper's pairs by default."""
     instrument = Instrument() if instrument is None else instrument
     alpha = np.asarray(rotations_deg, dtype=np.float64) * DEG
     return instrument, alpha, systematics.per_pair(instrument.n_pairs)
 
 
-def _pair_terms(par, pair_angles, alpha, dg_repeat):
+def pair_terms(par, pair_angles, alpha, dg_repeat):
     """Each coefficient's share from every pair: its mean over the repeats, (n_pairs,) complex
     (a coefficient is the mean of these over the pairs)."""
     ang = alpha[:, None] + pair_angles[None, :]
@@ -236,7 +236,7 @@ def _node_terms(systematics, instrument, rotations_deg):
             "the expected focal-plane power covers per-pair gain, pointing, leak and angle "
             "errors: give the beams and dg_repeat as numbers"
         )
-    instrument, alpha, par = _drawn(systematics, instrument, rotations_deg)
+    instrument, alpha, par = drawn_pairs(systematics, instrument, rotations_deg)
     n = instrument.n_pairs
     drawn = [
         name
@@ -256,7 +256,7 @@ def _node_terms(systematics, instrument, rotations_deg):
         field = par._fields[list(LIMITS).index(name)]
         values[field] = np.tile((spread.mean + spread.rms * nodes[:, j]) * UNITS[name], n)
     virtual = type(par)(**values)
-    terms = _pair_terms(
+    terms = pair_terms(
         virtual,
         np.repeat(instrument.pair_angles_rad, nodes.shape[0]),
         alpha,
@@ -321,7 +321,7 @@ def supports(instrument: Instrument | None, rotations_deg: Sequence[float] = (0.
     return abs(coefficients(Systematics(), instrument, rotations_deg).m4) < M4_TOLERANCE
 
 
-def _check_supported(coefs):
+def check_supported(coefs):
     if abs(coefs.m4) >= M4_TOLERANCE:
         raise ValueError(
             "the C_ell-level prediction needs pair angles whose 4 x angles cancel over the pairs "

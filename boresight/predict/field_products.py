@@ -78,7 +78,7 @@ class SkyField:
 
     def alm(self, sky_alm: np.ndarray) -> np.ndarray:
         """(E_F, B_F) (2, nalm) of the spin-abs(t) field from the sky's T, E, B alm (3, nalm):
-        -(Re, Im) of the filtered sum for abs(t) > 0 (as ``_beam_field``), (Re, Im) at spin 0."""
+        -(Re, Im) of the filtered sum for abs(t) > 0 (as ``beam_field``), (Re, Im) at spin 0."""
         ell = hp.Alm.getlm(harmonics.alm_lmax(sky_alm.shape[-1]))[0]
         keep = ell <= self.band
         total = np.zeros(sky_alm.shape[-1], dtype=np.complex128)

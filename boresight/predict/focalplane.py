@@ -43,8 +43,8 @@ from ..scanstats import (
 )
 from ..spectra import as_footprint
 from . import field_products as fp_products
-from .beam_fields import _beam_field, pairs_beam_filters
-from .coefficients import _pair_terms
+from .beam_fields import beam_field, pairs_beam_filters
+from .coefficients import pair_terms
 from .expectation import (
     TERM_FIELDS,
     ExpectedResidual,
@@ -105,7 +105,7 @@ def pair_shares(params, focalplane) -> dict:
     for drawn parameters ``params`` (:class:`boresight.instrument.PairParameters`), (n_pairs,)
     complex each; no rotation repeat (a schedule's h_n hold its rotations)."""
     angles = np.asarray(focalplane.pair_angles_deg) * DEG
-    return _pair_terms(params, angles, np.zeros(1), np.zeros(1))
+    return pair_terms(params, angles, np.zeros(1), np.zeros(1))
 
 
 class BeamTerm(NamedTuple):
@@ -526,7 +526,7 @@ def _derivative_maps(sky, field, nthreads):
 
 def _field_map(sky, field, nthreads):
     """The map of a sky field (npix,) complex; a negative spin is a conjugate."""
-    value = _beam_field(sky, field.filters, abs(field.spin), nthreads)
+    value = beam_field(sky, field.filters, abs(field.spin), nthreads)
     return value if field.spin >= 0 else np.conj(value)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from .. import harmonics
 from ..jit import njit
 from ..threads import numba_threads
-from .beam_fields import _beam_field, beam_filters
+from .beam_fields import beam_field, beam_filters
 from .coefficients import coefficients
 
 if TYPE_CHECKING:
@@ -112,7 +112,7 @@ def _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads):
     out = np.zeros(h.shape[1], dtype=np.complex128)
     for n, filt in filters.items():
         if np.any(filt):
-            field = _beam_field(sky, filt, abs(2 - n), nthreads)
+            field = beam_field(sky, filt, abs(2 - n), nthreads)
             field = np.conj(field) if n > 2 else field
             out += (h[n] if n >= 0 else np.conj(h[-n])) * field
     return out

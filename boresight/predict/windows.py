@@ -150,7 +150,7 @@ def interpolation_window(
     return out["pair"], out["point"]
 
 
-def _inverse_hits(in_pixel, footprint, crossings):
+def mean_inverse_hits(in_pixel, footprint, crossings):
     """<1 / N_hits> over the observed pixels, weighted by the mask squared, where hits spread
     over their pixels (``in_pixel`` "random" with ``crossings`` (npix,)); else None."""
     if in_pixel != "random" or crossings is None:
@@ -159,7 +159,7 @@ def _inverse_hits(in_pixel, footprint, crossings):
     return np.sum(w2 / crossings[footprint.pixels]) / np.sum(w2)
 
 
-class _HitSpread:
+class HitSpread:
     """What hits spread at random over their pixels do to a field F's term: its coherent part is
     F averaged over the pixel's hits (C^FF times the pair window), and each hit's departure from
     that average adds white noise of variance sigma_in^2 / N_hits per pixel, sigma_in^2 =
