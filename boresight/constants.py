@@ -4,3 +4,4 @@ import numpy as np
 
 DEG = np.pi / 180.0  #: one degree in radians
 ARCMIN = np.pi / 10800.0  #: one arcminute in radians
+N_MAX = 4  #: the highest spin moment h_n that the statistics keep and the predictions use

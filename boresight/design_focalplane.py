@@ -40,7 +40,7 @@ from .design_expectation import (
 from .predict import R_RANGE, delta_r
 from .predict import field_products as fp
 from .predict import focalplane as predict_fp
-from .predict.expectation import leak_terms, sky_fields, smoothed_spectra
+from .predict.expectation import budget_terms, sky_fields, smoothed_spectra
 from .scanstats import N_MAX, centroid_moments, characterise_focalplane
 
 if TYPE_CHECKING:
@@ -203,7 +203,7 @@ class _Terms:
         self.lmax, self.band, self.lw = lmax, lmax, 2 * lmax
         read = sky_fields(nside, lmax, hits=hits, evaluation=evaluation)
         fields = read[0]
-        named = leak_terms(systematics, read)
+        named = budget_terms(systematics, read)
         self.terms = [(name, n) for name, (n, _, _) in named.items()]
         spins, term_fields = [], []
         for n, kind, _ in named.values():  # each term, then its H_4 conjugate

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from . import interrupts, tasks
+from .constants import N_MAX
 from .engine import check_samples
 from .hwp import chunk_angles
 from .jit import njit
@@ -41,7 +42,6 @@ if TYPE_CHECKING:
     from .schedule import Schedule
 
 
-N_MAX = 4
 _WORD = 64
 
 

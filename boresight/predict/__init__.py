@@ -59,6 +59,7 @@ The package, in the order a prediction is made:
   and scattered) for pairs off the axis, each with its own h_n.
 """
 
+from ..constants import N_MAX
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .bias import R_RANGE, delta_r, reference_bb, tensor_template
 from .cl import (
@@ -74,7 +75,6 @@ from .cl import (
 from .coefficients import (
     M4_TOLERANCE,
     MOMENT_NAMES,
-    N_MAX,
     QUADRATURE_NODES,
     Coefficients,
     ExpectedPower,

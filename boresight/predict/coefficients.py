@@ -22,9 +22,6 @@ if TYPE_CHECKING:
     from ..instrument import Systematics
 
 
-N_MAX = 4  #: highest spin moment the predictions use
-
-
 M4_TOLERANCE = 1e-9  #: ``|m_4|`` below which the map-maker's h_4 coupling vanishes
 
 

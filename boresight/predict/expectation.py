@@ -172,7 +172,7 @@ def leak_model(
         raise ValueError("the exact expectation needs pairs whose 4 x angles cancel (m_4 = 0)")
     sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)
     fields, value, exact = read = sky_fields(nside, band, hits=hits, evaluation=evaluation)
-    terms = leak_terms(systematics, read)
+    terms = budget_terms(systematics, read)
     mean, second, pseudo = coefficient_moments(systematics, instrument)
     kept = [k for k, name in enumerate(MOMENT_NAMES) if name in terms]
     ns = [terms[MOMENT_NAMES[k]][0] for k in kept]
@@ -267,7 +267,7 @@ def sky_fields(
     return fields_by_kind(value.window, exact.window), value, exact
 
 
-def leak_terms(systematics: Systematics, read: tuple) -> dict:
+def budget_terms(systematics: Systematics, read: tuple) -> dict:
     """The leak's terms a budget switches on, by coefficient name (:data:`MOMENT_NAMES` order):
     (moment n, the kind of field it multiplies, the field's :class:`_Reading`), from ``read``,
     the output of :func:`sky_fields`; the pointing's gradient is read exactly, the other fields

@@ -48,8 +48,8 @@ from .coefficients import pair_terms
 from .expectation import (
     TERM_FIELDS,
     ExpectedResidual,
+    budget_terms,
     fields_by_kind,
-    leak_terms,
     offset_weights,
     sky_fields,
     smoothed_spectra,
@@ -1075,7 +1075,7 @@ def expected_residual(
     read = sky_fields(
         nside, band, hits=stats.combined.hits if spread else None, evaluation=evaluation or "interp"
     )
-    fields, terms = read[0], leak_terms(systematics, read)
+    fields, terms = read[0], budget_terms(systematics, read)
     sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)
 
     def weighted(items):
