@@ -334,11 +334,11 @@ def _write_focalplane(stage, planes, layout, frame):
     plots.pairs_figure(rows, stage / "pairs")
     if planes.pair_h is None:
         return
-    fp = planes.focalplane
+    plane = planes.focalplane
     n = np.arange(scanstats.N_MAX + 1)[:, None]
-    for i, pair in enumerate(fp.detectors):
+    for i, pair in enumerate(plane.detectors):
         interrupts.check()  # hundreds of files: Ctrl-C stops between them
-        for det, offset in zip(pair, np.radians(fp.hn_offset_deg[i])):
+        for det, offset in zip(pair, np.radians(plane.hn_offset_deg[i])):
             h = planes.pair_h[i] * np.exp(1j * n * offset)  # sotodlib's Hn psi: + gamma - pol
             so_maps.write(stage, f"{layout.prefix}_{det}", h, planes.pair_hits[i], frame=frame)
 

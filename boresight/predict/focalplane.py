@@ -924,10 +924,10 @@ def expected_leak_bb(
     """
     _check(stats, systematics)
     footprint = as_footprint(mask)
-    fp = stats.focalplane
-    params, drawn = at_means(systematics, fp.n_pairs)
+    plane = stats.focalplane
+    params, drawn = at_means(systematics, plane.n_pairs)
     fields = _fields(sky, systematics, template, spread, nthreads)
-    shares = pair_shares(params, fp)
+    shares = pair_shares(params, plane)
     weights = _weights(stats)
     h4 = _h4(stats, weights, shares)
 
@@ -942,8 +942,8 @@ def expected_leak_bb(
     for field, rms in drawn:
         unit = params._asdict()
         unit[field] = unit[field] + 1.0
-        delta = {k: v - shares[k] for k, v in pair_shares(type(params)(**unit), fp).items()}
-        for i in range(fp.n_pairs):  # a unit of the parameter on pair i alone
+        delta = {k: v - shares[k] for k, v in pair_shares(type(params)(**unit), plane).items()}
+        for i in range(plane.n_pairs):  # a unit of the parameter on pair i alone
             scattered += rms**2 * bb(_y(stats, weights, delta, fields, slice(i, i + 1)))
     return coherent, scattered
 
