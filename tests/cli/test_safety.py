@@ -855,5 +855,6 @@ def test_design_prints_its_tod_check_and_says_what_it_cannot_resolve(tmp_path, c
     lines, warnings = validation_report(made)
     assert len(lines) == 4 and "3.0s" in lines[2] and "not resolved" in lines[2]
     assert "none's simulated delta_r 1.3 +- 0.1 is 3.0 standard errors" in warnings[0]
+    assert "from 4 skies the error is itself uncertain: 95 % of draws lie within 3.2" in warnings[0]
     assert "do not resolve the optimised strategy's difference from none" in warnings[1]
     assert len(warnings) == 2
