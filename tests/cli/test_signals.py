@@ -154,9 +154,12 @@ def test_signals_at_random_moments_end_cleanly(command, inputs, tmp_path, capsys
     # an uninterrupted run (reproduce's claims need Nside 256, so it exits 1 at 16), then one
     # timed with its kernels warm, whether or not the suite was precompiled
     assert cli.main(_args(command, inputs, tmp_path / "whole")) in (0, 1)
-    t0 = time.perf_counter()
-    assert cli.main(_args(command, inputs, tmp_path / "timed")) in (0, 1)
-    duration = time.perf_counter() - t0
+    durations = []  # the faster of two warm runs: one slowed by the machine drew late signals
+    for timed in ("timed", "timed again"):
+        t0 = time.perf_counter()
+        assert cli.main(_args(command, inputs, tmp_path / timed)) in (0, 1)
+        durations.append(time.perf_counter() - t0)
+    duration = min(durations)
     capsys.readouterr()
     rng = random.Random(f"interrupts {command}")
     done = tries = 0
