@@ -2,7 +2,7 @@
 prediction against the simulation at Nside 512.
 
 1. Per Nside (lmax = 3 Nside - 1, a 7 arcmin sky beam) and beam (FWHM + 1 %, kmax 2; and e = 0.03,
-   kmax from boresight.beams.truncate): the cube's build time, the interpolation rate and the peak
+   kmax from boresight.instrument.beams.truncate): the cube's build time, the interpolation rate and the peak
    RSS of a fresh process that builds it and evaluates 4 million samples.
 2. Nside 512, the paper's scans (random in-pixel hits), both masks: predicted / simulated leaked
    power of each beam systematic in the bands of 32 multipoles from 40 to 1024 (= 2 Nside).
@@ -20,7 +20,8 @@ from _table import report
 
 CUBE = """
 import json, resource, time, numpy as np
-from boresight import beams, harmonics
+from boresight import harmonics
+from boresight.instrument import beams
 from boresight.constants import ARCMIN
 nside, e, dfwhm = {nside}, {e}, {dfwhm}
 lmax = 3 * nside - 1
@@ -68,7 +69,7 @@ def cube_table(nsides):
 def cl_table(nside=512):
     from boresight import coupling, engine, masks, predict, spectra
     from boresight.cosmology import load_spectra
-    from boresight.instrument import Systematics
+    from boresight.instrument.pairs import Systematics
     from boresight.scan import paper_scan
     from boresight.sky import SkyConfig, make_sky
 

@@ -32,8 +32,8 @@ from _table import report
 
 from boresight import cosmology, design
 from boresight.commands import design as design_command
-from boresight.design_expectation import exact_objective, search
-from boresight.instrument import Systematics
+from boresight.design.exact import exact_objective, search
+from boresight.instrument.pairs import Systematics
 from boresight.schedule import load_schedule, write_schedule
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

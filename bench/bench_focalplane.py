@@ -24,7 +24,8 @@ import numpy as np
 from _table import report
 from bench_ground import CES as DAY
 
-from boresight import focalplane, scanstats
+from boresight import moments
+from boresight.instrument import focalplane
 from boresight.pointing import ces_chunks
 from boresight.schedule import Schedule
 from boresight.schedule import toast as toast_files
@@ -37,20 +38,20 @@ CES_DAY = tuple(dataclasses.replace(c, boresight_deg=45.0 * (i % 3)) for i, c in
 def _boresight(schedule, fp, nside, threads):
     numba.set_num_threads(threads)
     t0 = time.perf_counter()
-    scanstats.characterise_focalplane(schedule, fp, nside)
+    moments.characterise_focalplane(schedule, fp, nside)
     return time.perf_counter() - t0
 
 
 def _pointing_only(schedule, fp, nside):
     """Seconds of the pointing alone, on one core: every pair's pixel, crossing angle and angle
-    bin per sample (scanstats.ces_hits_pairs), nothing binned."""
+    bin per sample (moments.ces_hits_pairs), nothing binned."""
     numba.set_num_threads(1)
     vectors = np.ascontiguousarray(fp.vectors())
     gammas, none = np.radians(fp.gamma_deg), np.zeros(0)
     nbins = 360  # characterise_focalplane's bins at its default tolerance of 1 deg
     t0 = time.perf_counter()
     for _, _, args in ces_chunks(schedule, (1 << 20) // fp.n_pairs):
-        scanstats.ces_hits_pairs(*args, nside, nbins, False, vectors, none, gammas)
+        moments.ces_hits_pairs(*args, nside, nbins, False, vectors, none, gammas)
     return time.perf_counter() - t0
 
 
@@ -142,9 +143,9 @@ def main(nside):
             "Two CESs of 55 min for TOAST's 37-pixel, 35 deg hexagon; then a day of 24 CESs for "
             "its 547-pixel hexagon. TOAST: SimGround (pyephem), PointingDetectorSimple, "
             "PixelsHealpix and numpy binning as sotodlib's Hn, OMP_NUM_THREADS=1. boresight: "
-            "scanstats.characterise_focalplane (hits, h_n, crossing-angle bitmaps and the "
+            "moments.characterise_focalplane (hits, h_n, crossing-angle bitmaps and the "
             "scattered sums), pointing computed once per pair; the pointing alone: each pair's "
-            "pixel, crossing angle and angle bin per sample (scanstats.ces_hits_pairs), the "
+            "pixel, crossing angle and angle bin per sample (moments.ces_hits_pairs), the "
             "floor of the whole."
         ),
     )

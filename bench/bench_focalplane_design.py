@@ -6,7 +6,7 @@ its CESs, 16 units), allowed angles 0, 45, 90 deg, a gain {mean 0, rms 0.01} dra
 a pointing offset {mean 1, rms 0.5} arcmin (or, on the hexagon, the gain alone, the pointing
 alone, or both and an ellipticity of 0.02 on every detector A).
 Each strategy's delta_r with the same pairs on the axis (the on-axis objective) is a column.
-For each focal plane the command designs on it (boresight.design_focalplane) and reports every
+For each focal plane the command designs on it (boresight.design.focalplane) and reports every
 strategy's exact expected delta_r on it, coherent and scattered, and the mean of SKIES TOD skies
 of it (every pair on its own samples, a new draw of the pairs per sky) with its standard error.
 It also times the design's stages.
@@ -29,8 +29,8 @@ from pathlib import Path
 
 from _table import report
 
-from boresight import focalplane
 from boresight.commands import design as design_command
+from boresight.instrument import focalplane
 from boresight.schedule import load_schedule, write_schedule
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

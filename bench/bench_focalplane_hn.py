@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
-from boresight import focalplane, scanstats
+from boresight import moments
+from boresight.instrument import focalplane
 from boresight.schedule import load_schedule
 
 SCHEDULE = Path(__file__).resolve().parent.parent / "examples" / "schedule_deep_sat.toml"
@@ -35,8 +36,8 @@ def main(nside):
     for label, repeats in (("0", (0.0,)), ("0/90", (0.0, 90.0))):
         schedule = dataclasses.replace(base, repeat_boresight_deg=repeats)
         runs[label] = (
-            scanstats.characterise_focalplane(schedule, fp, nside, progress=True),
-            scanstats.characterise_focalplane(schedule, on_axis, nside),
+            moments.characterise_focalplane(schedule, fp, nside, progress=True),
+            moments.characterise_focalplane(schedule, on_axis, nside),
         )
     rows = []
     for lo, hi, what in RINGS:
@@ -47,7 +48,7 @@ def main(nside):
             values[label] = f"{min(h2):.3g}" if len(h2) == 1 else f"{min(h2):.3g}-{max(h2):.3g}"
         rows.append(dict(detector=what, pairs=int(sel.sum()), **values))
     first = dataclasses.replace(base, repeat_boresight_deg=(0.0,))
-    centre = scanstats.characterise_focalplane(first, fp.subset([0]), nside).combined.hits > 0
+    centre = moments.characterise_focalplane(first, fp.subset([0]), nside).combined.hits > 0
     for where in ("on the axis pair's pixels", "whole footprint"):
         values = {}
         for label, (planes, _) in runs.items():

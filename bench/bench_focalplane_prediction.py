@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
-from boresight import engine, focalplane, harmonics, scanstats, spectra
-from boresight.instrument import Spread, Systematics
+from boresight import engine, harmonics, moments, spectra
+from boresight.instrument import focalplane
+from boresight.instrument.pairs import Spread, Systematics
 from boresight.predict import focalplane as predict_fp
 from boresight.schedule import load_schedule
 from boresight.sky import SkyConfig, make_sky
@@ -51,8 +52,8 @@ def main(nside):
     rows, expected = [], {}
     for label, repeats in REPEATS.items():
         schedule = dataclasses.replace(base, repeat_boresight_deg=repeats)
-        stats = scanstats.characterise_focalplane(schedule, fp, nside, per_pair=True)
-        on_axis = scanstats.characterise_focalplane(schedule, axis, nside, per_pair=True)
+        stats = moments.characterise_focalplane(schedule, fp, nside, per_pair=True)
+        on_axis = moments.characterise_focalplane(schedule, axis, nside, per_pair=True)
         ref = engine.simulate_focalplane(sky, schedule, fp, Systematics(), evaluation="exact")
         mask = (ref.rcond > 0.05).astype(float)
         footprint = spectra.as_footprint(mask)

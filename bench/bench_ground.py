@@ -1,7 +1,7 @@
 """Real-scan throughput on a 24-CES schedule (Nside 512 by default).
 
 * pointing: pointing.pointing alone (theta, phi, psi per sample);
-* pointing + hit binning: scanstats.characterise_schedule (hits, h_n and crossing-angle bitmaps
+* pointing + hit binning: moments.characterise_schedule (hits, h_n and crossing-angle bitmaps
   per pixel, pointing fused in). Timed at 100 and 400 Hz; the difference gives the steady-state
   rate per sample, the rest is a fixed per-map cost (allocation and per-pixel finalisation);
 * pointing + TOD and maps: engine.simulate_samples (sky interpolation, pair differences, binning).
@@ -14,7 +14,7 @@ import time
 
 from _table import report
 
-from boresight import engine, pointing, scanstats
+from boresight import engine, moments, pointing
 from boresight.schedule import CES, Schedule
 from boresight.sky import SkyConfig, make_sky
 
@@ -39,12 +39,12 @@ def timed(fn, *args):
 def main(nside):
     s = make_sky(SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=30.0, seed=1))
     warm = Schedule(CES[:1], sample_rate_hz=1.0)
-    scanstats.characterise_schedule(warm, nside)
+    moments.characterise_schedule(warm, nside)
     engine.simulate_samples(s, pointing.pointing(warm))
     short, long = (Schedule(CES, sample_rate_hz=r) for r in (100.0, 400.0))
     t_point = timed(lambda: [None for _ in pointing.pointing(short)])
-    t_short = timed(scanstats.characterise_schedule, short, nside)
-    t_long = timed(scanstats.characterise_schedule, long, nside)
+    t_short = timed(moments.characterise_schedule, short, nside)
+    t_long = timed(moments.characterise_schedule, long, nside)
     t_tod = timed(lambda: engine.simulate_samples(s, pointing.pointing(short)))
     n_s, n_l = short.n_samples, long.n_samples
     steady = (n_l - n_s) / (t_long - t_short)

@@ -17,9 +17,11 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
-from boresight import engine, focalplane, harmonics, scanstats, spectra
-from boresight.hwp import HWP
-from boresight.instrument import Systematics
+from boresight import engine, harmonics, spectra
+from boresight import moments as scanstats
+from boresight.instrument import focalplane
+from boresight.instrument.hwp import HWP
+from boresight.instrument.pairs import Systematics
 from boresight.predict import focalplane as predict_fp
 from boresight.schedule import load_schedule
 from boresight.sky import SkyConfig, make_sky

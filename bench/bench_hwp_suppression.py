@@ -1,5 +1,5 @@
 """What boresight rotation still buys behind a half-wave plate: the table of
-``boresight suppression --hwp`` (boresight.hwp_suppression) on an example schedule.
+``boresight suppression --hwp`` (boresight.jobs.suppression.hwp) on an example schedule.
 
 The example at its own sample rate, the paper's Q and U pairs on the axis, a sky of FWHM 60
 arcmin read exactly at every sample, a plate spinning at 2 Hz (SO's small-aperture telescopes)
@@ -11,7 +11,7 @@ its prediction over it, and the leak over its systematic's first row.
 Usage: python bench/bench_hwp_suppression.py [NSIDE] [deep|wide] [RATE_HZ]
 
 Writes the table to bench/results/hwp_suppression[_wide].json and its figure
-(boresight.plots.hwp_suppression_figure) to docs/figures/hwp_suppression_{deep,wide}.png.
+(boresight.outputs.plots.hwp_suppression_figure) to docs/figures/hwp_suppression_{deep,wide}.png.
 
 RATE_HZ resamples the schedule (default its own): the wide example at 5 Hz keeps a 2 Hz plate's
 4 chi turning 0.6 of a turn per sample, at a quarter of the samples.
@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
-from boresight import hwp_suppression, plots
-from boresight.hwp import HWP
+from boresight.instrument.hwp import HWP
+from boresight.jobs.suppression import hwp as hwp_suppression
+from boresight.outputs import plots
 from boresight.schedule import load_schedule
 from boresight.sky import SkyConfig, make_sky
 

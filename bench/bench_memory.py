@@ -4,7 +4,7 @@ run, across Nside.
 Every run is a fresh process that runs the command line, its peak the kernel's high-water mark of
 its resident memory (``VmHWM``, read by the process as it ends: a child's ``ru_maxrss`` starts at
 its parent's), its estimate the one it wrote into its manifest.json before any work.
-``tests/test_resources.py`` checks a subset of these within a factor of 1.5.
+``tests/jobs/test_resources.py`` checks a subset of these within a factor of 1.5.
 
 Usage: python bench/bench_memory.py [NSIDE,NSIDE,...] [COMMAND,COMMAND,...]
 (default 64,128,256,512 and every command below).

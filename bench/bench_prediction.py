@@ -1,9 +1,9 @@
 """The C_ell-level prediction against the simulation for every systematic of the suppression map.
 
-Each systematic of boresight.suppression.CATALOGUE alone, no rotation, on both paper surveys
+Each systematic of boresight.jobs.suppression.axis.CATALOGUE alone, no rotation, on both paper surveys
 (their masks and synthetic scans, random in-pixel hits, the interpolated sky): the predicted
 leaked power <dB, dB> of the residual pseudo-C_BB over the simulated one in bands of 32
-multipoles from 40 to 2 Nside, through the residual pipeline (boresight.residual, with the
+multipoles from 40 to 2 Nside, through the residual pipeline (boresight.jobs.residual, with the
 patch's own spectra). Ratios, not times: the numbers do not depend on the machine.
 
 The prediction is the expectation over the hits' random places in their pixels. Where their
@@ -19,8 +19,9 @@ import sys
 import numpy as np
 from _table import report
 
-from boresight import coupling, masks, predict, residual, spectra, suppression
+from boresight import coupling, masks, predict, spectra
 from boresight.cosmology import load_spectra
+from boresight.jobs import residual, suppression
 from boresight.scan import paper_scan
 from boresight.sky import SkyConfig, make_sky
 

@@ -12,9 +12,9 @@ import time
 
 from _table import report
 
-from boresight import paper
 from boresight.commands import reproduce
 from boresight.config import RunOptions
+from boresight.jobs import paper
 
 
 def main(nside, lmax, backend):

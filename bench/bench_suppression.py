@@ -1,6 +1,6 @@
 """What each systematic costs to simulate, and the whole `boresight suppression` map.
 
-1. Per systematic of boresight.suppression.CATALOGUE: the engine's time for the paper's deep
+1. Per systematic of boresight.jobs.suppression.axis.CATALOGUE: the engine's time for the paper's deep
    survey at 0/90 deg rotation (the simulation alone, interpolated sky, all cores), against the
    same scan without a systematic.
 2. The whole suppression map (sky, 9 systematics x 4 schedules, predictions, transforms): wall
@@ -16,8 +16,9 @@ import time
 
 from _table import report
 
-from boresight import engine, masks, suppression
-from boresight.instrument import Systematics
+from boresight import engine, masks
+from boresight.instrument.pairs import Systematics
+from boresight.jobs import suppression
 from boresight.scan import paper_scan
 from boresight.sky import SkyConfig, make_sky
 

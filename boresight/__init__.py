@@ -15,29 +15,28 @@ At the top level (imported on first use, so ``import boresight`` stays light):
   ``PAPER_POINTING``;
 * TOD to maps: ``simulate``, ``simulate_with_zero_qu``, ``scan_moments``;
 * the residual pseudo-C_BB a systematic leaves (``Residual``, from
-  :func:`boresight.residual.residual`), its prediction from h_n (``Prediction``,
+  :func:`boresight.jobs.residual.residual`), its prediction from h_n (``Prediction``,
   ``residual_pseudo_bb``) and the bias on r it fakes (``delta_r``);
 * a study file: ``load_study``, ``Study``; what bad input raises: ``BoresightError``,
   ``ConfigError``.
 
-Public modules: :mod:`~boresight.sky`, :mod:`~boresight.scan`, :mod:`~boresight.schedule`,
-:mod:`~boresight.pointing`, :mod:`~boresight.frames`, :mod:`~boresight.instrument`, :mod:`~boresight.focalplane`, :mod:`~boresight.hwp`,
-:mod:`~boresight.beams`, :mod:`~boresight.masks`, :mod:`~boresight.noise`,
-:mod:`~boresight.engine`, :mod:`~boresight.spectra`, :mod:`~boresight.coupling`,
-:mod:`~boresight.predict`, :mod:`~boresight.scanstats`, :mod:`~boresight.config`,
-:mod:`~boresight.residual`, :mod:`~boresight.design`, :mod:`~boresight.suppression`,
-:mod:`~boresight.hwp_suppression`,
-:mod:`~boresight.paper`, :mod:`~boresight.sweep`, :mod:`~boresight.so_maps`,
-:mod:`~boresight.litebird_maps`,
-:mod:`~boresight.cosmology` and
+Public modules, by stage: :mod:`~boresight.sky`, :mod:`~boresight.scan`,
+:mod:`~boresight.schedule`, :mod:`~boresight.pointing`, :mod:`~boresight.frames`,
+:mod:`~boresight.instrument` (:mod:`~boresight.instrument.pairs`,
+:mod:`~boresight.instrument.focalplane`, :mod:`~boresight.instrument.hwp`,
+:mod:`~boresight.instrument.beams`), :mod:`~boresight.masks`, :mod:`~boresight.noise`,
+:mod:`~boresight.cosmology`, :mod:`~boresight.engine`, :mod:`~boresight.spectra`,
+:mod:`~boresight.coupling`, :mod:`~boresight.moments` (h_n: ``axis``, ``offsets``,
+``focalplane``, ``hwp``), :mod:`~boresight.predict`, :mod:`~boresight.config`,
+:mod:`~boresight.jobs` (``residual``, ``paper``, ``suppression``, ``sweep``),
+:mod:`~boresight.design` (``budget``, ``white``, ``exact``, ``focalplane``),
+:mod:`~boresight.outputs` (``so``, ``litebird``, ``report``, ``plots``) and
 :mod:`~boresight.commands` (each command's ``run``).
 
-Plumbing, not for use from outside: :mod:`~boresight.kernels`, :mod:`~boresight.harmonics`,
-:mod:`~boresight.evaluation`, :mod:`~boresight.mapmaking`, :mod:`~boresight.transforms`,
-:mod:`~boresight.threads`, :mod:`~boresight.interrupts`, :mod:`~boresight.io`,
-:mod:`~boresight.validation`, :mod:`~boresight.resources`, :mod:`~boresight.precompile`,
-:mod:`~boresight.provenance`, :mod:`~boresight.report`, :mod:`~boresight.plots`,
-:mod:`~boresight.constants` and :mod:`~boresight.cli`.
+Plumbing, not for use from outside: :mod:`~boresight._util`, :mod:`~boresight.kernels`,
+:mod:`~boresight.harmonics`, :mod:`~boresight.evaluation`, :mod:`~boresight.mapmaking`,
+:mod:`~boresight.jobs.transforms`, :mod:`~boresight.jobs.resources`,
+:mod:`~boresight.validation`, :mod:`~boresight.constants` and :mod:`~boresight.cli`.
 docs/architecture.md draws their layers.
 """
 
@@ -48,7 +47,7 @@ from importlib import import_module
 if _sys.argv and _os.path.basename(_sys.argv[0]) == "boresight":
     # the console script: a Ctrl-C from here on, while the command line imports, is noted and
     # ends the command in one line (boresight.cli), not in a KeyboardInterrupt traceback
-    from .interrupts import install_early as _install_early
+    from ._util.interrupts import install_early as _install_early
 
     _install_early()
 
@@ -69,7 +68,7 @@ _EXPORTS = {
     "load_schedule": "schedule",
     "Schedule": "schedule",
     "CES": "schedule",
-    "Residual": "residual",
+    "Residual": "jobs.residual",
     "Prediction": "predict",
     "residual_pseudo_bb": "predict",
     "delta_r": "predict",

@@ -16,7 +16,7 @@ import os
 import sys
 import traceback
 
-from . import interrupts
+from ._util import interrupts
 
 log = logging.getLogger("boresight")
 
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     """The ``boresight`` command.
 
     Ctrl-C and SIGTERM are noted from the first line on, before numba and the rest of boresight
-    are imported, and acted on between chunks of work (:mod:`boresight.interrupts`).
+    are imported, and acted on between chunks of work (:mod:`boresight._util.interrupts`).
 
     Parameters
     ----------

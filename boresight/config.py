@@ -3,8 +3,8 @@
 A study file has one table per pipeline stage. Each table is a frozen dataclass that owns its
 defaults, its allowed values and its validation: ``[sky]`` :class:`~boresight.sky.SkyConfig`,
 ``[scan]`` :class:`~boresight.scan.SyntheticScan`, ``[instrument]``
-:class:`~boresight.instrument.Instrument`, ``[systematics]``
-:class:`~boresight.instrument.Systematics`, ``[mask]`` :class:`MaskSpec`, ``[run]``
+:class:`~boresight.instrument.pairs.Instrument`, ``[systematics]``
+:class:`~boresight.instrument.pairs.Systematics`, ``[mask]`` :class:`MaskSpec`, ``[run]``
 :class:`RunOptions` and ``[output]`` :class:`OutputOptions`. The schema below (types and help of
 every key), the error messages and the command-line flags (:func:`add_flags`) are read from their
 fields. A config is validated whole before any work starts: unknown sections or keys, wrong types,
@@ -21,21 +21,22 @@ from dataclasses import dataclass, replace
 import healpy as hp
 import numpy as np
 
-from . import io, validation
-from .beams import pair_beams
+from . import validation
+from ._util import io
+from ._util.io import toml_text, tomllib
+from ._util.threads import check_threads
 from .constants import ARCMIN
 from .evaluation import METHODS
-from .focalplane import focalplane_of_table
 from .harmonics import ANALYSES
-from .hwp import HWP, behind, reflected_systematics
-from .instrument import Instrument, Spread, Systematics, response
-from .io import toml_text, tomllib
+from .instrument.beams import pair_beams
+from .instrument.focalplane import focalplane_of_table
+from .instrument.hwp import HWP, behind, reflected_systematics
+from .instrument.pairs import Instrument, Spread, Systematics, response
 from .kernels import BACKENDS
 from .masks import MaskSpec
 from .scan import SyntheticScan
 from .sky import Sky, SkyConfig, make_sky
 from .spectra import log_bins
-from .threads import check_threads
 from .validation import ConfigError, option
 
 
@@ -236,8 +237,8 @@ class Study:
     ----------
     sky : boresight.sky.SkyConfig
     scan : boresight.scan.SyntheticScan
-    instrument : boresight.instrument.Instrument
-    systematics : boresight.instrument.Systematics
+    instrument : boresight.instrument.pairs.Instrument
+    systematics : boresight.instrument.pairs.Systematics
     mask : MaskSpec
     run : RunOptions
     output : OutputOptions
@@ -250,10 +251,10 @@ class Study:
         The parsed TOML the study came from.
     source : str, optional
         The TOML file it was read from.
-    hwp : boresight.hwp.HWP, optional
+    hwp : boresight.instrument.hwp.HWP, optional
         ``[instrument] hwp``: a HWP in front of the pairs. ``scan``, ``instrument`` and
         ``systematics`` are then the bare ones that see the sky as the pairs behind it do
-        (:func:`boresight.hwp.behind`, :func:`boresight.hwp.reflected_systematics`).
+        (:func:`boresight.instrument.hwp.behind`, :func:`boresight.instrument.hwp.reflected_systematics`).
     """
 
     sky: SkyConfig
@@ -374,8 +375,8 @@ def check_systematics(
 
     Parameters
     ----------
-    systematics : boresight.instrument.Systematics
-    instrument : boresight.instrument.Instrument
+    systematics : boresight.instrument.pairs.Systematics
+    instrument : boresight.instrument.pairs.Instrument
     rotations_deg : sequence of float
         The rotation repeats of the scan.
     fwhm_arcmin : float

@@ -29,7 +29,7 @@ from ducc0.misc.experimental import coupling_matrix_rect
 from ducc0.sht.experimental import alm2leg, leg2alm
 
 from . import harmonics
-from .threads import default_threads
+from ._util.threads import default_threads
 
 _M0, _M2 = np.zeros(1, dtype=np.uintp), np.full(1, 2, dtype=np.uintp)  #: ducc0's m = 0 and m = 2
 

@@ -15,12 +15,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
-from . import harmonics, interrupts
-from .beams import BeamConvolver, pair_beams
+from . import harmonics
+from ._util import interrupts
+from ._util.threads import numba_threads
 from .constants import ARCMIN
 from .evaluation import ENGINE_METHODS, SkyFields
-from .hwp import angle_jitter, plate_signals, reflected, reflected_systematics
-from .instrument import Instrument, Systematics, response
+from .instrument.beams import BeamConvolver, pair_beams
+from .instrument.hwp import angle_jitter, plate_signals, reflected, reflected_systematics
+from .instrument.pairs import Instrument, Systematics, response
 from .kernels import get_backend
 from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
@@ -28,14 +30,13 @@ from .kernels.pixels import ang2pix_array
 from .mapmaking import RCOND_MIN, Maps, check_mapmaker, solve, solve_iqu
 from .pointing import detector_pointing
 from .sky import MAX_NSIDE
-from .threads import numba_threads
 from .validation import integer
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-    from .focalplane import FocalPlane
-    from .hwp import HWP
+    from .instrument.focalplane import FocalPlane
+    from .instrument.hwp import HWP
     from .scan import SyntheticScan
     from .schedule import Schedule
     from .sky import Sky
@@ -155,9 +156,9 @@ def simulate(
         Beam-smoothed I, Q, U [muK] (maps and alm).
     scan : boresight.scan.SyntheticScan
         Crossing angles per pixel and the boresight-rotation schedule.
-    instrument : boresight.instrument.Instrument
+    instrument : boresight.instrument.pairs.Instrument
         Polarisation angles of the detector pairs.
-    systematics : boresight.instrument.Systematics
+    systematics : boresight.instrument.pairs.Systematics
         Differential gain, pointing and additive leak per pair.
     pixels : numpy.ndarray, optional
         RING indices (int, (n,)) or a boolean map (npix,) of the pixels to observe (default: all).
@@ -362,7 +363,7 @@ class _Binner:
         """(2, H, K, M) extra signal of detectors A and B from their own beams, or (2, 0, K, M).
         ``own_psi``, behind a HWP: the pairs' own crossing angle, which turns the beams' shapes
         and B's offset, where ``psi`` (the reflected one) turns their polarisation
-        (:meth:`boresight.beams.BeamConvolver.behind_hwp`; detectors at their nominal angles)."""
+        (:meth:`boresight.instrument.beams.BeamConvolver.behind_hwp`; detectors at their nominal angles)."""
         k = self.kernels
         out = np.zeros((2, 0 if self.beams is None else theta.size, self.rot.size, self.ang.size))
         if self.beams is None:
@@ -476,7 +477,7 @@ class _Binner:
         """Add the normal-equation sums of hits in any order into the full-sky ``normal`` as
         ``mapmaker`` bins them (:data:`boresight.mapmaking.MAPMAKERS`, :func:`_normal`); the jitter of hit h is keyed
         by (seed, first + h). ``seen``, if given, maps the fields at the hits to what the pair
-        sees there (a HWP's own signals, :func:`boresight.hwp.plate_signals`).
+        sees there (a HWP's own signals, :func:`boresight.instrument.hwp.plate_signals`).
         ``own_psi``, if given, is the angle detector B's offset and the beams' shapes turn
         with, where ``psi`` is another (behind a HWP, the pair's own crossing angle beside its
         reflected one)."""
@@ -572,8 +573,8 @@ def simulate_focalplane(
     combines them.
 
     Behind a HWP each pair's pair difference is that of a bare pair at its reflected angle
-    (:func:`boresight.hwp.reflected`), and the map-maker solves with that angle: exact for the
-    sky and for what the pairs carry through the HWP (:data:`boresight.hwp.THROUGH_HWP`).
+    (:func:`boresight.instrument.hwp.reflected`), and the map-maker solves with that angle: exact for the
+    sky and for what the pairs carry through the HWP (:data:`boresight.instrument.hwp.THROUGH_HWP`).
 
     Pair i has the focal plane's angle and the systematics' i-th draw (as pair i of
     ``Instrument(pair_angles_deg=focalplane.pair_angles_deg)``); the gain jitter of its sample k
@@ -584,17 +585,17 @@ def simulate_focalplane(
     ----------
     sky : boresight.sky.Sky
     schedule : boresight.schedule.Schedule
-    focalplane : boresight.focalplane.FocalPlane
-    systematics : boresight.instrument.Systematics
+    focalplane : boresight.instrument.focalplane.FocalPlane
+    systematics : boresight.instrument.pairs.Systematics
     evaluation, leak_template, nthreads, rcond_min, mapmaker
         As in :func:`simulate_samples`.
     backend : {"cpu"}
         The GPU backend does not take a focal plane yet.
     chunk_samples : int
         Pair-samples per chunk of pointing.
-    hwp : boresight.hwp.HWP, optional
+    hwp : boresight.instrument.hwp.HWP, optional
         A continuous or stepped HWP in front of every pair, with its own signals
-        (:func:`boresight.hwp.plate_signals`) and angle offset (:func:`boresight.hwp.reflected_systematics`).
+        (:func:`boresight.instrument.hwp.plate_signals`) and angle offset (:func:`boresight.instrument.hwp.reflected_systematics`).
     progress : bool
 
     Returns

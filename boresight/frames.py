@@ -1,6 +1,6 @@
 """Sky frames of real-scan pointing: ICRS (the field's equatorial frame) and Galactic.
 
-The pointing kernels (:mod:`boresight.pointing`, :mod:`boresight.scanstats`) turn azimuth and
+The pointing kernels (:mod:`boresight.pointing`, :mod:`boresight.moments`) turn azimuth and
 elevation into a direction in the Celestial Intermediate Reference System (CIRS) of the sample's
 date, with the Earth Rotation Angle. The frame of every output is ICRS, the frame TOAST's
 J2000, SO's maps and Planck's equatorial maps are in, or Galactic where a user asks. Between

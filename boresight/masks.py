@@ -20,9 +20,10 @@ import healpy as hp
 import numba
 import numpy as np
 
-from . import io, validation
+from . import validation
+from ._util import io
+from ._util.jit import njit
 from .constants import DEG
-from .jit import njit
 from .validation import ConfigError, option
 
 FOOTPRINTS = {

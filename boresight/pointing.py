@@ -22,16 +22,16 @@ import numba
 import numpy as np
 
 from . import frames
+from ._util.jit import njit
 from .constants import DEG
 from .frames import to_frame
-from .hwp import chunk_angles
-from .jit import njit
+from .instrument.hwp import chunk_angles
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
-    from .focalplane import FocalPlane
-    from .hwp import HWP
+    from .instrument.focalplane import FocalPlane
+    from .instrument.hwp import HWP
     from .schedule import Schedule
 
 UNIX_EPOCH_JD = frames.UNIX_EPOCH_JD
@@ -194,7 +194,7 @@ def _ces_pointing(k0, n, chunk, terms):
 def offset_sample(z, r, cp, sp, c, s, v):
     """A detector's direction and crossing angle from its boresight's.
 
-    The detector sits at ``v`` in the focal plane (:meth:`boresight.focalplane.FocalPlane.vectors`:
+    The detector sits at ``v`` in the focal plane (:meth:`boresight.instrument.focalplane.FocalPlane.vectors`:
     its direction and orientation in TOAST's boresight frame, whose x axis points away from the
     zenith, towards -(c, s)). The crossing angle is that of the focal plane's "up" axis carried to
     the detector, in boresight's convention (TOAST's psi + pi).
@@ -333,7 +333,7 @@ def pointing(
     ----------
     schedule : Schedule
     chunk_samples : int
-    hwp : boresight.hwp.HWP, optional
+    hwp : boresight.instrument.hwp.HWP, optional
         Also yield its angle at each sample (a continuous or stepped HWP).
 
     Yields
@@ -342,7 +342,7 @@ def pointing(
         Colatitude, longitude and crossing angle [rad] in ``schedule.frame``; the CES set in time
         order, once per boresight repeat.
     chi : numpy.ndarray, shape (<= chunk_samples,)
-        With ``hwp``: the HWP's angle in the focal plane [rad] (:func:`boresight.hwp.chunk_angles`).
+        With ``hwp``: the HWP's angle in the focal plane [rad] (:func:`boresight.instrument.hwp.chunk_angles`).
     """
     for repeat, index, args in ces_chunks(schedule, chunk_samples):
         out = _ces_pointing(*args)
@@ -372,10 +372,10 @@ def detector_pointing(
     Parameters
     ----------
     schedule : Schedule
-    focalplane : boresight.focalplane.FocalPlane
+    focalplane : boresight.instrument.focalplane.FocalPlane
     chunk_samples : int
         Detector-samples per chunk (at least one sample of every pair).
-    hwp : boresight.hwp.HWP, optional
+    hwp : boresight.instrument.hwp.HWP, optional
         Also yield its angle at each sample.
 
     Yields

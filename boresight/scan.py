@@ -16,7 +16,7 @@ import numpy as np
 
 from . import validation
 from .constants import DEG
-from .instrument import MAX_ANGLE_DEG
+from .instrument.pairs import MAX_ANGLE_DEG
 from .sky import MAX_SEED
 from .validation import option
 

@@ -56,3 +56,8 @@ def _one_share_of_the_cores_per_xdist_worker():
         return
     os.environ.setdefault("NUMBA_NUM_THREADS", str(len(cores)))
     os.sched_setaffinity(0, cores[int(worker.removeprefix("gw")) % workers :: workers])
+
+
+@pytest.fixture(scope="module")
+def plain_sky():
+    return make_sky(SkyConfig(nside=16, lmax=32, fwhm_arcmin=120.0, seed=4))

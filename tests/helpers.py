@@ -7,12 +7,8 @@ import numpy as np
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
-from boresight.schedule import (
-    CES,
-    Schedule,
-    Site,
-    toast,
-)
+from boresight import cli
+from boresight.schedule import CES, Schedule, Site, toast, write_schedule
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
@@ -159,3 +155,24 @@ def toast_december_schedule(directory):
     schedule = GroundSchedule()
     schedule.read(str(directory / "schedule.txt"))
     return schedule
+
+
+def run_design(tmp_path, schedule, budget, *args):
+    """Run `boresight design` on ``schedule`` (written as TOML) with ``budget``; its output."""
+    src = tmp_path / "s.toml"
+    write_schedule(schedule, str(src), "toml")
+    out = tmp_path / "d"
+    assert cli.main(["-q", "design", budget, str(src), "--out", str(out), *args]) == 0
+    return out
+
+
+def budget_file(tmp_path, nside=32, **tables):
+    text = {
+        "systematics": "dg = [0.01, -0.01]\nrho_arcmin = 0.5",
+        "noise": "depth_uk_arcmin = 3.0\nfsky = 0.1\nfwhm_arcmin = 30.0",
+        "design": f"nside = {nside}\nsweeps = 4",
+    }
+    text.update(tables)
+    path = tmp_path / "budget.toml"
+    path.write_text("\n".join(f"[{k}]\n{v}" for k, v in text.items() if v is not None))
+    return str(path)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from boresight import engine
-from boresight.instrument import Instrument, Systematics
+from boresight.instrument.pairs import Instrument, Systematics
 from boresight.scan import SyntheticScan
 from boresight.schedule import CES, Schedule
 

@@ -6,7 +6,7 @@ from helpers import T0, rel_max
 
 from boresight import engine, frames, pointing
 from boresight.constants import DEG
-from boresight.instrument import Systematics
+from boresight.instrument.pairs import Systematics
 from boresight.kernels import cpu
 from boresight.scan import SyntheticScan
 from boresight.schedule import CES, Schedule, Site

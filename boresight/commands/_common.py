@@ -6,10 +6,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..focalplane import load_focalplane
 from ..frames import FRAMES
-from ..hwp import HWP, MODES, STEPS
-from ..resources import Checks
+from ..instrument.focalplane import load_focalplane
+from ..instrument.hwp import HWP, MODES, STEPS
+from ..jobs.resources import Checks
 from ..schedule import TURNAROUNDS, ScanMotion
 from ..validation import ConfigError
 
@@ -80,12 +80,12 @@ def focalplane_flag(parser: argparse.ArgumentParser, replaces: str = "") -> None
 
 
 def focalplane(args: argparse.Namespace):
-    """The :class:`boresight.focalplane.FocalPlane` of --focalplane, or None."""
+    """The :class:`boresight.instrument.focalplane.FocalPlane` of --focalplane, or None."""
     return load_focalplane(args.focalplane) if args.focalplane else None
 
 
 def hwp_flags(parser: argparse.ArgumentParser) -> None:
-    """Flags of a half-wave plate (:class:`boresight.hwp.HWP`)."""
+    """Flags of a half-wave plate (:class:`boresight.instrument.hwp.HWP`)."""
     g = parser.add_argument_group("half-wave plate")
     g.add_argument("--hwp", choices=MODES, default="none", help="a HWP (default: none)")
     g.add_argument(
@@ -105,7 +105,7 @@ def hwp_flags(parser: argparse.ArgumentParser) -> None:
 
 
 def hwp(args: argparse.Namespace):
-    """The :class:`boresight.hwp.HWP` of the HWP flags, or None without one."""
+    """The :class:`boresight.instrument.hwp.HWP` of the HWP flags, or None without one."""
     if args.hwp == "none":
         return None
     try:

@@ -11,9 +11,12 @@ from typing import TYPE_CHECKING
 import healpy as hp
 import numpy as np
 
-from .. import engine, io, plots, provenance, resources, scanstats
-from ..instrument import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
-from ..residual import band_rows, reference_from_maps, residual, simulate_maps
+from .. import engine, moments
+from .._util import io, provenance
+from ..instrument.pairs import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
+from ..jobs import resources
+from ..jobs.residual import band_rows, reference_from_maps, residual, simulate_maps
+from ..outputs import plots
 from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
 from ..spectra import Footprint, log_bins
@@ -21,7 +24,7 @@ from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
-    from ..focalplane import FocalPlane
+    from ..instrument.focalplane import FocalPlane
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -84,12 +87,12 @@ def run(
         For a TOAST schedule: scan rate, acceleration and sample rate.
     frame, turnarounds : str, optional
         Replace the schedule file's (:class:`boresight.schedule.Schedule`).
-    focalplane : boresight.focalplane.FocalPlane, optional
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
         The real scans seen by every pair of this focal plane from its own place, binned into one
         map; the twin takes (N_phi, R) of all its pairs' crossings together, on the paper's Q
         and U pairs at the axis, and the paper's per-pair values go to its pairs by their angles
         (:func:`on_focalplane`). Default: the paper's pairs on the boresight.
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The up-front memory and time checks to make.
 
     Returns
@@ -123,8 +126,8 @@ def run(
 
     def characterise(scan):
         if focalplane is None:
-            return scanstats.characterise_schedule(scan, nside, tolerance_deg)
-        return scanstats.characterise_focalplane(scan, focalplane, nside, tolerance_deg).combined
+            return moments.characterise_schedule(scan, nside, tolerance_deg)
+        return moments.characterise_focalplane(scan, focalplane, nside, tolerance_deg).combined
 
     with timer("characterise the schedule"):
         stats = characterise(schedule)

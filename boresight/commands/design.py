@@ -13,37 +13,34 @@ import numpy as np
 import scipy.stats
 from tqdm import tqdm
 
-from .. import engine, interrupts, io, plots, precompile, provenance, resources, spectra
+from .. import engine, spectra
+from .._util import interrupts, io, precompile, provenance
 from ..config import RunOptions, check_systematics
 from ..cosmology import load_spectra
-from ..design import (
-    baselines,
-    load_budget,
-    objective,
-    search_instrument,
-    unit_moments,
-    units_of,
-)
-from ..design_expectation import exact_objective, search
-from ..design_focalplane import Target, exact_delta_r, unit_sums
-from ..design_focalplane import search as focalplane_search
-from ..focalplane import on_axis
-from ..hwp import check_sampling
-from ..instrument import Systematics
+from ..design.budget import load_budget, search_instrument
+from ..design.exact import exact_objective, search
+from ..design.focalplane import Target, exact_delta_r, unit_sums
+from ..design.focalplane import search as focalplane_search
+from ..design.white import baselines, objective, unit_moments, units_of
+from ..instrument.focalplane import on_axis
+from ..instrument.hwp import check_sampling
+from ..instrument.pairs import Systematics
+from ..jobs import resources
+from ..jobs.residual import residual
+from ..moments.offsets import centroid_moments
 from ..noise import sigma_r
+from ..outputs import plots
 from ..predict import R_RANGE, delta_r, expected_residual
 from ..predict import focalplane as predict_fp
-from ..residual import residual
-from ..scanstats import centroid_moments
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
-    from ..design import UnitMoments
-    from ..focalplane import FocalPlane
-    from ..hwp import HWP
+    from ..design.white import UnitMoments
+    from ..instrument.focalplane import FocalPlane
+    from ..instrument.hwp import HWP
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -79,7 +76,7 @@ def run(
     with ``validate`` a TOD simulation of the budget on the designed and the unrotated schedule
     (``validation.csv``). Ctrl-C or SIGTERM during the search keeps the best schedule found so
     far (without the figures), during the validation the finished design without it; the manifest says which, and the
-    :class:`boresight.interrupts.Interrupted` raised after the outputs are written says what was
+    :class:`boresight._util.interrupts.Interrupted` raised after the outputs are written says what was
     kept.
 
     Parameters
@@ -93,12 +90,12 @@ def run(
     progress : bool
     frame, turnarounds : str, optional
         Replace the schedule file's (:class:`boresight.schedule.Schedule`).
-    focalplane : boresight.focalplane.FocalPlane, optional
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
         Replaces the budget's ``[instrument] focalplane``. The search then runs on the focal
-        plane's own moments (:func:`boresight.design_focalplane.search`), and every strategy is
+        plane's own moments (:func:`boresight.design.focalplane.search`), and every strategy is
         evaluated on it, each pair on its own samples, with the coherent and scattered parts
         (``strategies.csv``' ``delta_r`` and ``fp_*`` columns), and validated there.
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The memory and time checks to make.
 
     Returns
@@ -376,7 +373,7 @@ def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):
     """The exact expected residual of an assignment's observed-pixel h_n (:func:`boresight.
     predict.expected_residual`) at the objective's band limits, the hits spread as the
     schedule's and read as the design's ``evaluation``; read exactly, with the samples' offsets
-    from their pixel centres (:func:`boresight.scanstats.centroid_moments`). Behind the budget's
+    from their pixel centres (:func:`boresight.moments.centroid_moments`). Behind the budget's
     HWP, of the pairs' reflected h_n and the crossing angles' own (``plate``)."""
     exact = budget.design.evaluation == "exact"
     offsets = centroid_moments(moments.schedule(schedule, angles), moments.nside) if exact else None
@@ -400,7 +397,7 @@ def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):
 def _search_focalplane(
     budget, moments, obj, schedule, strategies, startable, theory, timer, tick, *, progress
 ):
-    """The search on the focal plane (:func:`boresight.design_focalplane.search`) from the best
+    """The search on the focal plane (:func:`boresight.design.focalplane.search`) from the best
     baseline there; every baseline's exact expectation on the mask they share."""
     opts, focal = budget.design, budget.focalplane
     with timer("every baseline on the focal plane"):
@@ -424,7 +421,7 @@ def _search_focalplane(
 
 
 def _target(budget, theory, moments, obj):
-    """The focal-plane search's :class:`boresight.design_focalplane.Target`."""
+    """The focal-plane search's :class:`boresight.design.focalplane.Target`."""
     return Target(
         budget.systematics, theory, budget.noise.fwhm_arcmin, moments.mask, obj.template,
         obj.lmax, budget.design.evaluation,
@@ -433,7 +430,7 @@ def _target(budget, theory, moments, obj):
 
 def _on_focalplane(budget, moments, obj, schedule, strategies, theory, progress):
     """Each strategy's exact expected residual on the focal plane, every pair on its own samples
-    (:func:`boresight.design_focalplane.exact_delta_r`), on the boresight's footprint."""
+    (:func:`boresight.design.focalplane.exact_delta_r`), on the boresight's footprint."""
     target = _target(budget, theory, moments, obj)
     expected = {}
     for name, angles in tqdm(

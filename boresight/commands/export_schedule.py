@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from .. import io
+from .._util import io
 from ..schedule import load_schedule, toast
 from . import _common
 

@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 
-from .. import io, masks, provenance, resources
+from .. import masks
+from .._util import io, provenance
 from ..config import Study, load_study
 from ..cosmology import load_spectra
 from ..coupling import mask_coupling
+from ..jobs import resources
+from ..jobs.residual import compute_moments, n_max_for
 from ..predict import Prediction, residual_pseudo_bb
-from ..residual import compute_moments, n_max_for
 from ..validation import ConfigError, require_finite
 from . import _common
 
@@ -36,7 +38,7 @@ def run(
     out_dir : str, optional
         Write prediction.csv and manifest.json there.
     force : bool
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The up-front memory and time checks to make.
 
     Returns

@@ -8,8 +8,11 @@ import logging
 import time
 from dataclasses import replace
 
-from .. import io, masks, paper, plots, provenance, report, resources
+from .. import masks
+from .._util import io, provenance
 from ..config import RunOptions, Study, add_flags, as_dict, read_toml
+from ..jobs import paper, resources
+from ..outputs import plots, report
 from ..sky import SkyConfig
 from ..validation import ConfigError
 from . import _common
@@ -41,18 +44,18 @@ def run(
     ----------
     out_dir : str
     study : boresight.config.Study, optional
-        :func:`boresight.paper.preset` (the default, its quick resolution) or
-        :func:`boresight.paper.from_raw`.
+        :func:`boresight.jobs.paper.preset` (the default, its quick resolution) or
+        :func:`boresight.jobs.paper.from_raw`.
     force : bool
         Replace an earlier output of boresight's.
     progress : bool
         Show progress bars.
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The up-front memory and time checks to make.
 
     Returns
     -------
-    list of boresight.report.Claim
+    list of boresight.outputs.report.Claim
         With computed verdicts.
     """
     study = paper.preset(quick=True) if study is None else study
@@ -101,7 +104,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def study_of(args: argparse.Namespace) -> Study:
-    """The paper's study (:func:`paper.preset` or a --config file) with the flags applied."""
+    """The paper's study (:func:`jobs.paper.preset` or a --config file) with the flags applied."""
     raw = read_toml(args.config) if args.config else {}
     study = paper.from_raw(raw, args.quick)
     sky_cfg, run_options = study.sky, study.run

@@ -13,30 +13,23 @@ from typing import TYPE_CHECKING, NamedTuple
 import healpy as hp
 import numpy as np
 
-from .. import (
-    engine,
-    interrupts,
-    io,
-    litebird_maps,
-    masks,
-    plots,
-    precompile,
-    provenance,
-    resources,
-    scanstats,
-    so_maps,
-    tasks,
-)
+from .. import engine, masks
+from .. import moments as scanstats
+from .._util import interrupts, io, precompile, provenance, tasks
 from ..config import Study, as_dict, load_study
-from ..hwp import check_sampling
+from ..instrument.hwp import check_sampling
+from ..jobs import resources
+from ..outputs import litebird as litebird_maps
+from ..outputs import plots
+from ..outputs import so as so_maps
 from ..schedule import is_schedule, load_schedule
 from ..sky import SkyConfig
 from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
-    from ..focalplane import FocalPlane
-    from ..hwp import HWP
+    from ..instrument.focalplane import FocalPlane
+    from ..instrument.hwp import HWP
     from ..schedule import ScanMotion
 
 log = logging.getLogger(__name__)
@@ -58,8 +51,8 @@ class Layout:
     ----------
     format : {"boresight", "so", "litebird"}
         One FITS table ``hn_maps.fits`` (RE_H1.., IM_H1..) in boresight's psi convention, the
-        SO/SMARTIES files of :mod:`boresight.so_maps` (``{prefix}_cos_{n}.fits``...) in TOAST's,
-        or litebird_sim's HDF5 file of :mod:`boresight.litebird_maps` in boresight's.
+        SO/SMARTIES files of :mod:`boresight.outputs.so` (``{prefix}_cos_{n}.fits``...) in TOAST's,
+        or litebird_sim's HDF5 file of :mod:`boresight.outputs.litebird` in boresight's.
     prefix : str
         File name prefix of the SO layout: letters, digits, '_', '-' and '.'.
     """
@@ -134,7 +127,7 @@ def run(
     n_max : int
         Highest moment written.
     layout : Layout
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The up-front memory and time checks to make.
 
     Returns
@@ -194,13 +187,13 @@ def run_schedule(
     frame, turnarounds : str, optional
         The sky frame of the maps and what the turnarounds' samples do
         (:class:`boresight.schedule.Schedule`; default: the file's).
-    focalplane : boresight.focalplane.FocalPlane, optional
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
         Default: every pair on the boresight.
     per_detector : bool
         Write each detector's maps (SO layout, with a focal plane).
-    hwp : boresight.hwp.HWP, optional
+    hwp : boresight.instrument.hwp.HWP, optional
         Also the moments h_{n,m} of the boresight's psi and the HWP's angle
-        (:data:`boresight.scanstats.HWP_TERMS`): ``hwp_moments.fits`` (RE_n_m, IM_n_m, with M for
+        (:data:`boresight.moments.HWP_TERMS`): ``hwp_moments.fits`` (RE_n_m, IM_n_m, with M for
         a minus sign: RE_2_M4 is Re h_{2,-4}), or litebird_sim's file in its layout. With a
         focal plane, of each pair's own psi: the combination in ``hwp_moments.fits`` (or
         litebird_sim's ``h_maps_det_focalplane.h5``), and in litebird_sim's layout a file per
@@ -211,7 +204,7 @@ def run_schedule(
     workers : int
     progress : bool
         Show a progress bar over the schedule's samples.
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
 
     Returns
     -------
@@ -360,7 +353,7 @@ def _write(
     """The survey means, the h_n maps in the layout, the scan maps, a figure and the manifest. In
     the SO layout every output, hn_summary.csv included, is in TOAST/SO's psi convention (odd h_n
     change sign); the manifest's ``psi_convention`` says which. ``hwp_moments``, if given, makes
-    the HWP's moments as ``hwp_moments(each)`` (:func:`boresight.scanstats.hwp_moments`): in
+    the HWP's moments as ``hwp_moments(each)`` (:func:`boresight.moments.hwp_moments`): in
     litebird_sim's layout with a focal plane, ``each`` writes every detector's file as its pair's
     are made."""
     h, obs = maps.h, maps.observed

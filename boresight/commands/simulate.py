@@ -9,8 +9,11 @@ import logging
 import healpy as hp
 import numpy as np
 
-from .. import io, plots, precompile, provenance, residual, resources, spectra
+from .. import spectra
+from .._util import io, precompile, provenance
 from ..config import Study, load_study
+from ..jobs import residual, resources
+from ..outputs import plots
 from ..validation import require_finite
 from . import _common
 
@@ -47,7 +50,7 @@ def run(
         Replace an earlier output of boresight's.
     progress : bool
         Show progress bars.
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The up-front memory and time checks to make.
 
     Returns

@@ -1,6 +1,6 @@
-"""``boresight suppression``: every systematic of :data:`boresight.suppression.CATALOGUE` alone
+"""``boresight suppression``: every systematic of :data:`boresight.jobs.suppression.axis.CATALOGUE` alone
 through 0, 0/45, 0/90 and 0/180 deg rotation, simulated and predicted; with ``--hwp``, what that
-rotation still buys behind a half-wave plate on a real schedule (:mod:`boresight.hwp_suppression`)."""
+rotation still buys behind a half-wave plate on a real schedule (:mod:`boresight.jobs.suppression.hwp`)."""
 
 from __future__ import annotations
 
@@ -9,19 +9,22 @@ import dataclasses
 import logging
 from typing import TYPE_CHECKING
 
-from .. import hwp_suppression, io, plots, precompile, provenance, resources, suppression
-from ..beams import MIN_AXIS_FWHM
+from .._util import io, precompile, provenance
 from ..config import OutputOptions, Study, check_systematics
 from ..constants import ARCMIN
-from ..hwp import HWP, check_sampling
-from ..instrument import Instrument
+from ..instrument.beams import MIN_AXIS_FWHM
+from ..instrument.hwp import HWP, check_sampling
+from ..instrument.pairs import Instrument
+from ..jobs import resources, suppression
+from ..jobs.suppression import hwp as hwp_suppression
+from ..outputs import plots
 from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
 from ..validation import ConfigError, require_finite
 from . import _common
 
 if TYPE_CHECKING:
-    from ..focalplane import FocalPlane
+    from ..instrument.focalplane import FocalPlane
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +54,7 @@ def run(
     survey : {"deep", "wide"}
     force : bool
     progress : bool
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The memory and time checks to make.
 
     Returns
@@ -112,7 +115,7 @@ def run_hwp(
     checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
     """What boresight rotation still buys behind a HWP, on a real schedule
-    (:mod:`boresight.hwp_suppression`).
+    (:mod:`boresight.jobs.suppression.hwp`).
 
     Writes ``hwp_suppression.csv`` (a row per systematic, plate and boresight schedule: the leaked
     pseudo-C_BB in three bands, the prediction over it and the leak over the first row of its
@@ -124,13 +127,13 @@ def run_hwp(
     schedule_path : str
         A schedule file (:func:`boresight.schedule.load_schedule`): its CES set, repeated at each
         boresight schedule's angles.
-    plate : boresight.hwp.HWP
+    plate : boresight.instrument.hwp.HWP
         Continuous or stepped (per CES or per day).
     out_dir : str
-    focalplane : boresight.focalplane.FocalPlane, optional
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
         The pairs, each on its own samples (default the paper's Q and U pairs on the axis).
     force, progress : bool
-    checks : boresight.resources.Checks
+    checks : boresight.jobs.resources.Checks
         The memory and time checks to make.
 
     Returns

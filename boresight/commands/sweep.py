@@ -1,4 +1,4 @@
-"""``boresight sweep``: a grid or list of studies (:mod:`boresight.sweep`), locally or on a Dask
+"""``boresight sweep``: a grid or list of studies (:mod:`boresight.jobs.sweep`), locally or on a Dask
 cluster, resumable, with its results table and the suppression continuum figure."""
 
 from __future__ import annotations
@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 import logging
 
-from .. import plots, sweep, tasks
+from .._util import tasks
+from ..jobs import sweep
+from ..outputs import plots
 from . import _common
 
 log = logging.getLogger(__name__)

@@ -90,10 +90,10 @@ class KernelBackend(Protocol):
             The same where detector B looks; empty when B looks where A does.
         beams : float64 array, shape (2, H, K, M) or (2, 0, K, M)
             Detector A's and B's extra signal from their own beams [muK]
-            (:class:`boresight.beams.BeamConvolver`); empty when both beams are the sky's.
+            (:class:`boresight.instrument.beams.BeamConvolver`); empty when both beams are the sky's.
         response : float64 array, shape (K, M, 7)
             Assumed and true polarisation angles and detector B's gain per (rotation, pair)
-            (:func:`boresight.instrument.response`).
+            (:func:`boresight.instrument.pairs.response`).
         leak, jitter : float64 array, shape (M,)
             Additive leak and rms of the per-sample gain jitter.
         seed : int

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..jit import njit
+from .._util.jit import njit
 from .fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .pixels import face_point, interpolate_interleaved, ring2xyf
 from .rng import (
@@ -168,7 +168,7 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
 
     values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened, or has no
     columns when B looks where A does; beams (2, H K M) likewise A's and B's extra signal from
-    their beams, or has no columns. ``response`` is :func:`boresight.instrument.response`; pairs
+    their beams, or has no columns. ``response`` is :func:`boresight.instrument.pairs.response`; pairs
     with ``jitter`` > 0 draw a normal deviate for each (hit j of the pixel, rotation, pair) from
     ``jitter_key``."""
     nk, nm = response.shape[0], response.shape[1]

@@ -13,7 +13,7 @@ inside a pixel's sub-square is uniform in solid angle inside the pixel.
 import numba
 import numpy as np
 
-from ..jit import njit
+from .._util.jit import njit
 
 _JRLL = np.array([2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4], dtype=np.int64)
 _JPLL = np.array([1, 3, 5, 7, 0, 2, 4, 6, 1, 3, 5, 7], dtype=np.int64)

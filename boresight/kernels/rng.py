@@ -15,7 +15,7 @@ Box-Muller transform of two uniforms of one count.
 import numba
 import numpy as np
 
-from ..jit import njit
+from .._util.jit import njit
 
 N_STREAMS = 4  #: independent draws per hit: crossing angle, in-pixel u, in-pixel v, spare
 STREAM_PSI, STREAM_U, STREAM_V = 0, 1, 2

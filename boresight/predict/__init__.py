@@ -20,7 +20,7 @@ no repeat these are the paper's eq. 5-9 (its eq. 6 is the complex conjugate of t
 h_n and gradient use the opposite orientation; amplitudes are identical). Gain, leak and angle
 terms are exact for pixel-centre hits; pointing is first order in rho.
 
-Detector beams (:mod:`boresight.beams`): detector X's extra signal is a sum over its beam's
+Detector beams (:mod:`boresight.instrument.beams`): detector X's extra signal is a sum over its beam's
 azimuthal moments k of spin-k fields F_k of the sky (T, E and B) times e^{-i k psi_X}, so Y gains
 the terms h_n G_n, n = 2 -+ k (:func:`beam_filters`): the width's nabla^2 T and the ellipticity's
 eth-bar^2 P at h_2 (joining the gain's h_2 T), the ellipticity's eth^2 T at h_0 (which no rotation

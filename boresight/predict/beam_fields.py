@@ -12,8 +12,8 @@ import healpy as hp
 import numpy as np
 
 from .. import harmonics
-from ..beams import moment_filters, pair_beams
 from ..constants import ARCMIN
+from ..instrument.beams import moment_filters, pair_beams
 from ..spectra import masked_pol_alm
 from .coefficients import drawn_pairs
 
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 
     from ..cosmology import Spectra
     from ..coupling import Coupling
-    from ..instrument import Instrument, PairParameters, Systematics
+    from ..instrument.pairs import Instrument, PairParameters, Systematics
     from ..sky import Sky
     from .sky_spectra import FieldSpectra
     from .windows import HitSpread
@@ -43,7 +43,7 @@ def beam_filters(
     """The filters of the detectors' beam terms h_n G_n of Y, -n_max <= n <= n_max.
 
     Detector X's extra signal is F_0 + sum_k 2 Re[F_k e^{-i k psi_X}]
-    (:func:`boresight.beams.moment_filters`), so with psi_X = phi + c_X Y gains, from each
+    (:func:`boresight.instrument.beams.moment_filters`), so with psi_X = phi + c_X Y gains, from each
     detector, s_X g_X [h_2 F_0 + sum_k (h_{2-k} e^{-i k c_X} F_k + h_{2+k} e^{i k c_X} F_k*)],
     each h_n carrying its repeat's and pair's phase e^{i n (alpha + a)}, means over (repeat, pair)
     (docs/conventions.md). G_n is a spin-(2 - n) field for n <= 2, and for n > 2 the conjugate
@@ -52,8 +52,8 @@ def beam_filters(
 
     Parameters
     ----------
-    systematics : boresight.instrument.Systematics
-    instrument : boresight.instrument.Instrument or None
+    systematics : boresight.instrument.pairs.Systematics
+    instrument : boresight.instrument.pairs.Instrument or None
     rotations_deg : sequence of float
     fwhm_arcmin : float
         The sky's beam.
@@ -92,7 +92,7 @@ def pairs_beam_filters(
 
     Parameters
     ----------
-    par : boresight.instrument.PairParameters
+    par : boresight.instrument.pairs.PairParameters
         (M,) each.
     pair_angles : numpy.ndarray, shape (M,)
         The pairs' nominal angles [rad].

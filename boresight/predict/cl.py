@@ -14,8 +14,9 @@ import healpy as hp
 import numba
 import numpy as np
 
-from .. import harmonics, interrupts
-from ..jit import njit
+from .. import harmonics
+from .._util import interrupts
+from .._util.jit import njit
 from ..spectra import Footprint, as_footprint
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .coefficients import (
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
 
     from ..cosmology import Spectra
     from ..coupling import Coupling
-    from ..instrument import Instrument, Systematics
+    from ..instrument.pairs import Instrument, Systematics
     from ..sky import Sky
     from .coefficients import Coefficients, ExpectedPower
 
@@ -134,7 +135,7 @@ def leak_terms(
     Parameters
     ----------
     coefs : Coefficients
-    systematics : boresight.instrument.Systematics
+    systematics : boresight.instrument.pairs.Systematics
         Which terms are on (leak, pointing).
     cl_tt, cl_pol : numpy.ndarray, shape (lmax + 1,)
         Spectra of T and of P (EE + BB) [muK^2].
@@ -225,14 +226,14 @@ def systematic_cl(
         h_n of one repeat (as in :func:`delta_p`); the beams' terms use the moments it holds, to
         :data:`BEAM_N_MAX`.
     mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
-    systematics : boresight.instrument.Systematics
+    systematics : boresight.instrument.pairs.Systematics
     theory : boresight.cosmology.Spectra
         Lensed LCDM and tensor spectra [muK^2].
     lmax : int
         The sky's band limit: every field's power to it enters, also that a mask later mixes
         below a lower lmax of the pseudo-spectra (a :class:`boresight.coupling.Coupling`'s band).
     fwhm_arcmin : float
-    instrument : boresight.instrument.Instrument, optional
+    instrument : boresight.instrument.pairs.Instrument, optional
     template_cl : numpy.ndarray, optional
         Spectrum of the leak's template.
     field_cl : FieldSpectra, optional

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from ..constants import DEG
-from ..instrument import BEAM_KEYS, LIMITS, UNITS, Instrument, Spread, Systematics
+from ..instrument.pairs import BEAM_KEYS, LIMITS, UNITS, Instrument, Spread, Systematics
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from ..instrument import Systematics
+    from ..instrument.pairs import Systematics
 
 
 M4_TOLERANCE = 1e-9  #: ``|m_4|`` below which the map-maker's h_4 coupling vanishes
@@ -61,8 +61,8 @@ def coefficients(
 
     Parameters
     ----------
-    systematics : boresight.instrument.Systematics
-    instrument : boresight.instrument.Instrument, optional
+    systematics : boresight.instrument.pairs.Systematics
+    instrument : boresight.instrument.pairs.Instrument, optional
         Default: the paper's pairs at (0, 45) deg.
     rotations_deg : sequence of float
         The boresight rotation of each repeat [deg]; (0,) for a scan whose h_n already include
@@ -136,7 +136,7 @@ def jitter_variance(systematics: Systematics, coefs: Coefficients, expected: boo
 
     Parameters
     ----------
-    systematics : boresight.instrument.Systematics
+    systematics : boresight.instrument.pairs.Systematics
     coefs : Coefficients
         Of the drawn pairs.
     expected : bool
@@ -184,10 +184,10 @@ def expected_power(
 
     Parameters
     ----------
-    systematics : boresight.instrument.Systematics
+    systematics : boresight.instrument.pairs.Systematics
         With numbers for the beams and ``dg_repeat`` (the filters of :func:`beam_filters` and the
         drift are taken as given).
-    instrument : boresight.instrument.Instrument, optional
+    instrument : boresight.instrument.pairs.Instrument, optional
     rotations_deg : sequence of float
 
     Returns
@@ -306,7 +306,7 @@ def supports(instrument: Instrument | None, rotations_deg: Sequence[float] = (0.
 
     Parameters
     ----------
-    instrument : boresight.instrument.Instrument or None
+    instrument : boresight.instrument.pairs.Instrument or None
         None stands for the paper's pairs.
     rotations_deg : sequence of float
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..constants import ARCMIN
 from ..evaluation import METHODS
-from ..hwp import pairs_behind
+from ..instrument.hwp import pairs_behind
 from . import field_products as fp
 from .beam_fields import beam_filters
 from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients, jitter_variance
@@ -30,8 +30,8 @@ from .windows import hit_spread_window, interpolation_window
 
 if TYPE_CHECKING:
     from ..cosmology import Spectra
-    from ..hwp import HWP
-    from ..instrument import Instrument, Systematics
+    from ..instrument.hwp import HWP
+    from ..instrument.pairs import Instrument, Systematics
 
 #: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`
 TERM_FIELDS = {
@@ -159,10 +159,10 @@ def leak_model(
     plate_ip : complex
         epsilon exp(i phase) of a HWP's instrumental polarisation in front of pairs whose
         4 x angles cancel: the term epsilon exp(i phase) T through the crossing angles' own h_2
-        (h_{2,0}, :func:`boresight.predict.focalplane.ip_delta_p`), put just before the sky's
+        (h_{2,0}, :func:`boresight.predict.hwp.ip_delta_p`), put just before the sky's
         P. Here ``systematics`` and ``instrument`` are the pairs' as the bare pairs at their
-        reflected angles carry them (:func:`boresight.hwp.reflected_systematics`,
-        :func:`boresight.hwp.mirrored`), whose h_n are those of psi + 2 chi. 0: none.
+        reflected angles carry them (:func:`boresight.instrument.hwp.reflected_systematics`,
+        :func:`boresight.instrument.hwp.mirrored`), whose h_n are those of psi + 2 chi. 0: none.
 
     Returns
     -------
@@ -219,7 +219,7 @@ class _OffsetTerms(NamedTuple):
 def offset_weights(offsets: np.ndarray, n: int) -> tuple:
     """The first-order weights of a leak term h_n F across its pixels: (1/N) sum exp(i n psi)
     conj(delta) on d F (weight spin n - 1) and (1/N) sum exp(i n psi) delta on dbar F (spin
-    n + 1), from :func:`boresight.scanstats.centroid_moments`' ``offsets`` (..., 2, >= ``|n|`` + 1,
+    n + 1), from :func:`boresight.moments.centroid_moments`' ``offsets`` (..., 2, >= ``|n|`` + 1,
     npix); h_-n's are the conjugates of h_n's other one."""
     n_have = offsets.shape[-2] - 1
     if abs(n) > n_have:
@@ -313,7 +313,7 @@ def expected_residual(
         h_0..h_n_max (n_max >= 4) of the schedule (0 off the footprint).
     mask : numpy.ndarray, shape (npix,)
         The analysis mask (RING).
-    systematics : boresight.instrument.Systematics
+    systematics : boresight.instrument.pairs.Systematics
     theory : boresight.cosmology.Spectra
     fwhm_arcmin : float
         The sky's beam.
@@ -321,7 +321,7 @@ def expected_residual(
         The pseudo-spectra's band limit.
     band : int, optional
         The sky's band limit (default lmax).
-    instrument : boresight.instrument.Instrument, optional
+    instrument : boresight.instrument.pairs.Instrument, optional
     hits : numpy.ndarray, shape (npix,), optional
         Samples per pixel, for hits spread over their pixels as a schedule's are, read as the
         engine reads them (bilinear interpolation of the maps, the beams' fields exactly): each
@@ -334,15 +334,15 @@ def expected_residual(
         gradient is read exactly either way.
     offsets : numpy.ndarray, complex, shape (2, >= n_max + 1, npix), optional
         The samples' offsets from their pixel centres weighted as the h_n are
-        (:func:`boresight.scanstats.centroid_moments`), for a sky read exactly at each sample.
+        (:func:`boresight.moments.centroid_moments`), for a sky read exactly at each sample.
         Each leak term h_n F then gains F's first-order change across the pixel,
         (conj(delta) d F + delta dbar F) / 2 averaged as h_n is: two more terms of the same
         coefficient, on F's spin-raising and lowering derivatives
         (:func:`boresight.predict.field_products.derivative`). A real scan crosses a pixel along
         a few lines, at places that depend on the crossing angle, and so on structure at the
         pixel scale a leak reads more than its pixel centre (docs/conventions.md).
-    hwp : boresight.hwp.HWP, optional
-        A HWP in front of the pairs (:func:`boresight.hwp.pairs_behind`): ``h`` is then of their
+    hwp : boresight.instrument.hwp.HWP, optional
+        A HWP in front of the pairs (:func:`boresight.instrument.hwp.pairs_behind`): ``h`` is then of their
         reflected angle psi + 2 chi, ``systematics`` and ``instrument`` their own, and the
         plate's IP reaches the maps through ``plate_h``'s h_2, the crossing angles' own.
         Not with ``offsets``.

@@ -36,7 +36,7 @@ import healpy as hp
 import numpy as np
 
 from .. import harmonics
-from ..jit import njit
+from .._util.jit import njit
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -10,15 +10,15 @@ import numba
 import numpy as np
 
 from .. import harmonics
-from ..jit import njit
-from ..threads import numba_threads
+from .._util.jit import njit
+from .._util.threads import numba_threads
 from .beam_fields import beam_field, beam_filters
 from .coefficients import coefficients
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from ..instrument import Instrument, Systematics
+    from ..instrument.pairs import Instrument, Systematics
     from ..sky import Sky
 
 
@@ -45,8 +45,8 @@ def delta_p(
     h : numpy.ndarray, complex128, shape (>= 5, npix)
         h_n maps of one repeat's hits (:func:`boresight.engine.scan_moments` of
         ``scan.one_repeat()``), or of a real schedule with its rotations.
-    systematics : boresight.instrument.Systematics
-    instrument : boresight.instrument.Instrument, optional
+    systematics : boresight.instrument.pairs.Systematics
+    instrument : boresight.instrument.pairs.Instrument, optional
         Default: the paper's pairs.
     template : numpy.ndarray, shape (npix,), optional
         The leak's template [muK] (default: the sky's I).

@@ -10,7 +10,7 @@ import healpy as hp
 import numba
 import numpy as np
 
-from ..jit import njit
+from .._util.jit import njit
 from ..kernels.cpu import generate_hits
 
 SPREAD_PIXELS = 1 << 16  #: pixels whose hit pairs sample the window of hits spread over pixels

@@ -9,8 +9,8 @@ import os
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from .. import io
-from ..io import toml_text, tomllib
+from .._util import io
+from .._util.io import toml_text, tomllib
 from ..validation import ScheduleError
 from . import toast
 from .model import CES, CES_LIMITS, CES_METADATA, CES_REQUIRED, Schedule, Site

@@ -40,7 +40,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from .. import validation
-from ..io import atomic_path, tomllib, write_text
+from .._util.io import atomic_path, tomllib, write_text
 from ..validation import ScheduleError
 from .model import CES, CES_LIMITS, Schedule, Site
 

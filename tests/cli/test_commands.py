@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 from helpers import T0, toast_schedule
 
-from boresight import cli, paper
+from boresight import cli
 from boresight.cli import main
-from boresight.schedule import (
-    toast,
-)
+from boresight.jobs import paper
+from boresight.schedule import toast
 
 
 @pytest.mark.slow
@@ -134,7 +133,8 @@ def test_log_holds_only_boresight_lines(tmp_path, caplog):
     (the control, with every logger at INFO, shows the line the test looks for)."""
     import logging
 
-    from boresight import cli, plots
+    from boresight import cli
+    from boresight.outputs import plots
 
     cli.configure_logging()
     logging.getLogger("boresight").info("own line")

@@ -16,9 +16,9 @@ from helpers import FUZZ, mostly
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
-from boresight import engine, scanstats
+from boresight import engine, moments
 from boresight.cli import main
-from boresight.instrument import Instrument, Systematics
+from boresight.instrument.pairs import Instrument, Systematics
 from boresight.scan import SyntheticScan
 
 SLOW_FUZZ = settings(FUZZ, max_examples=20)
@@ -162,7 +162,7 @@ def test_sample_streams_return_finite_maps_or_raise(samples, drop, tiny_sky):
         psi = psi[:-1]
     try:
         maps = engine.simulate_samples(tiny_sky, [(theta, phi, psi)])
-        stats = scanstats.characterise([(theta, phi, psi)], tiny_sky.nside)
+        stats = moments.characterise([(theta, phi, psi)], tiny_sky.nside)
     except (ValueError, TypeError) as err:
         assert _names_one_of(err, ["theta", "phi", "psi", "samples"]), err
         event("refused")

@@ -13,17 +13,13 @@ import numpy as np
 import pytest
 from helpers import CSV_HEADER, EXAMPLES, STUDY, sweep_file, toast_text
 
-from boresight import engine, io, sweep, tasks
+from boresight import engine
+from boresight._util import io, tasks
 from boresight.cli import main
 from boresight.config import ConfigError, parse_study
+from boresight.jobs import sweep
 from boresight.scan import SyntheticScan
-from boresight.schedule import (
-    CES,
-    Schedule,
-    ScheduleError,
-    load_schedule,
-    write_schedule,
-)
+from boresight.schedule import CES, Schedule, ScheduleError, load_schedule, write_schedule
 
 
 @pytest.fixture
@@ -273,7 +269,7 @@ def test_unwritable_or_symlinked_out_fails_before_work(
 )
 def test_memory_estimate_refuses_before_allocating(tmp_path, monkeypatch, capsys, old, new):
     _no_work(monkeypatch)
-    monkeypatch.setattr("boresight.resources.available_bytes", lambda: 24 * 2.0**30)
+    monkeypatch.setattr("boresight.jobs.resources.available_bytes", lambda: 24 * 2.0**30)
     path = tmp_path / "big.toml"
     path.write_text(STUDY.replace(old, new))
     assert main(["simulate", str(path), "--out", str(tmp_path / "o")]) == 2
@@ -811,7 +807,8 @@ def test_the_hwp_tables_estimate_follows_its_measured_runs():
     128: 210 s; 256: 510 s and 4.6 GB; 512: 1665 s and 17 GB): within 1.5 of each."""
     import dataclasses
 
-    from boresight import hwp_suppression, resources
+    from boresight.jobs import resources
+    from boresight.jobs.suppression import hwp as hwp_suppression
 
     once = dataclasses.replace(
         load_schedule(EXAMPLES / "schedule_deep_sat.toml"), repeat_boresight_deg=(0.0,)

@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 from helpers import EXAMPLES
 
-from boresight import cli, interrupts
+from boresight import cli
+from boresight._util import interrupts
 from boresight.schedule import CES, Schedule, load_schedule, write_schedule
 
 STUDY = """

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from boresight import engine
-from boresight.instrument import Systematics, response
+from boresight.instrument.pairs import Systematics, response
 from boresight.kernels import contract, cpu
 
 CONTRACT = {

@@ -3,7 +3,7 @@ the direct formula, past the poles too."""
 
 import numpy as np
 
-from boresight.instrument import Systematics, response
+from boresight.instrument.pairs import Systematics, response
 from boresight.kernels import cpu, fields
 
 

@@ -3,14 +3,8 @@
 import numpy as np
 import pytest
 
-from boresight import (
-    coupling,
-    engine,
-    masks,
-    predict,
-    spectra,
-)
-from boresight.instrument import Systematics
+from boresight import coupling, engine, masks, predict, spectra
+from boresight.instrument.pairs import Systematics
 from boresight.scan import paper_scan
 from boresight.sky import SkyConfig, make_sky
 

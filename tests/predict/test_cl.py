@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from boresight import coupling, engine, masks, predict, spectra
-from boresight.instrument import PAPER_GAIN, PAPER_POINTING, Systematics
+from boresight.instrument.pairs import PAPER_GAIN, PAPER_POINTING, Systematics
 from boresight.scan import SyntheticScan, paper_scan
 from boresight.sky import SkyConfig, make_sky
 
@@ -129,7 +129,7 @@ def test_spectrum_suppression_follows_cos2(alpha, theory):
 def test_coherent_power_is_numpys_bincount_of_the_weighted_h_for_any_thread_count():
     """The one-pass kernel against the plain numpy route (|h|^2 w summed, w h summed per block by
     bincount), with apodized weights and Nside below the block size (no blocks)."""
-    from boresight.threads import numba_threads
+    from boresight._util.threads import numba_threads
 
     rng = np.random.default_rng(8)
     for nside, apodize in ((128, True), (4, False)):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from boresight import masks, predict
-from boresight.instrument import PAPER_GAIN, Instrument, Spread, Systematics
+from boresight.instrument.pairs import PAPER_GAIN, Instrument, Spread, Systematics
 
 
 def test_expected_focal_plane_power_is_coherent_plus_rms2_over_n():
@@ -52,7 +52,7 @@ def test_expected_power_is_the_mean_over_many_focal_planes(n):
 def test_cl_prediction_needs_cancelling_4x_angles(small_sky, theory):
     """Pairs at (0, 30) deg couple h_4 into the map-maker (m_4 != 0): the C_ell level refuses them,
     unless a repeat cancels h_4 (0/45 deg rotation)."""
-    from boresight.instrument import Instrument
+    from boresight.instrument.pairs import Instrument
 
     inst = Instrument((0.0, 30.0))
     assert not predict.supports(inst) and predict.supports(inst, (0.0, 45.0))

@@ -7,7 +7,7 @@ import pytest
 from helpers import EXAMPLES
 
 from boresight import coupling, design, engine, masks, predict
-from boresight.instrument import Instrument, Spread, Systematics
+from boresight.instrument.pairs import Instrument, Spread, Systematics
 from boresight.scan import SyntheticScan
 from boresight.schedule import CES, Schedule, load_schedule
 from boresight.sky import SkyConfig, make_sky

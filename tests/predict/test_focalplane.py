@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from helpers import EXAMPLES, toast_schedule
 
-from boresight import engine, focalplane, harmonics, predict, scanstats, spectra
+from boresight import engine, harmonics, predict, spectra
+from boresight import moments as scanstats
 from boresight.cosmology import load_spectra
-from boresight.hwp import HWP
-from boresight.instrument import Instrument, Spread, Systematics
+from boresight.instrument import focalplane
+from boresight.instrument.hwp import HWP
+from boresight.instrument.pairs import Instrument, Spread, Systematics
 from boresight.predict import focalplane as predict_fp
 from boresight.predict.expectation import smoothed_spectra
 from boresight.schedule import load_schedule

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from boresight import predict
-from boresight.instrument import PAPER_GAIN
+from boresight.instrument.pairs import PAPER_GAIN
 
 
 def test_delta_p_needs_the_moments_up_to_h4(small_sky):

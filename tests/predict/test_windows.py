@@ -10,7 +10,7 @@ def test_legendre_means_match_numpy_and_ignore_threads():
     and the same bits on one thread as on all."""
     from numpy.polynomial import legendre
 
-    from boresight.threads import numba_threads
+    from boresight._util.threads import numba_threads
 
     rng = np.random.default_rng(0)
     x = rng.uniform(-1, 1, (4, 4, 1000))

@@ -22,7 +22,8 @@ from helpers import (
 from hypothesis import event, given
 from hypothesis import strategies as st
 
-from boresight import pointing, scanstats
+from boresight import moments as scanstats
+from boresight import pointing
 from boresight.config import ConfigError
 from boresight.schedule import (
     CES,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from helpers import EXAMPLES, toast_schedule, toast_text
 
-from boresight import cli, pointing, scanstats
+from boresight import cli, moments, pointing
 from boresight.schedule import (
     CES,
     ScanMotion,
@@ -270,7 +270,7 @@ def test_turnarounds_match_toast_flags_and_can_be_left_out(toast_files, toast_si
 
     hits, theirs = _toast_hn(data, focalplane, 64, unflagged)
     schedule = dataclasses.replace(ours, dut1_s=dut1, turnarounds="exclude")
-    stats = scanstats.characterise_schedule(schedule, 64)
+    stats = moments.characterise_schedule(schedule, 64)
     assert abs(stats.hits.sum() - hits.sum()) <= mismatched
     assert stats.hits.sum() < 0.8 * total
     both = (stats.hits > 0) & (hits > 0)

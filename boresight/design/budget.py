@@ -1,0 +1,163 @@
+"""A design's budget file: its ``[systematics]``, ``[noise]``, ``[design]``, ``[instrument]``
+and ``[hwp]`` tables, read and checked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .. import predict
+from ..config import ConfigError, build_section, check_systematics, read_toml
+from ..instrument.focalplane import FocalPlane, focalplane_of_table
+from ..instrument.hwp import HWP, pairs_behind
+from ..instrument.pairs import AMPLITUDES, Instrument, Systematics, is_nonzero
+from ..noise import SurveyNoise
+from .white import DesignOptions
+
+if TYPE_CHECKING:
+    from ..instrument.pairs import Systematics
+    from ..noise import SurveyNoise
+
+
+@dataclass(frozen=True)
+class Budget:
+    """A design's inputs: the ``[systematics]``, ``[noise]`` and ``[design]`` tables.
+
+    Parameters
+    ----------
+    systematics : boresight.instrument.pairs.Systematics
+        The systematics over the focal plane: numbers, or {mean, rms} per parameter.
+    noise : boresight.noise.SurveyNoise
+    design : DesignOptions
+    instrument : boresight.instrument.pairs.Instrument
+        The pairs (the optional ``[instrument]`` table; default: the paper's Q/U pairs); with a
+        focal plane, the on-axis pairs the search takes (:func:`search_instrument`).
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
+        ``[instrument] focalplane``: a file (beside the budget) or a preset name
+        (:func:`boresight.instrument.focalplane.load_focalplane`).
+    hwp : boresight.instrument.hwp.HWP, optional
+        The ``[hwp]`` table (:class:`boresight.instrument.hwp.HWP`'s fields, ``mode`` "continuous" or
+        "stepped"): a HWP in front of the pairs, its IP in the budget. A stepped plate's
+        ``angles_deg`` are the steps the design may give each unit.
+    """
+
+    systematics: Systematics
+    noise: SurveyNoise
+    design: DesignOptions
+    instrument: Instrument = Instrument()
+    focalplane: FocalPlane | None = None
+    hwp: HWP | None = None
+
+
+def search_instrument(focal: FocalPlane) -> Instrument:
+    """The pairs on the axis that the search's objective takes for a focal plane: the focal
+    plane's pairs' angles where their 4 x angles cancel, else as many pairs at uniform angles
+    (the exact expectation on the axis needs m_4 = 0); each strategy is then evaluated on the
+    focal plane itself (:func:`boresight.predict.focalplane.expected_residual`)."""
+    own = Instrument(pair_angles_deg=focal.pair_angles_deg)
+    if predict.supports(own):
+        return own
+    return Instrument(pair_angles_deg="uniform", n_pairs=max(focal.n_pairs, 2))
+
+
+BUDGET_SECTIONS = ("systematics", "noise", "design", "instrument")
+#: the [hwp] table's keys (:class:`boresight.instrument.hwp.HWP`; its jitter and synchronous signal are not
+#: in the design's objective)
+BUDGET_HWP_KEYS = (
+    "mode", "frequency_hz", "phase_deg", "angles_deg", "ip", "ip_phase_deg", "angle_offset_deg"
+)  # fmt: skip
+
+
+def load_budget(path: str) -> Budget:
+    """Read a budget file; every problem is one :class:`boresight.config.ConfigError`.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    Budget
+    """
+
+    raw = read_toml(path, "budget")
+    unknown = sorted(set(raw) - set(BUDGET_SECTIONS) - {"hwp"})
+    if unknown:
+        raise ConfigError(
+            f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS + ('hwp',)}"
+        )
+    plate = _budget_hwp(path, raw.get("hwp"))
+    if "noise" not in raw:
+        raise ConfigError(f"budget {path}: a [noise] table is required")
+    tables, focal = {}, None
+    classes = (Systematics, SurveyNoise, DesignOptions, Instrument)
+    for name, cls in zip(BUDGET_SECTIONS, classes):
+        table = raw.get(name, {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"budget {path}: [{name}] must be a table")
+        if name == "noise" and isinstance(table.get("nl_bb_file"), str):  # beside the budget
+            table = {**table, "nl_bb_file": str(Path(path).parent / table["nl_bb_file"])}
+        if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
+            table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
+        if name == "instrument" and "focalplane" in table:
+            try:
+                focal = focalplane_of_table(table, Path(path).parent)
+            except ConfigError as err:
+                raise ConfigError(f"budget {path}: {err}") from None
+            table = {}
+        try:
+            tables[name] = build_section(name, cls, table)
+        except ConfigError as err:
+            raise ConfigError(f"budget {path}: {err}") from None
+    if focal is not None:
+        tables["instrument"] = search_instrument(focal)
+    sysm, instrument = tables["systematics"], tables["instrument"]
+    if plate is not None and (focal is not None or tables["design"].evaluation != "interp"):
+        raise ConfigError(
+            f"budget {path}: [hwp] designs pairs on the axis with the sky read by interpolation: "
+            "not with [instrument] focalplane or design.evaluation = 'exact' yet"
+        )
+    if not (sysm.has_amplitude or (plate is not None and plate.ip)):
+        raise ConfigError(
+            f"budget {path}: [systematics] has no non-zero amplitude (chi_deg and the "
+            "ellipticity angles only orient a pointing offset or a beam); give one of "
+            f"{', '.join(AMPLITUDES)}"
+        )
+    if is_nonzero(sysm.dg_repeat):
+        raise ConfigError(
+            f"budget {path}: [systematics] dg_repeat is a gain drift between the rotation "
+            "repeats of a synthetic scan; a schedule's repeats are CESs of their own, each with "
+            "the angle the design gives it: remove dg_repeat"
+        )
+    try:
+        check_systematics(sysm, instrument, (0.0,), tables["noise"].fwhm_arcmin)
+        if not predict.supports(instrument):
+            raise ValueError("its pairs' 4 x angles must cancel (m_4 = 0), e.g. 'uniform'")
+        if plate is not None:
+            pairs_behind(plate, sysm, instrument)
+    except ValueError as err:
+        raise ConfigError(f"budget {path}: [systematics] / [instrument]: {err}") from None
+    return Budget(**tables, focalplane=focal, hwp=plate)
+
+
+def _budget_hwp(path, table):
+    """The budget's [hwp] table as a HWP, or None."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError(f"budget {path}: [hwp] must be a table")
+    unknown = sorted(set(table) - set(BUDGET_HWP_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"budget {path}: unknown key hwp.{unknown[0]}; allowed: {BUDGET_HWP_KEYS}"
+        )
+    if table.get("mode") not in ("continuous", "stepped"):
+        raise ConfigError(f"budget {path}: hwp.mode must be 'continuous' or 'stepped'")
+    if isinstance(table.get("angles_deg"), list):
+        table = {**table, "angles_deg": tuple(table["angles_deg"])}
+    try:
+        return build_section("hwp", HWP, table)
+    except ConfigError as err:
+        raise ConfigError(f"budget {path}: {err}") from None

@@ -1,0 +1,63 @@
+"""h_n, the paper's central object, and its relatives, from any scan's samples: hits, h_n and
+crossing angles of the boresight (:mod:`~boresight.moments.axis`), moments weighted by the
+samples' offsets from their pixel's centre (:mod:`~boresight.moments.offsets`), every pair of a
+focal plane (:mod:`~boresight.moments.focalplane`) and h_{n,m} behind a half-wave plate
+(:mod:`~boresight.moments.hwp`). Every public name is re-exported here."""
+
+from ..constants import N_MAX
+from .axis import (
+    ScanStats,
+    ces_hits,
+    ces_hits_pairs,
+    characterise,
+    characterise_schedule,
+)
+from .focalplane import (
+    PAIR_BLOCK_BYTES,
+    FocalPlaneStats,
+    characterise_focalplane,
+    pair_blocks,
+)
+from .hwp import (
+    BEAM_BEHIND_TERMS,
+    BEAM_N_MAX,
+    HWP_TERMS,
+    IP_BEHIND_TERMS,
+    OFFSET_WEIGHTS,
+    OFFSETS,
+    POINTING_BEHIND_TERMS,
+    T_BEHIND_TERMS,
+    beams_behind,
+    hwp_moments,
+    pointing_behind,
+)
+from .offsets import (
+    centroid_moments,
+    sample_offsets,
+)
+
+__all__ = [
+    "N_MAX",
+    "ces_hits",
+    "ces_hits_pairs",
+    "ScanStats",
+    "characterise",
+    "characterise_schedule",
+    "sample_offsets",
+    "centroid_moments",
+    "HWP_TERMS",
+    "hwp_moments",
+    "OFFSETS",
+    "T_BEHIND_TERMS",
+    "IP_BEHIND_TERMS",
+    "POINTING_BEHIND_TERMS",
+    "pointing_behind",
+    "OFFSET_WEIGHTS",
+    "BEAM_N_MAX",
+    "BEAM_BEHIND_TERMS",
+    "beams_behind",
+    "FocalPlaneStats",
+    "PAIR_BLOCK_BYTES",
+    "pair_blocks",
+    "characterise_focalplane",
+]

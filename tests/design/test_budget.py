@@ -1,0 +1,79 @@
+"""A design's budget file: its tables read and checked, one clear error for each bad one."""
+
+import pytest
+from helpers import budget_file
+
+from boresight import design, predict
+from boresight.config import ConfigError
+from boresight.instrument.pairs import Spread, Systematics
+
+ALLOWED = (-90.0, -45.0, 0.0, 45.0, 90.0)
+NSIDE = 32
+
+BUDGET = Systematics(dg=(0.01, -0.01), rho_arcmin=0.5, chi_deg=30.0)
+BEAMS = Systematics(dg=(0.01, -0.01), dfwhm_b_arcmin=0.3, ellipticity_b=0.01, ellipticity_a=0.02)
+SPREAD = Systematics(dg=Spread(0.002, 0.01), pol_angle_deg=Spread(0.0, 0.5), rho_arcmin=0.3)
+
+
+@pytest.mark.parametrize(
+    "tables, message",
+    [
+        (
+            dict(
+                noise="net_uk_sqrt_s = -300.0\nn_detectors = 10\nyears = 1.0\nfsky = 0.1\n"
+                "fwhm_arcmin = 30.0"
+            ),
+            "net_uk_sqrt_s",
+        ),  # fmt: skip
+        (dict(systematics="ellipticity = 0.01"), "ellipticity"),
+        (dict(design="angles_deg = []"), "angles_deg"),
+        (dict(design="group = 'week'"), "group"),
+        (dict(design="evaluation = 'nearest'"), "evaluation"),
+        (dict(noise=None), "noise"),
+        (dict(systematics="dg = 0.0"), "no non-zero"),
+        (dict(systematics="ellipticity_b = 0.99"), "ellipticity_b"),
+        (dict(systematics="dfwhm_b_arcmin = -40.0"), "FWHM"),
+        (
+            dict(systematics="dg = {mean = 0.0, rms = 0.01}", instrument="pair_angles_deg = [0.0]"),
+            "m_4",
+        ),  # fmt: skip
+        (
+            dict(systematics="dg = 0.01", instrument="pair_angles_deg = 'hexagonal'\nn_pairs = 6"),
+            "preset",
+        ),  # fmt: skip
+        (dict(hwp="mode = 'spinning'"), "hwp.mode"),
+        (dict(systematics="dg = 0.01", hwp="mode = 'stepped'\nangles_deg = []"), "angles"),
+        (
+            dict(systematics="dg = 0.01", hwp="mode = 'continuous'\nfrequency_hz = -2.0"),
+            "frequency",
+        ),
+        (dict(hwp="mode = 'stepped'"), "rho_arcmin behind a HWP"),
+        (dict(systematics="dg = 0.01", hwp="mode = 'stepped'\nangle_jitter_deg = 0.1"), "jitter"),
+        (
+            dict(systematics="dg = 0.01", design="evaluation = 'exact'", hwp="mode = 'stepped'"),
+            "not with",
+        ),  # fmt: skip
+        (dict(systematics="dg = 0.0", hwp="mode = 'stepped'"), "no non-zero"),
+    ],
+)
+def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
+    with pytest.raises(ConfigError, match=message):
+        design.load_budget(budget_file(tmp_path, **tables))
+
+
+def test_a_budget_focal_plane_is_checked(tmp_path):
+    bad = tmp_path / "fp.csv"
+    bad.write_text("name,xi_deg,eta_deg,gamma_deg\nD0A,0,0,0\nD0B,0,0,90\nD1A,1,0,0\n")
+    with pytest.raises(ConfigError, match="D1A"):
+        design.load_budget(budget_file(tmp_path, instrument='focalplane = "fp.csv"'))
+    with pytest.raises(ConfigError, match="pair_angles_deg"):
+        design.load_budget(
+            budget_file(tmp_path, instrument='focalplane = "axis"\npair_angles_deg = [0.0]')
+        )
+    with pytest.raises(ConfigError, match="dg has 2 entries but the instrument has 37 pairs"):
+        design.load_budget(budget_file(tmp_path, instrument='focalplane = "hexagon:37:35"'))
+    budget = design.load_budget(
+        budget_file(tmp_path, systematics="dg = {mean = 0.0, rms = 0.01}",
+                instrument='focalplane = "hexagon:37:35"')
+    )  # fmt: skip
+    assert budget.focalplane.n_pairs == 37 and predict.supports(budget.instrument)
