@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+from tqdm import tqdm
 
 from .._util import interrupts
 from ..constants import N_MAX
@@ -539,3 +540,68 @@ def search(
         )
     best.history = history
     return best
+
+
+def search_strategies(
+    budget, moments, obj, schedule, strategies, *, startable, theory, timer, tick, progress
+):
+    """The search on the focal plane (:func:`boresight.design.focalplane.search`) from the best
+    baseline there; every baseline's exact expectation on the mask they share."""
+    opts, focal = budget.design, budget.focalplane
+    with timer("every baseline on the focal plane"):
+        expected = on_focalplane(
+            budget, moments, obj, schedule, strategies, theory=theory, progress=progress
+        )
+    exact = {n: delta_r(e.residual, obj.template) for n, e in expected.items()}
+    start = (
+        strategies[min(startable, key=lambda n: exact[n] + opts.change_cost * obj.changes(
+            strategies[n]))]
+        if startable
+        else np.full(moments.n_units, opts.angles_deg[0])
+    )  # fmt: skip
+    with timer("per-unit, per-angle moments of every pair"):
+        sums = unit_sums(moments, schedule, focal, opts.angles_deg, progress=tick)
+    with timer("search"):
+        found = search(
+            sums, moments, schedule, target_of(budget, theory, moments, obj), start,
+            change_cost=opts.change_cost, sweeps=opts.sweeps, restarts=opts.restarts,
+            seed=opts.seed, progress=tick,
+        )  # fmt: skip
+    return found, expected
+
+
+def target_of(budget, theory, moments, obj):
+    """The focal-plane search's :class:`boresight.design.focalplane.Target`."""
+    return Target(
+        budget.systematics, theory, budget.noise.fwhm_arcmin, moments.mask, obj.template,
+        obj.lmax, budget.design.evaluation,
+    )  # fmt: skip
+
+
+def on_focalplane(budget, moments, obj, schedule, strategies, *, theory, progress):
+    """Each strategy's exact expected residual on the focal plane, every pair on its own samples
+    (:func:`boresight.design.focalplane.exact_delta_r`), on the boresight's footprint."""
+    target = target_of(budget, theory, moments, obj)
+    expected = {}
+    for name, angles in tqdm(
+        strategies.items(), desc="baselines on the focal plane", unit="strategy",
+        disable=not progress,
+    ):  # fmt: skip
+        interrupts.check()
+        _, expected[name] = exact_delta_r(
+            moments, schedule, budget.focalplane, angles, target=target
+        )
+    return expected
+
+
+def strategy_columns(expected, template, sigma, row):
+    """strategies.csv's focal-plane columns: delta_r becomes the focal plane's, the on-axis
+    objective's is kept as delta_r_on_axis."""
+    total = delta_r(expected.residual, template)
+    return dict(
+        delta_r=total,
+        delta_r_over_sigma_r=total / sigma,
+        delta_r_on_axis=row["delta_r"],
+        fp_delta_r_coherent=delta_r(expected.coherent.residual, template),
+        fp_delta_r_scattered=delta_r(expected.scattered, template),
+    )
