@@ -98,14 +98,15 @@ COMMANDS = {
 #: keys and columns that may differ between two runs of the same numbers
 IGNORED = re.compile(
     r"(second|time|elapsed|duration|version|date|host|machine|platform|python|numpy|numba|"
-    r"healpy|ducc|path|command|cwd|started|finished|rss|memory|cpu|threads|git|commit|out)",
+    r"healpy|ducc|path|command|cwd|started|finished|created|process|rss|memory|cpu|threads|git|"
+    r"commit|out)",
     re.I,
 )
 
 
 def run(out: Path, checkout: Path | None, only: list[str]) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    prefix = f"import sys; sys.path.insert(0, {str(checkout)!r}); " if checkout else ""
+    prefix = "import sys; " + (f"sys.path.insert(0, {str(checkout)!r}); " if checkout else "")
     code = prefix + "from boresight.cli import main; sys.exit(main())"
     for name, args in COMMANDS.items():
         if only and name not in only:
@@ -234,6 +235,18 @@ def _json(a: Path, b: Path) -> list[str]:
     return _json_values(json.loads(a.read_text()), json.loads(b.read_text()), "")
 
 
+def _text(a: Path, b: Path) -> list[str]:
+    """Line by line, but lines that name a time, a version, a date or a path."""
+    la, lb = a.read_text().splitlines(), b.read_text().splitlines()
+    if len(la) != len(lb):
+        return [f"{len(la)} lines against {len(lb)}"]
+    return [
+        f"line {i + 1}: {x!r} against {y!r}"
+        for i, (x, y) in enumerate(zip(la, lb))
+        if x != y and not IGNORED.search(x)
+    ]
+
+
 COMPARERS = {
     ".csv": _csv,
     ".fits": _fits,
@@ -241,6 +254,10 @@ COMPARERS = {
     ".hdf5": _hdf5,
     ".npz": _npz,
     ".json": _json,
+    ".md": _text,
+    ".toml": _text,
+    ".txt": _text,
+    ".ecsv": _text,
 }
 
 
