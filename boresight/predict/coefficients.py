@@ -15,6 +15,7 @@ import numpy as np
 
 from ..constants import DEG
 from ..instrument.pairs import BEAM_KEYS, LIMITS, UNITS, Instrument, Spread, Systematics
+from .terms import MOMENT_ORDER
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -167,7 +168,7 @@ def expected_coefficients(coefs: Coefficients, power: ExpectedPower) -> Coeffici
     -------
     Coefficients
     """
-    return replace(coefs, **{k: np.sqrt(getattr(power, k)) for k in ("t2", "s2", "g1", "g3", "p4")})
+    return replace(coefs, **{k: np.sqrt(getattr(power, k)) for k in MOMENT_NAMES if k != "p0"})
 
 
 def expected_power(
@@ -202,7 +203,7 @@ def expected_power(
         return f @ weight, (f.real**2) @ weight, (f.imag**2) @ weight, (f.real * f.imag) @ weight
 
     out, means = {}, {}
-    for name in ("t2", "s2", "g1", "g3", "p4", "p0"):
+    for name in MOMENT_NAMES:
         mean, re2, im2, reim = moments(terms[name])
         means[name] = complex(np.mean(mean))
         re, im = np.mean(mean.real), np.mean(mean.imag)
@@ -263,7 +264,7 @@ def _node_terms(systematics, instrument, rotations_deg):
     return terms, weight, n
 
 
-MOMENT_NAMES = ("t2", "s2", "g1", "g3", "p4", "p0")  #: the coefficients of coefficient_moments
+MOMENT_NAMES = MOMENT_ORDER  #: the coefficients of coefficient_moments, in its order
 
 
 def coefficient_moments(

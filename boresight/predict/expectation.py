@@ -26,6 +26,7 @@ from ..instrument.hwp import pairs_behind
 from . import field_products as fp
 from .beam_fields import beam_filters
 from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients, jitter_variance
+from .terms import ordered
 from .windows import hit_spread_window, interpolation_window
 
 if TYPE_CHECKING:
@@ -33,15 +34,9 @@ if TYPE_CHECKING:
     from ..instrument.hwp import HWP
     from ..instrument.pairs import Instrument, Systematics
 
-#: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`
-TERM_FIELDS = {
-    "t2": (2, "temperature"),
-    "s2": (2, "template"),
-    "g1": (1, "gradient"),
-    "g3": (3, "conjugate gradient"),
-    "p4": (4, "conjugate polarisation"),
-    "p0": (0, "polarisation"),
-}
+#: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`, in that order
+#: (:data:`boresight.predict.terms.TERMS`)
+TERM_FIELDS = {term.name: (term.n, term.field) for term in ordered(MOMENT_NAMES)}
 
 
 class ExpectedResidual(NamedTuple):

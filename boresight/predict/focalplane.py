@@ -39,7 +39,6 @@ from ..spectra import as_footprint
 from . import field_products as fp_products
 from .beam_fields import pairs_beam_filters
 from .expectation import (
-    TERM_FIELDS,
     ExpectedResidual,
     budget_terms,
     fields_by_kind,
@@ -50,7 +49,6 @@ from .expectation import (
 from .hwp import beam_parts_behind, pointing_behind_y, temperature_across
 from .pair_fields import (
     LINEAR,
-    TERMS,
     beam_sky_field,
     behind_plate,
     check_supported,
@@ -72,6 +70,7 @@ from .pair_fields import (
     taylor,
     term_h,
 )
+from .terms import TERMS
 
 if TYPE_CHECKING:
     from ..cosmology import Spectra
@@ -250,11 +249,11 @@ def delta_p(
     if offsets is not None:
         window = spread_window(sky) if spread else np.ones(sky.lmax + 1)
         kinds = fields_by_kind(window, window)
-        for name, n in TERMS:
-            if name in fields:
-                up, down = derivative_maps(sky, kinds[TERM_FIELDS[name][1]], nthreads)
-                for by, field in zip(offset_weights(offsets, n), (up, down)):
-                    y = y + 0.5 * field * hit_mean(shares[name], weights, by)
+        for term in TERMS:
+            if term.name in fields:
+                up, down = derivative_maps(sky, kinds[term.field], nthreads)
+                for by, field in zip(offset_weights(offsets, term.n), (up, down)):
+                    y = y + 0.5 * field * hit_mean(shares[term.name], weights, by)
     return solve_pairs(y, mean_h4(stats, weights, shares))
 
 

@@ -14,6 +14,7 @@ from .._util.jit import njit
 from .._util.threads import numba_threads
 from .beam_fields import beam_field, beam_filters
 from .coefficients import coefficients
+from .terms import TERMS
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -96,7 +97,7 @@ def delta_p(
             grad[0],
             grad[1],
             beam,
-            np.array([c.t2, c.s2, c.g1, c.g3, c.p0, c.p4, c.m4]),
+            np.array([*(getattr(c, term.name) for term in TERMS), c.m4]),
             out,
         )
     return out

@@ -20,14 +20,11 @@ from ..moments.hwp import (
 from . import field_products as fp_products
 from .beam_fields import beam_field
 from .coefficients import pair_terms
+from .terms import TERMS
 from .windows import hit_spread_window
 
 #: the drawn parameters the expectation covers: those dP is linear in
 LINEAR = ("dg", "leak", "rho_arcmin")
-
-
-#: the coefficient shares and the moment each multiplies
-TERMS = (("t2", 2), ("s2", 2), ("g1", 1), ("g3", 3), ("p0", 0), ("p4", 4))
 
 
 def check_supported(stats, systematics):
@@ -140,10 +137,10 @@ def leak_y(stats, weights, shares, fields, *, pairs=slice(None)):
     """Y of coefficient shares (pairs,) per term, over ``pairs`` (a slice; default all): the h_0
     term's moment is 1 where seen."""
     y = np.zeros(stats.combined.hits.size, dtype=np.complex128)
-    for name, n in TERMS:
-        if name in fields:
-            h = term_h(stats, name, n, pairs)
-            y += fields[name] * hit_mean(shares[name][pairs], weights[pairs], h)
+    for term in TERMS:
+        if term.name in fields:
+            h = term_h(stats, term.name, term.n, pairs)
+            y += fields[term.name] * hit_mean(shares[term.name][pairs], weights[pairs], h)
     return y
 
 

@@ -1,0 +1,76 @@
+"""The one table of a pair's leak terms: which coefficient, which spin moment h_n it multiplies,
+which sky field it reads and which systematics switch it on.
+
+A pair difference's leak into the map-maker's Y (docs/conventions.md, "The leak of a pair") is
+
+    Y = t2 h_2 T + s2 h_2 S + g1 h_1 G + g3 h_3 G* + p0 P + p4 h_4 P*,
+
+with S the leak's template (T unless given), G the gradient of T and P = Q + i U. Every
+consumer (the coefficients, the maps, the spectra, the exact expectation, the focal plane)
+iterates :data:`TERMS` in the order it needs (:func:`ordered`), so the table is written once.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+class Term(NamedTuple):
+    """One leak term.
+
+    Parameters
+    ----------
+    name : str
+        The coefficient (:func:`boresight.predict.coefficients.pair_terms`).
+    n : int
+        The spin moment h_n it multiplies (h_0 = 1).
+    field : str
+        The sky field it reads, as :mod:`boresight.predict.expectation` names it.
+    symbol : str
+        The field in the docs' notation.
+    switches : tuple of str
+        The :class:`boresight.instrument.pairs.Systematics` keys that turn it on.
+    """
+
+    name: str
+    n: int
+    field: str
+    symbol: str
+    switches: tuple
+
+
+#: the terms, in the order of Y
+TERMS = (
+    Term("t2", 2, "temperature", "T", ("dg", "dg_repeat")),
+    Term("s2", 2, "template", "S", ("leak",)),
+    Term("g1", 1, "gradient", "G", ("rho_arcmin",)),
+    Term("g3", 3, "conjugate gradient", "G*", ("rho_arcmin",)),
+    Term("p0", 0, "polarisation", "P", ("dg", "dg_repeat", "pol_angle_deg", "nonortho_deg")),
+    Term(
+        "p4",
+        4,
+        "conjugate polarisation",
+        "P*",
+        ("dg", "dg_repeat", "pol_angle_deg", "nonortho_deg"),
+    ),
+)
+#: each term by its coefficient's name
+BY_NAME = {term.name: term for term in TERMS}
+#: the order of the coefficients' moments (:func:`boresight.predict.coefficients.coefficient_moments`)
+MOMENT_ORDER = ("t2", "s2", "g1", "g3", "p4", "p0")
+
+
+def ordered(names) -> tuple[Term, ...]:
+    """The terms of ``names``, in that order."""
+    return tuple(BY_NAME[name] for name in names)
+
+
+def switched_on_by(key: str) -> tuple[Term, ...]:
+    """The terms a systematic's key turns on, in the order of Y."""
+    return tuple(term for term in TERMS if key in term.switches)
+
+
+def couples_through(key: str) -> str:
+    """The moments and fields a systematic's key leaks through, as the docs write them:
+    "h_2 T, h_0 P, h_4 P*" for ``dg``."""
+    return ", ".join(f"h_{term.n} {term.symbol}" for term in switched_on_by(key))
