@@ -93,8 +93,7 @@ def run(
     budget = _budget(budget_path, focalplane)
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     check_sampling(budget.hwp, schedule.sample_rate_hz)
-    focal_files = budget.focalplane.files if budget.focalplane is not None else []
-    inputs = [budget_path, schedule_path, *focal_files]
+    inputs = [budget_path, schedule_path, *getattr(budget.focalplane, "files", [])]
     io.check_output_dir(out_dir, force, inputs)
     timer = provenance.Timer(log)
     estimate = _prepare(budget, schedule, validate=validate, checks=checks, timer=timer)

@@ -160,6 +160,31 @@ def run_schedule(
     timer = provenance.Timer(log)
     job = "schedule-stats" if focalplane is None else "focalplane-stats"
     precompile.precompile(precompile.kernels_for(job), timer=timer)
+    with timer("characterise the schedule"):
+        stats, planes = _characterise(
+            schedule, nside, tolerance_deg, focalplane=focalplane, per_pair=per_detector,
+            scheduler=scheduler, workers=workers, progress=progress,
+        )  # fmt: skip
+    plate_moments = None
+    if hwp is not None and hwp.present:
+
+        def plate_moments(each):
+            with timer("the HWP's moments"):
+                return scanstats.hwp_moments(
+                    schedule, hwp, nside, focalplane=focalplane, each=each, progress=progress
+                )
+
+    config = _config(schedule_path, schedule, nside, tolerance_deg, focalplane, hwp)
+    inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
+    maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
+    return hn_maps.write(
+        out_dir, maps, n_max=scanstats.N_MAX, inputs=inputs, force=force, layout=layout,
+        config=config, estimate=estimate, planes=planes, hwp_moments=plate_moments,
+    )  # fmt: skip
+
+
+def _config(schedule_path, schedule, nside, tolerance_deg, focalplane, hwp):
+    """The manifest's config of a schedule's run."""
     config = {
         "schedule": schedule_path,
         "nside": nside,
@@ -167,40 +192,13 @@ def run_schedule(
         "turnarounds": schedule.turnarounds,
         "tolerance_deg": tolerance_deg,
     }
-    inputs = [schedule_path]
-    with timer("characterise the schedule"):
-        stats, planes = _characterise(
-            schedule, nside, tolerance_deg, focalplane=focalplane, per_pair=per_detector,
-            scheduler=scheduler, workers=workers, progress=progress,
-        )  # fmt: skip
     if focalplane is not None:
         config["focalplane"] = focalplane.source
-        inputs += focalplane.files
-    moments = None
     if hwp is not None and hwp.present:
-
-        def moments(each):
-            with timer("the HWP's moments"):
-                return scanstats.hwp_moments(
-                    schedule, hwp, nside, focalplane=focalplane, each=each, progress=progress
-                )
-
         config["hwp"] = dataclasses.asdict(hwp)
     config["observing_s"] = schedule.n_samples / schedule.sample_rate_hz
     config["sample_rate_hz"] = schedule.sample_rate_hz
-    maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
-    return hn_maps.write(
-        out_dir,
-        maps,
-        n_max=scanstats.N_MAX,
-        inputs=inputs,
-        force=force,
-        layout=layout,
-        config=config,
-        estimate=estimate,
-        planes=planes,
-        hwp_moments=moments,
-    )
+    return config
 
 
 def _estimate(schedule, nside, *, focalplane, per_detector, hwp):

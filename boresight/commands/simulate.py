@@ -85,28 +85,7 @@ def run(
     bands = residual.band_rows(study.output.edges(), job.columns())
     with io.staged_dir(out_dir, force, study.inputs) as stage:
         if study.output.maps:
-            for name, m in (
-                ("maps_systematics.fits", sim),
-                ("maps_reference.fits", ref),
-            ):
-                io.write_maps(
-                    stage / name,
-                    [
-                        np.where(m.valid, sky.maps[0], hp.UNSEEN),
-                        m.q,
-                        m.u,
-                        m.hits,
-                        m.rcond,
-                    ],
-                    ["I", "Q", "U", "HITS", "RCOND"],
-                    ["uK", "uK", "uK", "", ""],
-                    comments=MAP_COMMENTS,
-                )
-            both = sim.valid & ref.valid
-            spurious = [
-                np.where(both, a - b, hp.UNSEEN) for a, b in ((sim.q, ref.q), (sim.u, ref.u))
-            ]
-            plots.map_figure(spurious, ["Q spurious", "U spurious"], stage / "maps_spurious.png")
+            _write_maps(stage, sky, sim, ref)
         io.write_csv(stage / "spectra.csv", rows, ["ell", *columns])
         io.write_csv(stage / "bands.csv", bands, list(bands[0]))
         plots.spectrum_figure(bands, stage / "residual")
@@ -120,6 +99,30 @@ def run(
             ),
         )
     return rows
+
+
+def _write_maps(stage, sky, sim, ref):
+    """The maps with and without the systematics, and a figure of their spurious Q and U."""
+    for name, m in (
+        ("maps_systematics.fits", sim),
+        ("maps_reference.fits", ref),
+    ):
+        io.write_maps(
+            stage / name,
+            [
+                np.where(m.valid, sky.maps[0], hp.UNSEEN),
+                m.q,
+                m.u,
+                m.hits,
+                m.rcond,
+            ],
+            ["I", "Q", "U", "HITS", "RCOND"],
+            ["uK", "uK", "uK", "", ""],
+            comments=MAP_COMMENTS,
+        )
+    both = sim.valid & ref.valid
+    spurious = [np.where(both, a - b, hp.UNSEEN) for a, b in ((sim.q, ref.q), (sim.u, ref.u))]
+    plots.map_figure(spurious, ["Q spurious", "U spurious"], stage / "maps_spurious.png")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -141,12 +141,7 @@ def run_hwp(
     list of dict
         The table's rows.
     """
-    if sky_config.nside < hwp_suppression.MIN_NSIDE:
-        raise ConfigError(
-            f"--nside = {sky_config.nside}: the HWP table's bands start at ell = 30; give a power "
-            f"of two >= {hwp_suppression.MIN_NSIDE}"
-        )
-    hwp_suppression.check_resolution(sky_config.nside, sky_config.fwhm_arcmin)
+    _check_hwp_sky(sky_config)
     schedule = load_schedule(schedule_path)
     hwp_suppression.check_plate(plate)
     check_sampling(plate, schedule.sample_rate_hz)
@@ -163,10 +158,8 @@ def run_hwp(
     )
     resources.require(estimate, checks)
     timer = provenance.Timer(log)
-    # compiled before the stages (on all cores, once), so that Ctrl-C is not held up by a compile
-    kernels = precompile.kernels_for("validation", pointing=True)
-    kernels += precompile.kernels_for("focalplane-stats")
-    precompile.precompile(kernels, timer=timer)
+    kernels = precompile.kernels_for("validation", pointing=True)  # before the stages: Ctrl-C
+    precompile.precompile(kernels + precompile.kernels_for("focalplane-stats"), timer=timer)
     with timer("sky"):
         sky = make_sky(sky_config)
     with timer("simulations and predictions"):
@@ -190,6 +183,16 @@ def run_hwp(
             ),
         )
     return result.rows
+
+
+def _check_hwp_sky(sky_config):
+    """Refuse a sky the HWP table's bands or beams cannot take, before any work."""
+    if sky_config.nside < hwp_suppression.MIN_NSIDE:
+        raise ConfigError(
+            f"--nside = {sky_config.nside}: the HWP table's bands start at ell = 30; give a power "
+            f"of two >= {hwp_suppression.MIN_NSIDE}"
+        )
+    hwp_suppression.check_resolution(sky_config.nside, sky_config.fwhm_arcmin)
 
 
 #: the flags of the plate's own cases: flag -> (its HWP field, its values, its help)
