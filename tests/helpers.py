@@ -176,3 +176,18 @@ def budget_file(tmp_path, nside=32, **tables):
     path = tmp_path / "budget.toml"
     path.write_text("\n".join(f"[{k}]\n{v}" for k, v in text.items() if v is not None))
     return str(path)
+
+
+def night_schedule(site=Site(), rate=10.0, n=6, el=50.0):
+    """n half-hour CESs an hour apart, rising then setting, at ``rate`` samples a second."""
+    ces = tuple(
+        CES(
+            start_unix=T0 + i * 3600,
+            duration_s=1800,
+            elevation_deg=el,
+            az_centre_deg=140 if i < n // 2 else 220,
+            az_throw_deg=30,
+        )
+        for i in range(n)
+    )
+    return Schedule(ces, site, sample_rate_hz=rate)

@@ -40,6 +40,7 @@ from .._util.jit import njit
 from ..constants import DEG, N_MAX
 from ..instrument.hwp import pairs_behind
 from ..predict import field_products as fp
+from ..predict.expectation import OFFSETS_BEHIND_HWP
 from .white import Design
 
 if TYPE_CHECKING:
@@ -260,7 +261,7 @@ def exact_objective(
     second, pseudo = model.second, model.pseudo
     if evaluation == "exact" and moments.centroids is not None:
         if hwp is not None and hwp.present:
-            raise ValueError("the samples' offsets behind a HWP: not yet predicted")
+            raise ValueError(OFFSETS_BEHIND_HWP)
         k = model.n_leak
         extra = _offset_terms(model)
         new = list(dict.fromkeys(c for *_, c in extra))

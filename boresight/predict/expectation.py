@@ -36,6 +36,8 @@ if TYPE_CHECKING:
 
 #: the spin-moment n and field of each coefficient of :data:`MOMENT_NAMES`, in that order
 #: (:data:`boresight.predict.terms.TERMS`)
+#: the refusal of every prediction read exactly across the pixel behind a plate (bare pairs only)
+OFFSETS_BEHIND_HWP = "the samples' offsets behind a HWP: not yet predicted"
 TERM_FIELDS = {term.name: (term.n, term.field) for term in ordered(MOMENT_NAMES)}
 
 
@@ -353,7 +355,7 @@ def expected_residual(
     plate_ip = 0.0
     if hwp is not None and hwp.present:
         if offsets is not None:
-            raise ValueError("the samples' offsets behind a HWP: not yet predicted")
+            raise ValueError(OFFSETS_BEHIND_HWP)
         systematics, instrument, plate_ip = pairs_behind(hwp, systematics, instrument)
         if plate_ip and plate_h is None:
             raise ValueError("a HWP's IP: give plate_h, the crossing angles' own h_n")

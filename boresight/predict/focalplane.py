@@ -39,6 +39,7 @@ from ..spectra import as_footprint
 from . import field_products as fp_products
 from .beam_fields import pairs_beam_filters
 from .expectation import (
+    OFFSETS_BEHIND_HWP,
     ExpectedResidual,
     budget_terms,
     fields_by_kind,
@@ -502,7 +503,7 @@ def expected_residual(
             "yet (delta_p predicts it for a sky)"
         )
     if offsets is not None and stats.hwp is not None:
-        raise ValueError("the samples' offsets behind a HWP: not yet predicted")
+        raise ValueError(OFFSETS_BEHIND_HWP)
     band = lmax if band is None else band
     nside, lw = hp.npix2nside(mask.size), lmax + band
     focal = stats.focalplane

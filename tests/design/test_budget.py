@@ -5,14 +5,6 @@ from helpers import budget_file
 
 from boresight import design, predict
 from boresight.config import ConfigError
-from boresight.instrument.pairs import Spread, Systematics
-
-ALLOWED = (-90.0, -45.0, 0.0, 45.0, 90.0)
-NSIDE = 32
-
-BUDGET = Systematics(dg=(0.01, -0.01), rho_arcmin=0.5, chi_deg=30.0)
-BEAMS = Systematics(dg=(0.01, -0.01), dfwhm_b_arcmin=0.3, ellipticity_b=0.01, ellipticity_a=0.02)
-SPREAD = Systematics(dg=Spread(0.002, 0.01), pol_angle_deg=Spread(0.0, 0.5), rho_arcmin=0.3)
 
 
 @pytest.mark.parametrize(

@@ -2,28 +2,13 @@
 and the fused characterisation of a schedule against the streamed one."""
 
 import numpy as np
-from helpers import T0
+from helpers import night_schedule
 
 from boresight import engine, moments, pointing
-from boresight.schedule import CES, Schedule, Site
-
-
-def _night(site=Site(), rate=10.0, n=6, el=50.0):
-    ces = tuple(
-        CES(
-            start_unix=T0 + i * 3600,
-            duration_s=1800,
-            elevation_deg=el,
-            az_centre_deg=140 if i < n // 2 else 220,
-            az_throw_deg=30,
-        )
-        for i in range(n)
-    )
-    return Schedule(ces, site, sample_rate_hz=rate)
 
 
 def test_repeat_at_180_cancels_h1_h3():
-    stats = moments.characterise(pointing.pointing(_night(rate=4).repeated([0, 180])), 64)
+    stats = moments.characterise(pointing.pointing(night_schedule(rate=4).repeated([0, 180])), 64)
     obs = stats.observed
     assert obs.sum() > 300
     assert np.abs(stats.h[1, obs]).max() < 1e-13 and np.abs(stats.h[3, obs]).max() < 1e-13
@@ -32,7 +17,7 @@ def test_repeat_at_180_cancels_h1_h3():
 
 
 def test_twin_reproduces_hn_power():
-    stats = moments.characterise(pointing.pointing(_night()), 64)
+    stats = moments.characterise(pointing.pointing(night_schedule()), 64)
     twin = stats.synthetic_twin(seed=1)
     h, _ = engine.scan_moments(twin, 64, pixels=stats.observed)
     means = stats.survey_means()
@@ -55,7 +40,7 @@ def test_distinct_angles_and_range():
 
 
 def test_fused_schedule_characterisation_equals_streamed():
-    sched = _night(rate=4).repeated([0, 90])
+    sched = night_schedule(rate=4).repeated([0, 90])
     a = moments.characterise(pointing.pointing(sched), 128)
     b = moments.characterise_schedule(sched, 128)
     assert np.array_equal(a.hits, b.hits)

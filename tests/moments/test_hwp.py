@@ -15,20 +15,6 @@ from boresight.instrument.hwp import HWP
 from boresight.schedule import CES, Schedule, Site
 
 
-def _night(site=Site(), rate=10.0, n=6, el=50.0):
-    ces = tuple(
-        CES(
-            start_unix=T0 + i * 3600,
-            duration_s=1800,
-            elevation_deg=el,
-            az_centre_deg=140 if i < n // 2 else 220,
-            az_throw_deg=30,
-        )
-        for i in range(n)
-    )
-    return Schedule(ces, site, sample_rate_hz=rate)
-
-
 @pytest.mark.parametrize(
     "terms, error, message",
     [

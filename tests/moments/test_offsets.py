@@ -1,25 +1,10 @@
 """The samples' offsets from their pixel's centre and the moments weighted by them."""
 
 import numpy as np
-from helpers import T0
+from helpers import night_schedule
 
 from boresight import moments, pointing
 from boresight.instrument import focalplane
-from boresight.schedule import CES, Schedule, Site
-
-
-def _night(site=Site(), rate=10.0, n=6, el=50.0):
-    ces = tuple(
-        CES(
-            start_unix=T0 + i * 3600,
-            duration_s=1800,
-            elevation_deg=el,
-            az_centre_deg=140 if i < n // 2 else 220,
-            az_throw_deg=30,
-        )
-        for i in range(n)
-    )
-    return Schedule(ces, site, sample_rate_hz=rate)
 
 
 def test_centroid_moments_are_each_samples_place_in_its_pixel():
@@ -29,7 +14,7 @@ def test_centroid_moments_are_each_samples_place_in_its_pixel():
     import healpy as hp
 
     nside = 16
-    schedule = _night(rate=1.0, n=2)
+    schedule = night_schedule(rate=1.0, n=2)
     got = moments.centroid_moments(schedule, nside, n_max=2)
     theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(schedule)))
     pix = hp.ang2pix(nside, theta, phi)
@@ -57,7 +42,7 @@ def test_a_focal_planes_centroid_moments_are_each_pairs_own():
     import healpy as hp
 
     nside, n_max = 16, 2
-    schedule = _night(rate=1.0, n=2)
+    schedule = night_schedule(rate=1.0, n=2)
     hexagon = focalplane.hexagon(7, 10.0)
     got = moments.centroid_moments(schedule, nside, n_max=n_max, focalplane=hexagon)
     stats = moments.characterise_focalplane(schedule, hexagon, nside, per_pair=True)
