@@ -1,7 +1,13 @@
 """The suppression map end to end: every systematic of the catalogue through the rotation
 schedules, simulated against predicted."""
 
+import re
+
 import pytest
+from helpers import ROOT
+
+from boresight.jobs.suppression.axis import CATALOGUE
+from boresight.predict import coefficients, terms
 
 
 def test_suppression_map_end_to_end(tmp_path):
@@ -31,3 +37,25 @@ def test_suppression_map_end_to_end(tmp_path):
     )
     assert sup["gain", "0/45"] == pytest.approx(pred["gain", "0/45"], rel=0.1)
     assert (out / "suppression.png").is_file() and "cancels" in (out / "suppression.md").read_text()
+
+
+@pytest.mark.parametrize("name", ["gain", "pointing", "leak", "angle", "non-orthogonality"])
+def test_the_human_tables_name_the_moments_the_one_table_and_the_formula_give(name):
+    """The catalogue's "couples through" column and the systematics guide's table name, for each
+    systematic of the six leak terms, exactly the moments h_n whose coefficients its own
+    systematic makes non-zero on the paper's pairs (predict.terms through pair_terms)."""
+    entry = next(e for e in CATALOGUE if e.name == name)
+    coefs = coefficients(entry.systematics)
+    made = {t.n for t in terms.TERMS if abs(getattr(coefs, t.name)) > 1e-12}
+    assert {int(n) for n in re.findall(r"h_(\d)", entry.coupling)} == made
+    guide = (ROOT / "docs" / "guide" / "systematics.md").read_text()
+    keys = {
+        "gain": "`dg`",
+        "pointing": "`rho_arcmin`",
+        "leak": "`leak`",
+        "angle": "`pol_angle_deg`",
+        "non-orthogonality": "`nonortho_deg`",
+    }
+    row = next(line for line in guide.splitlines() if line.startswith("|") and keys[name] in line)
+    cell = row.split("|")[3]
+    assert {int(n) for n in re.findall(r"h_(\d)", cell)} == made
