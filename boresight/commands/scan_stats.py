@@ -100,14 +100,9 @@ def run_schedule(
     progress: bool = False,
     checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
-    """:func:`run` for a CES schedule file (boresight's TOML or CSV, or TOAST's).
-
-    With a focal plane every pair is pointed from its own place; the h_n maps are then the focal
-    plane's combination (all pairs' samples binned together), ``hn_scatter.fits`` holds the
-    scattered weights sum_i N_i^2 ``|h_{n,i}|^2`` / N^2, and ``pairs.csv`` and ``pairs.png`` each
-    pair's hit-weighted <``|h_n|^2``> (against its distance from the boresight). ``per_detector`` (SO layout) also writes sotodlib's per-detector files
-    ``{prefix}_{det}_cos_{n}.fits``, ``_sin_{n}`` and ``_hits``, with psi as sotodlib's ``Hn``
-    computes it (TOAST's psi less the detector's polarisation angle).
+    """:func:`run` for a CES schedule file (boresight's TOML or CSV, or TOAST's); the files of
+    each layout, with a focal plane, per detector and behind a plate, are
+    :func:`boresight.outputs.hn_maps.write`'s.
 
     Parameters
     ----------
@@ -118,27 +113,20 @@ def run_schedule(
     force : bool
     tolerance_deg : float
         Crossing angles closer than this count as one in N_phi.
-    layout : Layout
+    layout : boresight.outputs.hn_maps.Layout
     frame, turnarounds : str, optional
-        The sky frame of the maps and what the turnarounds' samples do
-        (:class:`boresight.schedule.Schedule`; default: the file's).
+        Replace the schedule file's (:class:`boresight.schedule.Schedule`).
     focalplane : boresight.instrument.focalplane.FocalPlane, optional
-        Default: every pair on the boresight.
+        Every pair pointed from its own place (default: every pair on the boresight).
     per_detector : bool
-        Write each detector's maps (SO layout, with a focal plane).
+        Each detector's maps as sotodlib's ``Hn`` writes them (SO layout, a focal plane).
     hwp : boresight.instrument.hwp.HWP, optional
-        Also the moments h_{n,m} of the boresight's psi and the HWP's angle
-        (:data:`boresight.moments.HWP_TERMS`): ``hwp_moments.fits`` (RE_n_m, IM_n_m, with M for
-        a minus sign: RE_2_M4 is Re h_{2,-4}), or litebird_sim's file in its layout. With a
-        focal plane, of each pair's own psi: the combination in ``hwp_moments.fits`` (or
-        litebird_sim's ``h_maps_det_focalplane.h5``), and in litebird_sim's layout a file per
-        detector, its pair's.
+        Also the moments h_{n,m} behind it (:data:`boresight.moments.HWP_TERMS`).
     scheduler : str, optional
-        Where a focal plane's blocks of pairs run: "serial" (this process), None (a local Dask
-        cluster of ``workers`` processes) or a Dask scheduler's address.
+        Where a focal plane's blocks of pairs run: "serial", None (a local Dask cluster of
+        ``workers`` processes) or a Dask scheduler's address.
     workers : int
     progress : bool
-        Show a progress bar over the schedule's samples.
     checks : boresight.jobs.resources.Checks
 
     Returns
@@ -150,10 +138,7 @@ def run_schedule(
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     check_sampling(hwp, schedule.sample_rate_hz)  # before the work, not in its first chunk
     layout.check_frame(schedule.frame)
-    try:
-        SkyConfig(nside=nside, lmax=2 * nside)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(f"--nside: {err}") from None
+    _check_nside(nside)
     io.check_output_dir(out_dir, force, [schedule_path])
     estimate = _estimate(schedule, nside, focalplane=focalplane, per_detector=per_detector, hwp=hwp)
     resources.require(estimate, checks)
@@ -165,15 +150,7 @@ def run_schedule(
             schedule, nside, tolerance_deg, focalplane=focalplane, per_pair=per_detector,
             scheduler=scheduler, workers=workers, progress=progress,
         )  # fmt: skip
-    plate_moments = None
-    if hwp is not None and hwp.present:
-
-        def plate_moments(each):
-            with timer("the HWP's moments"):
-                return scanstats.hwp_moments(
-                    schedule, hwp, nside, focalplane=focalplane, each=each, progress=progress
-                )
-
+    plate_moments = _plate_moments(schedule, hwp, nside, focalplane, timer, progress)
     config = _config(schedule_path, schedule, nside, tolerance_deg, focalplane, hwp)
     inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
     maps = ScanMaps(stats.h, stats.observed, stats.hits, stats.n_distinct, stats.range_rad)
@@ -181,6 +158,28 @@ def run_schedule(
         out_dir, maps, n_max=scanstats.N_MAX, inputs=inputs, force=force, layout=layout,
         config=config, estimate=estimate, planes=planes, hwp_moments=plate_moments,
     )  # fmt: skip
+
+
+def _check_nside(nside):
+    """Refuse an Nside the maps cannot have, before any work."""
+    try:
+        SkyConfig(nside=nside, lmax=2 * nside)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"--nside: {err}") from None
+
+
+def _plate_moments(schedule, hwp, nside, focalplane, timer, progress):
+    """The plate's moments as ``make(each)`` for the writer (None without a plate)."""
+    if hwp is None or not hwp.present:
+        return None
+
+    def make(each):
+        with timer("the HWP's moments"):
+            return scanstats.hwp_moments(
+                schedule, hwp, nside, focalplane=focalplane, each=each, progress=progress
+            )
+
+    return make
 
 
 def _config(schedule_path, schedule, nside, tolerance_deg, focalplane, hwp):

@@ -213,6 +213,17 @@ def write(
     ``hwp_moments``, if given, makes the HWP's moments as ``hwp_moments(each)``
     (:func:`boresight.moments.hwp_moments`): in litebird_sim's layout with a focal plane,
     ``each`` writes every detector's file as its pair's are made. Returns hn_summary.csv's rows.
+
+    With a focal plane (``planes``) the h_n maps are its combination (all pairs' samples binned
+    together), ``hn_scatter.fits`` holds the scattered weights sum_i N_i^2 ``|h_{n,i}|^2`` / N^2,
+    and ``pairs.csv`` and ``pairs.png`` each pair's hit-weighted <``|h_n|^2``> (against its
+    distance from the boresight); with each pair's maps kept, the SO layout also has sotodlib's
+    per-detector files ``{prefix}_{det}_cos_{n}.fits``, ``_sin_{n}`` and ``_hits``, with psi as
+    sotodlib's ``Hn`` computes it (TOAST's psi less the detector's polarisation angle). Behind a
+    plate: ``hwp_moments.fits`` (RE_n_m, IM_n_m, with M for a minus sign: RE_2_M4 is Re
+    h_{2,-4}), or litebird_sim's file in its layout; with a focal plane, of each pair's own psi,
+    the combination (litebird_sim's ``h_maps_det_focalplane.h5``) and in litebird_sim's layout a
+    file per detector, its pair's.
     """
     h, obs = maps.h, maps.observed
     frame = config.get("frame", "icrs")
