@@ -340,8 +340,8 @@ class _Binner:
         if systematics.has_beams:
             self.pair_beams = pair_beams(params, sky.fwhm_arcmin * ARCMIN)
             self.beams = BeamConvolver(sky.alm, sky.fwhm_arcmin * ARCMIN, nthreads)
-            self.angle_a = params.pol_angle - 0.5 * params.nonortho
-            self.angle_b = params.pol_angle + 0.5 * params.nonortho + 0.5 * np.pi
+            self.angle_a, angle_b = params.angle_errors()
+            self.angle_b = angle_b + 0.5 * np.pi
         self.fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
         self.rot, self.ang = np.asarray(rotations, dtype=np.float64), instrument.pair_angles_rad
         self.response = response(self.rot, self.ang, params, systematics.per_repeat(self.rot.size))

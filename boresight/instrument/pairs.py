@@ -183,6 +183,10 @@ class PairParameters(NamedTuple):
     ellipticity_angle_a: np.ndarray
     ellipticity_angle_b: np.ndarray
 
+    def angle_errors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Detector A's and B's angle from the one assumed [rad]: pol_angle -+ nonortho / 2."""
+        return self.pol_angle - 0.5 * self.nonortho, self.pol_angle + 0.5 * self.nonortho
+
 
 def _spread_or_numbers(name, value, lo, hi):
     """A parameter as given (numbers) or as a :class:`Spread`, checked."""
@@ -418,8 +422,7 @@ def response(rotations, pair_angles, params, dg_repeat):
     table = _response(
         rotations,
         np.ascontiguousarray(pair_angles, dtype=np.float64),
-        params.pol_angle - 0.5 * params.nonortho,
-        params.pol_angle + 0.5 * params.nonortho,
+        *params.angle_errors(),
         params.dg,
         dg_repeat,
     )

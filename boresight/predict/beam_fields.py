@@ -111,10 +111,8 @@ def pairs_beam_filters(
     kmax = n_max + 2
     ang = alpha[:, None] + pair_angles[None, :]  # (K, M)
     gain_b = 1 - (par.dg[None, :] + dg_repeat[:, None])
-    offset = {  # c_X: the detector's angle from the assumed one
-        "a": par.pol_angle - 0.5 * par.nonortho,
-        "b": par.pol_angle + 0.5 * par.nonortho + np.pi / 2,
-    }
+    angle_a, angle_b = par.angle_errors()
+    offset = {"a": angle_a, "b": angle_b + np.pi / 2}  # c_X: the detector's angle from the assumed
     out = {n: np.zeros((3, lmax + 1), dtype=np.complex128) for n in range(-n_max, n_max + 1)}
     cache = {}
     for m, beam_pair in enumerate(pair_beams(par, nominal)):
