@@ -188,6 +188,10 @@ class PairParameters(NamedTuple):
         return self.pol_angle - 0.5 * self.nonortho, self.pol_angle + 0.5 * self.nonortho
 
 
+#: the PairParameters field of each key, in engine units: the key less its unit
+PARAMETER_OF = {name: name.removesuffix("_arcmin").removesuffix("_deg") for name in LIMITS}
+
+
 def _spread_or_numbers(name, value, lo, hi):
     """A parameter as given (numbers) or as a :class:`Spread`, checked."""
     if isinstance(value, Spread):
@@ -326,19 +330,19 @@ class Systematics:
             A list of the wrong length.
         """
         return PairParameters(
-            *(
-                _values(
+            **{
+                PARAMETER_OF[name]: _values(
                     name,
                     getattr(self, name),
                     n_pairs,
                     self.seed,
                     rng.PAIR_SALT,
-                    i,
+                    i,  # the stream of each key: its place in LIMITS, which seeds its draws
                     "the instrument has {} pairs",
                 )
                 * UNITS[name]
                 for i, name in enumerate(LIMITS)
-            )
+            }
         )
 
     def per_repeat(self, n_repeats):

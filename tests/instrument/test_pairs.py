@@ -324,3 +324,21 @@ def test_bad_systematics(kwargs, field):
 def test_systematics_length_must_match_pairs():
     with pytest.raises(ValueError, match="3 pairs"):
         Systematics(dg=(0.1, 0.2)).per_pair(Instrument((0, 45, 90)).n_pairs)
+
+
+def test_each_key_fills_its_own_parameter_by_name():
+    """Every Systematics key lands in the PairParameters field of its name, in engine units
+    (it was filled by position from LIMITS' order)."""
+    from boresight.constants import ARCMIN, DEG
+    from boresight.instrument.pairs import LIMITS, PARAMETER_OF, PairParameters
+
+    assert sorted(PARAMETER_OF) == sorted(LIMITS)
+    assert sorted(PARAMETER_OF.values()) == sorted(PairParameters._fields)
+    values = dict(rho_arcmin=2.0, chi_deg=30.0, leak=0.01, pol_angle_deg=0.5, nonortho_deg=1.0)
+    values.update(dg=0.02, dfwhm_b_arcmin=0.3, ellipticity_a=0.05, ellipticity_angle_b_deg=20.0)
+    params = Systematics(**values).per_pair(3)
+    units = {"_arcmin": ARCMIN, "_deg": DEG}
+    for key, value in values.items():
+        unit = next((u for suffix, u in units.items() if key.endswith(suffix)), 1.0)
+        np.testing.assert_allclose(getattr(params, PARAMETER_OF[key]), value * unit, rtol=1e-15)
+    np.testing.assert_array_equal(params.dfwhm_a, 0.0)
