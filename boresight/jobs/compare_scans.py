@@ -75,7 +75,13 @@ def compare_scans(
     each as the real scan (every pair of ``focalplane`` from its own place, default the paper's
     pairs on the boresight) and as the twin, which takes (N_phi, R) of one pass (``seed``) and
     repeats it at the schedule's angles. Writes nothing."""
+    if systematic not in SYSTEMATICS:
+        raise ValueError(f"systematic {systematic!r}; allowed: {tuple(SYSTEMATICS)}")
     nside = sky.nside
+    if sky.lmax < 2 * nside:
+        raise ValueError(
+            f"the sky's lmax {sky.lmax} is under the comparison's 2 Nside = {2 * nside}"
+        )
 
     def characterise(scan):
         if focalplane is None:

@@ -1,7 +1,7 @@
 """The prediction behind a half-wave plate, off the axis: the pairs' T leaks, pointing and beams read
 through the plate's moments h_{n,m}, the plate's instrumental polarisation, its synchronous
 signal and the jitter of its angle (:mod:`boresight.moments.hwp` gives the moments;
-docs/conventions.md, "A half-wave plate", derives each term).
+docs/conventions.md, "Half-wave plates: the angle and the weights through it", derives them).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """What every focal-plane prediction shares: which systematics it covers, each pair's coefficient
 shares, the hit-weighted means over pairs and the 2x2 solve of the map-maker, and the sky's fields a
 systematic leaks with their derivatives, read at a pair's samples to second order in their offsets
-from the pixel's centre (derived in docs/conventions.md, "Reading a field across the pixel").
+from the pixel's centre (derived in docs/conventions.md, "Focal planes: pairs off the axis").
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The one table of a pair's leak terms: which coefficient, which spin moment h_n it multiplies,
 which sky field it reads and which systematics switch it on.
 
-A pair difference's leak into the map-maker's Y (docs/conventions.md, "The leak of a pair") is
+A pair difference's leak into the map-maker's Y (docs/conventions.md, "Polarisation-angle
+errors, gain drift and jitter, focal planes (general pairs)") is
 
     Y = t2 h_2 T + s2 h_2 S + g1 h_1 G + g3 h_3 G* + p0 P + p4 h_4 P*,
 

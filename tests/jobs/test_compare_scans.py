@@ -47,3 +47,14 @@ def test_the_job_returns_what_the_command_writes(tmp_path):
         for key, value in mine.items():
             assert float(row[key]) == pytest.approx(float(value), rel=1e-15, nan_ok=True), key
     assert result.observed.sum() == result.table[1]["pixels"]
+
+
+def test_the_job_refuses_what_it_cannot_compare():
+    schedule = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
+    timer = Timer(logging.getLogger("test"))
+    sky = make_sky(SkyConfig(nside=16, lmax=32, fwhm_arcmin=30.0, seed=1))
+    with pytest.raises(ValueError, match="'beam'; allowed"):
+        compare_scans(schedule, sky, "beam", timer=timer)
+    low = make_sky(SkyConfig(nside=16, lmax=24, fwhm_arcmin=30.0, seed=1))
+    with pytest.raises(ValueError, match="lmax 24 is under"):
+        compare_scans(schedule, low, "gain", timer=timer)
