@@ -28,6 +28,7 @@ from ._util.threads import check_threads
 from .constants import ARCMIN
 from .evaluation import METHODS
 from .harmonics import ANALYSES
+from .instrument.added import REGISTRY, split_table
 from .instrument.beams import pair_beams
 from .instrument.focalplane import focalplane_of_table
 from .instrument.hwp import HWP, behind, reflected_systematics
@@ -219,8 +220,18 @@ def schema() -> dict:
                 if f.metadata
             },
             **FILE_KEYS.get(section, {}),
+            **(_added_keys() if section == "systematics" else {}),
         }
         for section, cls in SECTIONS.items()
+    }
+
+
+def _added_keys() -> dict:
+    """The registered added systematics' keys (:mod:`boresight.instrument.added`), as
+    :func:`schema` gives a key."""
+    return {
+        key: ((int, float, list, dict), one.help or f"added systematic {key}")
+        for key, one in REGISTRY.items()
     }
 
 
@@ -593,7 +604,10 @@ def parse_study(raw: dict, base: str = ".") -> Study:
     template = sys_raw.pop("leak_template", None)
     if template is not None:
         template = _fits("systematics", "leak_template", template, base, npix=npix)
-    systematics = build_section("systematics", Systematics, _tuples(sys_raw, set(sys_raw)))
+    sys_raw, added = split_table(_tuples(sys_raw, set(sys_raw)))
+    systematics = build_section(
+        "systematics", Systematics, sys_raw | ({"added": added} if added else {})
+    )
     if hwp is not None:
         try:
             systematics = reflected_systematics(hwp, systematics)
@@ -641,8 +655,11 @@ def as_dict(study: Study) -> dict:
     -------
     dict
     """
-    return {
+    out = {
         section: dataclasses.asdict(getattr(study, section))
         for section in SECTIONS
         if not (section == "mask" and study.mask is None)
-    } | {"sky_maps": study.sky_maps, "leak_template": study.leak_template}
+    }
+    added = dict(out["systematics"].pop("added"))  # beside the built-in keys, as they are read
+    out["systematics"] |= added
+    return out | {"sky_maps": study.sky_maps, "leak_template": study.leak_template}

@@ -343,6 +343,11 @@ class _Binner:
             self.angle_a, angle_b = params.angle_errors()
             self.angle_b = angle_b + 0.5 * np.pi
         self.fields = _sky_fields(sky, systematics, leak_template, evaluation, nthreads)
+        # added systematics (boresight.instrument.added): each with its amplitudes and its field
+        self.added = tuple(
+            (one, amplitude, np.asarray(one.field(sky), dtype=np.float64))
+            for one, amplitude in systematics.added_per_pair(instrument.n_pairs)
+        )
         self.rot, self.ang = np.asarray(rotations, dtype=np.float64), instrument.pair_angles_rad
         self.response = response(self.rot, self.ang, params, systematics.per_repeat(self.rot.size))
         self.stack = self.kernels.to_device(self.fields.stack) if evaluation == "interp" else None
@@ -358,6 +363,22 @@ class _Binner:
         if self.evaluation == "pixel":
             return k.to_device(self.fields.in_pixel(ang2pix_array(self.fields.nside, theta, phi)))
         return self.fields.exact(theta, phi, self.nthreads)
+
+    def _extra(self, theta, phi, psi, own_psi=None):
+        """(2, H, K, M) extra signal of detectors A and B beyond the sky (their beams, the added
+        systematics), or (2, 0, K, M) with neither."""
+        out = self._beam_terms(theta, phi, psi, own_psi)
+        if not self.added:
+            return out
+        k = self.kernels
+        theta, phi, psi = k.to_host(theta), k.to_host(phi), k.to_host(psi)
+        if out.shape[1] == 0:
+            out = np.zeros((2, theta.size, self.rot.size, self.ang.size))
+        for one, amplitude, field in self.added:
+            out += one.signal(
+                amplitude, field, theta, phi, psi, rotations=self.rot, angles=self.ang
+            )
+        return out
 
     def _beam_terms(self, theta, phi, psi, own_psi=None):
         """(2, H, K, M) extra signal of detectors A and B from their own beams, or (2, 0, K, M).
@@ -415,7 +436,7 @@ class _Binner:
         backend's device: the backend's bin_scan for an interpolated sky and the sky's beam, else
         hits -> sky (and beams) at both detectors -> accumulate. With ``zero_qu``, a pair of them:
         also those of the same hits with the sky's Q = U = 0."""
-        if self.evaluation == "interp" and self.beams is None:
+        if self.evaluation == "interp" and self.beams is None and not self.added:
             n_phi, rng_rad, centre = scan.per_pixel(chunk, 12 * nside**2)
             return self.kernels.bin_scan(
                 scan.seed,
@@ -438,7 +459,7 @@ class _Binner:
             )
         offsets, theta, phi, psi = _hits(self.kernels, scan, nside, chunk)
         values_a, values_b = self._values(theta, phi, psi)
-        beams = self._beam_terms(theta, phi, psi)
+        beams = self._extra(theta, phi, psi)
 
         def sums(a, b):
             k = self.kernels
@@ -454,6 +475,7 @@ class _Binner:
         keep = slice(i, i + 1)
         one.ang, one.rho, one.chi = self.ang[keep], self.rho[keep], self.chi[keep]
         one.leak, one.jitter = self.leak[keep], self.jitter[keep]
+        one.added = tuple((s, amplitude[keep], field) for s, amplitude, field in self.added)
         one.response = np.ascontiguousarray(self.response[:, keep])
         if self.beams is not None:
             one.pair_beams = self.pair_beams[keep]
@@ -484,7 +506,7 @@ class _Binner:
         values_a, values_b = self._values(theta, phi, psi if own_psi is None else own_psi)
         if seen is not None:
             values_a = seen(self.kernels.to_host(values_a))
-        beams = self._beam_terms(theta, phi, psi, own_psi)
+        beams = self._extra(theta, phi, psi, own_psi)
         args = (pixels, psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
         if mapmaker == "pairs":
             self.kernels.accumulate_scatter(*args, seed, first, normal)

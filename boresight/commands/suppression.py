@@ -68,7 +68,7 @@ def run(
             f"{suppression.bands(1 << 20)[0]}, beyond lmax = 2 Nside = {2 * sky_config.nside}; "
             f"give a power of two >= {suppression.MIN_NSIDE}"
         )
-    for entry in suppression.CATALOGUE:  # every entry, before the first is simulated
+    for entry in suppression.catalogue():  # every entry, before the first is simulated
         try:
             check_systematics(entry.systematics, Instrument(), (0.0, 90.0), sky_config.fwhm_arcmin)
         except ValueError as err:

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from .. import predict
 from ..config import ConfigError, build_section, check_systematics, read_toml
+from ..instrument.added import NOT_CARRIED, split_table
 from ..instrument.focalplane import FocalPlane, focalplane_of_table
 from ..instrument.hwp import HWP, pairs_behind
 from ..instrument.pairs import AMPLITUDES, Instrument, Systematics, is_nonzero
@@ -101,6 +102,13 @@ def load_budget(path: str) -> Budget:
             table = {**table, "nl_bb_file": str(Path(path).parent / table["nl_bb_file"])}
         if name == "instrument" and isinstance(table.get("pair_angles_deg"), list):
             table = {**table, "pair_angles_deg": tuple(table["pair_angles_deg"])}
+        if name == "systematics":
+            added = split_table(table)[1]
+            if added:
+                raise ConfigError(
+                    f"budget {path}: "
+                    + NOT_CARRIED.format(keys=", ".join(added), where="the design")
+                )
         if name == "instrument" and "focalplane" in table:
             try:
                 focal = focalplane_of_table(table, Path(path).parent)

@@ -41,6 +41,7 @@ from ..constants import DEG
 from ..kernels.rng import HWP_SALT, normal_array
 from ..scan import SyntheticScan
 from ..validation import ConfigError, number
+from .added import refuse as refuse_added
 from .pairs import AMPLITUDES, BEAM_KEYS, Instrument, Spread, is_nonzero
 
 MODES = ("none", "continuous", "stepped")
@@ -275,6 +276,7 @@ def check_systematics(systematics, *, own_angles: bool = False) -> None:
     :data:`BEAMS_BEHIND_HWP`): a pointing offset or a beam turns with the focal plane, not with
     the HWP, so it needs the pairs' own crossing angles; a beam beside an angle error is not
     carried yet."""
+    refuse_added(systematics, "a HWP")
     behind = POINTING_BEHIND_HWP + BEAMS_BEHIND_HWP if own_angles else ()
     carried = THROUGH_HWP + REFLECTED_BY_HWP + behind
     others = [k for k in AMPLITUDES if k not in carried and is_nonzero(getattr(systematics, k))]

@@ -29,7 +29,7 @@ has scattered systematics that do not depend on how it is simulated. ``dg_repeat
 table too, drawn per repeat.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -39,6 +39,7 @@ from .._util.jit import njit
 from ..constants import ARCMIN, DEG
 from ..kernels import rng
 from ..validation import option
+from . import added as added_systematics
 
 MAX_ANGLE_DEG = 3600.0  #: angles beyond ten turns are input mistakes
 #: ellipticity (sigma_maj - sigma_min) / (sigma_maj + sigma_min) at most: axes 39:1
@@ -229,6 +230,21 @@ def is_nonzero(value):
 _TABLE = (int, float, list, dict)
 
 
+def _added(values):
+    """Added systematics' amplitudes as sorted (key, value) pairs, each key registered and each
+    value checked against its limits (:mod:`boresight.instrument.added`)."""
+    pairs = values.items() if isinstance(values, dict) else values
+    out = {}
+    for key, value in pairs:
+        if key not in added_systematics.REGISTRY:
+            known = sorted(added_systematics.REGISTRY) or "none registered"
+            raise ValueError(f"added systematic {key!r} is not registered; registered: {known}")
+        lo, hi = added_systematics.REGISTRY[key].limits
+        value = tuple(value) if isinstance(value, list) else value
+        out[key] = _spread_or_numbers(key, value, lo, hi)
+    return tuple(sorted(out.items()))
+
+
 @dataclass(frozen=True)
 class Systematics:
     """Per-pair differential systematics: the ``[systematics]`` table.
@@ -262,6 +278,10 @@ class Systematics:
         Gain drift: added to every pair's dg during each rotation repeat (one per repeat).
     seed : int
         Key of the per-pair (and per-repeat) draws of {mean, rms} parameters.
+    added : dict or tuple of (key, value)
+        The amplitudes of added systematics (:mod:`boresight.instrument.added`), each a number,
+        one per pair or {mean, rms} like the keys above; in a study's ``[systematics]`` table
+        their keys stand beside the built-in ones. Held as (key, value) pairs sorted by key.
     """
 
     dg: object = option(0.0, "differential gain, a number, one per pair or {mean, rms}", _TABLE)
@@ -303,6 +323,7 @@ class Systematics:
         0.0, "gain drift: dg added during each rotation repeat, one per repeat", _TABLE
     )
     seed: int = option(0, "seed of the per-pair draws of {mean, rms} parameters")
+    added: tuple = field(default=())
 
     def __post_init__(self):
         for name, (lo, hi) in LIMITS.items():
@@ -311,6 +332,7 @@ class Systematics:
             self, "dg_repeat", _spread_or_numbers("dg_repeat", self.dg_repeat, *REPEAT_LIMITS)
         )
         validation.integer("seed", self.seed, 0, 2**63 - 1)
+        object.__setattr__(self, "added", _added(self.added))
 
     def per_pair(self, n_pairs):
         """The parameters of each pair, in engine units.
@@ -345,6 +367,35 @@ class Systematics:
             }
         )
 
+    def added_per_pair(self, n_pairs):
+        """Each added systematic with a non-zero amplitude, and its amplitude per pair.
+
+        Parameters
+        ----------
+        n_pairs : int
+
+        Returns
+        -------
+        tuple of (boresight.instrument.added.PairSystematic, numpy.ndarray of shape (n_pairs,))
+        """
+        registry = added_systematics.REGISTRY
+        return tuple(
+            (
+                registry[key],
+                _values(
+                    key,
+                    value,
+                    n_pairs,
+                    self.seed,
+                    registry[key].salt,
+                    0,
+                    "the instrument has {} pairs",
+                ),
+            )
+            for key, value in self.added
+            if is_nonzero(value)
+        )
+
     def per_repeat(self, n_repeats):
         """The gain drift of each rotation repeat.
 
@@ -369,7 +420,18 @@ class Systematics:
     @property
     def has_amplitude(self):
         """Whether any systematic has a non-zero amplitude (a drift or a per-pair one)."""
-        return is_nonzero(self.dg_repeat) or any(is_nonzero(getattr(self, k)) for k in AMPLITUDES)
+        return (
+            is_nonzero(self.dg_repeat)
+            or any(is_nonzero(getattr(self, k)) for k in AMPLITUDES)
+            or any(is_nonzero(value) for _, value in self.added)
+        )
+
+    @property
+    def added_on(self):
+        """The added systematics with a non-zero amplitude
+        (:class:`boresight.instrument.added.PairSystematic`)."""
+        registry = added_systematics.REGISTRY
+        return tuple(registry[key] for key, value in self.added if is_nonzero(value))
 
     @property
     def has_pointing(self):

@@ -289,7 +289,7 @@ def _mean_power(h, pixels):
 
 def n_max_for(systematics: Systematics) -> int:
     """The highest h_n a prediction of these systematics uses: the beams' reach h_6
-    (:data:`boresight.predict.BEAM_N_MAX`), the others h_4.
+    (:data:`boresight.predict.BEAM_N_MAX`), the others h_4, an added systematic its own n.
 
     Parameters
     ----------
@@ -299,7 +299,8 @@ def n_max_for(systematics: Systematics) -> int:
     -------
     int
     """
-    return predict.BEAM_N_MAX if systematics.has_beams else N_MAX
+    n_max = predict.BEAM_N_MAX if systematics.has_beams else N_MAX
+    return max([n_max] + [abs(one.n) for one in systematics.added_on])
 
 
 def _masked_b(qu, footprint, lmax, run, overwrite=True):
@@ -456,7 +457,8 @@ def residual(
         Predict the residual from h_n; the C_ell level where :func:`boresight.predict.supports`
         the instrument and its repeats.
     predict_map : bool
-        Also transform the predicted spurious map (the map-level check).
+        Also transform the predicted spurious map (the map-level check); always with an added
+        systematic (:mod:`boresight.instrument.added`), which only the map level predicts.
     moments : Moments, optional
         The moments of a synthetic ``scan``'s one repeat (:func:`compute_moments`), when several jobs
         share them (the same scan at other rotations); ``scan``'s rotations replace theirs.
@@ -538,7 +540,8 @@ def residual(
     else:
         moments = moments._replace(rotations_deg=tuple(scan.rotations_deg))
     result.h_power = {n: float(moments.rotated_power(n)) for n in range(1, N_MAX + 1)}
-    if predict.supports(instrument, moments.rotations_deg):
+    # an added systematic's term is the map level's alone (boresight.instrument.added)
+    if predict.supports(instrument, moments.rotations_deg) and not systematics.added:
         result.predicted_cl = predict.residual_pseudo_bb(
             moments.h,
             footprint,
@@ -553,7 +556,7 @@ def residual(
             sky=sky if prediction.field_cl is not None else None,
             analysis=run.analysis,
         )
-    if predict_map:
+    if predict_map or systematics.added:
         gradient = (
             prediction.gradient(sky, pixels, run.nthreads) if systematics.has_pointing else None
         )

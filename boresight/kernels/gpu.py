@@ -167,7 +167,8 @@ def _physics(response, leak, jitter=None, beams=None):
     """
     if beams is not None and beams.shape[1] > 0:
         raise ValueError(
-            "the GPU backend has no detector beams; beam systematics need backend = 'cpu'"
+            "the GPU backend has no detector beams or added systematics (extra signals of A and "
+            "B); they need backend = 'cpu'"
         )
     response = np.asarray(response)
     g_b = response[..., 6]

@@ -14,7 +14,7 @@ import numpy as np
 from .. import predict
 from .._util import interrupts
 from ..constants import ARCMIN
-from ..jobs.suppression.axis import ANGLES, CATALOGUE
+from ..jobs.suppression.axis import ANGLES, catalogue
 from ..jobs.suppression.hwp import CASES as HWP_CASES
 from ..spectra import bin_spectrum
 
@@ -393,11 +393,12 @@ def suppression_figure(result, nside: int, path_stem: str | os.PathLike) -> None
     """
 
     ncol = 4
-    nrow = -(-len(CATALOGUE) // ncol)
+    entries = catalogue()
+    nrow = -(-len(entries) // ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.8 * nrow), sharex=True, sharey=True)
     ell = np.arange(result.template.size)
     keep = ell >= 20
-    for ax, entry in zip(axes.flat, CATALOGUE):
+    for ax, entry in zip(axes.flat, entries):
         ax.plot(
             ell[keep],
             result.lensing[keep],
@@ -419,7 +420,7 @@ def suppression_figure(result, nside: int, path_stem: str | os.PathLike) -> None
             ax.text(0.5, 0.5, "below the axis at every ell", transform=ax.transAxes, ha="center")
         ax.set_xscale("log")
         _log_y(ax)
-    for ax in axes.flat[len(CATALOGUE) :]:
+    for ax in axes.flat[len(entries) :]:
         ax.axis("off")
     handles, labels = axes.flat[0].get_legend_handles_labels()
     axes.flat[-1].legend(

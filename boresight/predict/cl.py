@@ -17,6 +17,7 @@ import numpy as np
 from .. import harmonics
 from .._util import interrupts
 from .._util.jit import njit
+from ..instrument.added import refuse as refuse_added
 from ..spectra import Footprint, as_footprint
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
 from .coefficients import (
@@ -156,6 +157,7 @@ def leak_terms(
     list of Term
         With ``beam``, the first (h_2: gain and G_2) and those after the others carry the beams.
     """
+    refuse_added(systematics, "the C_ell level (its spectra assume a field finer than h_n)")
     ell = np.arange(cl_tt.size)
     terms = [Term(2, coefs.t2, cl_tt, cl_tt), Term(4, coefs.p4, cl_pol, cl_pol)]
     if systematics.has_leak:

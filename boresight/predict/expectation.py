@@ -22,6 +22,7 @@ import numpy as np
 
 from ..constants import ARCMIN
 from ..evaluation import METHODS
+from ..instrument.added import refuse as refuse_added
 from ..instrument.hwp import pairs_behind
 from . import field_products as fp
 from .beam_fields import beam_filters
@@ -165,6 +166,7 @@ def leak_model(
     -------
     LeakModel
     """
+    refuse_added(systematics, "the exact expectation")
     if abs(coefficients(systematics, instrument).m4) > 1e-9:
         raise ValueError("the exact expectation needs pairs whose 4 x angles cancel (m_4 = 0)")
     sky_cl = smoothed_spectra(theory, fwhm_arcmin, band)

@@ -12,6 +12,7 @@ import numpy as np
 from .. import harmonics
 from .._util.jit import njit
 from .._util.threads import numba_threads
+from ..instrument.pairs import Instrument
 from .beam_fields import beam_field, beam_filters
 from .coefficients import coefficients
 from .terms import TERMS
@@ -19,7 +20,7 @@ from .terms import TERMS
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from ..instrument.pairs import Instrument, Systematics
+    from ..instrument.pairs import Systematics
     from ..sky import Sky
 
 
@@ -38,7 +39,8 @@ def delta_p(
     """Predicted spurious polarisation P = Q + i U from h_n and the sky, map-maker included.
 
     Gain, leak and angle terms are exact for pixel-centre hits; pointing is first order in rho.
-    Gain jitter, a random term, has zero mean and is left out.
+    Gain jitter, a random term, has zero mean and is left out. Added systematics
+    (:mod:`boresight.instrument.added`) join Y through their own term.
 
     Parameters
     ----------
@@ -77,9 +79,11 @@ def delta_p(
         grad = gradient
         if grad is None:
             grad = harmonics.alm2map_gradient(sky.alm[0], sky.nside, nthreads, pixels)
-    beam = np.empty(0, dtype=np.complex128)
+    beam = np.empty(0, dtype=np.complex128)  # Y's terms beyond the table: beams, added ones
     if systematics.has_beams:
         beam = _beam_y(sky, h, systematics, instrument, rotations_deg, nthreads)
+    if systematics.added:
+        beam = _added_y(sky, h, systematics, instrument, rotations_deg) + (beam if beam.size else 0)
     every = pixels is None
     pixels = np.empty(0, dtype=np.int64) if every else np.asarray(pixels, dtype=np.int64)
     out = np.empty(t.size if every else pixels.size, dtype=np.complex128)
@@ -100,6 +104,18 @@ def delta_p(
             np.array([*(getattr(c, term.name) for term in TERMS), c.m4]),
             out,
         )
+    return out
+
+
+def _added_y(sky, h, systematics, instrument, rotations_deg):
+    """The added systematics' part of Y (:meth:`boresight.instrument.added.PairSystematic.y`),
+    (npix,) complex."""
+    instrument = Instrument() if instrument is None else instrument
+    rotations = np.deg2rad(np.asarray(rotations_deg, dtype=np.float64))
+    out = np.zeros(h.shape[1], dtype=np.complex128)
+    for one, amplitude in systematics.added_per_pair(instrument.n_pairs):
+        coefficient = one.coefficient(amplitude, rotations, instrument.pair_angles_rad)
+        out += one.y(sky, h, coefficient)
     return out
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import harmonics
 from ..constants import DEG
+from ..instrument.added import refuse as refuse_added
 from ..instrument.hwp import check_systematics as check_hwp_systematics
 from ..moments.hwp import (
     BEAM_BEHIND_TERMS,
@@ -28,6 +29,7 @@ LINEAR = ("dg", "leak", "rho_arcmin")
 
 
 def check_supported(stats, systematics):
+    refuse_added(systematics, "the focal-plane prediction")
     if stats.pair_h is None:
         raise ValueError("the focal plane's per-pair maps are needed: characterise with per_pair")
     if stats.hwp is not None:

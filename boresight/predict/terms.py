@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from ..instrument.added import REGISTRY
+
 
 class Term(NamedTuple):
     """One leak term.
@@ -73,5 +75,8 @@ def switched_on_by(key: str) -> tuple[Term, ...]:
 
 def couples_through(key: str) -> str:
     """The moments and fields a systematic's key leaks through, as the docs write them:
-    "h_2 T, h_0 P, h_4 P*" for ``dg``."""
+    "h_2 T, h_0 P, h_4 P*" for ``dg``; an added systematic's own term
+    (:mod:`boresight.instrument.added`)."""
+    if key in REGISTRY:
+        return f"h_{REGISTRY[key].n} {REGISTRY[key].symbol}"
     return ", ".join(f"h_{term.n} {term.symbol}" for term in switched_on_by(key))

@@ -19,11 +19,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ... import predict, spectra
+from ..._util import interrupts
 from ...config import RunOptions
 from ...cosmology import load_spectra
 from ...coupling import mask_coupling
+from ...instrument.added import REGISTRY
 from ...instrument.pairs import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
 from ...masks import SURVEY_FSKY, survey_mask
+from ...predict.terms import couples_through
 from ...scan import paper_scan
 from .. import resources
 from ..residual import compute_moments, residual, simulate_reference
@@ -84,6 +87,21 @@ CATALOGUE = (
 ANGLES = (None, 45.0, 90.0, 180.0)  #: the second repeat of each schedule [deg], None: no rotation
 
 
+def catalogue() -> tuple[Entry, ...]:
+    """:data:`CATALOGUE`, then each added systematic (:mod:`boresight.instrument.added`) at its
+    own amplitude, in the order they were registered."""
+    added = (
+        Entry(
+            one.key,
+            one.words,
+            couples_through(one.key),
+            Systematics(added={one.key: one.amplitude}),
+        )
+        for one in REGISTRY.values()
+    )
+    return CATALOGUE + tuple(added)
+
+
 MIN_NSIDE = 16  #: the lowest Nside whose 2 Nside reaches past the first band's start, 30
 
 
@@ -130,11 +148,11 @@ def estimate(study: Study) -> Estimate:
     base = resources.study_estimate("suppression", study)
     beams = max(
         resources.beam_bytes(e.systematics, Instrument(), study.sky.fwhm_arcmin, study.sky.lmax)
-        for e in CATALOGUE
+        for e in catalogue()
     )
     scan = paper_scan("deep")
     pixels = 12.0 * study.sky.nside**2 * SURVEY_FSKY["wide"]  # the larger survey
-    runs = len(CATALOGUE) * len(ANGLES) * 2  # each entry and schedule, with its reference
+    runs = len(catalogue()) * len(ANGLES) * 2  # each entry and schedule, with its reference
     samples = runs * pixels * scan.n_phi * 2 * 2 * 2  # hits x repeats x pairs x detectors
     return replace(
         base,
@@ -151,7 +169,10 @@ def run(
     run_options: RunOptions = RunOptions(),
     progress: bool = False,
 ) -> Result:
-    """Simulate and predict every systematic of :data:`CATALOGUE` through :data:`ANGLES`.
+    """Simulate and predict every systematic of :func:`catalogue` through :data:`ANGLES`.
+
+    The prediction is the C_ell level's, or the predicted map's where only the map level
+    predicts a systematic (an added one).
 
     Parameters
     ----------
@@ -191,7 +212,7 @@ def run(
             run=run_options,
             n_max=predict.BEAM_N_MAX,
         )
-        for entry in CATALOGUE:
+        for entry in catalogue():
             for i, angle in enumerate(ANGLES):
                 scan = paper_scan(survey, angle)
                 log.info("%s: rotations %s deg", entry.name, _schedule(scan))
@@ -209,7 +230,7 @@ def run(
                     progress=progress,
                 )
                 simulated[entry.name, i] = job
-                predicted[entry.name, i] = job.predicted_cl
+                predicted[entry.name, i] = _predicted(job)
         transforms.wait()
     simulated = {key: job.auto for key, job in simulated.items()}
     template = predict.tensor_template(couplings, theory, sky.fwhm_arcmin, nside)
@@ -235,7 +256,7 @@ def table(result: Result, nside: int) -> list[dict]:
     """
     edges = bands(nside)
     rows = []
-    for entry in CATALOGUE:
+    for entry in catalogue():
         base_sim = spectra.bin_spectrum(result.simulated[entry.name, 0], edges)[1]
         base_pred = _binned(result.predicted[entry.name, 0], edges)
         for i, angle in enumerate(ANGLES):
@@ -305,6 +326,13 @@ def _g(x):
 
 def _schedule(scan):
     return "/".join(f"{a:g}" for a in scan.rotations_deg)
+
+
+def _predicted(job):
+    """A job's predicted leaked power: the C_ell level's, else the predicted map's <dB, dB>."""
+    if job.predicted_cl is not None or job.predicted_map_parts is None:
+        return job.predicted_cl
+    return interrupts.result(job.predicted_map_parts)[1]
 
 
 def _binned(cl, edges):
