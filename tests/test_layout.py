@@ -29,7 +29,7 @@ LAYERS = {
         "masks",
         "noise",
     },
-    "engine": {"evaluation", "mapmaking", "engine"},
+    "engine": {"evaluation", "mapmaking", "mitigation", "engine"},
     "analysis": {"spectra", "coupling", "predict", "moments"},
     "jobs": {"config", "jobs"},
     "design": {"design"},
