@@ -4,6 +4,7 @@ The performance page is built from the benchmarks' tables, ``bench/results/*.jso
 file turns into ``_generated/performance_tables.md`` on every build.
 """
 
+import functools
 import json
 from pathlib import Path
 
@@ -88,5 +89,15 @@ def _write_performance(app):
         (target.parent / f"{path.stem}.md").write_text(table_markdown(path))
 
 
+def _skip_field(app, what, name, obj, skip, options):
+    """Leave out a NamedTuple's or dataclass's fields: its Parameters section documents them,
+    and a target per field would catch every ``shape (n,)`` of a type as a link to one ``n``."""
+    method = callable(obj) or isinstance(obj, (property, functools.cached_property))
+    if what == "class" and name.islower() and not method:  # a field, not a method or CONSTANT
+        return True
+    return None
+
+
 def setup(app):
     app.connect("builder-inited", _write_performance)
+    app.connect("autodoc-skip-member", _skip_field)
