@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import functools
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -24,11 +25,14 @@ from .instrument.beams import BeamConvolver, pair_beams
 from .instrument.hwp import angle_jitter, plate_signals, reflected, reflected_systematics
 from .instrument.pairs import Instrument, Systematics, response
 from .kernels import get_backend
-from .kernels.cpu import accumulate_detectors  # CPU only (not of the contract): the 3x3 maps
+
+# CPU only (not of the contract): the 3x3 maps, and the pair differences a filter acts on
+from .kernels.cpu import accumulate_detectors, bin_differences, pair_differences
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
 from .mapmaking import RCOND_MIN, Maps, check_mapmaker, solve, solve_iqu
-from .pointing import detector_pointing
+from .mitigation import CesScan, Filtering
+from .pointing import detector_pointing, pointing
 from .sky import MAX_NSIDE
 from .validation import integer
 
@@ -469,6 +473,14 @@ class _Binner:
 
         return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
+    def differences(self, theta, phi, psi, seed, first):
+        """(c, s, d), each (M, H): every sample's map-maker weights and pair difference per pair,
+        for a filter to act on (:func:`boresight.kernels.cpu.pair_differences`); CPU only."""
+        values_a, values_b = self._values(theta, phi, psi)
+        beams = self._extra(theta, phi, psi)
+        args = (psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
+        return pair_differences(*args, seed, first)
+
     def for_pair(self, i):
         """This binner for pair i alone: its angle and its own drawn parameters."""
         one = copy.copy(self)
@@ -571,6 +583,104 @@ def simulate_samples(
         mapmaker,
         n_pairs=instrument.n_pairs,
         rcond_min=rcond_min,
+    )
+
+
+def simulate_schedule(
+    sky: Sky,
+    schedule: Schedule,
+    instrument: Instrument = Instrument(),
+    systematics: Systematics = Systematics(),
+    *,
+    filtering: Filtering = Filtering(),
+    evaluation: str = "interp",
+    leak_template: np.ndarray | None = None,
+    nthreads: int = 0,
+    backend: str = "cpu",
+    rcond_min: float = RCOND_MIN,
+    mapmaker: str = "pairs",
+    chunk_samples: int = 1 << 20,
+    progress: bool = False,
+) -> Maps:
+    """Maps of a schedule's pairs on the boresight, their pair differences filtered before
+    binning as a pipeline filters them.
+
+    Without a filter, :func:`simulate_samples` of the schedule's pointing. With one, each CES
+    (once per boresight repeat) is simulated whole, its pair differences filtered
+    (:meth:`boresight.mitigation.Filtering.apply`) and binned with the weights of the unfiltered
+    samples, as a naive map-maker bins filtered TOD; memory is one CES's samples. The gain jitter
+    of sample k of the stream is keyed by (seed, k) as in :func:`simulate_samples`, counting the
+    turnarounds' samples, which are filtered and, where the schedule leaves them out, not binned.
+
+    Parameters
+    ----------
+    sky, instrument, systematics, evaluation, leak_template, nthreads, backend, rcond_min, mapmaker
+        As in :func:`simulate_samples`.
+    schedule : boresight.schedule.Schedule
+    filtering : boresight.mitigation.Filtering
+        The pipeline's filters (none by default); with one, the CPU backend and the pairs'
+        map-maker.
+    chunk_samples : int
+        Samples per chunk of pointing.
+    progress : bool
+
+    Returns
+    -------
+    boresight.mapmaking.Maps
+
+    Raises
+    ------
+    ValueError
+        A filter on another backend or map-maker, or that a CES cannot take
+        (:meth:`boresight.mitigation.CesScan.check`), before any work.
+    """
+    run = dict(
+        evaluation=evaluation,
+        leak_template=leak_template,
+        nthreads=nthreads,
+        backend=backend,
+        rcond_min=rcond_min,
+        mapmaker=mapmaker,
+    )
+    if not filtering:
+        return simulate_samples(
+            sky, pointing(schedule, chunk_samples), instrument, systematics, **run
+        )
+    if backend != "cpu" or mapmaker != "pairs":
+        raise ValueError(
+            f"filtering ({filtering}) runs on the CPU backend with the pairs' map-maker, "
+            f"not backend {backend!r}, mapmaker {mapmaker!r}"
+        )
+    scans = [CesScan.of(ces, schedule) for ces in schedule.ces]
+    for scan in scans:
+        scan.check(filtering)
+    binner = _Binner(
+        sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
+    )
+    normal = _normal(binner.kernels, sky.nside, mapmaker)
+    first = 0
+    with (
+        numba_threads(nthreads),
+        tqdm(total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress) as bar,
+    ):
+        for repeat in schedule.repeat_boresight_deg:
+            for ces, scan in zip(schedule.ces, scans):
+                one = replace(
+                    schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+                )
+                theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
+                interrupts.check()
+                c, s, d = binner.differences(theta, phi, psi, systematics.seed, first)
+                d = filtering.apply(d, scan)
+                keep = (
+                    np.ones(psi.size, bool) if schedule.turnarounds == "include" else ~scan.turning
+                )
+                pix = ang2pix_array(sky.nside, theta[keep], phi[keep])
+                bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
+                first += psi.size
+                bar.update(psi.size)
+    return _stream_maps(
+        binner.kernels, sky.nside, normal, mapmaker, n_pairs=instrument.n_pairs, rcond_min=rcond_min
     )
 
 

@@ -1,9 +1,11 @@
 """The simulation engine against analytic identities (paper eq. 6; see docs/conventions.md)."""
 
+from dataclasses import replace
+
 import healpy as hp
 import numpy as np
 import pytest
-from helpers import CENTRED, rel_max
+from helpers import CENTRED, T0, rel_max
 from plates import minute_schedule, wide_schedule
 
 from boresight import engine, masks, pointing, predict
@@ -11,7 +13,9 @@ from boresight.constants import DEG
 from boresight.instrument import focalplane, hwp
 from boresight.instrument.hwp import HWP
 from boresight.instrument.pairs import Instrument, Systematics
+from boresight.mitigation import CesScan, Filtering
 from boresight.scan import SyntheticScan
+from boresight.schedule import CES, Schedule, Site
 from boresight.sky import SkyConfig, make_sky
 
 
@@ -348,3 +352,114 @@ def test_the_iqu_map_makers_refuse_the_gpu_and_unknown_names(plain_sky):
         engine.simulate_samples(plain_sky, chunks, backend="gpu", mapmaker="detectors")
     with pytest.raises(ValueError, match="mapmaker must be one of"):
         engine.simulate_samples(plain_sky, chunks, mapmaker="demodulated")
+
+
+def _filtered_schedule(turnarounds="include"):
+    """Two 5-minute CESs at 10 Hz over 20 deg throws, turning around in 2 s, seen twice."""
+    ces = tuple(
+        CES(T0 + start, 300.0, 50.0, centre, 20.0, turnaround_s=2.0)
+        for start, centre in ((0.0, 150.0), (900.0, 210.0))
+    )
+    return Schedule(ces, Site(), 10.0, repeat_boresight_deg=(0.0, 45.0), turnarounds=turnarounds)
+
+
+@pytest.mark.parametrize("turnarounds", ["include", "exclude"])
+@pytest.mark.parametrize("text", ["p3", "p1+ground3-split", "groundbin2"])
+def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnarounds, text):
+    """An independent route: each pair difference written from the sky's maps in the samples'
+    pixels, filtered CES by CES with the filters themselves, binned with bincount, solved with
+    numpy."""
+    schedule, filtering = _filtered_schedule(turnarounds), Filtering.parse(text)
+    angles, dg = np.radians([0.0, 45.0]), 0.01
+    run = dict(evaluation="pixel", filtering=filtering)
+    maps = engine.simulate_schedule(
+        plain_sky, schedule, Instrument(pair_angles_deg=(0.0, 45.0)), Systematics(dg=dg), **run
+    )
+    npix = 12 * plain_sky.nside**2
+    normal = np.zeros((5, npix))
+    i_map, q_map, u_map = plain_sky.maps
+    for repeat in schedule.repeat_boresight_deg:
+        for ces in schedule.ces:
+            one = replace(
+                schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+            )
+            theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(one)))
+            pix = hp.ang2pix(plain_sky.nside, theta, phi)
+            c = np.cos(2 * (psi[None, :] + angles[:, None]))
+            s = np.sin(2 * (psi[None, :] + angles[:, None]))
+            i, q, u = i_map[pix], q_map[pix], u_map[pix]
+            d = 0.5 * (i + q * c + u * s - (1 - dg) * (i - q * c - u * s))
+            scan = CesScan.of(ces, schedule)
+            d = filtering.apply(d, scan)
+            keep = ~scan.turning if turnarounds == "exclude" else np.ones(pix.size, bool)
+            for j, term in enumerate((c * c, c * s, s * s, c * d, s * d)):
+                normal[j] += np.bincount(pix[keep], term[:, keep].sum(axis=0), minlength=npix)
+    seen = maps.pixels
+    a11, a12, a22, b1, b2 = normal[:, seen]
+    det = a11 * a22 - a12**2
+    q_ref, u_ref = (a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det
+    assert seen.size > 10 and np.array_equal(seen, np.flatnonzero(normal[0] + normal[2]))
+    scale = np.max(np.abs(q_ref))
+    assert np.max(np.abs(maps.q_obs - q_ref)) < 1e-10 * scale
+    assert np.max(np.abs(maps.u_obs - u_ref)) < 1e-10 * scale
+
+
+def test_a_filter_of_order_0_removes_a_constant_leak_and_keeps_the_rest(plain_sky):
+    """A constant additive leak is a constant in every pair difference: the mean per throw takes
+    all of it, and, the filter being linear, nothing else changes."""
+    schedule, ones = _filtered_schedule(), np.ones(12 * plain_sky.nside**2)
+    instrument = Instrument(pair_angles_deg=(0.0, 45.0))
+
+    def maps(leak, text):
+        return engine.simulate_schedule(
+            plain_sky,
+            schedule,
+            instrument,
+            Systematics(dg=0.01, leak=leak),
+            leak_template=ones,
+            filtering=Filtering.parse(text),
+        )
+
+    raw, leaked = maps(0.0, "none"), maps(0.02, "none")
+    assert np.max(np.abs(leaked.q_obs - raw.q_obs)) > 1e-3  # the leak is there unfiltered
+    clean, filtered = maps(0.0, "p0"), maps(0.02, "p0")
+    scale = np.max(np.abs(clean.q_obs))
+    assert np.max(np.abs(filtered.q_obs - clean.q_obs)) < 1e-12 * scale
+    assert np.max(np.abs(filtered.u_obs - clean.u_obs)) < 1e-12 * scale
+
+
+def test_filtered_maps_do_not_depend_on_the_chunks_or_threads(plain_sky):
+    schedule, filtering = _filtered_schedule(), Filtering.parse("p3+ground")
+    systematics = Systematics(dg=0.01, dg_jitter=0.001, rho_arcmin=1.0)
+    a = engine.simulate_schedule(
+        plain_sky, schedule, Instrument(), systematics, filtering=filtering
+    )
+    b = engine.simulate_schedule(
+        plain_sky,
+        schedule,
+        Instrument(),
+        systematics,
+        filtering=filtering,
+        chunk_samples=999,
+        nthreads=1,
+    )
+    assert np.array_equal(a.q_obs, b.q_obs) and np.array_equal(a.u_obs, b.u_obs)
+
+
+@pytest.mark.parametrize(
+    ("text", "options", "match"),
+    [
+        ("p3", dict(backend="gpu"), "CPU backend"),
+        ("p3", dict(mapmaker="detectors"), "pairs' map-maker"),
+        ("p40", dict(sample_rate_hz=1.0), "samples per throw"),
+        ("groundbin30", {}, "wider than the scan"),
+    ],
+)
+def test_a_filter_the_schedule_cannot_take_is_refused_before_any_work(
+    plain_sky, text, options, match
+):
+    schedule = _filtered_schedule()
+    if "sample_rate_hz" in options:  # 20 samples a throw
+        schedule = replace(schedule, sample_rate_hz=options.pop("sample_rate_hz"))
+    with pytest.raises(ValueError, match=match):
+        engine.simulate_schedule(plain_sky, schedule, filtering=Filtering.parse(text), **options)

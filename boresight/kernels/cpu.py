@@ -31,6 +31,8 @@ __all__ = [
     "accumulate",
     "accumulate_scatter",
     "accumulate_detectors",
+    "pair_differences",
+    "bin_differences",
     "bin_scan",
     "moments",
     "to_host",
@@ -158,6 +160,37 @@ def _flat(values_b):
 
 
 @numba.njit(inline="always")
+def _pair_sample(h, k, m, c0, s0, field_a, values_b, beams, response, leak, jitter, jitter_key, j):
+    """One hit's (c, s, d_A, d_B) at rotation k and pair m: c, s are cos, sin 2 x the angle the
+    map-maker assumes, d_A and d_B the detectors' samples (:func:`_hit_sums`)."""
+    nk, nm = response.shape[0], response.shape[1]
+    r = response[k, m]
+    c = c0 * r[0] - s0 * r[1]
+    s = s0 * r[0] + c0 * r[1]
+    g_b = r[6]
+    if jitter[m] != 0.0:
+        g_b -= jitter[m] * normal_from_key(jitter_key, (j * nk + k) * nm + m)
+    i = (h * nk + k) * nm + m
+    field_b = field_a if values_b.shape[1] == 0 else _fields(values_b, i)
+    beam_a = beam_b = 0.0
+    if beams.shape[1] > 0:
+        beam_a, beam_b = beams[0, i], beams[1, i]
+    d_a, d_b = _detectors(
+        c0 * r[2] - s0 * r[3],
+        s0 * r[2] + c0 * r[3],
+        c0 * r[4] - s0 * r[5],
+        s0 * r[4] + c0 * r[5],
+        g_b,
+        field_a,
+        field_b,
+        leak[m],
+        beam_a,
+        beam_b,
+    )
+    return c, s, d_a, d_b
+
+
+@numba.njit(inline="always")
 def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_key, j, mode):
     """The normal-equation terms of hit h over every rotation and pair, as nine numbers.
 
@@ -178,28 +211,8 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
     t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = t8 = 0.0
     for k in range(nk):
         for m in range(nm):
-            r = response[k, m]
-            c = c0 * r[0] - s0 * r[1]
-            s = s0 * r[0] + c0 * r[1]
-            g_b = r[6]
-            if jitter[m] != 0.0:
-                g_b -= jitter[m] * normal_from_key(jitter_key, (j * nk + k) * nm + m)
-            i = (h * nk + k) * nm + m
-            field_b = field_a if values_b.shape[1] == 0 else _fields(values_b, i)
-            beam_a = beam_b = 0.0
-            if beams.shape[1] > 0:
-                beam_a, beam_b = beams[0, i], beams[1, i]
-            d_a, d_b = _detectors(
-                c0 * r[2] - s0 * r[3],
-                s0 * r[2] + c0 * r[3],
-                c0 * r[4] - s0 * r[5],
-                s0 * r[4] + c0 * r[5],
-                g_b,
-                field_a,
-                field_b,
-                leak[m],
-                beam_a,
-                beam_b,
+            c, s, d_a, d_b = _pair_sample(
+                h, k, m, c0, s0, field_a, values_b, beams, response, leak, jitter, jitter_key, j
             )
             if mode == PAIRS:
                 d = 0.5 * (d_a - d_b)
@@ -312,6 +325,69 @@ def accumulate_detectors(
     """
     mode = A_ONLY if only_a else BOTH
     _scatter(pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, mode, out)
+
+
+@njit
+def pair_differences(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
+    """Each sample's pair difference and map-maker weights, per pair, for a filter to act on
+    before binning (:func:`bin_differences`): the terms :func:`accumulate_scatter` sums, kept.
+
+    Parameters
+    ----------
+    psi, values_a, values_b, beams, response, leak, jitter, seed, first
+        As in :meth:`boresight.backend.KernelBackend.accumulate_scatter`, with one rotation
+        (a sample stream's).
+
+    Returns
+    -------
+    c, s, d : float64 arrays, shape (M, H)
+        cos, sin 2 x the angle the map-maker assumes and the pair difference 0.5 (d_A - d_B) of
+        each pair m at each sample h.
+    """
+    values_b, beams = _flat(values_b), _flat(beams)
+    nm, n = response.shape[1], psi.size
+    c, s, d = np.empty((nm, n)), np.empty((nm, n)), np.empty((nm, n))
+    draws = np.any(jitter != 0.0)
+    for h in range(n):
+        key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
+        field_a = _fields(values_a, h)
+        c0, s0 = np.cos(2.0 * psi[h]), np.sin(2.0 * psi[h])
+        for m in range(nm):
+            c[m, h], s[m, h], d_a, d_b = _pair_sample(
+                h, 0, m, c0, s0, field_a, values_b, beams, response, leak, jitter, key, 0
+            )
+            d[m, h] = 0.5 * (d_a - d_b)
+    return c, s, d
+
+
+@njit
+def bin_differences(pixels, c, s, d, out):
+    """Pair differences (filtered or not) added into a full-sky (npix, 5) accumulator in sample
+    order, summed over the pairs first as :func:`accumulate_scatter` does, so that unfiltered
+    differences give its sums exactly.
+
+    Parameters
+    ----------
+    pixels : int64 array, shape (H,)
+    c, s, d : float64 arrays, shape (M, H)
+        As :func:`pair_differences` gives them.
+    out : float64 array, shape (npix, 5)
+        Running sums c^2, c s, s^2, c d, s d, updated in place.
+    """
+    for h in range(pixels.size):
+        t0 = t1 = t2 = t3 = t4 = 0.0
+        for m in range(c.shape[0]):
+            t0 += c[m, h] * c[m, h]
+            t1 += c[m, h] * s[m, h]
+            t2 += s[m, h] * s[m, h]
+            t3 += c[m, h] * d[m, h]
+            t4 += s[m, h] * d[m, h]
+        p = pixels[h]
+        out[p, 0] += t0
+        out[p, 1] += t1
+        out[p, 2] += t2
+        out[p, 3] += t3
+        out[p, 4] += t4
 
 
 def bin_scan(

@@ -8,10 +8,13 @@ pair difference as signal does. Neither is in the engine's streams yet: each is 
 one detector's samples, tested equal to TOAST's operator on TOAST's own simulation.
 """
 
+from .filtering import CesScan, Filtering
 from .groundfilter import azimuth_phase, ground_filter, ground_templates
 from .polyfilter import legendre_templates, poly_filter
 
 __all__ = [
+    "CesScan",
+    "Filtering",
     "azimuth_phase",
     "ground_filter",
     "ground_templates",
