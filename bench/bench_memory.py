@@ -84,6 +84,15 @@ def command_args(command, directory, nside):
         "compare-scans": ["compare-scans", schedule, "--nside", str(nside)],
         "design": ["design", budget_file(directory, nside), schedule],
         "suppression": ["suppression", "--nside", str(nside)],
+        "suppression (filter)": [
+            "suppression",
+            "--nside",
+            str(nside),
+            "--filter",
+            "p3+ground",
+            "--schedule",
+            schedule,
+        ],
         "reproduce": ["reproduce", "--nside", str(nside), "--lmax", str(3 * nside - 1)],
     }[command]
 
@@ -100,6 +109,7 @@ COMMANDS = (
     "compare-scans",
     "design",
     "suppression",
+    "suppression (filter)",
     "reproduce",
 )
 

@@ -31,7 +31,7 @@ from .kernels.cpu import accumulate_detectors, bin_differences, pair_differences
 from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
 from .mapmaking import RCOND_MIN, Maps, check_mapmaker, solve, solve_iqu
-from .mitigation import CesScan, Filtering
+from .mitigation import Filtering, ces_scans
 from .pointing import detector_pointing, pointing
 from .sky import MAX_NSIDE
 from .validation import integer
@@ -651,9 +651,7 @@ def simulate_schedule(
             f"filtering ({filtering}) runs on the CPU backend with the pairs' map-maker, "
             f"not backend {backend!r}, mapmaker {mapmaker!r}"
         )
-    scans = [CesScan.of(ces, schedule) for ces in schedule.ces]
-    for scan in scans:
-        scan.check(filtering)
+    scans = ces_scans(filtering, schedule)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )

@@ -205,15 +205,32 @@ def make_sky(
     alm = gaussian_alm(
         spectra.total(r=config.r, a_lens=config.a_lens, lmax=config.lmax), config.lmax, config.seed
     )
-    beam = hp.gauss_beam(config.fwhm_arcmin * ARCMIN, lmax=config.lmax, pol=True)
+    if not config.polarised:
+        alm[1:] = 0
+    return sky_of_alm(alm, config.nside, fwhm_arcmin=config.fwhm_arcmin, nthreads=nthreads)
+
+
+def sky_of_alm(alm: np.ndarray, nside: int, *, fwhm_arcmin: float, nthreads: int = 0) -> Sky:
+    """A sky of given T, E, B alm, smoothed by a Gaussian beam and synthesised.
+
+    Parameters
+    ----------
+    alm : numpy.ndarray, complex128, shape (3, nalm)
+        T, E, B [muK] before the beam, healpy ordering; smoothed in place.
+    nside : int
+    fwhm_arcmin : float
+    nthreads : int
+
+    Returns
+    -------
+    Sky
+    """
+    lmax = harmonics.alm_lmax(alm.shape[-1])
+    beam = hp.gauss_beam(fwhm_arcmin * ARCMIN, lmax=lmax, pol=True)
     alm[0] = harmonics.almxfl(alm[0], beam[:, 0])
     alm[1] = harmonics.almxfl(alm[1], beam[:, 1])
     alm[2] = harmonics.almxfl(alm[2], beam[:, 2])
-    if not config.polarised:
-        alm[1:] = 0
-    maps = np.empty((12 * config.nside**2, 3)).T  # interleaved: Sky.interleaved is this array
-    harmonics.alm2map(alm[0], config.nside, nthreads=nthreads, out=maps[0])
-    harmonics.alm2map(alm[1:], config.nside, spin=2, nthreads=nthreads, out=maps[1:])
-    return Sky(
-        alm=alm, maps=maps, nside=config.nside, lmax=config.lmax, fwhm_arcmin=config.fwhm_arcmin
-    )
+    maps = np.empty((12 * nside**2, 3)).T  # interleaved: Sky.interleaved is this array
+    harmonics.alm2map(alm[0], nside, nthreads=nthreads, out=maps[0])
+    harmonics.alm2map(alm[1:], nside, spin=2, nthreads=nthreads, out=maps[1:])
+    return Sky(alm=alm, maps=maps, nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin)

@@ -203,6 +203,19 @@ def write_csv(path: str | os.PathLike, rows: list[dict], columns: Sequence[str])
             w.writerow({k: row.get(k, "") for k in columns})
 
 
+def write_npz(path: str | os.PathLike, **arrays) -> None:
+    """Write arrays as an uncompressed NPZ, atomically.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+    **arrays
+        Name -> array.
+    """
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+
+
 def write_json(path: str | os.PathLike, data: object) -> None:
     """Write data as indented JSON, atomically (numpy values converted).
 

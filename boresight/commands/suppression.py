@@ -1,6 +1,8 @@
 """``boresight suppression``: every systematic of :data:`boresight.jobs.suppression.axis.CATALOGUE` alone
 through 0, 0/45, 0/90 and 0/180 deg rotation, simulated and predicted; with ``--hwp``, what that
-rotation still buys behind a half-wave plate on a real schedule (:mod:`boresight.jobs.suppression.hwp`)."""
+rotation still buys behind a half-wave plate on a real schedule (:mod:`boresight.jobs.suppression.hwp`);
+with ``--filter``, what it buys a pipeline that filters the pair differences before binning
+(:mod:`boresight.jobs.suppression.filtered`)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,8 @@ import dataclasses
 import logging
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from .._util import io, precompile, provenance
 from ..config import OutputOptions, Study, check_systematics
 from ..constants import ARCMIN
@@ -16,7 +20,10 @@ from ..instrument.beams import MIN_AXIS_FWHM
 from ..instrument.hwp import HWP, check_sampling
 from ..instrument.pairs import Instrument
 from ..jobs import resources, suppression
+from ..jobs.suppression import filtered as filtered_suppression
 from ..jobs.suppression import hwp as hwp_suppression
+from ..jobs.transfer import FIELD_PAIRS
+from ..mitigation import Filtering, ces_scans
 from ..outputs import plots
 from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
@@ -185,6 +192,101 @@ def run_hwp(
     return result.rows
 
 
+def run_filtered(
+    sky_config: SkyConfig,
+    schedule_path: str,
+    filtering: Filtering,
+    out_dir: str,
+    *,
+    force: bool = False,
+    progress: bool = False,
+    checks: resources.Checks = resources.Checks(),
+) -> list[dict]:
+    """What boresight rotation buys a pipeline that filters before binning, on a real schedule
+    (:mod:`boresight.jobs.suppression.filtered`).
+
+    Writes ``filtered_suppression.csv`` (a row per systematic, pipeline and boresight schedule:
+    the leaked pseudo-C_BB in three bands, over the same schedule's raw leak, that over the
+    filter's F_BB and over its own pipeline's unrotated leak), ``filtered_suppression.md``,
+    ``filtered_suppression.png``/``.pdf``, the filter's transfer function (``transfer.csv``, a row
+    per band and pair of fields; ``transfer.npz``, its matrix T[to, from, band], error, edges and
+    field pairs; ``transfer.png``/``.pdf``) and ``manifest.json``.
+
+    Parameters
+    ----------
+    sky_config : boresight.sky.SkyConfig
+    schedule_path : str
+        A schedule file (:func:`boresight.schedule.load_schedule`): its CES set, repeated at each
+        boresight schedule's angles.
+    filtering : boresight.mitigation.Filtering
+    out_dir : str
+    force, progress : bool
+    checks : boresight.jobs.resources.Checks
+
+    Returns
+    -------
+    list of dict
+        The table's rows.
+    """
+    if sky_config.nside < hwp_suppression.MIN_NSIDE:
+        raise ConfigError(
+            f"--nside = {sky_config.nside}: the table's bands start at ell = 30; give a power of "
+            f"two >= {hwp_suppression.MIN_NSIDE}"
+        )
+    schedule = load_schedule(schedule_path)
+    try:
+        ces_scans(filtering, schedule)
+    except ValueError as err:
+        raise ConfigError(f"--filter {filtering}: {err}") from None
+    io.check_output_dir(out_dir, force, [schedule_path])
+    once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
+    estimate = resources.schedule_estimate(
+        "filtered-suppression",
+        once,
+        sky_config.nside,
+        lmax=sky_config.lmax,
+        tod_runs=filtered_suppression.tod_runs(),
+    )
+    resources.require(estimate, checks)
+    timer = provenance.Timer(log)
+    kernels = precompile.kernels_for("validation", pointing=True)  # before the stages: Ctrl-C
+    precompile.precompile(kernels, timer=timer)
+    with timer("sky"):
+        sky = make_sky(sky_config)
+    with timer("simulations"):
+        result = filtered_suppression.run(schedule, sky, filtering, progress=progress)
+    with io.staged_dir(out_dir, force, [schedule_path]) as stage:
+        io.write_csv(stage / "filtered_suppression.csv", result.rows, list(result.rows[0]))
+        io.write_text(stage / "filtered_suppression.md", filtered_suppression.markdown(result.rows))
+        plots.filtered_suppression_figure(result, stage / "filtered_suppression")
+        transfer = result.transfer
+        io.write_csv(stage / "transfer.csv", transfer.rows(), list(transfer.rows()[0]))
+        io.write_npz(
+            stage / "transfer.npz",
+            edges=transfer.edges,
+            matrix=transfer.matrix,
+            error=transfer.error,
+            field_pairs=np.array(FIELD_PAIRS),
+            n_sims=transfer.n_sims,
+        )
+        plots.transfer_figure(transfer, stage / "transfer")
+        io.write_json(
+            stage / "manifest.json",
+            provenance.manifest(
+                {
+                    "schedule": schedule_path,
+                    "filter": str(filtering),
+                    "sky": dataclasses.asdict(sky_config),
+                },
+                {"sky": sky_config.seed},
+                timer.stages,
+                estimate.as_dict(),
+            ),
+        )
+    print(filtered_suppression.verdict(result.rows))
+    return result.rows
+
+
 def _check_hwp_sky(sky_config):
     """Refuse a sky the HWP table's bands or beams cannot take, before any work."""
     if sky_config.nside < hwp_suppression.MIN_NSIDE:
@@ -240,7 +342,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(flag, type=float, nargs=nargs, default=None, help=f"with --hwp: {what}")
     parser.add_argument(
         "--schedule",
-        help="with --hwp: the schedule file whose CES set the HWP table repeats (required there)",
+        help="with --hwp or --filter: the schedule file whose CES set the table repeats "
+        "(required there)",
+    )
+    parser.add_argument(
+        "--filter",
+        help="what the pipeline filters before binning, e.g. p3+ground: p<order> a polynomial "
+        "per throw, ground[<order>] or groundbin<deg> a ground template per CES, -split per scan "
+        "direction (boresight.mitigation.Filtering); with --schedule, not with --hwp",
     )
     _common.focalplane_flag(parser, "; with --hwp only")
 
@@ -253,17 +362,47 @@ def main(args: argparse.Namespace) -> int:
             f"--fwhm-arcmin {args.fwhm_arcmin:g}: the table's beam entries act on the sky's beam; "
             f"give at least {narrowest:.2f} arcmin"
         )
+    on_schedule = plate is not None or args.filter is not None  # the tables of a real schedule
     try:
         sky_config = SkyConfig(
             nside=args.nside,
-            lmax=2 * args.nside if plate is not None else 3 * args.nside - 1,
-            fwhm_arcmin=(60.0 if plate is not None else 30.0)
+            lmax=2 * args.nside if on_schedule else 3 * args.nside - 1,
+            fwhm_arcmin=(60.0 if on_schedule else 30.0)
             if args.fwhm_arcmin is None
             else args.fwhm_arcmin,
             seed=args.seed,
         )
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin / --seed: {err}") from None
+    if args.filter is not None:
+        if plate is not None:
+            raise ConfigError(
+                "--filter and --hwp: give one of them (a filter behind a plate is to come)"
+            )
+        given = [f for f in ("--focalplane", *PLATE_FLAGS) if getattr(args, _dest(f)) is not None]
+        if given:
+            raise ConfigError(
+                f"{', '.join(given)} with --filter: the filtered table runs the paper's pairs on "
+                "the boresight, without a plate"
+            )
+        if args.schedule is None:
+            raise ConfigError("--filter: give --schedule, the schedule file the table repeats")
+        try:
+            filtering = Filtering.parse(args.filter)
+        except ValueError as err:
+            raise ConfigError(f"--filter: {err}") from None
+        if not filtering:
+            raise ConfigError("--filter none: give a filter (e.g. p3+ground)")
+        run_filtered(
+            sky_config,
+            args.schedule,
+            filtering,
+            args.out,
+            force=args.force,
+            progress=_common.progress(args),
+            checks=_common.checks(args),
+        )
+        return 0
     if plate is not None:
         if args.schedule is None:
             raise ConfigError("--hwp: give --schedule, the schedule file the HWP table repeats")
@@ -285,7 +424,8 @@ def main(args: argparse.Namespace) -> int:
     flags = ("--schedule", "--focalplane", *PLATE_FLAGS)
     given = [f for f in flags if getattr(args, _dest(f)) is not None]
     if given:
-        raise ConfigError(f"{', '.join(given)} belong to the HWP table: give --hwp too")
+        also = " (--schedule goes with --filter too)" if "--schedule" in given else ""
+        raise ConfigError(f"{', '.join(given)} belong to the HWP table: give --hwp too{also}")
     run(
         sky_config,
         args.out,

@@ -19,7 +19,7 @@ from typing import ClassVar, NamedTuple
 
 import numpy as np
 
-from .. import engine, harmonics, pointing, predict, spectra
+from .. import engine, harmonics, predict, spectra
 from .._util import interrupts
 from ..config import RunOptions, Study
 from ..cosmology import load_spectra
@@ -28,6 +28,7 @@ from ..instrument.focalplane import FocalPlane
 from ..instrument.pairs import Instrument, Systematics
 from ..mapmaking import Maps
 from ..masks import from_config
+from ..mitigation import Filtering
 from ..moments import characterise_schedule
 from ..scan import SyntheticScan
 from ..schedule import Schedule
@@ -143,6 +144,7 @@ def simulate_maps(
     run: RunOptions = RunOptions(),
     leak_template: np.ndarray | None = None,
     focalplane: FocalPlane | None = None,
+    filtering: Filtering = Filtering(),
     progress: bool = False,
 ) -> Maps:
     """Maps of a synthetic or a real scan.
@@ -164,6 +166,9 @@ def simulate_maps(
         A real schedule seen by every pair of this focal plane from its own place
         (:func:`boresight.engine.simulate_focalplane`), in place of ``instrument``'s pairs on the
         boresight.
+    filtering : boresight.mitigation.Filtering
+        What the pipeline filters before binning (:func:`boresight.engine.simulate_schedule`): a
+        real schedule's pairs on the boresight only.
     progress : bool
 
     Returns
@@ -181,12 +186,23 @@ def simulate_maps(
         progress,
         zero_qu=False,
         focalplane=focalplane,
+        filtering=filtering,
     )
     return maps
 
 
 def _simulate(
-    sky, scan, instrument, systematics, pixels, run, leak_template, progress, zero_qu, focalplane
+    sky,
+    scan,
+    instrument,
+    systematics,
+    pixels,
+    run,
+    leak_template,
+    progress,
+    zero_qu,
+    focalplane,
+    filtering=Filtering(),
 ):
     """(maps, the maps of Q = U = 0 from the same hits with ``zero_qu``, else None)."""
     on_samples = dict(
@@ -195,6 +211,15 @@ def _simulate(
         nthreads=run.nthreads,
         backend=run.backend,
     )
+    if filtering and not isinstance(scan, Schedule):
+        raise ValueError(
+            f"filtering ({filtering}) acts per throw and per CES: it needs a real schedule, and a "
+            "synthetic scan has neither"
+        )
+    if filtering and focalplane is not None:
+        raise ValueError(
+            f"filtering ({filtering}) runs on the pairs on the boresight, not yet on a focal plane"
+        )
     if focalplane is not None:
         if not isinstance(scan, Schedule):
             raise ValueError(
@@ -205,8 +230,8 @@ def _simulate(
         )
         return maps, None
     if isinstance(scan, Schedule):
-        maps = engine.simulate_samples(
-            sky, pointing.pointing(scan), instrument, systematics, **on_samples
+        maps = engine.simulate_schedule(
+            sky, scan, instrument, systematics, filtering=filtering, progress=progress, **on_samples
         )
         return maps, None
     options = dict(pixels=pixels, leak_template=leak_template, progress=progress)
@@ -321,6 +346,7 @@ def simulate_reference(
     instrument: Instrument = Instrument(),
     run: RunOptions = RunOptions(),
     focalplane: FocalPlane | None = None,
+    filtering: Filtering = Filtering(),
     transforms: Transforms | None = None,
     progress: bool = False,
 ) -> tuple[Reference, Maps]:
@@ -328,7 +354,7 @@ def simulate_reference(
 
     Parameters
     ----------
-    sky, scan, instrument, run, focalplane, progress
+    sky, scan, instrument, run, focalplane, filtering, progress
         As in :func:`residual`.
     mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
         Weights in [0, 1]; pixels with weight > 0 are simulated.
@@ -350,6 +376,7 @@ def simulate_reference(
         pixels=footprint.pixels,
         run=run,
         focalplane=focalplane,
+        filtering=filtering,
         progress=progress,
     )
     return reference_from_maps(maps, footprint, lmax, run=run, transforms=transforms), maps
@@ -430,6 +457,7 @@ def residual(
     moments: Moments | None = None,
     leak_template: np.ndarray | None = None,
     focalplane: FocalPlane | None = None,
+    filtering: Filtering = Filtering(),
     transforms: Transforms | None = None,
     keep_maps: bool = False,
     zero_qu: bool = False,
@@ -468,6 +496,10 @@ def residual(
         Simulate a real schedule with every pair of this focal plane, each from its own place
         (:func:`simulate_maps`). Its residual is predicted by
         :func:`boresight.predict.focalplane.expected_residual`, not here: no ``prediction``.
+    filtering : boresight.mitigation.Filtering
+        What the pipeline filters before binning, on a real schedule's pairs on the boresight
+        (:func:`boresight.engine.simulate_schedule`), the reference's as the systematic's. Its
+        leak is not predicted yet: no ``prediction`` with a filter.
     transforms : Transforms, optional
         Where the transforms run (default: inline).
     keep_maps : bool
@@ -489,6 +521,8 @@ def residual(
         raise ValueError(
             "a focal plane's residual is predicted by predict.focalplane.expected_residual"
         )
+    if filtering and (prediction is not None or predict_map):
+        raise ValueError(f"a filtered leak ({filtering}) is not predicted yet: no prediction")
     transforms = Transforms() if transforms is None else transforms
     stages, t0 = {}, time.perf_counter()
     footprint = spectra.as_footprint(mask)
@@ -503,6 +537,7 @@ def residual(
             instrument=instrument,
             run=run,
             focalplane=focalplane,
+            filtering=filtering,
             transforms=transforms,
             progress=progress,
         )
@@ -517,6 +552,7 @@ def residual(
         progress,
         zero_qu,
         focalplane,
+        filtering,
     )
     parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference, footprint, lmax, run)
     stages["simulate"] = time.perf_counter() - t0

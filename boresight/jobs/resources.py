@@ -59,6 +59,8 @@ BYTES_PER_PIXEL = {
     # the HWP table: 53 maps of moments per pair behind the plate, and the sky at every sample
     # (4.6 GB at Nside 256, 17 GB at 512 on the deep example)
     "hwp-suppression": 5400.0,
+    # the filtered table: the compare-scans maps and spectra, and one CES's samples at a time
+    "filtered-suppression": 320.0,
 }
 #: bytes per pixel of each h_{n,m} of scan-stats --hwp: its sums, the moments and their maps
 #: (1.27 kB a pixel for the 23 default terms, measured at Nside 256 and 512)
@@ -66,6 +68,7 @@ HWP_TERM_BYTES = 56.0
 COMMANDS = {
     "schedule-stats": "scan-stats",
     "hwp-suppression": "suppression --hwp",
+    "filtered-suppression": "suppression --filter",
 }  #: the command of a job whose name differs
 SKY_JOBS = {
     "simulate",
@@ -74,6 +77,7 @@ SKY_JOBS = {
     "design",
     "suppression",
     "hwp-suppression",
+    "filtered-suppression",
 }  #: make a sky
 ALM_BYTES = 48.0  #: the sky's T, E, B alm, complex128
 #: a process with every stage of boresight imported (what some jobs import only after their
@@ -91,10 +95,15 @@ SAMPLE_RATES = {
     "tod": 1.6e7,
     "moments": 8.0e6,
     "exact tod": 1.3e6,  # the sky synthesised at each sample (the HWP table), pair-samples/s
+    # a schedule's pair differences raw and filtered by turns, with the table's spectra (the
+    # filtered table: 2.8e6 raw, 1.8e6 filtered pair-samples/s on the deep example at Nside 32)
+    "filtered tod": 2.0e6,
     # a focal plane's pairs, each pointed from its own place and binned: 4.2e6 pair-samples/s
     # between 1,027 and 3,367 pairs of a hexagon (10^4 pairs ran 3.5x the pointing's 1.5e7)
     "pair pointing": 4.0e6,
 }
+#: the rate of a job's TOD simulations where it is not :data:`SAMPLE_RATES`' "tod"
+JOB_RATES = {"hwp-suppression": "exact tod", "filtered-suppression": "filtered tod"}
 #: seconds per HEALPix pixel of a job's map-level work (the HWP table's predictions: 120 s +
 #: 5e-4 s per pixel fits its runs on the deep example at Nside 64-512 on 2 cores)
 PIXEL_SECONDS = {"hwp-suppression": 5.0e-4}
@@ -355,7 +364,7 @@ def schedule_estimate(
         seconds = samples / SAMPLE_RATES["pointing"]
     if job == "design":
         seconds += samples / SAMPLE_RATES["moments"]
-    rate = SAMPLE_RATES["exact tod" if job == "hwp-suppression" else "tod"]
+    rate = SAMPLE_RATES[JOB_RATES.get(job, "tod")]
     seconds += tod_runs * samples * n_pairs / rate + PIXEL_SECONDS.get(job, 0.0) * 12 * nside**2
     return Estimate(job, parts, seconds, samples * max(1, tod_runs * n_pairs))
 

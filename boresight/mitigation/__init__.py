@@ -8,13 +8,14 @@ pair difference as signal does. Neither is in the engine's streams yet: each is 
 one detector's samples, tested equal to TOAST's operator on TOAST's own simulation.
 """
 
-from .filtering import CesScan, Filtering
+from .filtering import CesScan, Filtering, ces_scans
 from .groundfilter import azimuth_phase, ground_filter, ground_templates
 from .polyfilter import legendre_templates, poly_filter
 
 __all__ = [
     "CesScan",
     "Filtering",
+    "ces_scans",
     "azimuth_phase",
     "ground_filter",
     "ground_templates",

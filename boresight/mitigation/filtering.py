@@ -234,3 +234,28 @@ class CesScan:
                     f"filter ground_bin_deg {filtering.ground_bin_deg} is wider than the scan's "
                     f"{width:.3g} deg of azimuth"
                 )
+
+
+def ces_scans(filtering: Filtering, schedule) -> list[CesScan]:
+    """Each CES's :class:`CesScan`, checked against ``filtering`` (:meth:`CesScan.check`): what
+    a filtered simulation of ``schedule`` needs, refused before any work.
+
+    Parameters
+    ----------
+    filtering : Filtering
+    schedule : boresight.schedule.Schedule
+
+    Returns
+    -------
+    list of CesScan
+        In the order of ``schedule.ces``.
+
+    Raises
+    ------
+    ValueError
+        A CES that does not scan, or cannot take the filter.
+    """
+    scans = [CesScan.of(ces, schedule) for ces in schedule.ces]
+    for scan in scans:
+        scan.check(filtering)
+    return scans

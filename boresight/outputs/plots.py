@@ -15,7 +15,9 @@ from .. import predict
 from .._util import interrupts
 from ..constants import ARCMIN
 from ..jobs.suppression.axis import ANGLES, catalogue
+from ..jobs.suppression.filtered import RAW as FILTER_RAW
 from ..jobs.suppression.hwp import CASES as HWP_CASES
+from ..jobs.transfer import FIELD_PAIRS as TRANSFER_FIELDS
 from ..spectra import bin_spectrum
 
 if TYPE_CHECKING:
@@ -450,26 +452,112 @@ def hwp_suppression_figure(
     formats : tuple of str
         The files written, by extension.
     """
-    labels = list(dict.fromkeys(key[2] for key in result.spectra))
-    columns = 3
-    rows = -(-len(HWP_CASES) // columns)
+    spectra = {key: cl for key, (cl, _) in result.spectra.items()}
+    _leak_panels(
+        spectra,
+        result.edges,
+        [case.name for case in HWP_CASES],
+        (("plate", "-"), ("none", "--")),
+        legend="boresight; dashed: no HWP",
+        title="What boresight rotation still buys behind a half-wave plate",
+        path_stem=path_stem,
+        formats=formats,
+    )
+
+
+def filtered_suppression_figure(
+    result, path_stem: str | os.PathLike, *, formats: tuple = ("png", "pdf")
+) -> None:
+    """What boresight rotation buys a filtering pipeline: one panel per systematic, its leaked
+    pseudo-C_BB per boresight schedule from the filtered pair differences (solid) and from the
+    raw ones (dashed), smoothed over bins of 4 in ell; leaks cancelled to rounding stay below the
+    axis.
+
+    Parameters
+    ----------
+    result : boresight.jobs.suppression.filtered.Result
+    path_stem : pathlib.Path
+    formats : tuple of str
+        The files written, by extension.
+    """
+    pipelines = list(dict.fromkeys(key[1] for key in result.spectra))
+    filtered = next(p for p in pipelines if p != FILTER_RAW)
+    _leak_panels(
+        result.spectra,
+        result.edges,
+        list(dict.fromkeys(key[0] for key in result.spectra)),
+        ((filtered, "-"), (FILTER_RAW, "--")),
+        legend=f"boresight; solid: {filtered}, dashed: raw",
+        title=f"What boresight rotation buys a pipeline that filters ({filtered})",
+        path_stem=path_stem,
+        formats=formats,
+    )
+
+
+def transfer_figure(transfer, path_stem: str | os.PathLike, *, formats: tuple = ("png", "pdf")):
+    """A filter's polarised transfer function per band: F^EE and F^BB, and the filter's E-to-B
+    and B-to-E shares, each with its realisations' spread.
+
+    Parameters
+    ----------
+    transfer : boresight.jobs.transfer.Transfer
+    path_stem : pathlib.Path
+    formats : tuple of str
+    """
+    lo, hi = transfer.edges[:-1], transfer.edges[1:] - 1
+    centres = 0.5 * (lo + hi)
+    fig, ax = plt.subplots(figsize=(5.4, 3.6))
+    entries = (
+        ("EE", "EE", "F^EE"),
+        ("BB", "BB", "F^BB"),
+        ("BB", "EE", "E to B"),
+        ("EE", "BB", "B to E"),
+    )
+    for k, (into, source, label) in enumerate(entries):
+        i, j = (TRANSFER_FIELDS.index(x) for x in (into, source))
+        shift = (k - 1.5) * 0.06 * (hi - lo)  # the entries side by side in each band
+        ax.errorbar(
+            centres + shift,
+            transfer.matrix[i, j],
+            yerr=transfer.error[i, j],
+            xerr=None,
+            fmt="o-" if into == source else "s--",
+            color=f"C{k}",
+            label=label,
+            capsize=2,
+        )
+    ax.axhline(1.0, color="0.6", lw=0.8)
+    ax.axhline(0.0, color="0.6", lw=0.8)
+    ax.set_xlabel("multipole \u2113 (band centre)")
+    ax.set_ylabel("transfer")
+    ax.legend(
+        fontsize=8, title=f"{transfer.n_sims} realisations; bars: their spread", title_fontsize=8
+    )
+    ax.set_title("The filter's polarised transfer function (SOOPERCOOL's estimator)", fontsize=9)
+    _save(fig, path_stem, formats)
+
+
+def _leak_panels(spectra, edges, names, styles, *, legend, title, path_stem, formats):
+    """One panel per systematic: its leaked pseudo-C_BB per boresight schedule (a colour each) in
+    each of two variants (a line style each), ``spectra`` keyed (name, variant, boresight label)."""
+    labels = list(dict.fromkeys(key[2] for key in spectra))
+    columns = 3 if len(names) > 4 else min(2, len(names))
+    rows = -(-len(names) // columns)
     fig, axes = plt.subplots(
         rows, columns, figsize=(3.6 * columns, 3.0 * rows), sharey=True, squeeze=False
     )
     floor = 1e-16
-    for ax in axes.flat[len(HWP_CASES) :]:
+    for ax in axes.flat[len(names) :]:
         ax.set_visible(False)
-    for ax, case in zip(axes.flat, HWP_CASES):
+    for ax, name in zip(axes.flat, names):
         for i, label in enumerate(labels):
-            for which, style in (("plate", "-"), ("none", "--")):
-                key = (case.name, which, label)
-                if key not in result.spectra:
+            for which, style in styles:
+                key = (name, which, label)
+                if key not in spectra:
                     continue
-                cl = result.spectra[key][0]
-                edges = np.arange(result.edges[0], cl.size + 1, 4)
-                centres, binned = bin_spectrum(cl, edges)
-                name = "0 (once)" if label == "0" else f"{label}\u00b0"
-                shown = name if which == "plate" else None
+                cl = spectra[key]
+                centres, binned = bin_spectrum(cl, np.arange(edges[0], cl.size + 1, 4))
+                shown = ("0 (once)" if label == "0" else f"{label}\u00b0") if style == "-" else None
                 width = 2.8 - 0.6 * i  # schedules that leak alike (0 and 0/180) stay visible
                 ax.plot(
                     centres,
@@ -479,18 +567,12 @@ def hwp_suppression_figure(
                     lw=width,
                     label=shown,
                 )
-        ax.set_title(case.name, fontsize=9)
+        ax.set_title(name, fontsize=9)
         ax.set_xlabel("multipole \u2113")
         _log_y(ax)
         ax.set_ylim(floor, None)
     for ax in axes[:, 0]:
         ax.set_ylabel(f"leaked pseudo-C_BB {MUK2}")
-    axes.flat[len(HWP_CASES) - 1].legend(
-        fontsize=8, title="boresight; dashed: no HWP", title_fontsize=8, loc="lower left"
-    )
-    fig.suptitle(
-        "What boresight rotation still buys behind a half-wave plate "
-        "(a leak cancelled to rounding stays below the axis)",
-        fontsize=10,
-    )
+    axes.flat[len(names) - 1].legend(fontsize=8, title=legend, title_fontsize=8, loc="lower left")
+    fig.suptitle(f"{title} (a leak cancelled to rounding stays below the axis)", fontsize=10)
     _save(fig, path_stem, formats)

@@ -1,0 +1,275 @@
+"""What boresight rotation buys a pipeline that filters before binning.
+
+Each systematic of :data:`CASES` runs alone on a real schedule's CES set, the paper's Q and U
+pairs on the boresight, through the boresight schedules of
+:data:`boresight.jobs.suppression.hwp.SCHEDULES`, in two pipelines: the maps binned from the raw
+pair differences, and from the pair differences a pipeline filtered first
+(:class:`boresight.mitigation.Filtering`, :func:`boresight.engine.simulate_schedule`). Every row is
+one run of the one job (:func:`boresight.jobs.residual.residual`) against the no-systematic maps of
+the same pipeline and schedule, so the filter acts on the leak as on the sky: its leaked
+pseudo-C_BB <dB, dB> is binned in three bands, divided by the same schedule's raw leak (what the
+filter takes) and by its own pipeline's leak without rotation (what rotation buys in that
+pipeline). The spectra share the raw unrotated reference's footprint, its pixels with a
+reciprocal condition number above :data:`~boresight.jobs.suppression.hwp.RCOND_FOOTPRINT`.
+
+The filter takes signal as well as leak. Its transfer function on the CES set once
+(:func:`boresight.jobs.transfer.transfer_function`, SOOPERCOOL's estimator, :data:`N_SIMS` pairs
+of pure skies) gives F_ell^BB per band, and each filtered row's leak over raw divided by it is the
+leak's bias on r in the filtered pipeline, whose spectra are corrected by F_ell^BB, over its bias
+in the raw one ("corrected over raw"). A filtered leak is measured here, not predicted: its
+prediction from h_n is still to come.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from tqdm import tqdm
+
+from ... import spectra
+from ..._util import interrupts
+from ...config import RunOptions
+from ...instrument.pairs import Instrument, Systematics
+from ...mitigation import Filtering, ces_scans
+from ..residual import reference_from_maps, residual, simulate_maps
+from ..transfer import Transfer, transfer_function
+from ..transforms import Transforms
+from .axis import CATALOGUE
+from .hwp import RCOND_FOOTPRINT, ROUNDING, SCHEDULES, bands, boresight_label
+
+if TYPE_CHECKING:
+    from ...schedule import Schedule
+    from ...sky import Sky
+
+#: the systematics of the table, by their name in the suppression map's catalogue: a leak of T
+#: through h_2, of grad T through h_1 and h_3, of T through h_2 with its own template, and of P
+#: through h_0
+CASES = tuple(e for e in CATALOGUE if e.name in ("gain", "pointing", "leak", "angle"))
+#: the raw pipeline's label
+RAW = "raw"
+#: the pairs of pure skies of the table's transfer function
+N_SIMS = 4
+#: boresight schedules whose leaks (summed over the bands) lie within this factor leak alike
+ALIKE = 1.01
+
+
+@dataclass
+class Result:
+    """The table's rows and each row's leaked pseudo-C_BB per ell (for the figure).
+
+    Parameters
+    ----------
+    rows : list of dict
+    spectra : dict
+        (systematic, pipeline: "raw" or the filtering's text, boresight label) -> leaked
+        pseudo-C_BB (lmax + 1,) [muK^2].
+    edges : numpy.ndarray
+        The bands' edges.
+    transfer : boresight.jobs.transfer.Transfer
+        The filter's transfer function on the CES set once, in those bands.
+    """
+
+    rows: list
+    spectra: dict
+    edges: np.ndarray
+    transfer: Transfer
+
+
+def run(
+    schedule: Schedule,
+    sky: Sky,
+    filtering: Filtering,
+    *,
+    schedules=SCHEDULES,
+    run_options: RunOptions = RunOptions(),
+    n_sims: int = N_SIMS,
+    progress: bool = False,
+) -> Result:
+    """Every case raw and filtered, through each boresight schedule, and the filter's transfer
+    function.
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+        Its CES set; its own repeats are replaced by each of ``schedules``.
+    sky : boresight.sky.Sky
+        lmax >= 2 Nside.
+    filtering : boresight.mitigation.Filtering
+        Not none.
+    schedules : sequence of sequence of float
+        Boresight angles of the CES set's repeats [deg].
+    run_options : boresight.config.RunOptions
+    n_sims : int
+        The transfer function's pairs of pure skies.
+    progress : bool
+
+    Returns
+    -------
+    Result
+
+    Raises
+    ------
+    ValueError
+        No filter, or one the schedule cannot take (before any work).
+    """
+    if not filtering:
+        raise ValueError("the filtered table needs a filter (e.g. p3+ground)")
+    ces_scans(filtering, schedule)  # a filter the CESs cannot take, before any work
+    edges = bands(sky.nside)
+    lmax = 2 * sky.nside
+    names = [f"{lo}-{hi - 1}" for lo, hi in zip(edges[:-1], edges[1:])]
+    pipelines = {RAW: Filtering(), str(filtering): filtering}
+    rows, cls, first = [], {}, {}
+    jobs = [(r, p) for r in schedules for p in pipelines]
+    with Transforms() as transforms:
+        footprint = None
+        for repeats, pipeline in tqdm(jobs, desc="filtered table", disable=not progress):
+            interrupts.check()
+            scan = dataclasses.replace(schedule, repeat_boresight_deg=tuple(repeats))
+            label = boresight_label(repeats)
+            options = dict(run=run_options, filtering=pipelines[pipeline])
+            ref_maps = simulate_maps(sky, scan, Instrument(), Systematics(), **options)
+            if pipeline == RAW:  # the raw unrotated maps' footprint, shared by every row
+                if footprint is None:
+                    mask = (ref_maps.rcond > RCOND_FOOTPRINT).astype(float)
+                    footprint = spectra.as_footprint(mask)
+            reference = reference_from_maps(
+                ref_maps, footprint, lmax, run=run_options, transforms=transforms
+            )
+            for case in CASES:
+                leak = residual(
+                    sky,
+                    scan,
+                    case.systematics,
+                    footprint,
+                    lmax,
+                    reference=reference,
+                    transforms=transforms,
+                    **options,
+                ).auto
+                cls[case.name, pipeline, label] = leak
+                m = spectra.bin_spectrum(leak, edges)[1]
+                raw = cls.get((case.name, RAW, label))
+                r = spectra.bin_spectrum(raw, edges)[1]
+                first.setdefault((case.name, pipeline), m)
+                row = {
+                    "systematic": case.name,
+                    "amplitude": case.amplitude,
+                    "pipeline": pipeline,
+                    "boresight": label,
+                    "through": case.coupling,
+                }
+                for band, mb, rb, fb in zip(names, m, r, first[case.name, pipeline]):
+                    real = mb > ROUNDING  # a leak at rounding has no meaningful ratio: NaN
+                    row[f"leak {band}"] = float(mb)
+                    row[f"over raw {band}"] = float(mb / rb) if rb > ROUNDING else np.nan
+                    row[f"over unrotated {band}"] = (
+                        float(mb / fb) if real and fb > ROUNDING else np.nan
+                    )
+                rows.append(row)
+    once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
+    transfer = transfer_function(
+        once,
+        filtering,
+        footprint,
+        edges,
+        nside=sky.nside,
+        fwhm_arcmin=sky.fwhm_arcmin,
+        n_sims=n_sims,
+        run=run_options,
+    )
+    f_bb = transfer.entry("BB", "BB")
+    for row in rows:
+        raw = row["pipeline"] == RAW
+        for band, f in zip(names, f_bb):
+            row[f"F_BB {band}"] = 1.0 if raw else float(f)
+            row[f"corrected over raw {band}"] = row[f"over raw {band}"] / row[f"F_BB {band}"]
+    return Result(rows, cls, edges, transfer)
+
+
+def tod_runs(schedules=SCHEDULES) -> int:
+    """The TOD simulations of the table, counted in passes of the CES set: per boresight schedule
+    (as many passes as its angles) and pipeline, a reference and every case; and the transfer
+    function's pure E and B skies, raw and filtered."""
+    return sum(len(r) for r in schedules) * 2 * (1 + len(CASES)) + 4 * N_SIMS
+
+
+def verdict(rows: list[dict]) -> str:
+    """What the filter changes, in a few lines: its F_BB per band; per systematic, what it keeps
+    of the unrotated raw leak and of its bias on r (the leak corrected by F_BB), band by band, and
+    the boresight schedule that leaks least (summed over the bands) in each pipeline."""
+    pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
+    bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
+    filtered_row = next(r for r in rows if r["pipeline"] != RAW)
+    f_bb = "/".join(_two(filtered_row[f"F_BB {b}"]) for b in bands_)
+    lines = [
+        f"What the filter {pipelines[-1]} changes (leaked pseudo-C_BB, bands {'/'.join(bands_)}; "
+        f"it keeps F_BB = {f_bb} of the sky's B):"
+    ]
+    for name in dict.fromkeys(r["systematic"] for r in rows):
+        mine = [r for r in rows if r["systematic"] == name]
+        unrotated = next(r for r in mine if r["pipeline"] != RAW)  # the first schedule's
+        kept = [unrotated[f"over raw {b}"] for b in bands_]
+        bias = [unrotated[f"corrected over raw {b}"] for b in bands_]
+        best, alike = {}, True
+        for pipeline in pipelines:
+            leaks = {
+                r["boresight"]: sum(r[f"leak {b}"] for b in bands_)
+                for r in mine
+                if r["pipeline"] == pipeline
+            }
+            best[pipeline] = min(leaks, key=leaks.get)
+            alike &= max(leaks.values()) < ALIKE * min(leaks.values())
+        kept_text, bias_text = ("/".join(_two(k) for k in x) for x in (kept, bias))
+        if alike:
+            choice = "no boresight schedule changes it in either pipeline"
+        else:
+            same = "the same" if len(set(best.values())) == 1 else "a different"
+            choice = (
+                f"least leak with {best[RAW]} raw, {best[pipelines[-1]]} filtered ({same} schedule)"
+            )
+        lines.append(
+            f"  {name}: keeps {kept_text} of the raw leak without rotation, {bias_text} of its "
+            f"bias on r once corrected by F_BB; {choice}"
+        )
+    return "\n".join(lines)
+
+
+def _two(x):
+    return "-" if not np.isfinite(x) else f"{x:.2f}"
+
+
+def markdown(rows: list[dict]) -> str:
+    """The table, readable: the leak per band [muK^2], over the same schedule's raw leak, that over
+    the filter's F_BB, and over its own pipeline's unrotated leak."""
+    filtered_row = next(r for r in rows if r["pipeline"] != RAW)
+    bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
+    f_bb = [filtered_row[f"F_BB {b}"] for b in bands_]
+    head = ["systematic", "pipeline", "boresight", "through"]
+    head += [f"leak {b}" for b in bands_] + [f"over raw {b}" for b in bands_]
+    head += [f"corrected over raw {b}" for b in bands_]
+    head += [f"over unrotated {b}" for b in bands_]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        cells = [row["systematic"] + f" ({row['amplitude']})", row["pipeline"], row["boresight"]]
+        cells.append(row["through"])
+        leaks = [row[f"leak {b}"] for b in bands_]
+        cells += [f"{x:.2g}" for x in leaks]
+        for kind in ("over raw", "corrected over raw", "over unrotated"):
+            for b, leak in zip(bands_, leaks):
+                x = row[f"{kind} {b}"]
+                cells.append("-" if leak < ROUNDING or not np.isfinite(x) else f"{x:.3g}")
+        lines.append("| " + " | ".join(cells) + " |")
+    note = (
+        "\nleak: the leaked pseudo-C_BB <dB, dB> of the residual in each band [muK^2]; over raw: "
+        "over the same boresight schedule's leak binned from the raw pair differences (what the "
+        "filter takes); corrected over raw: that over the filter's F_BB, the leak's bias on r "
+        "in the filtered pipeline over the raw one's; over unrotated: over its own pipeline's "
+        "leak without rotation (what rotation buys in that pipeline). F_BB per band: "
+        + ", ".join(f"{b}: {_two(f)}" for b, f in zip(bands_, f_bb))
+        + ".\n"
+    )
+    return "\n".join(lines) + "\n" + note

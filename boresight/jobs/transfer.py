@@ -1,0 +1,209 @@
+"""The transfer function of a filtering pipeline: what a filter does to each polarised bandpower.
+
+A pair-differencing pipeline maps Q and U alone, so its transfer function is the polarised block
+of SOOPERCOOL's 9x9 one. A pure-E and a pure-B sky of one Gaussian draw (C_ell = (ell + 10)^-2
+[muK^2] before the sky's beam, :func:`pure_skies`) are simulated on a schedule, binned from the
+raw pair differences and from the filtered ones; the masked pseudo-C_ell of every pair of the two
+maps' fields (EE, EB, BE, BB) for every pair of pure skies ((E, E), (E, B), (B, E), (B, B)) are
+binned into bandpowers. The transfer matrix T_b of band b is SOOPERCOOL's
+(``coupling_utils.get_transfer_with_error``): the least-squares solution of C_filtered = C_raw
+T_b over the pure pairs, with C the (pure pair, field pair) matrix of mean bandpowers; its error
+is the spread over the realisations of the same solution for each realisation's filtered
+bandpowers. ``T[i, j, b]`` is field pair j's share of field pair i's filtered power
+(SOOPERCOOL's ``"{j}_to_{i}"``): ``T[BB, BB]`` is the F_ell^BB most people quote, ``T[BB, EE]``
+the E-to-B leakage the filter makes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .. import engine, harmonics, spectra
+from .._util import interrupts
+from ..config import RunOptions
+from ..instrument.pairs import Instrument, Systematics
+from ..mitigation import Filtering
+from ..sky import gaussian_alm, sky_of_alm
+
+if TYPE_CHECKING:
+    from ..schedule import Schedule
+
+#: the fields of a pair of polarised maps, in SOOPERCOOL's order of its 9 (T dropped)
+FIELD_PAIRS = ("EE", "EB", "BE", "BB")
+#: the pure skies, and the pairs of them whose cross-spectra make the transfer matrix
+PURE = ("E", "B")
+PURE_PAIRS = tuple((a, b) for a in PURE for b in PURE)
+#: the pure skies' spectrum before the beam: C_ell = (ell + ELL_0)^-2 [muK^2]
+ELL_0 = 10.0
+
+
+@dataclass(frozen=True)
+class Transfer:
+    """A filter's polarised transfer matrix per band.
+
+    Parameters
+    ----------
+    edges : numpy.ndarray of int
+        The bands' edges [lo, hi).
+    matrix, error : numpy.ndarray, shape (4, 4, n_bands)
+        T[i, j, b], field pair j into field pair i (:data:`FIELD_PAIRS`), and its error.
+    n_sims : int
+    """
+
+    edges: np.ndarray
+    matrix: np.ndarray
+    error: np.ndarray
+    n_sims: int
+
+    def entry(self, into: str, source: str) -> np.ndarray:
+        """T[into, source] per band, e.g. ``entry("BB", "BB")``, F_ell^BB."""
+        return self.matrix[FIELD_PAIRS.index(into), FIELD_PAIRS.index(source)]
+
+    def rows(self) -> list[dict]:
+        """A row per band and entry: its band, the pair of fields from and to, value and error."""
+        out = []
+        for b, (lo, hi) in enumerate(zip(self.edges[:-1], self.edges[1:])):
+            for i, into in enumerate(FIELD_PAIRS):
+                for j, source in enumerate(FIELD_PAIRS):
+                    out.append(
+                        {
+                            "ell_lo": int(lo),
+                            "ell_hi": int(hi - 1),
+                            "from": source,
+                            "to": into,
+                            "transfer": float(self.matrix[i, j, b]),
+                            "error": float(self.error[i, j, b]),
+                        }
+                    )
+        return out
+
+
+def soopercool_transfer(
+    mean_filtered: np.ndarray, mean_raw: np.ndarray, filtered: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The transfer matrix and its error from pure skies' bandpowers, SOOPERCOOL's estimator.
+
+    Parameters
+    ----------
+    mean_filtered, mean_raw : numpy.ndarray, shape (n_pure_pairs, n_field_pairs, n_bands)
+        Mean bandpowers over the realisations, filtered and raw.
+    filtered : numpy.ndarray, shape (n_sims, n_pure_pairs, n_field_pairs, n_bands)
+        Each realisation's filtered bandpowers.
+
+    Returns
+    -------
+    matrix, error : numpy.ndarray, shape (n_field_pairs, n_field_pairs, n_bands)
+        T[i, j, b] with C_filtered[:, i] = sum_j C_raw[:, j] T[i, j], solved by least squares
+        over the pure pairs band by band; the error is the standard deviation (ddof 0, as
+        SOOPERCOOL's) of the same solution for each realisation.
+    """
+
+    def solve(raw, filt):
+        # band b: raw[:, :, b] X = filt[:, :, b], X (n_field, n_field); T[i, j] = X[j, i]
+        out = np.empty((raw.shape[1], raw.shape[1], raw.shape[2]))
+        for b in range(raw.shape[2]):
+            out[:, :, b] = np.linalg.lstsq(raw[:, :, b], filt[:, :, b], rcond=None)[0].T
+        return out
+
+    matrix = solve(mean_raw, mean_filtered)
+    error = np.std([solve(mean_raw, one) for one in filtered], axis=0)
+    return matrix, error
+
+
+def pure_skies(nside: int, *, lmax: int, fwhm_arcmin: float, seed: int) -> dict:
+    """A sky of E alone and one of B alone with the same alm (SOOPERCOOL's: one draw of fully
+    correlated power laws), C_ell = (ell + :data:`ELL_0`)^-2 before the beam, so that every pair
+    of them, the crossed ones too, carries power.
+
+    Parameters
+    ----------
+    nside, lmax : int
+    fwhm_arcmin : float
+    seed : int
+
+    Returns
+    -------
+    dict
+        "E" and "B" -> boresight.sky.Sky.
+    """
+    ell = np.arange(lmax + 1)
+    power = (ell + ELL_0) ** -2.0
+    power[:2] = 0.0
+    zero = np.zeros(lmax + 1)
+    draw = gaussian_alm((power, zero, zero, zero), lmax, seed)[0]
+    out = {}
+    for k, which in enumerate(PURE):
+        alm = np.zeros((3, draw.size), dtype=np.complex128)
+        alm[1 + k] = draw
+        out[which] = sky_of_alm(alm, nside, fwhm_arcmin=fwhm_arcmin)
+    return out
+
+
+def transfer_function(
+    schedule: Schedule,
+    filtering: Filtering,
+    footprint: np.ndarray | spectra.Footprint,
+    edges: np.ndarray,
+    *,
+    nside: int,
+    fwhm_arcmin: float = 60.0,
+    n_sims: int = 8,
+    seed: int = 0,
+    run: RunOptions = RunOptions(),
+) -> Transfer:
+    """The filter's polarised transfer matrix on a schedule, from ``n_sims`` pairs of pure-E and
+    pure-B skies through the raw and the filtered pipeline (the paper's Q and U pairs on the
+    boresight).
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+    filtering : boresight.mitigation.Filtering
+    footprint : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
+        The mask the pseudo-C_ell are taken on; its pixels must be observed.
+    edges : numpy.ndarray of int
+        Band edges, within 2 .. 2 nside + 1.
+    nside : int
+    fwhm_arcmin : float
+        The skies' beam.
+    n_sims : int
+        Realisations, >= 2 (the error's spread).
+    seed : int
+        Realisation i's skies are drawn from seed x 1000003 + i.
+    run : boresight.config.RunOptions
+
+    Returns
+    -------
+    Transfer
+    """
+    if n_sims < 2:
+        raise ValueError(f"n_sims = {n_sims}: the error needs at least 2 realisations")
+    footprint = spectra.as_footprint(footprint)
+    lmax = 2 * nside
+    pipelines = {"raw": Filtering(), "filtered": filtering}
+    bandpowers = {k: np.empty((n_sims, 4, 4, len(edges) - 1)) for k in pipelines}
+    options = dict(evaluation=run.evaluation, nthreads=run.nthreads, filtering=None)
+    for i in range(n_sims):
+        skies = pure_skies(nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin, seed=seed * 1_000_003 + i)
+        for name, pipeline in pipelines.items():
+            alm = {}
+            for which, sky in skies.items():
+                interrupts.check()
+                options["filtering"] = pipeline
+                maps = engine.simulate_schedule(
+                    sky, schedule, Instrument(), Systematics(), **options
+                )
+                alm[which] = footprint.alm(maps.qu_at(footprint.pixels), lmax, 2)
+            for p, (a, b) in enumerate(PURE_PAIRS):
+                for f, (x, y) in enumerate(FIELD_PAIRS):
+                    cl = harmonics.alm2cl(alm[a][PURE.index(x)], alm[b][PURE.index(y)])
+                    bandpowers[name][i, p, f] = spectra.bin_spectrum(cl, edges)[1]
+    matrix, error = soopercool_transfer(
+        bandpowers["filtered"].mean(axis=0),
+        bandpowers["raw"].mean(axis=0),
+        bandpowers["filtered"],
+    )
+    return Transfer(np.asarray(edges), matrix, error, n_sims)

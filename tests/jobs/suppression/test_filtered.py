@@ -1,0 +1,151 @@
+"""What boresight rotation buys a pipeline that filters before binning: the table end to end on a
+short real schedule, its physics against the identities a linear filter keeps, and the command's
+one clear errors."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from helpers import T0
+
+from boresight.cli import main
+from boresight.jobs.suppression import filtered
+from boresight.mitigation import Filtering
+from boresight.schedule import load_schedule
+from boresight.sky import SkyConfig, make_sky
+
+NSIDE = 32
+FILTER = "p1+ground3"
+
+
+def _schedule_file(path):
+    """Four 20-minute CESs at 2 Hz over 40 deg throws (80 samples a throw), rising and setting."""
+    path.write_text(
+        "sample_rate_hz = 2.0\n"
+        + "".join(
+            f"[[ces]]\nstart_unix = {T0 + 43200 * i}\nduration_s = 1200\nelevation_deg = 50\n"
+            f"az_centre_deg = {134 if i % 2 else 226}\naz_throw_deg = 40\nturnaround_s = 4\n"
+            for i in range(4)
+        )
+    )
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory):
+    d = tmp_path_factory.mktemp("filtered_table")
+    schedule = load_schedule(_schedule_file(d / "s.toml"))
+    sky = make_sky(SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=120.0, seed=3))
+    result = filtered.run(schedule, sky, Filtering.parse(FILTER))
+    return {(r["systematic"], r["pipeline"], r["boresight"]): r for r in result.rows}
+
+
+def _leak(row):
+    return np.array([v for k, v in row.items() if k.startswith("leak ")])
+
+
+@pytest.mark.parametrize("pipeline", ["raw", "p1+ground3"])
+def test_rotation_cancels_in_a_filtered_pipeline_what_it_cancels_raw(table, pipeline):
+    """The filter is linear and the same on every repeat: the additive leak, which 0/90 turns
+    into its opposite, still cancels to rounding, and the pointing offset's first order, which
+    0/180 turns into its opposite, to its second order."""
+    leak = _leak(table["leak", pipeline, "0"])
+    assert np.all(_leak(table["leak", pipeline, "0/90"]) < 1e-20 * leak)
+    pointing = _leak(table["pointing", pipeline, "0"])
+    assert np.all(_leak(table["pointing", pipeline, "0/180"]) < 1e-4 * pointing)
+
+
+def test_no_boresight_schedule_touches_an_angle_error_filtered_or_not(table):
+    """A polarisation-angle error turns the sky's P through h_0: the same leak whatever the
+    boresight does, in each pipeline."""
+    for pipeline in ("raw", FILTER):
+        base = _leak(table["angle", pipeline, "0"])
+        for label in ("0/45", "0/90", "0/180"):
+            assert np.allclose(_leak(table["angle", pipeline, label]), base, rtol=1e-6)
+
+
+def test_the_filter_takes_most_of_every_leak_on_the_largest_scales(table):
+    """A polynomial per throw and a ground template remove the scan-direction modes, which hold
+    the low multipoles: each unrotated leak keeps less than the raw one in the first band, and
+    less there than in the last. (Not less in every band: the filtered leak is binned naively,
+    and the filter mixes its E into B, which can raise a band: the pointing offset's last band
+    here.)"""
+    for name in ("gain", "pointing", "leak", "angle"):
+        row = table[name, FILTER, "0"]
+        kept = np.array([v for k, v in row.items() if k.startswith("over raw ")])
+        assert kept[0] < 0.9 and kept[0] < kept[-1], (name, kept)
+        raw = table[name, "raw", "0"]
+        assert np.allclose(kept, _leak(row) / _leak(raw))
+
+
+def test_the_corrected_leak_is_the_leak_over_the_filters_f_bb(table):
+    """Every filtered row's F_BB is the table's transfer function's, the raw rows' 1, and the
+    corrected ratio is the ratio over it."""
+    for row in table.values():
+        for band in ("30-31", "32-47", "48-64"):
+            f = row[f"F_BB {band}"]
+            assert (f == 1.0) if row["pipeline"] == "raw" else (0.0 < f < 1.0)
+            assert row[f"corrected over raw {band}"] == pytest.approx(
+                row[f"over raw {band}"] / f, nan_ok=True
+            )  # NaN where the raw leak cancels to rounding
+
+
+def test_the_verdict_names_what_the_filter_keeps_and_the_best_schedules(table):
+    text = filtered.verdict(list(table.values()))
+    assert text.startswith(f"What the filter {FILTER} changes")
+    assert "it keeps F_BB = " in text and "of its bias on r once corrected by F_BB" in text
+    assert "angle: keeps" in text and "no boresight schedule changes it" in text
+    assert "leak: keeps" in text and "least leak with 0/90 raw, 0/90 filtered" in text
+
+
+def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsys):
+    path = _schedule_file(tmp_path / "s.toml")
+    out = tmp_path / "out"
+    args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
+    assert main([*args, "--fwhm-arcmin", "120", "--filter", "p3+ground-split"]) == 0
+    rows = list(csv.DictReader(open(out / "filtered_suppression.csv")))
+    assert len(rows) == 4 * 2 * 4  # boresight schedules x pipelines x systematics
+    assert {r["pipeline"] for r in rows} == {"raw", "p3+ground5-split"}
+    assert (out / "filtered_suppression.png").is_file() and (out / "transfer.png").is_file()
+    transfer = np.load(out / "transfer.npz")
+    assert transfer["matrix"].shape == (4, 4, 3) and list(transfer["field_pairs"]) == [
+        "EE",
+        "EB",
+        "BE",
+        "BB",
+    ]
+    assert len(list(csv.DictReader(open(out / "transfer.csv")))) == 16 * 3
+    assert "over unrotated" in (out / "filtered_suppression.md").read_text()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["filter"] == "p3+ground5-split"
+    assert "What the filter p3+ground5-split changes" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "flags, words",
+    [
+        (["--filter", "p3"], "give --schedule"),
+        (["--filter", "p3", "--hwp", "continuous", "--schedule", "S"], "give one of them"),
+        (["--filter", "p3", "--focalplane", "hexagon:7:10", "--schedule", "S"], "--focalplane"),
+        (["--filter", "p3+x", "--schedule", "S"], "filter part 'x'"),
+        (["--filter", "none", "--schedule", "S"], "give a filter"),
+        (["--filter", "p9", "--schedule", "SHORT"], "samples per throw"),
+        (["--filter", "groundbin50", "--schedule", "S"], "wider than the scan"),
+        (["--schedule", "S"], "--schedule goes with --filter"),
+    ],
+)
+def test_the_command_refuses_a_filter_it_cannot_run_before_any_work(tmp_path, capsys, flags, words):
+    path = _schedule_file(tmp_path / "s.toml")
+    short = tmp_path / "short.toml"  # 4 deg throws: 8 samples a scan, between turnarounds
+    short.write_text(open(path).read().replace("az_throw_deg = 40", "az_throw_deg = 4"))
+    flags = [{"S": path, "SHORT": str(short)}.get(f, f) for f in flags]
+    out = tmp_path / "bad"
+    assert main(["-q", "suppression", "--out", str(out), "--nside", "32", *flags]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1 and not out.exists(), err
+
+
+def test_the_table_needs_a_filter():
+    with pytest.raises(ValueError, match="needs a filter"):
+        filtered.run(None, None, Filtering())

@@ -1,0 +1,124 @@
+"""The transfer function of a filtering pipeline: SOOPERCOOL's estimator against its own code,
+the identity where nothing is filtered, and a filter's F_ell^BB on a short real schedule."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import T0
+
+from boresight import engine
+from boresight.instrument.pairs import Systematics
+from boresight.jobs.residual import residual
+from boresight.jobs.transfer import FIELD_PAIRS, soopercool_transfer, transfer_function
+from boresight.mitigation import Filtering
+from boresight.schedule import CES, Schedule, Site, load_schedule
+from boresight.sky import SkyConfig, make_sky
+from boresight.spectra import bin_spectrum
+
+ROOT = Path(__file__).resolve().parents[2]
+
+NSIDE = 32
+EDGES = np.array([30, 40, 50, 65])
+
+
+def _soopercool(mean_pcls_mat_filt, mean_pcls_mat_unfilt, pcls_mat_filt):
+    """SOOPERCOOL's ``coupling_utils.get_transfer_with_error`` (simonsobs/SOOPERCOOL, read with
+    fetch), its normal equations written with einsum as there."""
+    cct_inv = np.transpose(
+        np.linalg.inv(
+            np.transpose(
+                np.einsum("jil,jkl->ikl", mean_pcls_mat_unfilt, mean_pcls_mat_unfilt),
+                axes=[2, 0, 1],
+            )
+        ),
+        axes=[1, 2, 0],
+    )
+    tf = np.einsum(
+        "ijl,jkl->kil",
+        cct_inv,
+        np.einsum("jil,jkl->ikl", mean_pcls_mat_unfilt, mean_pcls_mat_filt),
+    )
+    tferr = np.std(
+        np.array(
+            [
+                np.einsum(
+                    "ijl,jkl->kil",
+                    cct_inv,
+                    np.einsum("jil,jkl->ikl", mean_pcls_mat_unfilt, clf),
+                )
+                for clf in pcls_mat_filt
+            ]
+        ),
+        axis=0,
+    )
+    return tf, tferr
+
+
+@pytest.mark.parametrize("n_pure", [4, 9])
+def test_the_estimator_is_soopercools(n_pure):
+    """Least squares band by band against SOOPERCOOL's normal equations: the same matrix and
+    error, for the polarised block (4 pure pairs) and for the 9x9 one."""
+    rng = np.random.default_rng(1)
+    raw = rng.normal(size=(n_pure, n_pure, 5)) + 3 * np.eye(n_pure)[:, :, None]
+    each = raw[None] * rng.uniform(0.3, 1.0, size=(6, 1, n_pure, 5)) + rng.normal(
+        scale=0.01, size=(6, n_pure, n_pure, 5)
+    )
+    mean = each.mean(axis=0)
+    ours, ours_err = soopercool_transfer(mean, raw, each)
+    theirs, theirs_err = _soopercool(mean, raw, each)
+    assert np.max(np.abs(ours - theirs)) < 1e-10 * np.max(np.abs(theirs))
+    assert np.max(np.abs(ours_err - theirs_err)) < 1e-10 * np.max(theirs_err)
+
+
+@pytest.fixture(scope="module")
+def sky():
+    return make_sky(SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=120.0, seed=2))
+
+
+def _footprint(sky, schedule):
+    return (engine.simulate_schedule(sky, schedule).rcond > 0.05).astype(float)
+
+
+def test_nothing_filtered_transfers_everything_as_it_is(sky):
+    """The raw pipeline against itself: the identity in every band. (The error is each
+    realisation's spread about it, SOOPERCOOL's, not zero.)"""
+    ces = tuple(
+        CES(T0 + 43200 * i, 1200.0, 50.0, 134.0 if i % 2 else 226.0, 40.0, turnaround_s=4.0)
+        for i in range(4)
+    )
+    schedule = Schedule(ces, Site(), 2.0)
+    tf = transfer_function(
+        schedule, Filtering(), _footprint(sky, schedule), EDGES, nside=NSIDE, n_sims=2
+    )
+    for b in range(EDGES.size - 1):
+        assert np.allclose(tf.matrix[:, :, b], np.eye(4), atol=1e-8)
+    rows = tf.rows()
+    assert len(rows) == 16 * (EDGES.size - 1)
+    assert {(r["from"], r["to"]) for r in rows} == {
+        (a, b) for a in FIELD_PAIRS for b in FIELD_PAIRS
+    }
+    with pytest.raises(ValueError, match="at least 2"):
+        transfer_function(schedule, Filtering.parse("p1"), None, EDGES, nside=NSIDE, n_sims=1)
+
+
+@pytest.mark.slow
+def test_a_filter_keeps_of_a_sky_like_leak_what_it_keeps_of_the_sky(sky):
+    """On the deep example's CES set: F_ell^BB of p3 + ground lies in (0.2, 0.9) and grows with
+    ell, the filter moves under 5 % of E into B; and a polarisation-angle error, whose leak is
+    the sky's own P turned, keeps through the filter what the sky's B keeps, F^BB, within twice
+    a realisation's spread."""
+    schedule = load_schedule(str(ROOT / "examples" / "schedule_deep_sat.toml")).single()
+    mask = _footprint(sky, schedule)
+    filtering = Filtering.parse("p3+ground")
+    tf = transfer_function(schedule, filtering, mask, EDGES, nside=NSIDE, n_sims=6)
+    f_bb = tf.entry("BB", "BB")
+    assert np.all((f_bb > 0.2) & (f_bb < 0.9)) and np.all(np.diff(f_bb) > 0), f_bb
+    assert np.all(np.abs(tf.entry("BB", "EE")) < 0.05), tf.entry("BB", "EE")
+    angle = Systematics(pol_angle_deg=0.5)
+    kept = []
+    for pipeline in (Filtering(), filtering):
+        leak = residual(sky, schedule, angle, mask, 2 * NSIDE, filtering=pipeline).auto
+        kept.append(bin_spectrum(leak, EDGES)[1])
+    ratio = kept[1] / kept[0]
+    assert np.all(np.abs(ratio - f_bb) < 2 * tf.error[3, 3]), (ratio, f_bb, tf.error[3, 3])
