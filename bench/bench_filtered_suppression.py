@@ -44,6 +44,16 @@ def main(nside, text):
     plots.transfer_figure(result.transfer, figures / "transfer_deep", formats=("png",))
     rows = [{k: _cell(v) for k, v in row.items() if k != "amplitude"} for row in result.rows]
     verdict = filtered.verdict(result.rows)
+    tf = result.transfer
+    mixing = ", ".join(
+        f"{name} {'/'.join(f'{x:.3f}' for x in tf.entry(into, source))}"
+        for name, into, source in (
+            ("F^EE", "EE", "EE"),
+            ("F^BB", "BB", "BB"),
+            ("E to B", "BB", "EE"),
+            ("B to E", "EE", "BB"),
+        )
+    )
     print(verdict)
     report(
         "filtered_suppression",
@@ -57,8 +67,13 @@ def main(nside, text):
             "interpolation, the spectra on the raw unrotated maps' pixels with rcond > 0.05; gain "
             "dg = +-0.01, pointing rho = 0.1 arcmin, leak 0.01 and 0.005 T, angle 0.5 deg. leak: "
             "the leaked pseudo-C_BB <dB, dB> [muK^2] per band; over raw: over the same boresight "
-            "schedule's raw leak; over unrotated: over its own pipeline's leak without rotation. "
-            f"A leak of ~1e-36 is rounding. {seconds:.0f} s in all. The verdict: {verdict}"
+            "schedule's raw leak; F_BB: the filter's transfer function of B on the CES set once "
+            "(SOOPERCOOL's estimator, 4 pairs of pure skies); corrected over raw: over raw "
+            "divided by F_BB, the leak's bias on r filtered over raw; over unrotated: over its "
+            "own pipeline's leak without rotation. "
+            f"A leak of ~1e-36 is rounding. {seconds:.0f} s in all. The transfer per band: "
+            f"{mixing}; the spread of F^BB {'/'.join(f'{x:.3f}' for x in tf.error[3, 3])}. "
+            f"The verdict: {verdict}"
         ),
     )
 

@@ -38,7 +38,7 @@ from ..residual import reference_from_maps, residual, simulate_maps
 from ..transfer import Transfer, transfer_function
 from ..transforms import Transforms
 from .axis import CATALOGUE
-from .hwp import RCOND_FOOTPRINT, ROUNDING, SCHEDULES, bands, boresight_label
+from .hwp import RCOND_FOOTPRINT, ROUNDING, SCHEDULES, bands, boresight_label, leak_markdown
 
 if TYPE_CHECKING:
     from ...schedule import Schedule
@@ -248,21 +248,6 @@ def markdown(rows: list[dict]) -> str:
     filtered_row = next(r for r in rows if r["pipeline"] != RAW)
     bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
     f_bb = [filtered_row[f"F_BB {b}"] for b in bands_]
-    head = ["systematic", "pipeline", "boresight", "through"]
-    head += [f"leak {b}" for b in bands_] + [f"over raw {b}" for b in bands_]
-    head += [f"corrected over raw {b}" for b in bands_]
-    head += [f"over unrotated {b}" for b in bands_]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for row in rows:
-        cells = [row["systematic"] + f" ({row['amplitude']})", row["pipeline"], row["boresight"]]
-        cells.append(row["through"])
-        leaks = [row[f"leak {b}"] for b in bands_]
-        cells += [f"{x:.2g}" for x in leaks]
-        for kind in ("over raw", "corrected over raw", "over unrotated"):
-            for b, leak in zip(bands_, leaks):
-                x = row[f"{kind} {b}"]
-                cells.append("-" if leak < ROUNDING or not np.isfinite(x) else f"{x:.3g}")
-        lines.append("| " + " | ".join(cells) + " |")
     note = (
         "\nleak: the leaked pseudo-C_BB <dB, dB> of the residual in each band [muK^2]; over raw: "
         "over the same boresight schedule's leak binned from the raw pair differences (what the "
@@ -272,4 +257,5 @@ def markdown(rows: list[dict]) -> str:
         + ", ".join(f"{b}: {_two(f)}" for b, f in zip(bands_, f_bb))
         + ".\n"
     )
-    return "\n".join(lines) + "\n" + note
+    kinds = ("over raw", "corrected over raw", "over unrotated")
+    return leak_markdown(rows, "pipeline", tuple((k, k) for k in kinds)) + note

@@ -414,17 +414,38 @@ def markdown(rows: list[dict]) -> str:
     """The table, readable: the leak per band [muK^2], the prediction over the TOD and the leak
     over the first row of its systematic (no plate, no rotation; the plate's IP: behind it, no
     rotation)."""
+    return leak_markdown(
+        rows, "plate", (("predicted/TOD", "pred/TOD"), ("over first", "over first"))
+    )
+
+
+def leak_markdown(rows: list[dict], variant: str, ratios: tuple) -> str:
+    """A table of leaks per band and their ratios, readable: a row per systematic, variant (its
+    column ``variant``) and boresight schedule; a ratio of a leak at rounding shows as "-".
+
+    Parameters
+    ----------
+    rows : list of dict
+        With "systematic", "amplitude", ``variant``, "boresight", "through", "leak {band}" and
+        "{ratio} {band}" for each ratio.
+    variant : str
+    ratios : tuple of (str, str)
+        Each ratio's key and its header.
+
+    Returns
+    -------
+    str
+    """
     bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
-    head = ["systematic", "plate", "boresight", "through"]
-    head += [f"leak {b}" for b in bands_] + [f"pred/TOD {b}" for b in bands_]
-    head += [f"over first {b}" for b in bands_]
+    head = ["systematic", variant, "boresight", "through"] + [f"leak {b}" for b in bands_]
+    head += [f"{header} {b}" for _, header in ratios for b in bands_]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        cells = [row["systematic"] + f" ({row['amplitude']})", row["plate"], row["boresight"]]
+        cells = [row["systematic"] + f" ({row['amplitude']})", row[variant], row["boresight"]]
         cells.append(row["through"])
         leaks = [row[f"leak {b}"] for b in bands_]
         cells += [f"{x:.2g}" for x in leaks]
-        for kind in ("predicted/TOD", "over first"):
+        for kind, _ in ratios:
             for b, leak in zip(bands_, leaks):
                 x = row[f"{kind} {b}"]
                 cells.append("-" if leak < ROUNDING or not np.isfinite(x) else f"{x:.3g}")
