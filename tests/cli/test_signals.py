@@ -77,6 +77,7 @@ def inputs(tmp_path_factory):
         STUDY.replace("nside = 16\nlmax = 47", "nside = 128\nlmax = 383")
     )
     (d / "budget.toml").write_text(BUDGET)
+    (d / "budget_exact.toml").write_text(BUDGET + 'evaluation = "exact"\n')
     (d / "sweep.toml").write_text(SWEEP)
     base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 240.0}) for c in base.ces[:6])
@@ -89,14 +90,51 @@ COMMANDS = {
     "simulate": ["simulate", "{d}/study.toml"],
     "predict": ["predict", "{d}/study128.toml"],
     "scan-stats": ["scan-stats", "{d}/schedule.toml", "--nside", "32"],
+    "scan-stats (focal plane)": [
+        "scan-stats",
+        "{d}/schedule.toml",
+        "--nside",
+        "32",
+        "--focalplane",
+        "hexagon:7:10",
+        "--per-detector",
+        "--format",
+        "so",
+    ],
     "compare-scans": ["compare-scans", "{d}/schedule.toml", "--nside", "16"],
     "design": ["design", "{d}/budget.toml", "{d}/schedule.toml"],
+    "design (exact)": ["design", "{d}/budget_exact.toml", "{d}/schedule.toml"],
     "suppression": ["suppression", "--nside", "16", "--fwhm-arcmin", "240"],
+    "suppression (hwp)": [
+        "suppression",
+        "--nside",
+        "32",
+        "--fwhm-arcmin",
+        "450",
+        "--hwp",
+        "continuous",
+        "--hwp-frequency",
+        "0.37",
+        "--schedule",
+        "{d}/schedule.toml",
+    ],
+    "suppression (filter)": [
+        "suppression",
+        "--nside",
+        "32",
+        "--fwhm-arcmin",
+        "240",
+        "--filter",
+        "p1+ground",
+        "--schedule",
+        "{d}/schedule.toml",
+    ],
     "sweep": ["sweep", "{d}/sweep.toml", "--scheduler", "serial"],
     "reproduce": ["reproduce", "--nside", "16", "--lmax", "40", "--fwhm-arcmin", "240"],
 }
 #: commands that keep part of their work on an interrupt, with the words that say so
 KEEPS = {"design": ("best schedule found so far", "without its TOD validation"),
+         "design (exact)": ("best schedule found so far", "without its TOD validation"),
          "sweep": ("finished points are kept",)}  # fmt: skip
 
 
