@@ -646,12 +646,7 @@ def simulate_schedule(
         return simulate_samples(
             sky, pointing(schedule, chunk_samples), instrument, systematics, **run
         )
-    if backend != "cpu" or mapmaker != "pairs":
-        raise ValueError(
-            f"filtering ({filtering}) runs on the CPU backend with the pairs' map-maker, "
-            f"not backend {backend!r}, mapmaker {mapmaker!r}"
-        )
-    scans = ces_scans(filtering, schedule)
+    _check_filtering(filtering, backend, mapmaker)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
@@ -661,25 +656,46 @@ def simulate_schedule(
         numba_threads(nthreads),
         tqdm(total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress) as bar,
     ):
-        for repeat in schedule.repeat_boresight_deg:
-            for ces, scan in zip(schedule.ces, scans):
-                one = replace(
-                    schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
-                )
-                theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
-                interrupts.check()
-                c, s, d = binner.differences(theta, phi, psi, systematics.seed, first)
-                d = filtering.apply(d, scan)
-                keep = (
-                    np.ones(psi.size, bool) if schedule.turnarounds == "include" else ~scan.turning
-                )
-                pix = ang2pix_array(sky.nside, theta[keep], phi[keep])
-                bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
-                first += psi.size
-                bar.update(psi.size)
+        for one, scan in _each_ces(schedule, filtering):
+            theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
+            interrupts.check()
+            c, s, d = binner.differences(theta, phi, psi, systematics.seed, first)
+            _bin_filtered(normal, sky.nside, theta, phi, c, s, d, filtering, scan, schedule)
+            first += psi.size
+            bar.update(psi.size)
     return _stream_maps(
         binner.kernels, sky.nside, normal, mapmaker, n_pairs=instrument.n_pairs, rcond_min=rcond_min
     )
+
+
+def _check_filtering(filtering, backend, mapmaker, hwp=None):
+    if backend != "cpu" or mapmaker != "pairs" or hwp is not None:
+        raise ValueError(
+            f"filtering ({filtering}) runs on the CPU backend with the pairs' map-maker and no "
+            f"plate, not backend {backend!r}, mapmaker {mapmaker!r}"
+            + ("" if hwp is None else ", a HWP")
+        )
+
+
+def _each_ces(schedule, filtering):
+    """(a schedule of one CES of one repeat, its CesScan) in observing order, every CES checked
+    against ``filtering`` before the first is simulated."""
+    scans = ces_scans(filtering, schedule)
+    for repeat in schedule.repeat_boresight_deg:
+        for ces, scan in zip(schedule.ces, scans):
+            one = replace(
+                schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+            )
+            yield one, scan
+
+
+def _bin_filtered(normal, nside, theta, phi, c, s, d, filtering, scan, schedule):
+    """One CES's pair differences d (M, H) filtered and binned with their weights c, s into
+    ``normal``; its turnarounds' samples binned only where the schedule keeps them."""
+    d = filtering.apply(d, scan)
+    keep = np.ones(d.shape[1], bool) if schedule.turnarounds == "include" else ~scan.turning
+    pix = ang2pix_array(nside, theta[keep], phi[keep])
+    bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
 
 
 def simulate_focalplane(
@@ -696,6 +712,7 @@ def simulate_focalplane(
     chunk_samples: int = 1 << 20,
     hwp: HWP | None = None,
     mapmaker: str = "pairs",
+    filtering: Filtering = Filtering(),
     progress: bool = False,
 ) -> Maps:
     """Maps from every pair of a focal plane on a schedule, each pair on its own samples
@@ -726,6 +743,10 @@ def simulate_focalplane(
     hwp : boresight.instrument.hwp.HWP, optional
         A continuous or stepped HWP in front of every pair, with its own signals
         (:func:`boresight.instrument.hwp.plate_signals`) and angle offset (:func:`boresight.instrument.hwp.reflected_systematics`).
+    filtering : boresight.mitigation.Filtering
+        Each pair's pair differences filtered CES by CES before binning, as in
+        :func:`simulate_schedule` (the throws and azimuth the boresight's): the pairs' map-maker,
+        no plate. Pair i's sample k keeps its gain jitter's key (seed, i x samples + k).
     progress : bool
 
     Returns
@@ -735,6 +756,9 @@ def simulate_focalplane(
     """
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
+    if filtering:
+        _check_filtering(filtering, backend, mapmaker, hwp)
+        ces_scans(filtering, schedule)  # every CES against the filter, before any work
     if hwp is not None:
         systematics = reflected_systematics(hwp, systematics, own_angles=True)
     _check_mapmaker(mapmaker, backend)
@@ -747,6 +771,26 @@ def simulate_focalplane(
     normal = _normal(binner.kernels, sky.nside, mapmaker)
     first = 0
     total = schedule.n_samples * focalplane.n_pairs
+    if filtering:
+        with (
+            numba_threads(nthreads),
+            tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar,
+        ):
+            for one, scan in _each_ces(schedule, filtering):
+                parts = list(detector_pointing(one, focalplane, chunk_samples))
+                theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*parts))
+                for i, pair in enumerate(pairs):
+                    interrupts.check()
+                    key = i * schedule.n_samples + first
+                    c, s, d = pair.differences(theta[i], phi[i], psi[i], systematics.seed, key)
+                    _bin_filtered(
+                        normal, sky.nside, theta[i], phi[i], c, s, d, filtering, scan, schedule
+                    )
+                first += theta.shape[1]
+                bar.update(theta.size)
+        return _stream_maps(
+            binner.kernels, sky.nside, normal, mapmaker, n_pairs=1, rcond_min=rcond_min
+        )
     with (
         numba_threads(nthreads),
         tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar,

@@ -365,16 +365,24 @@ def _filtered_schedule(turnarounds="include"):
 
 @pytest.mark.parametrize("turnarounds", ["include", "exclude"])
 @pytest.mark.parametrize("text", ["p3", "p1+ground3-split", "groundbin2"])
-def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnarounds, text):
+@pytest.mark.parametrize("where", ["boresight", "hexagon:7:10"])
+def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnarounds, text, where):
     """An independent route: each pair difference written from the sky's maps in the samples'
     pixels, filtered CES by CES with the filters themselves, binned with bincount, solved with
-    numpy."""
+    numpy; the pairs on the boresight (simulate_schedule) or each at its place in a focal plane
+    (simulate_focalplane)."""
     schedule, filtering = _filtered_schedule(turnarounds), Filtering.parse(text)
-    angles, dg = np.radians([0.0, 45.0]), 0.01
+    dg = 0.01
     run = dict(evaluation="pixel", filtering=filtering)
-    maps = engine.simulate_schedule(
-        plain_sky, schedule, Instrument(pair_angles_deg=(0.0, 45.0)), Systematics(dg=dg), **run
-    )
+    if where == "boresight":
+        angles = np.radians([0.0, 45.0])
+        maps = engine.simulate_schedule(
+            plain_sky, schedule, Instrument(pair_angles_deg=(0.0, 45.0)), Systematics(dg=dg), **run
+        )
+    else:
+        plane = focalplane.load_focalplane(where)
+        angles = np.radians(plane.pair_angles_deg)
+        maps = engine.simulate_focalplane(plain_sky, schedule, plane, Systematics(dg=dg), **run)
     npix = 12 * plain_sky.nside**2
     normal = np.zeros((5, npix))
     i_map, q_map, u_map = plain_sky.maps
@@ -383,17 +391,26 @@ def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnar
             one = replace(
                 schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
             )
-            theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(one)))
-            pix = hp.ang2pix(plain_sky.nside, theta, phi)
-            c = np.cos(2 * (psi[None, :] + angles[:, None]))
-            s = np.sin(2 * (psi[None, :] + angles[:, None]))
-            i, q, u = i_map[pix], q_map[pix], u_map[pix]
+            if where == "boresight":
+                theta, phi, psi = (np.concatenate(x)[None] for x in zip(*pointing.pointing(one)))
+            else:
+                chunks = pointing.detector_pointing(one, plane)
+                theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*chunks))
+            pix = hp.ang2pix(plain_sky.nside, theta, phi)  # (1 or pairs, H)
+            c = np.cos(2 * (psi[:, None, :] + angles[None, :, None]))
+            s = np.sin(2 * (psi[:, None, :] + angles[None, :, None]))
+            if where != "boresight":  # pair m at its own place: its own samples alone
+                c, s = (np.einsum("mmh->mh", x)[:, None, :] for x in (c, s))
+            i, q, u = (m[pix][:, None, :] for m in (i_map, q_map, u_map))
             d = 0.5 * (i + q * c + u * s - (1 - dg) * (i - q * c - u * s))
             scan = CesScan.of(ces, schedule)
-            d = filtering.apply(d, scan)
-            keep = ~scan.turning if turnarounds == "exclude" else np.ones(pix.size, bool)
-            for j, term in enumerate((c * c, c * s, s * s, c * d, s * d)):
-                normal[j] += np.bincount(pix[keep], term[:, keep].sum(axis=0), minlength=npix)
+            keep = ~scan.turning if turnarounds == "exclude" else np.ones(pix.shape[1], bool)
+            for row in range(pix.shape[0]):
+                dr = filtering.apply(d[row], scan)
+                for j, term in enumerate((c[row] ** 2, c[row] * s[row], s[row] ** 2)):
+                    normal[j] += np.bincount(pix[row, keep], term[:, keep].sum(axis=0), npix)
+                for j, term in ((3, c[row] * dr), (4, s[row] * dr)):
+                    normal[j] += np.bincount(pix[row, keep], term[:, keep].sum(axis=0), npix)
     seen = maps.pixels
     a11, a12, a22, b1, b2 = normal[:, seen]
     det = a11 * a22 - a12**2
@@ -402,6 +419,22 @@ def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnar
     scale = np.max(np.abs(q_ref))
     assert np.max(np.abs(maps.q_obs - q_ref)) < 1e-10 * scale
     assert np.max(np.abs(maps.u_obs - u_ref)) < 1e-10 * scale
+
+
+def test_a_filtered_focal_plane_on_the_axis_is_the_filtered_boresight(plain_sky):
+    """The paper's two pairs as a focal plane on the axis, filtered: the boresight's maps."""
+    schedule, filtering = _filtered_schedule(), Filtering.parse("p3+ground-split")
+    systematics = Systematics(dg=(0.01, -0.01), rho_arcmin=2.0, chi_deg=30.0)
+    axis = engine.simulate_schedule(
+        plain_sky, schedule, Instrument(), systematics, filtering=filtering
+    )
+    plane = engine.simulate_focalplane(
+        plain_sky, schedule, focalplane.on_axis((0.0, 45.0)), systematics, filtering=filtering
+    )
+    assert np.array_equal(axis.pixels, plane.pixels)
+    scale = np.max(np.abs(axis.q_obs))
+    assert np.max(np.abs(plane.q_obs - axis.q_obs)) < 1e-10 * scale
+    assert np.max(np.abs(plane.u_obs - axis.u_obs)) < 1e-10 * scale
 
 
 def test_a_filter_of_order_0_removes_a_constant_leak_and_keeps_the_rest(plain_sky):
@@ -451,6 +484,7 @@ def test_filtered_maps_do_not_depend_on_the_chunks_or_threads(plain_sky):
     [
         ("p3", dict(backend="gpu"), "CPU backend"),
         ("p3", dict(mapmaker="detectors"), "pairs' map-maker"),
+        ("p3", dict(hwp=HWP("continuous", frequency_hz=1.0)), "no plate"),
         ("p40", dict(sample_rate_hz=1.0), "samples per throw"),
         ("groundbin30", {}, "wider than the scan"),
     ],
@@ -462,4 +496,9 @@ def test_a_filter_the_schedule_cannot_take_is_refused_before_any_work(
     if "sample_rate_hz" in options:  # 20 samples a throw
         schedule = replace(schedule, sample_rate_hz=options.pop("sample_rate_hz"))
     with pytest.raises(ValueError, match=match):
+        if "hwp" in options:  # a focal plane behind a plate
+            plane = focalplane.on_axis()
+            engine.simulate_focalplane(
+                plain_sky, schedule, plane, filtering=Filtering.parse(text), **options
+            )
         engine.simulate_schedule(plain_sky, schedule, filtering=Filtering.parse(text), **options)

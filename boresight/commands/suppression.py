@@ -198,6 +198,7 @@ def run_filtered(
     filtering: Filtering,
     out_dir: str,
     *,
+    focalplane: FocalPlane | None = None,
     force: bool = False,
     progress: bool = False,
     checks: resources.Checks = resources.Checks(),
@@ -220,6 +221,8 @@ def run_filtered(
         boresight schedule's angles.
     filtering : boresight.mitigation.Filtering
     out_dir : str
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
+        The pairs, each on its own samples (default the paper's Q and U pairs on the axis).
     force, progress : bool
     checks : boresight.jobs.resources.Checks
 
@@ -238,13 +241,15 @@ def run_filtered(
         ces_scans(filtering, schedule)
     except ValueError as err:
         raise ConfigError(f"--filter {filtering}: {err}") from None
-    io.check_output_dir(out_dir, force, [schedule_path])
+    inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
+    io.check_output_dir(out_dir, force, inputs)
     once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
     estimate = resources.schedule_estimate(
         "filtered-suppression",
         once,
         sky_config.nside,
         lmax=sky_config.lmax,
+        n_pairs=2 if focalplane is None else focalplane.n_pairs,
         tod_runs=filtered_suppression.tod_runs(),
     )
     resources.require(estimate, checks)
@@ -254,8 +259,10 @@ def run_filtered(
     with timer("sky"):
         sky = make_sky(sky_config)
     with timer("simulations"):
-        result = filtered_suppression.run(schedule, sky, filtering, progress=progress)
-    with io.staged_dir(out_dir, force, [schedule_path]) as stage:
+        result = filtered_suppression.run(
+            schedule, sky, filtering, focalplane=focalplane, progress=progress
+        )
+    with io.staged_dir(out_dir, force, inputs) as stage:
         io.write_csv(stage / "filtered_suppression.csv", result.rows, list(result.rows[0]))
         io.write_text(stage / "filtered_suppression.md", filtered_suppression.markdown(result.rows))
         plots.filtered_suppression_figure(result, stage / "filtered_suppression")
@@ -277,6 +284,7 @@ def run_filtered(
                     "schedule": schedule_path,
                     "filter": str(filtering),
                     "sky": dataclasses.asdict(sky_config),
+                    "focalplane": None if focalplane is None else focalplane.names,
                 },
                 {"sky": sky_config.seed},
                 timer.stages,
@@ -351,7 +359,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "per throw, ground[<order>] or groundbin<deg> a ground template per CES, -split per scan "
         "direction (boresight.mitigation.Filtering); with --schedule, not with --hwp",
     )
-    _common.focalplane_flag(parser, "; with --hwp only")
+    _common.focalplane_flag(parser, "; with --hwp or --filter only")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -379,11 +387,10 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError(
                 "--filter and --hwp: give one of them (a filter behind a plate is to come)"
             )
-        given = [f for f in ("--focalplane", *PLATE_FLAGS) if getattr(args, _dest(f)) is not None]
+        given = [f for f in PLATE_FLAGS if getattr(args, _dest(f)) is not None]
         if given:
             raise ConfigError(
-                f"{', '.join(given)} with --filter: the filtered table runs the paper's pairs on "
-                "the boresight, without a plate"
+                f"{', '.join(given)} with --filter: the filtered table runs without a plate"
             )
         if args.schedule is None:
             raise ConfigError("--filter: give --schedule, the schedule file the table repeats")
@@ -398,6 +405,7 @@ def main(args: argparse.Namespace) -> int:
             args.schedule,
             filtering,
             args.out,
+            focalplane=_common.focalplane(args),
             force=args.force,
             progress=_common.progress(args),
             checks=_common.checks(args),
@@ -424,7 +432,7 @@ def main(args: argparse.Namespace) -> int:
     flags = ("--schedule", "--focalplane", *PLATE_FLAGS)
     given = [f for f in flags if getattr(args, _dest(f)) is not None]
     if given:
-        also = " (--schedule goes with --filter too)" if "--schedule" in given else ""
+        also = " (--schedule and --focalplane go with --filter too)" if given else ""
         raise ConfigError(f"{', '.join(given)} belong to the HWP table: give --hwp too{also}")
     run(
         sky_config,

@@ -167,8 +167,8 @@ def simulate_maps(
         (:func:`boresight.engine.simulate_focalplane`), in place of ``instrument``'s pairs on the
         boresight.
     filtering : boresight.mitigation.Filtering
-        What the pipeline filters before binning (:func:`boresight.engine.simulate_schedule`): a
-        real schedule's pairs on the boresight only.
+        What the pipeline filters before binning (:func:`boresight.engine.simulate_schedule`,
+        :func:`boresight.engine.simulate_focalplane`): a real schedule's only.
     progress : bool
 
     Returns
@@ -216,17 +216,13 @@ def _simulate(
             f"filtering ({filtering}) acts per throw and per CES: it needs a real schedule, and a "
             "synthetic scan has neither"
         )
-    if filtering and focalplane is not None:
-        raise ValueError(
-            f"filtering ({filtering}) runs on the pairs on the boresight, not yet on a focal plane"
-        )
     if focalplane is not None:
         if not isinstance(scan, Schedule):
             raise ValueError(
                 "a focal plane needs a real schedule: a synthetic scan has no pointing"
             )
         maps = engine.simulate_focalplane(
-            sky, scan, focalplane, systematics, progress=progress, **on_samples
+            sky, scan, focalplane, systematics, filtering=filtering, progress=progress, **on_samples
         )
         return maps, None
     if isinstance(scan, Schedule):
@@ -497,8 +493,8 @@ def residual(
         (:func:`simulate_maps`). Its residual is predicted by
         :func:`boresight.predict.focalplane.expected_residual`, not here: no ``prediction``.
     filtering : boresight.mitigation.Filtering
-        What the pipeline filters before binning, on a real schedule's pairs on the boresight
-        (:func:`boresight.engine.simulate_schedule`), the reference's as the systematic's. Its
+        What the pipeline filters before binning, on a real schedule's pairs on the boresight or
+        on ``focalplane`` (:func:`simulate_maps`), the reference's as the systematic's. Its
         leak is not predicted yet: no ``prediction`` with a filter.
     transforms : Transforms, optional
         Where the transforms run (default: inline).

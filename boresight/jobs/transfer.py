@@ -21,14 +21,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import engine, harmonics, spectra
+from .. import harmonics, spectra
 from .._util import interrupts
 from ..config import RunOptions
 from ..instrument.pairs import Instrument, Systematics
 from ..mitigation import Filtering
 from ..sky import gaussian_alm, sky_of_alm
+from .residual import simulate_maps
 
 if TYPE_CHECKING:
+    from ..instrument.focalplane import FocalPlane
     from ..schedule import Schedule
 
 #: the fields of a pair of polarised maps, in SOOPERCOOL's order of its 9 (T dropped)
@@ -153,10 +155,11 @@ def transfer_function(
     n_sims: int = 8,
     seed: int = 0,
     run: RunOptions = RunOptions(),
+    focalplane: FocalPlane | None = None,
 ) -> Transfer:
     """The filter's polarised transfer matrix on a schedule, from ``n_sims`` pairs of pure-E and
     pure-B skies through the raw and the filtered pipeline (the paper's Q and U pairs on the
-    boresight).
+    boresight, or a focal plane's pairs).
 
     Parameters
     ----------
@@ -174,6 +177,8 @@ def transfer_function(
     seed : int
         Realisation i's skies are drawn from seed x 1000003 + i.
     run : boresight.config.RunOptions
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
+        Every pair at its own place (default the paper's pairs on the boresight).
 
     Returns
     -------
@@ -185,7 +190,7 @@ def transfer_function(
     lmax = 2 * nside
     pipelines = {"raw": Filtering(), "filtered": filtering}
     bandpowers = {k: np.empty((n_sims, 4, 4, len(edges) - 1)) for k in pipelines}
-    options = dict(evaluation=run.evaluation, nthreads=run.nthreads, filtering=None)
+    options = dict(run=run, filtering=None)
     for i in range(n_sims):
         skies = pure_skies(nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin, seed=seed * 1_000_003 + i)
         for name, pipeline in pipelines.items():
@@ -193,8 +198,8 @@ def transfer_function(
             for which, sky in skies.items():
                 interrupts.check()
                 options["filtering"] = pipeline
-                maps = engine.simulate_schedule(
-                    sky, schedule, Instrument(), Systematics(), **options
+                maps = simulate_maps(
+                    sky, schedule, Instrument(), Systematics(), focalplane=focalplane, **options
                 )
                 alm[which] = footprint.alm(maps.qu_at(footprint.pixels), lmax, 2)
             for p, (a, b) in enumerate(PURE_PAIRS):

@@ -1,7 +1,7 @@
 """What boresight rotation buys a pipeline that filters before binning.
 
 Each systematic of :data:`CASES` runs alone on a real schedule's CES set, the paper's Q and U
-pairs on the boresight, through the boresight schedules of
+pairs on the boresight or every pair of a focal plane from its own place, through the boresight schedules of
 :data:`boresight.jobs.suppression.hwp.SCHEDULES`, in two pipelines: the maps binned from the raw
 pair differences, and from the pair differences a pipeline filtered first
 (:class:`boresight.mitigation.Filtering`, :func:`boresight.engine.simulate_schedule`). Every row is
@@ -34,6 +34,7 @@ from ..._util import interrupts
 from ...config import RunOptions
 from ...instrument.pairs import Instrument, Systematics
 from ...mitigation import Filtering, ces_scans
+from ..compare_scans import on_focalplane
 from ..residual import reference_from_maps, residual, simulate_maps
 from ..transfer import Transfer, transfer_function
 from ..transforms import Transforms
@@ -41,6 +42,7 @@ from .axis import CATALOGUE
 from .hwp import RCOND_FOOTPRINT, ROUNDING, SCHEDULES, bands, boresight_label, leak_markdown
 
 if TYPE_CHECKING:
+    from ...instrument.focalplane import FocalPlane
     from ...schedule import Schedule
     from ...sky import Sky
 
@@ -86,6 +88,7 @@ def run(
     schedules=SCHEDULES,
     run_options: RunOptions = RunOptions(),
     n_sims: int = N_SIMS,
+    focalplane: FocalPlane | None = None,
     progress: bool = False,
 ) -> Result:
     """Every case raw and filtered, through each boresight schedule, and the filter's transfer
@@ -104,6 +107,10 @@ def run(
     run_options : boresight.config.RunOptions
     n_sims : int
         The transfer function's pairs of pure skies.
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
+        The pairs, each on its own samples (default the paper's Q and U pairs on the axis); a
+        value given per Q and U pair goes to each pair by its angle
+        (:func:`boresight.jobs.compare_scans.on_focalplane`).
     progress : bool
 
     Returns
@@ -130,7 +137,7 @@ def run(
             interrupts.check()
             scan = dataclasses.replace(schedule, repeat_boresight_deg=tuple(repeats))
             label = boresight_label(repeats)
-            options = dict(run=run_options, filtering=pipelines[pipeline])
+            options = dict(run=run_options, filtering=pipelines[pipeline], focalplane=focalplane)
             ref_maps = simulate_maps(sky, scan, Instrument(), Systematics(), **options)
             if pipeline == RAW:  # the raw unrotated maps' footprint, shared by every row
                 if footprint is None:
@@ -140,10 +147,13 @@ def run(
                 ref_maps, footprint, lmax, run=run_options, transforms=transforms
             )
             for case in CASES:
+                systematics = case.systematics
+                if focalplane is not None:
+                    systematics = on_focalplane(systematics, focalplane)
                 leak = residual(
                     sky,
                     scan,
-                    case.systematics,
+                    systematics,
                     footprint,
                     lmax,
                     reference=reference,
@@ -180,6 +190,7 @@ def run(
         fwhm_arcmin=sky.fwhm_arcmin,
         n_sims=n_sims,
         run=run_options,
+        focalplane=focalplane,
     )
     f_bb = transfer.entry("BB", "BB")
     for row in rows:

@@ -127,12 +127,12 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
     [
         (["--filter", "p3"], "give --schedule"),
         (["--filter", "p3", "--hwp", "continuous", "--schedule", "S"], "give one of them"),
-        (["--filter", "p3", "--focalplane", "hexagon:7:10", "--schedule", "S"], "--focalplane"),
+        (["--filter", "p3", "--hwp-ip", "1e-3", "--schedule", "S"], "without a plate"),
         (["--filter", "p3+x", "--schedule", "S"], "filter part 'x'"),
         (["--filter", "none", "--schedule", "S"], "give a filter"),
         (["--filter", "p9", "--schedule", "SHORT"], "samples per throw"),
         (["--filter", "groundbin50", "--schedule", "S"], "wider than the scan"),
-        (["--schedule", "S"], "--schedule goes with --filter"),
+        (["--schedule", "S"], "--schedule and --focalplane go with --filter"),
     ],
 )
 def test_the_command_refuses_a_filter_it_cannot_run_before_any_work(tmp_path, capsys, flags, words):
@@ -144,6 +144,22 @@ def test_the_command_refuses_a_filter_it_cannot_run_before_any_work(tmp_path, ca
     assert main(["-q", "suppression", "--out", str(out), "--nside", "32", *flags]) == 2
     err = capsys.readouterr().err
     assert words in err and err.count("\n") == 1 and not out.exists(), err
+
+
+def test_the_command_takes_a_focal_plane(tmp_path):
+    """--focalplane with --filter: the table and the transfer function of its pairs, each on its
+    own samples; the manifest names them."""
+    path = _schedule_file(tmp_path / "s.toml")
+    out = tmp_path / "out"
+    args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
+    flags = ["--fwhm-arcmin", "120", "--filter", "p1", "--focalplane", "hexagon:7:10"]
+    assert main([*args, *flags]) == 0
+    rows = list(csv.DictReader(open(out / "filtered_suppression.csv")))
+    assert len(rows) == 4 * 2 * 4
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert len(manifest["config"]["focalplane"]) == 7, manifest["config"]
+    f_bb = [float(v) for r in rows if r["pipeline"] != "raw" for k, v in r.items() if "F_BB" in k]
+    assert all(0.0 < f < 1.0 for f in f_bb)
 
 
 def test_the_table_needs_a_filter():
