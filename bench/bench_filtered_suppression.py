@@ -11,7 +11,10 @@ Usage: python bench/bench_filtered_suppression.py [NSIDE] [FILTER]
 
 Writes the table to bench/results/filtered_suppression.json, its figure
 (boresight.outputs.plots.filtered_suppression_figure) to docs/figures/filtered_suppression_deep.png
-and the filter's transfer function (plots.transfer_figure) to docs/figures/transfer_deep.png.
+and the filter's transfer function (plots.transfer_figure) to docs/figures/transfer_deep.png. A
+FILTER that deprojects (e.g. ``"deproject(bk)"``) evaluates the sky exactly and writes
+bench/results/deprojected_suppression.json, docs/figures/deprojected_suppression_deep.png and
+transfer_deprojected_deep.png, with what it keeps of the sky's own E and B.
 """
 
 import sys
@@ -21,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
+from boresight.config import RunOptions
 from boresight.jobs.suppression import filtered
 from boresight.mitigation import Filtering
 from boresight.outputs import plots
@@ -34,16 +38,27 @@ def main(nside, text):
     schedule = load_schedule(str(ROOT / "examples" / "schedule_deep_sat.toml"))
     sky = make_sky(SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=60.0, seed=10))
     filtering = Filtering.parse(text)
+    deprojects = bool(filtering.deprojection)
+    evaluation = "exact" if deprojects else "interp"
     t0 = time.perf_counter()
-    result = filtered.run(schedule, sky, filtering, progress=True)
+    result = filtered.run(
+        schedule, sky, filtering, run_options=RunOptions(evaluation=evaluation), progress=True
+    )
     seconds = time.perf_counter() - t0
     figures = ROOT / "docs" / "figures"
+    name = "deprojected" if deprojects else "filtered"
     plots.filtered_suppression_figure(
-        result, figures / "filtered_suppression_deep", formats=("png",)
+        result, figures / f"{name}_suppression_deep", formats=("png",)
     )
-    plots.transfer_figure(result.transfer, figures / "transfer_deep", formats=("png",))
+    transfer = "transfer_deprojected_deep" if deprojects else "transfer_deep"
+    plots.transfer_figure(result.transfer, figures / transfer, formats=("png",))
     rows = [{k: _cell(v) for k, v in row.items() if k != "amplitude"} for row in result.rows]
-    verdict = filtered.verdict(result.rows)
+    verdict = filtered.verdict(result.rows, result.kept)
+    unrotated = next(k for k in result.kept if k["pipeline"] != filtered.RAW)
+    kept = "; ".join(
+        f"{field} " + "/".join(f"{v:.3f}" for k, v in unrotated.items() if k.startswith(field))
+        for field in ("EE kept", "BB kept")
+    )
     tf = result.transfer
     mixing = ", ".join(
         f"{name} {'/'.join(f'{x:.3f}' for x in tf.entry(into, source))}"
@@ -56,7 +71,7 @@ def main(nside, text):
     )
     print(verdict)
     report(
-        "filtered_suppression",
+        f"{name}_suppression",
         f"What boresight rotation buys a pipeline that filters ({filtering}), the deep example, "
         f"Nside {nside}",
         list(rows[0]),
@@ -64,7 +79,7 @@ def main(nside, text):
         notes=(
             f"examples/schedule_deep_sat.toml's CES set at {schedule.sample_rate_hz:g} Hz, the "
             "paper's Q and U pairs on the boresight, a sky of FWHM 60 arcmin read by "
-            "interpolation, the spectra on the raw unrotated maps' pixels with rcond > 0.05; gain "
+            f"{'exact evaluation' if deprojects else 'interpolation'}, the spectra on the raw unrotated maps' pixels with rcond > 0.05; gain "
             "dg = +-0.01, pointing rho = 0.1 arcmin, leak 0.01 and 0.005 T, angle 0.5 deg. leak: "
             "the leaked pseudo-C_BB <dB, dB> [muK^2] per band; over raw: over the same boresight "
             "schedule's raw leak; F_BB: the filter's transfer function of B on the CES set once "
@@ -73,6 +88,7 @@ def main(nside, text):
             "own pipeline's leak without rotation. "
             f"A leak of ~1e-36 is rounding. {seconds:.0f} s in all. The transfer per band: "
             f"{mixing}; the spread of F^BB {'/'.join(f'{x:.3f}' for x in tf.error[3, 3])}. "
+            f"The sky's own (CAMB) E and B kept without rotation, over raw: {kept}. "
             f"The verdict: {verdict}"
         ),
     )

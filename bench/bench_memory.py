@@ -93,6 +93,15 @@ def command_args(command, directory, nside):
             "--schedule",
             schedule,
         ],
+        "suppression (deproject)": [
+            "suppression",
+            "--nside",
+            str(nside),
+            "--deproject",
+            "bk",
+            "--schedule",
+            schedule,
+        ],
         "reproduce": ["reproduce", "--nside", str(nside), "--lmax", str(3 * nside - 1)],
     }[command]
 
@@ -110,6 +119,7 @@ COMMANDS = (
     "design",
     "suppression",
     "suppression (filter)",
+    "suppression (deproject)",
     "reproduce",
 )
 

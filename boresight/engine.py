@@ -300,7 +300,7 @@ def _maps_from(kernels, normal, n_pairs, rcond_min):
 def _check_mapmaker(mapmaker, backend):
     check_mapmaker(mapmaker)
     if mapmaker != "pairs" and backend != "cpu":
-        raise ValueError(f"mapmaker {mapmaker!r} (I, Q, U) runs on the CPU backend only")
+        raise ValueError(f"mapmaker {mapmaker!r} (a 3x3 system) runs on the CPU backend only")
 
 
 def _normal(kernels, nside, mapmaker):
@@ -317,7 +317,7 @@ def _stream_maps(kernels, nside, normal, mapmaker, *, n_pairs, rcond_min):
         return Maps(nside, seen, q[seen], u[seen], hits[seen], rcond[seen])
     seen = np.flatnonzero(normal[:, 0])
     i, q, u, rcond = solve_iqu(normal[seen], rcond_min)
-    per_pair_sample = n_pairs * (2 if mapmaker == "detectors" else 1)
+    per_pair_sample = n_pairs * (2 if mapmaker == "detectors" else 1)  # "single", "pairs-spin0": 1
     hits = np.rint(normal[seen, 0] / per_pair_sample).astype(np.int64)
     return Maps(nside, seen, q, u, hits, rcond, i_obs=i)
 
@@ -481,6 +481,14 @@ class _Binner:
         args = (psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
         return pair_differences(*args, seed, first)
 
+    def templates(self, deprojection, theta, phi, psi):
+        """(T, H) templates of one pointing stream (:meth:`boresight.mitigation.Deprojection.
+        templates_at`): T as this binner reads it, its derivatives exactly."""
+        value = self.kernels.to_host(self._at(theta, phi))[0]
+        return deprojection.templates_at(
+            self.fields.alm[0], value, theta, phi, psi, nthreads=self.nthreads
+        )
+
     def for_pair(self, i):
         """This binner for pair i alone: its angle and its own drawn parameters."""
         one = copy.copy(self)
@@ -523,7 +531,7 @@ class _Binner:
         if mapmaker == "pairs":
             self.kernels.accumulate_scatter(*args, seed, first, normal)
         else:
-            accumulate_detectors(*args, seed, first, normal, only_a=mapmaker == "single")
+            accumulate_detectors(*args, seed, first, normal, mapmaker=mapmaker)
 
 
 def simulate_samples(
@@ -555,8 +563,9 @@ def simulate_samples(
     evaluation : {"interp", "exact", "pixel"}
         As in :func:`simulate`, or each map's value in the sample's pixel (TOAST's
         ``ScanHealpixMap``).
-    mapmaker : {"pairs", "detectors", "single"}
-        Pair differences -> Q, U; or each detector's own samples -> I, Q, U (:data:`boresight.mapmaking.MAPMAKERS`),
+    mapmaker : {"pairs", "detectors", "single", "pairs-spin0"}
+        Pair differences -> Q, U; each detector's own samples -> I, Q, U; or pair differences ->
+        a free spin-0 field (``Maps.i_obs``) beside Q, U (:data:`boresight.mapmaking.MAPMAKERS`),
         on the CPU backend.
 
     Returns
@@ -618,8 +627,10 @@ def simulate_schedule(
         As in :func:`simulate_samples`.
     schedule : boresight.schedule.Schedule
     filtering : boresight.mitigation.Filtering
-        The pipeline's filters (none by default); with one, the CPU backend and the pairs'
-        map-maker.
+        The pipeline's filters and deprojection (none by default); with one, the CPU backend
+        and the pairs' map-maker. Its templates (:attr:`~boresight.mitigation.Filtering.
+        deprojection`) are regressed from each pair difference per CES after the filters,
+        filtered as the data are; derivatives of T need ``evaluation="exact"``.
     chunk_samples : int
         Samples per chunk of pointing.
     progress : bool
@@ -631,8 +642,9 @@ def simulate_schedule(
     Raises
     ------
     ValueError
-        A filter on another backend or map-maker, or that a CES cannot take
-        (:meth:`boresight.mitigation.CesScan.check`), before any work.
+        A filter or deprojection on another backend or map-maker, or that a CES cannot take
+        (:meth:`boresight.mitigation.CesScan.check`), before any work; a CES whose templates
+        cannot be fitted (too few samples, collinear templates), naming it.
     """
     run = dict(
         evaluation=evaluation,
@@ -646,7 +658,8 @@ def simulate_schedule(
         return simulate_samples(
             sky, pointing(schedule, chunk_samples), instrument, systematics, **run
         )
-    _check_filtering(filtering, backend, mapmaker)
+    cleaning = _Cleaning(filtering)
+    cleaning.check(backend, mapmaker, evaluation)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
@@ -656,11 +669,12 @@ def simulate_schedule(
         numba_threads(nthreads),
         tqdm(total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress) as bar,
     ):
-        for one, scan in _each_ces(schedule, filtering):
+        for block, one, scan in cleaning.each_ces(schedule):
             theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
             interrupts.check()
             c, s, d = binner.differences(theta, phi, psi, systematics.seed, first)
-            _bin_filtered(normal, sky.nside, theta, phi, c, s, d, filtering, scan, schedule)
+            d = cleaning.apply(d, binner, theta, phi, psi, scan, block)
+            _bin_kept(normal, sky.nside, theta, phi, c, s, d, scan, schedule)
             first += psi.size
             bar.update(psi.size)
     return _stream_maps(
@@ -668,31 +682,53 @@ def simulate_schedule(
     )
 
 
-def _check_filtering(filtering, backend, mapmaker, hwp=None):
-    if backend != "cpu" or mapmaker != "pairs" or hwp is not None:
-        raise ValueError(
-            f"filtering ({filtering}) runs on the CPU backend with the pairs' map-maker and no "
-            f"plate, not backend {backend!r}, mapmaker {mapmaker!r}"
-            + ("" if hwp is None else ", a HWP")
-        )
+class _Cleaning:
+    """What a pipeline does to each CES's pair differences before binning: its filters, then its
+    templates (filtered as the data are) regressed and subtracted."""
 
+    def __init__(self, filtering):
+        self.filtering, self.deprojection = filtering, filtering.deprojection
 
-def _each_ces(schedule, filtering):
-    """(a schedule of one CES of one repeat, its CesScan) in observing order, every CES checked
-    against ``filtering`` before the first is simulated."""
-    scans = ces_scans(filtering, schedule)
-    for repeat in schedule.repeat_boresight_deg:
-        for ces, scan in zip(schedule.ces, scans):
-            one = replace(
-                schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+    def check(self, backend, mapmaker, evaluation, hwp=None):
+        if backend != "cpu" or mapmaker != "pairs" or hwp is not None:
+            raise ValueError(
+                f"filtering ({self.filtering}) runs on the CPU backend with the pairs' "
+                f"map-maker and no plate, not backend {backend!r}, mapmaker {mapmaker!r}"
+                + ("" if hwp is None else ", a HWP")
             )
-            yield one, scan
+        if self.deprojection.derivatives and evaluation != "exact":
+            raise ValueError(
+                f"deprojecting {self.deprojection} fits derivatives of T, which the TOD follows "
+                f"only with evaluation 'exact', not {evaluation!r} (interpolated or pixelised "
+                "maps differ from their derivatives)"
+            )
+
+    def each_ces(self, schedule):
+        """(its name, a schedule of one CES of one repeat, its CesScan) in observing order, every
+        CES checked against the filters before the first is simulated."""
+        scans = ces_scans(self.filtering, schedule)
+        for repeat in schedule.repeat_boresight_deg:
+            for i, (ces, scan) in enumerate(zip(schedule.ces, scans)):
+                one = replace(
+                    schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+                )
+                yield f"CES {i} at boresight {repeat:g} deg", one, scan
+
+    def apply(self, d, binner, theta, phi, psi, scan, block):
+        """One CES's pair differences d (M, H) of one pointing stream, cleaned."""
+        if self.filtering.filters:
+            d = self.filtering.apply(d, scan)
+        if not self.deprojection:
+            return d
+        templates = binner.templates(self.deprojection, theta, phi, psi)
+        if self.filtering.filters:
+            templates = self.filtering.apply(templates, scan)
+        return self.deprojection.apply(d, templates, ~scan.turning, block=block)
 
 
-def _bin_filtered(normal, nside, theta, phi, c, s, d, filtering, scan, schedule):
-    """One CES's pair differences d (M, H) filtered and binned with their weights c, s into
+def _bin_kept(normal, nside, theta, phi, c, s, d, scan, schedule):
+    """One CES's pair differences d (M, H), cleaned, binned with their weights c, s into
     ``normal``; its turnarounds' samples binned only where the schedule keeps them."""
-    d = filtering.apply(d, scan)
     keep = np.ones(d.shape[1], bool) if schedule.turnarounds == "include" else ~scan.turning
     pix = ang2pix_array(nside, theta[keep], phi[keep])
     bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
@@ -746,7 +782,8 @@ def simulate_focalplane(
     filtering : boresight.mitigation.Filtering
         Each pair's pair differences filtered CES by CES before binning, as in
         :func:`simulate_schedule` (the throws and azimuth the boresight's): the pairs' map-maker,
-        no plate. Pair i's sample k keeps its gain jitter's key (seed, i x samples + k).
+        no plate. Pair i's sample k keeps its gain jitter's key (seed, i x samples + k). Each
+        pair's templates are its own (its pointing and angle).
     progress : bool
 
     Returns
@@ -756,8 +793,9 @@ def simulate_focalplane(
     """
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
+    cleaning = _Cleaning(filtering)
     if filtering:
-        _check_filtering(filtering, backend, mapmaker, hwp)
+        cleaning.check(backend, mapmaker, evaluation, hwp)
         ces_scans(filtering, schedule)  # every CES against the filter, before any work
     if hwp is not None:
         systematics = reflected_systematics(hwp, systematics, own_angles=True)
@@ -776,16 +814,17 @@ def simulate_focalplane(
             numba_threads(nthreads),
             tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar,
         ):
-            for one, scan in _each_ces(schedule, filtering):
+            for block, one, scan in cleaning.each_ces(schedule):
                 parts = list(detector_pointing(one, focalplane, chunk_samples))
                 theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*parts))
                 for i, pair in enumerate(pairs):
                     interrupts.check()
                     key = i * schedule.n_samples + first
                     c, s, d = pair.differences(theta[i], phi[i], psi[i], systematics.seed, key)
-                    _bin_filtered(
-                        normal, sky.nside, theta[i], phi[i], c, s, d, filtering, scan, schedule
+                    d = cleaning.apply(
+                        d, pair, theta[i], phi[i], psi[i], scan, f"pair {i}, {block}"
                     )
+                    _bin_kept(normal, sky.nside, theta[i], phi[i], c, s, d, scan, schedule)
                 first += theta.shape[1]
                 bar.update(theta.size)
         return _stream_maps(

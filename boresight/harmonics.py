@@ -429,6 +429,7 @@ def evaluate(
     phi: np.ndarray,
     *,
     spin: int = 0,
+    mode: str = "STANDARD",
     epsilon: float = 1e-12,
     nthreads: int = 0,
 ) -> np.ndarray:
@@ -441,6 +442,9 @@ def evaluate(
     theta, phi : numpy.ndarray, shape (n,)
         Points [rad].
     spin : int
+    mode : str
+        ducc0's: ``"STANDARD"``; ``"GRAD_ONLY"`` (a spin > 0 alm's gradient part alone, given as
+        (nalm,)); ``"DERIV1"``, a spin-0 alm's gradient (dT/dtheta, dT/dphi / sin theta).
     epsilon : float
         ducc0's requested relative accuracy.
     nthreads : int
@@ -448,7 +452,7 @@ def evaluate(
     Returns
     -------
     numpy.ndarray
-        (n,) for spin 0; (2, n) Q, U for spin 2.
+        (n,) for spin 0; (2, n) Q, U for spin 2 (or the gradient's two components).
     """
     alm = np.atleast_2d(alm)
     loc = np.empty((theta.size, 2))
@@ -456,13 +460,14 @@ def evaluate(
     loc[:, 1] = phi
     out = ducc0.sht.synthesis_general(
         alm=alm,
-        spin=spin,
+        spin=1 if mode == "DERIV1" else spin,
         lmax=alm_lmax(alm.shape[-1]),
         loc=loc,
         epsilon=epsilon,
         nthreads=nthreads,
+        mode=mode,
     )
-    return out[0] if spin == 0 else out
+    return out[0] if spin == 0 and mode == "STANDARD" else out
 
 
 def m_runs(lmax: int):

@@ -23,8 +23,11 @@ import numpy as np
 
 RCOND_MIN = 1e-6  #: below this the 2x2 system is treated as singular (one polarisation angle)
 #: how a stream's samples become maps: pair differences -> (Q, U); each detector's own samples
-#: -> (I, Q, U), both of every pair's detectors or detector A alone (a single-detector instrument)
-MAPMAKERS = ("pairs", "detectors", "single")
+#: -> (I, Q, U), both of every pair's detectors or detector A alone (a single-detector instrument);
+#: pair differences -> (a, Q, U) with a free spin-0 field a per pixel common to the pairs, which
+#: takes a gain or beam-width mismatch's leak of T whatever the angles (map-domain deprojection;
+#: its noise price is :func:`boresight.predict.deprojection.noise_inflation`)
+MAPMAKERS = ("pairs", "detectors", "single", "pairs-spin0")
 
 
 def check_mapmaker(mapmaker: str) -> None:

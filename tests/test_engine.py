@@ -364,13 +364,16 @@ def _filtered_schedule(turnarounds="include"):
 
 
 @pytest.mark.parametrize("turnarounds", ["include", "exclude"])
-@pytest.mark.parametrize("text", ["p3", "p1+ground3-split", "groundbin2"])
+@pytest.mark.parametrize(
+    "text", ["p3", "p1+ground3-split", "groundbin2", "deproject(gain)", "p1+deproject(gain)"]
+)
 @pytest.mark.parametrize("where", ["boresight", "hexagon:7:10"])
 def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnarounds, text, where):
     """An independent route: each pair difference written from the sky's maps in the samples'
-    pixels, filtered CES by CES with the filters themselves, binned with bincount, solved with
-    numpy; the pairs on the boresight (simulate_schedule) or each at its place in a focal plane
-    (simulate_focalplane)."""
+    pixels, filtered CES by CES with the filters themselves, the T map in the samples' pixels
+    (filtered alike) regressed from it with numpy's least squares off the turnarounds, binned with
+    bincount, solved with numpy; the pairs on the boresight (simulate_schedule) or each at its
+    place in a focal plane (simulate_focalplane)."""
     schedule, filtering = _filtered_schedule(turnarounds), Filtering.parse(text)
     dg = 0.01
     run = dict(evaluation="pixel", filtering=filtering)
@@ -406,7 +409,13 @@ def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnar
             scan = CesScan.of(ces, schedule)
             keep = ~scan.turning if turnarounds == "exclude" else np.ones(pix.shape[1], bool)
             for row in range(pix.shape[0]):
-                dr = filtering.apply(d[row], scan)
+                dr = filtering.apply(d[row], scan) if filtering.filters else d[row]
+                if filtering.deprojection:
+                    x = i_map[pix[row]][None]
+                    x = filtering.apply(x, scan) if filtering.filters else x
+                    fit = ~scan.turning
+                    coefficients = np.linalg.lstsq(x[:, fit].T, dr[:, fit].T, rcond=None)[0]
+                    dr = dr - coefficients.T @ x
                 for j, term in enumerate((c[row] ** 2, c[row] * s[row], s[row] ** 2)):
                     normal[j] += np.bincount(pix[row, keep], term[:, keep].sum(axis=0), npix)
                 for j, term in ((3, c[row] * dr), (4, s[row] * dr)):
@@ -461,6 +470,33 @@ def test_a_filter_of_order_0_removes_a_constant_leak_and_keeps_the_rest(plain_sk
     assert np.max(np.abs(filtered.u_obs - clean.u_obs)) < 1e-12 * scale
 
 
+@pytest.mark.parametrize("where", ["boresight", "hexagon:7:10"])
+def test_the_bk_templates_take_constant_gains_and_offsets_on_a_t_only_sky(plain_sky, where):
+    """T alone, gains and pointing offsets constant per pair: the BK templates, regressed per
+    CES from each pair's own stream, leave the leak's third order in rho (ell rho ~ 1e-2 here);
+    the gain alone (its template exactly the leak) to rounding."""
+    sky, schedule = plain_sky.without_polarisation(), _filtered_schedule()
+    systematics = Systematics(dg=0.01, rho_arcmin=1.0, chi_deg=30.0)
+    plane = focalplane.load_focalplane(where) if where != "boresight" else None
+
+    def maps(text, systematics):
+        run = dict(evaluation="exact", filtering=Filtering.parse(text))
+        if plane is None:
+            return engine.simulate_schedule(sky, schedule, Instrument(), systematics, **run)
+        return engine.simulate_focalplane(sky, schedule, plane, systematics, **run)
+
+    gains = Systematics(dg=0.01)
+    size = np.max(np.abs(maps("none", gains).q_obs))
+    assert size > 1e-2
+    assert np.max(np.abs(maps("deproject(gain)", gains).q_obs)) < 1e-13 * size
+    size = np.max(np.abs(maps("none", systematics).q_obs))
+    left = maps("deproject(bk)", systematics)
+    assert np.max(np.abs(left.q_obs)) < 1e-5 * size
+    assert np.max(np.abs(left.u_obs)) < 1e-5 * size
+    first_order = maps("deproject(gain,pointing)", systematics)
+    assert np.max(np.abs(first_order.q_obs)) > 1e-4 * size  # the offset's second order
+
+
 def test_filtered_maps_do_not_depend_on_the_chunks_or_threads(plain_sky):
     schedule, filtering = _filtered_schedule(), Filtering.parse("p3+ground")
     systematics = Systematics(dg=0.01, dg_jitter=0.001, rho_arcmin=1.0)
@@ -487,6 +523,12 @@ def test_filtered_maps_do_not_depend_on_the_chunks_or_threads(plain_sky):
         ("p3", dict(hwp=HWP("continuous", frequency_hz=1.0)), "no plate"),
         ("p40", dict(sample_rate_hz=1.0), "samples per throw"),
         ("groundbin30", {}, "wider than the scan"),
+        ("deproject(pointing)", dict(evaluation="interp"), "evaluation 'exact'"),
+        (
+            "deproject(gain)",
+            dict(sample_rate_hz=0.1, duration_s=10.0),
+            "1 template per CES; a CES of this schedule has 1 samples",
+        ),
     ],
 )
 def test_a_filter_the_schedule_cannot_take_is_refused_before_any_work(
@@ -495,6 +537,10 @@ def test_a_filter_the_schedule_cannot_take_is_refused_before_any_work(
     schedule = _filtered_schedule()
     if "sample_rate_hz" in options:  # 20 samples a throw
         schedule = replace(schedule, sample_rate_hz=options.pop("sample_rate_hz"))
+    if "duration_s" in options:  # one sample a CES
+        duration = options.pop("duration_s")
+        ces = tuple(replace(c, duration_s=duration) for c in schedule.ces)
+        schedule = replace(schedule, ces=ces)
     with pytest.raises(ValueError, match=match):
         if "hwp" in options:  # a focal plane behind a plate
             plane = focalplane.on_axis()

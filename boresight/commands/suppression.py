@@ -1,7 +1,8 @@
 """``boresight suppression``: every systematic of :data:`boresight.jobs.suppression.axis.CATALOGUE` alone
 through 0, 0/45, 0/90 and 0/180 deg rotation, simulated and predicted; with ``--hwp``, what that
 rotation still buys behind a half-wave plate on a real schedule (:mod:`boresight.jobs.suppression.hwp`);
-with ``--filter``, what it buys a pipeline that filters the pair differences before binning
+with ``--filter`` and/or ``--deproject``, what it buys a pipeline that filters the pair
+differences, or regresses templates of T from them, before binning
 (:mod:`boresight.jobs.suppression.filtered`)."""
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._util import io, precompile, provenance
-from ..config import OutputOptions, Study, check_systematics
+from ..config import OutputOptions, RunOptions, Study, check_systematics
 from ..constants import ARCMIN
 from ..instrument.beams import MIN_AXIS_FWHM
 from ..instrument.hwp import HWP, check_sampling
@@ -23,7 +24,7 @@ from ..jobs import resources, suppression
 from ..jobs.suppression import filtered as filtered_suppression
 from ..jobs.suppression import hwp as hwp_suppression
 from ..jobs.transfer import FIELD_PAIRS
-from ..mitigation import Filtering, ces_scans
+from ..mitigation import Deprojection, Filtering, ces_scans
 from ..outputs import plots
 from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
@@ -203,15 +204,18 @@ def run_filtered(
     progress: bool = False,
     checks: resources.Checks = resources.Checks(),
 ) -> list[dict]:
-    """What boresight rotation buys a pipeline that filters before binning, on a real schedule
-    (:mod:`boresight.jobs.suppression.filtered`).
+    """What boresight rotation buys a pipeline that filters (and/or deprojects) before binning, on
+    a real schedule (:mod:`boresight.jobs.suppression.filtered`); a deprojection of T's
+    derivatives evaluates the sky exactly.
 
     Writes ``filtered_suppression.csv`` (a row per systematic, pipeline and boresight schedule:
     the leaked pseudo-C_BB in three bands, over the same schedule's raw leak, that over the
     filter's F_BB and over its own pipeline's unrotated leak), ``filtered_suppression.md``,
     ``filtered_suppression.png``/``.pdf``, the filter's transfer function (``transfer.csv``, a row
     per band and pair of fields; ``transfer.npz``, its matrix T[to, from, band], error, edges and
-    field pairs; ``transfer.png``/``.pdf``) and ``manifest.json``.
+    field pairs; ``transfer.png``/``.pdf``), ``sky_kept.csv`` (per pipeline and boresight
+    schedule, the sky's own pseudo-C_EE and C_BB per band over the raw pipeline's) and
+    ``manifest.json``.
 
     Parameters
     ----------
@@ -244,8 +248,10 @@ def run_filtered(
     inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
     io.check_output_dir(out_dir, force, inputs)
     once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
+    # templates of T's derivatives follow the TOD only where the sky is evaluated exactly
+    exact = filtering.deprojection.derivatives > 0
     estimate = resources.schedule_estimate(
-        "filtered-suppression",
+        "deprojected-suppression" if exact else "filtered-suppression",
         once,
         sky_config.nside,
         lmax=sky_config.lmax,
@@ -258,13 +264,20 @@ def run_filtered(
     precompile.precompile(kernels, timer=timer)
     with timer("sky"):
         sky = make_sky(sky_config)
+    run_options = RunOptions(evaluation="exact") if exact else RunOptions()
     with timer("simulations"):
         result = filtered_suppression.run(
-            schedule, sky, filtering, focalplane=focalplane, progress=progress
+            schedule,
+            sky,
+            filtering,
+            run_options=run_options,
+            focalplane=focalplane,
+            progress=progress,
         )
     with io.staged_dir(out_dir, force, inputs) as stage:
         io.write_csv(stage / "filtered_suppression.csv", result.rows, list(result.rows[0]))
         io.write_text(stage / "filtered_suppression.md", filtered_suppression.markdown(result.rows))
+        io.write_csv(stage / "sky_kept.csv", result.kept, list(result.kept[0]))
         plots.filtered_suppression_figure(result, stage / "filtered_suppression")
         transfer = result.transfer
         io.write_csv(stage / "transfer.csv", transfer.rows(), list(transfer.rows()[0]))
@@ -283,6 +296,7 @@ def run_filtered(
                 {
                     "schedule": schedule_path,
                     "filter": str(filtering),
+                    "evaluation": run_options.evaluation,
                     "sky": dataclasses.asdict(sky_config),
                     "focalplane": None if focalplane is None else focalplane.names,
                 },
@@ -291,7 +305,7 @@ def run_filtered(
                 estimate.as_dict(),
             ),
         )
-    print(filtered_suppression.verdict(result.rows))
+    print(filtered_suppression.verdict(result.rows, result.kept))
     return result.rows
 
 
@@ -359,6 +373,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "per throw, ground[<order>] or groundbin<deg> a ground template per CES, -split per scan "
         "direction (boresight.mitigation.Filtering); with --schedule, not with --hwp",
     )
+    parser.add_argument(
+        "--deproject",
+        help="templates of T the pipeline regresses from each pair difference per CES, after "
+        "any --filter, e.g. gain,pointing: gain, pointing (x and y), width, ellipticity (plus "
+        "and cross), or bk for all six (boresight.mitigation.Deprojection); with --schedule, "
+        "not with --hwp; pointing, width and ellipticity evaluate the sky exactly",
+    )
     _common.focalplane_flag(parser, "; with --hwp or --filter only")
 
 
@@ -370,7 +391,8 @@ def main(args: argparse.Namespace) -> int:
             f"--fwhm-arcmin {args.fwhm_arcmin:g}: the table's beam entries act on the sky's beam; "
             f"give at least {narrowest:.2f} arcmin"
         )
-    on_schedule = plate is not None or args.filter is not None  # the tables of a real schedule
+    cleaning = args.filter is not None or args.deproject is not None
+    on_schedule = plate is not None or cleaning  # the tables of a real schedule
     try:
         sky_config = SkyConfig(
             nside=args.nside,
@@ -382,24 +404,37 @@ def main(args: argparse.Namespace) -> int:
         )
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin / --seed: {err}") from None
-    if args.filter is not None:
+    if cleaning:
+        flag = "--filter" if args.filter is not None else "--deproject"
         if plate is not None:
             raise ConfigError(
-                "--filter and --hwp: give one of them (a filter behind a plate is to come)"
+                f"{flag} and --hwp: give one of them (a filter behind a plate is to come)"
             )
         given = [f for f in PLATE_FLAGS if getattr(args, _dest(f)) is not None]
         if given:
             raise ConfigError(
-                f"{', '.join(given)} with --filter: the filtered table runs without a plate"
+                f"{', '.join(given)} with {flag}: the filtered table runs without a plate"
             )
         if args.schedule is None:
-            raise ConfigError("--filter: give --schedule, the schedule file the table repeats")
+            raise ConfigError(f"{flag}: give --schedule, the schedule file the table repeats")
         try:
-            filtering = Filtering.parse(args.filter)
+            filtering = Filtering.parse(args.filter or "none")
         except ValueError as err:
             raise ConfigError(f"--filter: {err}") from None
+        if args.deproject is not None:
+            try:
+                deprojection = Deprojection.parse(args.deproject)
+            except ValueError as err:
+                raise ConfigError(f"--deproject: {err}") from None
+            if filtering.deprojection and deprojection:
+                raise ConfigError("--filter deproject(...) and --deproject: give one of them")
+            filtering = dataclasses.replace(
+                filtering, deprojection=filtering.deprojection or deprojection
+            )
         if not filtering:
-            raise ConfigError("--filter none: give a filter (e.g. p3+ground)")
+            raise ConfigError(
+                f"{flag} none: give a filter (e.g. p3+ground) or templates (e.g. gain,pointing)"
+            )
         run_filtered(
             sky_config,
             args.schedule,
@@ -432,7 +467,9 @@ def main(args: argparse.Namespace) -> int:
     flags = ("--schedule", "--focalplane", *PLATE_FLAGS)
     given = [f for f in flags if getattr(args, _dest(f)) is not None]
     if given:
-        also = " (--schedule and --focalplane go with --filter too)" if given else ""
+        also = (
+            " (--schedule and --focalplane go with --filter and --deproject too)" if given else ""
+        )
         raise ConfigError(f"{', '.join(given)} belong to the HWP table: give --hwp too{also}")
     run(
         sky_config,

@@ -61,6 +61,8 @@ BYTES_PER_PIXEL = {
     "hwp-suppression": 5400.0,
     # the filtered table: the compare-scans maps and spectra, and one CES's samples at a time
     "filtered-suppression": 320.0,
+    # the same table deprojecting T's derivatives: the sky evaluated exactly at every sample
+    "deprojected-suppression": 320.0,
 }
 #: bytes per pixel of each h_{n,m} of scan-stats --hwp: its sums, the moments and their maps
 #: (1.27 kB a pixel for the 23 default terms, measured at Nside 256 and 512)
@@ -69,6 +71,7 @@ COMMANDS = {
     "schedule-stats": "scan-stats",
     "hwp-suppression": "suppression --hwp",
     "filtered-suppression": "suppression --filter",
+    "deprojected-suppression": "suppression --deproject",
 }  #: the command of a job whose name differs
 SKY_JOBS = {
     "simulate",
@@ -78,6 +81,7 @@ SKY_JOBS = {
     "suppression",
     "hwp-suppression",
     "filtered-suppression",
+    "deprojected-suppression",
 }  #: make a sky
 ALM_BYTES = 48.0  #: the sky's T, E, B alm, complex128
 #: a process with every stage of boresight imported (what some jobs import only after their
@@ -103,7 +107,12 @@ SAMPLE_RATES = {
     "pair pointing": 4.0e6,
 }
 #: the rate of a job's TOD simulations where it is not :data:`SAMPLE_RATES`' "tod"
-JOB_RATES = {"hwp-suppression": "exact tod", "filtered-suppression": "filtered tod"}
+JOB_RATES = {
+    "hwp-suppression": "exact tod",
+    "filtered-suppression": "filtered tod",
+    # the deep example's bk table at Nside 128: 1.5e6 pair-samples/s with its spectra
+    "deprojected-suppression": "exact tod",
+}
 #: seconds per HEALPix pixel of a job's map-level work (the HWP table's predictions: 120 s +
 #: 5e-4 s per pixel fits its runs on the deep example at Nside 64-512 on 2 cores)
 PIXEL_SECONDS = {"hwp-suppression": 5.0e-4}

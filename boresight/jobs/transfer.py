@@ -115,7 +115,13 @@ def soopercool_transfer(
     return matrix, error
 
 
-def pure_skies(nside: int, *, lmax: int, fwhm_arcmin: float, seed: int) -> dict:
+#: the pure skies' temperature draw, where a pipeline deprojects, is seeded seed ^ this
+TEMPERATURE_SALT = 1 << 40
+
+
+def pure_skies(
+    nside: int, *, lmax: int, fwhm_arcmin: float, seed: int, temperature: bool = False
+) -> dict:
     """A sky of E alone and one of B alone with the same alm (SOOPERCOOL's: one draw of fully
     correlated power laws), C_ell = (ell + :data:`ELL_0`)^-2 before the beam, so that every pair
     of them, the crossed ones too, carries power.
@@ -125,6 +131,10 @@ def pure_skies(nside: int, *, lmax: int, fwhm_arcmin: float, seed: int) -> dict:
     nside, lmax : int
     fwhm_arcmin : float
     seed : int
+    temperature : bool
+        Give both skies one T of the same spectrum, drawn apart (seed ^ :data:`TEMPERATURE_SALT`)
+        and so uncorrelated with their E and B: the templates a deprojecting pipeline reads
+        from T, which fit the polarisation only by chance.
 
     Returns
     -------
@@ -136,10 +146,14 @@ def pure_skies(nside: int, *, lmax: int, fwhm_arcmin: float, seed: int) -> dict:
     power[:2] = 0.0
     zero = np.zeros(lmax + 1)
     draw = gaussian_alm((power, zero, zero, zero), lmax, seed)[0]
+    if temperature:
+        t = gaussian_alm((power, zero, zero, zero), lmax, seed ^ TEMPERATURE_SALT)[0]
     out = {}
     for k, which in enumerate(PURE):
         alm = np.zeros((3, draw.size), dtype=np.complex128)
         alm[1 + k] = draw
+        if temperature:
+            alm[0] = t
         out[which] = sky_of_alm(alm, nside, fwhm_arcmin=fwhm_arcmin)
     return out
 
@@ -159,7 +173,10 @@ def transfer_function(
 ) -> Transfer:
     """The filter's polarised transfer matrix on a schedule, from ``n_sims`` pairs of pure-E and
     pure-B skies through the raw and the filtered pipeline (the paper's Q and U pairs on the
-    boresight, or a focal plane's pairs).
+    boresight, or a focal plane's pairs). A pipeline that deprojects reads its templates from a
+    T the skies share, drawn apart from their E and B (:func:`pure_skies`): what the templates
+    take by chance; what they take through the sky's TE correlation is
+    :func:`boresight.jobs.suppression.filtered.run`'s ``kept``.
 
     Parameters
     ----------
@@ -192,7 +209,13 @@ def transfer_function(
     bandpowers = {k: np.empty((n_sims, 4, 4, len(edges) - 1)) for k in pipelines}
     options = dict(run=run, filtering=None)
     for i in range(n_sims):
-        skies = pure_skies(nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin, seed=seed * 1_000_003 + i)
+        skies = pure_skies(
+            nside,
+            lmax=lmax,
+            fwhm_arcmin=fwhm_arcmin,
+            seed=seed * 1_000_003 + i,
+            temperature=bool(filtering.deprojection),
+        )
         for name, pipeline in pipelines.items():
             alm = {}
             for which, sky in skies.items():

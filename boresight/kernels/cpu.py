@@ -140,9 +140,11 @@ def _detectors(c_a, s_a, c_b, s_b, g_b, field_a, field_b, leak, beam_a, beam_b):
     return d_a, d_b
 
 
-#: what a kernel bins (:func:`_hit_sums`): pair differences into the 2x2 (Q, U) system, or each
-#: detector's own samples into the 3x3 (I, Q, U) system, both of a pair's detectors or A's alone
-PAIRS, BOTH, A_ONLY = 0, 1, 2
+#: what a kernel bins (:func:`_hit_sums`): pair differences into the 2x2 (Q, U) system, each
+#: detector's own samples into the 3x3 (I, Q, U) system (both of a pair's detectors or A's alone),
+#: or pair differences into a 3x3 system whose first unknown is a free spin-0 field (map-domain
+#: deprojection)
+PAIRS, BOTH, A_ONLY, SPIN0 = 0, 1, 2, 3
 
 
 @numba.njit(inline="always")
@@ -197,7 +199,8 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
     ``mode`` :data:`PAIRS`: the pair difference d's sum c^2, c s, s^2, c d, s d (and four zeros).
     :data:`BOTH` or :data:`A_ONLY`: each detector's own sample d with weights w = (1, c, s) (A)
     or (1, -c, -s) (B, at 90 deg): sum w_0 w_0, w_0 w_1, w_0 w_2, w_1 w_1, w_1 w_2, w_2 w_2,
-    w_0 d, w_1 d, w_2 d. c, s are cos, sin 2 x the angle the map-maker assumes.
+    w_0 d, w_1 d, w_2 d. :data:`SPIN0`: the same nine with d the pair difference and w =
+    (1, c, s). c, s are cos, sin 2 x the angle the map-maker assumes.
 
     values_b (F, H K M) holds detector B's fields per (hit, rotation, pair), flattened, or has no
     columns when B looks where A does; beams (2, H K M) likewise A's and B's extra signal from
@@ -224,7 +227,10 @@ def _hit_sums(h, psi, values_a, values_b, beams, response, leak, jitter, jitter_
                 continue
             # detector A, and with BOTH detector B at (1, -c, -s): the I-Q and I-U terms cancel
             n, sum_c, sum_s, d, cd, sd = 1.0, c, s, d_a, c * d_a, s * d_a
-            if mode == BOTH:
+            if mode == SPIN0:
+                d = 0.5 * (d_a - d_b)
+                cd, sd = c * d, s * d
+            elif mode == BOTH:
                 n, sum_c, sum_s, d, cd, sd = 2.0, 0.0, 0.0, d + d_b, cd - c * d_b, sd - s * d_b
             t0 += n
             t1 += sum_c
@@ -309,10 +315,11 @@ def accumulate_scatter(
 
 
 def accumulate_detectors(
-    pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, out, *, only_a
+    pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, out, *, mapmaker
 ):
-    """Each detector's own samples, hits in any order, added into a full-sky accumulator of the
-    per-pixel 3x3 (I, Q, U) system: CPU only (not part of the backend contract).
+    """Each detector's own samples (or the pair differences beside a free spin-0 field), hits in
+    any order, added into a full-sky accumulator of the per-pixel 3x3 system: CPU only (not part
+    of the backend contract).
 
     Parameters
     ----------
@@ -320,10 +327,11 @@ def accumulate_detectors(
         As in :meth:`boresight.backend.KernelBackend.accumulate_scatter`.
     out : float64 array, shape (npix, 9)
         Running sums (:func:`_hit_sums`, :func:`boresight.mapmaking.solve_iqu`), updated in place.
-    only_a : bool
-        Detector A of each pair alone (a single-detector instrument), else both.
+    mapmaker : {"detectors", "single", "pairs-spin0"}
+        Both detectors of each pair, detector A alone (a single-detector instrument), or the
+        pair differences with a free spin-0 field (:data:`boresight.mapmaking.MAPMAKERS`).
     """
-    mode = A_ONLY if only_a else BOTH
+    mode = {"detectors": BOTH, "single": A_ONLY, "pairs-spin0": SPIN0}[mapmaker]
     _scatter(pixels, psi, values_a, values_b, beams, response, leak, jitter, seed, first, mode, out)
 
 

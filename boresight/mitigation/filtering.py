@@ -12,7 +12,9 @@ even throws go towards larger azimuth (the schedule's first leg), odd ones back.
 Written as text (the CLI's ``--filter``), a filtering is its parts joined by ``+``: ``p3`` a
 polynomial of order 3 per throw; ``ground`` (order 5, TOAST's default) or ``ground3`` a Legendre
 template in azimuth; ``groundbin0.5`` azimuth bins of 0.5 deg; a ground part ending in ``-split``
-has a template per scan direction. ``none`` is no filtering.
+has a template per scan direction; ``deproject(gain,pointing)`` the templates of T regressed per
+CES after the filters (:mod:`~boresight.mitigation.deprojection`; ``deproject(bk)`` all of
+BICEP/Keck's). ``none`` is no filtering.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 from ..constants import DEG
 from ..pointing import ces_samples
 from ..validation import integer, number
+from .deprojection import Deprojection
 from .groundfilter import ground_filter
 from .polyfilter import poly_filter
 
@@ -36,6 +39,7 @@ TREND_ORDER = 5
 GROUND_ORDER = 5
 
 _PART = re.compile(r"^(?:p(\d+)|ground(\d+)?|groundbin([0-9.]+))(-split)?$")
+_DEPROJECT = re.compile(r"deproject\(([^)]*)\)")
 
 
 @dataclass(frozen=True)
@@ -52,12 +56,15 @@ class Filtering:
         Or azimuth bins of this width [deg] (not with ``ground_order``).
     ground_split : bool
         A ground template per scan direction.
+    deprojection : boresight.mitigation.Deprojection
+        Templates of T regressed from each pair difference per CES, after the filters.
     """
 
     poly_order: int | None = None
     ground_order: int | None = None
     ground_bin_deg: float | None = None
     ground_split: bool = False
+    deprojection: Deprojection = Deprojection()
 
     def __post_init__(self):
         if self.poly_order is not None:
@@ -80,22 +87,34 @@ class Filtering:
     def has_ground(self) -> bool:
         return self.ground_order is not None or self.ground_bin_deg is not None
 
-    def __bool__(self) -> bool:
+    @property
+    def filters(self) -> bool:
+        """Whether it filters (a polynomial or a ground template), deprojection aside."""
         return self.poly_order is not None or self.has_ground
+
+    def __bool__(self) -> bool:
+        return self.filters or bool(self.deprojection)
 
     @classmethod
     def parse(cls, text: str) -> Filtering:
         """A filtering from its text (the module's docstring), e.g. ``"p3+ground-split"``."""
         text = text.strip().lower()
-        if text in ("", "none"):
-            return cls()
         options = {}
+        deprojections = _DEPROJECT.findall(text)
+        if len(deprojections) > 1:
+            raise ValueError(f"filter {text!r}: two deproject parts")
+        if deprojections:
+            options["deprojection"] = Deprojection.parse(deprojections[0])
+            text = "+".join(p for p in _DEPROJECT.sub("", text).split("+") if p.strip())
+        if text in ("", "none"):
+            return cls(**options)
         for part in text.split("+"):
             match = _PART.match(part.strip())
             if match is None:
                 raise ValueError(
                     f"filter part {part!r}: write p<order>, ground, ground<order>, "
-                    "groundbin<deg>, a ground part with -split, joined by '+' (e.g. p3+ground)"
+                    "groundbin<deg>, a ground part with -split, deproject(<templates>), joined "
+                    "by '+' (e.g. p3+ground+deproject(gain,pointing))"
                 )
             poly, order, width, split = match.groups()
             key = "poly_order" if poly is not None else "ground"
@@ -127,10 +146,13 @@ class Filtering:
             parts.append(f"groundbin{self.ground_bin_deg:g}")
         if self.ground_split:
             parts[-1] += "-split"
+        if self.deprojection:
+            parts.append(f"deproject({self.deprojection})")
         return "+".join(parts) or "none"
 
     def apply(self, signal: np.ndarray, ces_scan: CesScan) -> np.ndarray:
-        """One CES's streams filtered: the polynomial per throw, then the ground template.
+        """One CES's streams filtered: the polynomial per throw, then the ground template (the
+        deprojection, which needs the templates, is the engine's next step).
 
         Parameters
         ----------
@@ -213,7 +235,8 @@ class CesScan:
 
     def check(self, filtering: Filtering) -> None:
         """Refuse a filter this CES cannot take: a polynomial with more terms than a throw has
-        samples to fit, azimuth bins wider than the throw.
+        samples to fit, azimuth bins wider than the throw, more templates to deproject than the
+        CES has samples off its turnarounds.
 
         Raises
         ------
@@ -226,6 +249,13 @@ class CesScan:
             raise ValueError(
                 f"filter poly_order {filtering.poly_order} needs {filtering.poly_order + 1} "
                 f"samples per throw; a throw of this schedule has {min(fitted)} off the turnarounds"
+            )
+        n_templates, scanning = filtering.deprojection.n_templates, int(np.sum(~self.turning))
+        if n_templates and scanning <= n_templates:
+            raise ValueError(
+                f"deprojection ({filtering.deprojection}) fits {n_templates} "
+                f"template{'s' if n_templates > 1 else ''} per CES; a CES of this schedule has "
+                f"{scanning} samples off its turnarounds"
             )
         if filtering.ground_bin_deg is not None:
             width = float(np.ptp(self.az)) / DEG

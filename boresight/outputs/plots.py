@@ -488,7 +488,7 @@ def filtered_suppression_figure(
         list(dict.fromkeys(key[0] for key in result.spectra)),
         ((filtered, "-"), (FILTER_RAW, "--")),
         legend=f"boresight; solid: {filtered}, dashed: raw",
-        title=f"What boresight rotation buys a pipeline that filters ({filtered})",
+        title=f"What boresight rotation buys a pipeline that cleans its TOD ({filtered})",
         path_stem=path_stem,
         formats=formats,
     )
@@ -574,5 +574,5 @@ def _leak_panels(spectra, edges, names, styles, *, legend, title, path_stem, for
     for ax in axes[:, 0]:
         ax.set_ylabel(f"leaked pseudo-C_BB {MUK2}")
     axes.flat[len(names) - 1].legend(fontsize=8, title=legend, title_fontsize=8, loc="lower left")
-    fig.suptitle(f"{title} (a leak cancelled to rounding stays below the axis)", fontsize=10)
+    fig.suptitle(f"{title}\n(a leak cancelled to rounding stays below the axis)", fontsize=10)
     _save(fig, path_stem, formats)

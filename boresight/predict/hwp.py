@@ -195,6 +195,10 @@ def ip_delta_p(
         [muK], 0 off the observed pixels.
     """
     check_mapmaker(mapmaker)
+    if mapmaker == "pairs-spin0":
+        raise ValueError(
+            "the plate's leak through a map-maker that deprojects is not predicted yet"
+        )
     single = mapmaker == "single"
     terms = SINGLE_IP_TERMS if single else IP_TERMS
     w = pair_mean_w(moments, terms, "instrumental polarisation", pair_angles_deg)

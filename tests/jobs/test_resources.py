@@ -21,7 +21,7 @@ FACTOR = 1.5  #: the estimate may be this much above or below the measured peak
 CASES = [
     *((c, 64) for c in ("simulate", "simulate (beams)", "predict", "scan-stats (schedule)",
                         "scan-stats (focal plane)", "compare-scans", "design", "suppression",
-                        "suppression (filter)", "reproduce")),
+                        "suppression (filter)", "suppression (deproject)", "reproduce")),
     *((c, 256) for c in ("simulate", "predict (beams)", "scan-stats", "compare-scans",
                          "scan-stats (hwp)")),
     ("predict", 512),

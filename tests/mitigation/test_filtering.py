@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from helpers import T0
 
-from boresight.mitigation import CesScan, Filtering
+from boresight.mitigation import CesScan, Deprojection, Filtering
 from boresight.schedule import CES, Schedule, Site
 
 
@@ -16,6 +16,15 @@ from boresight.schedule import CES, Schedule, Site
         ("ground2-split+p1", Filtering(poly_order=1, ground_order=2, ground_split=True)),
         ("groundbin0.5-split", Filtering(ground_bin_deg=0.5, ground_split=True)),
         ("none", Filtering()),
+        (
+            "p3+deproject(gain,pointing)",
+            Filtering(poly_order=3, deprojection=Deprojection(("gain", "pointing"))),
+        ),
+        (
+            "deproject(ellipticity+gain)",
+            Filtering(deprojection=Deprojection(("gain", "ellipticity"))),
+        ),
+        ("deproject(bk)+ground", Filtering(ground_order=5, deprojection=Deprojection.parse("bk"))),
     ],
 )
 def test_a_filtering_reads_and_writes_its_text(text, expected):
@@ -34,6 +43,9 @@ def test_a_filtering_reads_and_writes_its_text(text, expected):
         ("groundbin0", "must be > 0"),
         ("p-1", "filter part"),
         ("p65", "poly_order"),
+        ("deproject(gain)+deproject(width)", "two deproject parts"),
+        ("deproject(gains)", "choose from gain, pointing"),
+        ("deproject(gain,gain)", "one of them twice"),
     ],
 )
 def test_a_bad_filtering_is_refused_with_what_to_write(text, match):

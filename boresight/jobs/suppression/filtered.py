@@ -18,6 +18,12 @@ of pure skies) gives F_ell^BB per band, and each filtered row's leak over raw di
 leak's bias on r in the filtered pipeline, whose spectra are corrected by F_ell^BB, over its bias
 in the raw one ("corrected over raw"). A filtered leak is measured here, not predicted: its
 prediction from h_n is still to come.
+
+A pipeline that deprojects templates of T (:class:`boresight.mitigation.Deprojection`) runs here
+as one that filters; its transfer function's skies carry a T of their own. The no-systematic
+maps of the table's sky (T, E and B correlated as CAMB's) give what each pipeline keeps of the
+sky's own E and B per band over the raw pipeline's (``Result.kept``): the filter's loss and what
+the templates take through the TE correlation (a spin-2 template, ellipticity, fits E).
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
-from ... import spectra
+from ... import harmonics, spectra
 from ..._util import interrupts
 from ...config import RunOptions
 from ...instrument.pairs import Instrument, Systematics
@@ -72,12 +78,17 @@ class Result:
         The bands' edges.
     transfer : boresight.jobs.transfer.Transfer
         The filter's transfer function on the CES set once, in those bands.
+    kept : list of dict
+        Per pipeline and boresight schedule, the pseudo-C_EE and C_BB of the no-systematic maps
+        per band over the raw pipeline's on the same schedule ("EE kept <band>", "BB kept
+        <band>").
     """
 
     rows: list
     spectra: dict
     edges: np.ndarray
     transfer: Transfer
+    kept: list
 
 
 def run(
@@ -124,12 +135,17 @@ def run(
     """
     if not filtering:
         raise ValueError("the filtered table needs a filter (e.g. p3+ground)")
+    if filtering.deprojection.derivatives and run_options.evaluation != "exact":
+        raise ValueError(
+            f"deprojecting {filtering.deprojection} fits derivatives of T: run with evaluation "
+            f"'exact', not {run_options.evaluation!r}"
+        )
     ces_scans(filtering, schedule)  # a filter the CESs cannot take, before any work
     edges = bands(sky.nside)
     lmax = 2 * sky.nside
     names = [f"{lo}-{hi - 1}" for lo, hi in zip(edges[:-1], edges[1:])]
     pipelines = {RAW: Filtering(), str(filtering): filtering}
-    rows, cls, first = [], {}, {}
+    rows, cls, first, kept, sky_power = [], {}, {}, [], {}
     jobs = [(r, p) for r in schedules for p in pipelines]
     with Transforms() as transforms:
         footprint = None
@@ -146,6 +162,13 @@ def run(
             reference = reference_from_maps(
                 ref_maps, footprint, lmax, run=run_options, transforms=transforms
             )
+            alm = footprint.alm(ref_maps.qu_at(footprint.pixels), lmax, 2)
+            power = [spectra.bin_spectrum(harmonics.alm2cl(a), edges)[1] for a in alm]
+            sky_power[pipeline, label] = power
+            row = {"pipeline": pipeline, "boresight": label}
+            for field, mine, raw in zip("EB", power, sky_power[RAW, label]):
+                row |= {f"{field * 2} kept {b}": float(x / y) for b, x, y in zip(names, mine, raw)}
+            kept.append(row)
             for case in CASES:
                 systematics = case.systematics
                 if focalplane is not None:
@@ -198,7 +221,7 @@ def run(
         for band, f in zip(names, f_bb):
             row[f"F_BB {band}"] = 1.0 if raw else float(f)
             row[f"corrected over raw {band}"] = row[f"over raw {band}"] / row[f"F_BB {band}"]
-    return Result(rows, cls, edges, transfer)
+    return Result(rows, cls, edges, transfer, kept)
 
 
 def tod_runs(schedules=SCHEDULES) -> int:
@@ -208,10 +231,11 @@ def tod_runs(schedules=SCHEDULES) -> int:
     return sum(len(r) for r in schedules) * 2 * (1 + len(CASES)) + 4 * N_SIMS
 
 
-def verdict(rows: list[dict]) -> str:
-    """What the filter changes, in a few lines: its F_BB per band; per systematic, what it keeps
-    of the unrotated raw leak and of its bias on r (the leak corrected by F_BB), band by band, and
-    the boresight schedule that leaks least (summed over the bands) in each pipeline."""
+def verdict(rows: list[dict], kept: list[dict] = ()) -> str:
+    """What the filter changes, in a few lines: its F_BB per band (and, given ``kept``, what it
+    keeps of the sky's E and B without rotation); per systematic, what it keeps of the unrotated
+    raw leak and of its bias on r (the leak corrected by F_BB), band by band, and the boresight
+    schedule that leaks least (summed over the bands) in each pipeline."""
     pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
     bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
     filtered_row = next(r for r in rows if r["pipeline"] != RAW)
@@ -220,6 +244,10 @@ def verdict(rows: list[dict]) -> str:
         f"What the filter {pipelines[-1]} changes (leaked pseudo-C_BB, bands {'/'.join(bands_)}; "
         f"it keeps F_BB = {f_bb} of the sky's B):"
     ]
+    sky = next((k for k in kept if k["pipeline"] != RAW), None)
+    if sky is not None:
+        ee, bb = ("/".join(_two(sky[f"{f} kept {b}"]) for b in bands_) for f in ("EE", "BB"))
+        lines.append(f"  the sky's own E and B, without rotation: keeps {ee} of EE, {bb} of BB")
     for name in dict.fromkeys(r["systematic"] for r in rows):
         mine = [r for r in rows if r["systematic"] == name]
         unrotated = next(r for r in mine if r["pipeline"] != RAW)  # the first schedule's
