@@ -32,6 +32,7 @@ from .kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from .kernels.pixels import ang2pix_array
 from .mapmaking import RCOND_MIN, Maps, check_mapmaker, solve, solve_iqu
 from .mitigation import Filtering, ces_scans
+from .mitigation.deprojection import template_alm
 from .pointing import detector_pointing, pointing
 from .sky import MAX_NSIDE
 from .validation import integer
@@ -481,13 +482,15 @@ class _Binner:
         args = (psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
         return pair_differences(*args, seed, first)
 
-    def templates(self, deprojection, theta, phi, psi):
+    def templates(self, deprojection, theta, phi, psi, alm=None):
         """(T, H) templates of one pointing stream (:meth:`boresight.mitigation.Deprojection.
-        templates_at`): T as this binner reads it, its derivatives exactly."""
-        value = self.kernels.to_host(self._at(theta, phi))[0]
-        return deprojection.templates_at(
-            self.fields.alm[0], value, theta, phi, psi, nthreads=self.nthreads
-        )
+        templates_at`): T as this binner reads it, its derivatives exactly; or, given a template
+        map's ``alm``, its T and derivatives exactly."""
+        if alm is None:
+            alm, value = self.fields.alm[0], self.kernels.to_host(self._at(theta, phi))[0]
+        else:
+            value = harmonics.evaluate(alm, theta, phi, nthreads=self.nthreads)
+        return deprojection.templates_at(alm, value, theta, phi, psi, nthreads=self.nthreads)
 
     def for_pair(self, i):
         """This binner for pair i alone: its angle and its own drawn parameters."""
@@ -658,7 +661,7 @@ def simulate_schedule(
         return simulate_samples(
             sky, pointing(schedule, chunk_samples), instrument, systematics, **run
         )
-    cleaning = _Cleaning(filtering)
+    cleaning = _Cleaning(filtering, sky, schedule.frame)
     cleaning.check(backend, mapmaker, evaluation)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
@@ -669,14 +672,17 @@ def simulate_schedule(
         numba_threads(nthreads),
         tqdm(total=schedule.n_samples, unit="sample", unit_scale=True, disable=not progress) as bar,
     ):
-        for block, one, scan in cleaning.each_ces(schedule):
-            theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
-            interrupts.check()
-            c, s, d = binner.differences(theta, phi, psi, systematics.seed, first)
-            d = cleaning.apply(d, binner, theta, phi, psi, scan, block)
-            _bin_kept(normal, sky.nside, theta, phi, c, s, d, scan, schedule)
-            first += psi.size
-            bar.update(psi.size)
+        for block, members in cleaning.blocks(schedule):
+            parts, c_s = [], []
+            for one, scan in members:
+                theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
+                interrupts.check()
+                c, s, d = binner.differences(theta, phi, psi, systematics.seed, first)
+                parts.append(cleaning.part(d, binner, theta, phi, psi, scan, schedule, sky.nside))
+                c_s.append((c, s))
+                first += psi.size
+                bar.update(psi.size)
+            cleaning.bin_block(parts, c_s, normal, block)
     return _stream_maps(
         binner.kernels, sky.nside, normal, mapmaker, n_pairs=instrument.n_pairs, rcond_min=rcond_min
     )
@@ -684,10 +690,21 @@ def simulate_schedule(
 
 class _Cleaning:
     """What a pipeline does to each CES's pair differences before binning: its filters, then its
-    templates (filtered as the data are) regressed and subtracted."""
+    templates (filtered as the data are) regressed per block of CESs and subtracted.
 
-    def __init__(self, filtering):
+    A block's cleaned parts are held until its last CES (one CES by default), then regressed and
+    binned: memory is one block's samples, whatever the schedule's length."""
+
+    def __init__(self, filtering, sky, frame):
         self.filtering, self.deprojection = filtering, filtering.deprojection
+        self.alm = None  # the templates' T: the sky's own, or a template map's
+        if self.deprojection.template_map is not None:
+            self.alm = template_alm(
+                self.deprojection.template_map,
+                nside=sky.nside,
+                lmax=harmonics.alm_lmax(sky.alm.shape[-1]),
+                frame=frame,
+            )
 
     def check(self, backend, mapmaker, evaluation, hwp=None):
         if backend != "cpu" or mapmaker != "pairs" or hwp is not None:
@@ -703,35 +720,54 @@ class _Cleaning:
                 "maps differ from their derivatives)"
             )
 
-    def each_ces(self, schedule):
-        """(its name, a schedule of one CES of one repeat, its CesScan) in observing order, every
-        CES checked against the filters before the first is simulated."""
+    def blocks(self, schedule):
+        """(its name, [(a schedule of one CES of one repeat, its CesScan), ...]) per block of the
+        deprojection (:meth:`boresight.mitigation.Deprojection.blocks`), in observing order;
+        every CES checked against the filters before the first is simulated."""
         scans = ces_scans(self.filtering, schedule)
         for repeat in schedule.repeat_boresight_deg:
-            for i, (ces, scan) in enumerate(zip(schedule.ces, scans)):
-                one = replace(
-                    schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
-                )
-                yield f"CES {i} at boresight {repeat:g} deg", one, scan
+            for name, members in self.deprojection.blocks(schedule.ces):
+                one = [
+                    (
+                        replace(
+                            schedule,
+                            ces=(schedule.ces[i],),
+                            repeat_boresight_deg=(repeat,),
+                            turnarounds="include",
+                        ),
+                        scans[i],
+                    )
+                    for i in members
+                ]
+                yield f"{name} at boresight {repeat:g} deg", one
 
-    def apply(self, d, binner, theta, phi, psi, scan, block):
-        """One CES's pair differences d (M, H) of one pointing stream, cleaned."""
+    def part(self, d, binner, theta, phi, psi, scan, schedule, nside):
+        """One CES's pair differences d (M, H) of one pointing stream, filtered, with what its
+        block's regression and binning need."""
         if self.filtering.filters:
             d = self.filtering.apply(d, scan)
-        if not self.deprojection:
-            return d
-        templates = binner.templates(self.deprojection, theta, phi, psi)
-        if self.filtering.filters:
-            templates = self.filtering.apply(templates, scan)
-        return self.deprojection.apply(d, templates, ~scan.turning, block=block)
+        templates = None
+        if self.deprojection:
+            templates = binner.templates(self.deprojection, theta, phi, psi, self.alm)
+            if self.filtering.filters:
+                templates = self.filtering.apply(templates, scan)
+        keep = np.ones(d.shape[1], bool) if schedule.turnarounds == "include" else ~scan.turning
+        pix = ang2pix_array(nside, theta[keep], phi[keep])
+        return d, templates, ~scan.turning, keep, pix
 
-
-def _bin_kept(normal, nside, theta, phi, c, s, d, scan, schedule):
-    """One CES's pair differences d (M, H), cleaned, binned with their weights c, s into
-    ``normal``; its turnarounds' samples binned only where the schedule keeps them."""
-    keep = np.ones(d.shape[1], bool) if schedule.turnarounds == "include" else ~scan.turning
-    pix = ang2pix_array(nside, theta[keep], phi[keep])
-    bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
+    def bin_block(self, parts, c_s, normal, block):
+        """A block's parts (:meth:`part`) and their weights (c, s) regressed together and binned
+        into ``normal``."""
+        d = np.concatenate([p[0] for p in parts], axis=1)
+        if self.deprojection:
+            templates = np.concatenate([p[1] for p in parts], axis=-1)
+            fit = np.concatenate([p[2] for p in parts])
+            d = self.deprojection.apply(d, templates, fit, block=block)
+        keep = np.concatenate([p[3] for p in parts])
+        pix = np.concatenate([p[4] for p in parts])
+        c = np.concatenate([x[0] for x in c_s], axis=1)
+        s = np.concatenate([x[1] for x in c_s], axis=1)
+        bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
 
 
 def simulate_focalplane(
@@ -793,7 +829,7 @@ def simulate_focalplane(
     """
     if backend != "cpu":
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
-    cleaning = _Cleaning(filtering)
+    cleaning = _Cleaning(filtering, sky, schedule.frame)
     if filtering:
         cleaning.check(backend, mapmaker, evaluation, hwp)
         ces_scans(filtering, schedule)  # every CES against the filter, before any work
@@ -814,19 +850,26 @@ def simulate_focalplane(
             numba_threads(nthreads),
             tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar,
         ):
-            for block, one, scan in cleaning.each_ces(schedule):
-                parts = list(detector_pointing(one, focalplane, chunk_samples))
-                theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*parts))
-                for i, pair in enumerate(pairs):
-                    interrupts.check()
-                    key = i * schedule.n_samples + first
-                    c, s, d = pair.differences(theta[i], phi[i], psi[i], systematics.seed, key)
-                    d = cleaning.apply(
-                        d, pair, theta[i], phi[i], psi[i], scan, f"pair {i}, {block}"
-                    )
-                    _bin_kept(normal, sky.nside, theta[i], phi[i], c, s, d, scan, schedule)
-                first += theta.shape[1]
-                bar.update(theta.size)
+            for block, members in cleaning.blocks(schedule):
+                parts = [[] for _ in pairs]
+                c_s = [[] for _ in pairs]
+                for one, scan in members:
+                    chunks = list(detector_pointing(one, focalplane, chunk_samples))
+                    theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*chunks))
+                    for i, pair in enumerate(pairs):
+                        interrupts.check()
+                        key = i * schedule.n_samples + first
+                        c, s, d = pair.differences(theta[i], phi[i], psi[i], systematics.seed, key)
+                        parts[i].append(
+                            cleaning.part(
+                                d, pair, theta[i], phi[i], psi[i], scan, schedule, sky.nside
+                            )
+                        )
+                        c_s[i].append((c, s))
+                    first += theta.shape[1]
+                    bar.update(theta.size)
+                for i in range(len(pairs)):
+                    cleaning.bin_block(parts[i], c_s[i], normal, f"pair {i}, {block}")
         return _stream_maps(
             binner.kernels, sky.nside, normal, mapmaker, n_pairs=1, rcond_min=rcond_min
         )

@@ -365,14 +365,22 @@ def _filtered_schedule(turnarounds="include"):
 
 @pytest.mark.parametrize("turnarounds", ["include", "exclude"])
 @pytest.mark.parametrize(
-    "text", ["p3", "p1+ground3-split", "groundbin2", "deproject(gain)", "p1+deproject(gain)"]
+    "text",
+    [
+        "p3",
+        "p1+ground3-split",
+        "groundbin2",
+        "deproject(gain)",
+        "p1+deproject(gain)",
+        "p1+deproject(gain/1h)",
+    ],
 )
 @pytest.mark.parametrize("where", ["boresight", "hexagon:7:10"])
 def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnarounds, text, where):
     """An independent route: each pair difference written from the sky's maps in the samples'
     pixels, filtered CES by CES with the filters themselves, the T map in the samples' pixels
-    (filtered alike) regressed from it with numpy's least squares off the turnarounds, binned with
-    bincount, solved with numpy; the pairs on the boresight (simulate_schedule) or each at its
+    (filtered alike) regressed from it with numpy's least squares off the turnarounds per CES or
+    over both CESs (a block of an hour), binned with bincount, solved with numpy; the pairs on the boresight (simulate_schedule) or each at its
     place in a focal plane (simulate_focalplane)."""
     schedule, filtering = _filtered_schedule(turnarounds), Filtering.parse(text)
     dg = 0.01
@@ -389,37 +397,51 @@ def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnar
     npix = 12 * plain_sky.nside**2
     normal = np.zeros((5, npix))
     i_map, q_map, u_map = plain_sky.maps
+    # the deprojection's blocks: each CES, or (a "/1h" block) both CESs, 15 minutes apart
+    blocks = [m for _, m in filtering.deprojection.blocks(schedule.ces)]
     for repeat in schedule.repeat_boresight_deg:
-        for ces in schedule.ces:
-            one = replace(
-                schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
-            )
-            if where == "boresight":
-                theta, phi, psi = (np.concatenate(x)[None] for x in zip(*pointing.pointing(one)))
-            else:
-                chunks = pointing.detector_pointing(one, plane)
-                theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*chunks))
-            pix = hp.ang2pix(plain_sky.nside, theta, phi)  # (1 or pairs, H)
-            c = np.cos(2 * (psi[:, None, :] + angles[None, :, None]))
-            s = np.sin(2 * (psi[:, None, :] + angles[None, :, None]))
-            if where != "boresight":  # pair m at its own place: its own samples alone
-                c, s = (np.einsum("mmh->mh", x)[:, None, :] for x in (c, s))
-            i, q, u = (m[pix][:, None, :] for m in (i_map, q_map, u_map))
-            d = 0.5 * (i + q * c + u * s - (1 - dg) * (i - q * c - u * s))
-            scan = CesScan.of(ces, schedule)
-            keep = ~scan.turning if turnarounds == "exclude" else np.ones(pix.shape[1], bool)
-            for row in range(pix.shape[0]):
-                dr = filtering.apply(d[row], scan) if filtering.filters else d[row]
-                if filtering.deprojection:
+        for block in blocks:
+            held = []  # per CES: pix, c, s, filtered d and template, fit and keep masks
+            for ces in (schedule.ces[k] for k in block):
+                one = replace(
+                    schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+                )
+                if where == "boresight":
+                    theta, phi, psi = (
+                        np.concatenate(x)[None] for x in zip(*pointing.pointing(one))
+                    )
+                else:
+                    chunks = pointing.detector_pointing(one, plane)
+                    theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*chunks))
+                pix = hp.ang2pix(plain_sky.nside, theta, phi)  # (1 or pairs, H)
+                c = np.cos(2 * (psi[:, None, :] + angles[None, :, None]))
+                s = np.sin(2 * (psi[:, None, :] + angles[None, :, None]))
+                if where != "boresight":  # pair m at its own place: its own samples alone
+                    c, s = (np.einsum("mmh->mh", x)[:, None, :] for x in (c, s))
+                i, q, u = (m[pix][:, None, :] for m in (i_map, q_map, u_map))
+                d = 0.5 * (i + q * c + u * s - (1 - dg) * (i - q * c - u * s))
+                scan = CesScan.of(ces, schedule)
+                keep = ~scan.turning if turnarounds == "exclude" else np.ones(pix.shape[1], bool)
+                rows = []
+                for row in range(pix.shape[0]):
+                    dr = filtering.apply(d[row], scan) if filtering.filters else d[row]
                     x = i_map[pix[row]][None]
                     x = filtering.apply(x, scan) if filtering.filters else x
-                    fit = ~scan.turning
+                    rows.append((pix[row], c[row], s[row], dr, x))
+                held.append((rows, ~scan.turning, keep))
+            for row in range(len(held[0][0])):
+                pix_r, c_r, s_r, dr, x = (
+                    np.concatenate([h[0][row][k] for h in held], axis=-1) for k in range(5)
+                )
+                fit = np.concatenate([h[1] for h in held])
+                keep = np.concatenate([h[2] for h in held])
+                if filtering.deprojection:  # the T map in the samples' pixels, over the block
                     coefficients = np.linalg.lstsq(x[:, fit].T, dr[:, fit].T, rcond=None)[0]
                     dr = dr - coefficients.T @ x
-                for j, term in enumerate((c[row] ** 2, c[row] * s[row], s[row] ** 2)):
-                    normal[j] += np.bincount(pix[row, keep], term[:, keep].sum(axis=0), npix)
-                for j, term in ((3, c[row] * dr), (4, s[row] * dr)):
-                    normal[j] += np.bincount(pix[row, keep], term[:, keep].sum(axis=0), npix)
+                for j, term in enumerate((c_r**2, c_r * s_r, s_r**2)):
+                    normal[j] += np.bincount(pix_r[keep], term[:, keep].sum(axis=0), npix)
+                for j, term in ((3, c_r * dr), (4, s_r * dr)):
+                    normal[j] += np.bincount(pix_r[keep], term[:, keep].sum(axis=0), npix)
     seen = maps.pixels
     a11, a12, a22, b1, b2 = normal[:, seen]
     det = a11 * a22 - a12**2

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import os
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -25,6 +26,7 @@ from ..jobs.suppression import filtered as filtered_suppression
 from ..jobs.suppression import hwp as hwp_suppression
 from ..jobs.transfer import FIELD_PAIRS
 from ..mitigation import Deprojection, Filtering, ces_scans
+from ..mitigation.deprojection import template_alm
 from ..outputs import plots
 from ..schedule import load_schedule
 from ..sky import SkyConfig, make_sky
@@ -246,6 +248,15 @@ def run_filtered(
     except ValueError as err:
         raise ConfigError(f"--filter {filtering}: {err}") from None
     inputs = [schedule_path, *(focalplane.files if focalplane is not None else [])]
+    template = filtering.deprojection.template_map
+    if template is not None:  # the map against the sky and the frame, before any work
+        try:
+            template_alm(
+                template, nside=sky_config.nside, lmax=sky_config.lmax, frame=schedule.frame
+            )
+        except ValueError as err:
+            raise ConfigError(f"--deproject-template: {err}") from None
+        inputs.append(template)
     io.check_output_dir(out_dir, force, inputs)
     once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
     # templates of T's derivatives follow the TOD only where the sky is evaluated exactly
@@ -296,6 +307,7 @@ def run_filtered(
                 {
                     "schedule": schedule_path,
                     "filter": str(filtering),
+                    "deprojection_template": filtering.deprojection.template_map,
                     "evaluation": run_options.evaluation,
                     "sky": dataclasses.asdict(sky_config),
                     "focalplane": None if focalplane is None else focalplane.names,
@@ -378,7 +390,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="templates of T the pipeline regresses from each pair difference per CES, after "
         "any --filter, e.g. gain,pointing: gain, pointing (x and y), width, ellipticity (plus "
         "and cross), or bk for all six (boresight.mitigation.Deprojection); with --schedule, "
-        "not with --hwp; pointing, width and ellipticity evaluate the sky exactly",
+        "not with --hwp; pointing, width and ellipticity evaluate the sky exactly; /<hours>h "
+        "regresses per block of that many hours of CESs (bk/10h)",
+    )
+    parser.add_argument(
+        "--deproject-template",
+        help="with --deproject: a HEALPix FITS map of T (of the sky's Nside, in the schedule's "
+        "frame) to build the templates from, a Planck-like map with its own noise and beam "
+        "(default: the simulated sky's own T)",
     )
     _common.focalplane_flag(parser, "; with --hwp or --filter only")
 
@@ -431,6 +450,15 @@ def main(args: argparse.Namespace) -> int:
             filtering = dataclasses.replace(
                 filtering, deprojection=filtering.deprojection or deprojection
             )
+        if args.deproject_template is not None:
+            if not filtering.deprojection:
+                raise ConfigError("--deproject-template: give --deproject too (what to fit)")
+            if not os.path.isfile(args.deproject_template):
+                raise ConfigError(f"--deproject-template {args.deproject_template}: no such file")
+            deprojection = dataclasses.replace(
+                filtering.deprojection, template_map=args.deproject_template
+            )
+            filtering = dataclasses.replace(filtering, deprojection=deprojection)
         if not filtering:
             raise ConfigError(
                 f"{flag} none: give a filter (e.g. p3+ground) or templates (e.g. gain,pointing)"

@@ -30,7 +30,9 @@ T is the value the engine reads for detector A (interpolated, exact or per pixel
 ``evaluation``); its derivatives are the sky's beam-smoothed alm evaluated exactly at the samples
 (ducc0 ``synthesis_general``: spin 1 for the gradient, spin 2 and the Laplacian for the second
 derivatives). A template of a pair at another angle is a constant rotation of these, which spans
-the same space.
+the same space. With ``template_map`` (a HEALPix FITS map of T, a Planck-like map with its own
+noise and beam) the templates are read from that map instead, T and its derivatives from its alm
+(:func:`template_alm`): what is left of a leak is then the leak of T less the template.
 
 Written as text (the CLI's ``--deproject``), a deprojection is its template sets joined by
 ``,`` or ``+``: ``gain,pointing``; ``bk`` is all four. A pipeline's filters carry it
@@ -41,11 +43,14 @@ filters do, and subtracts the fit from every sample.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
+import healpy as hp
 import numpy as np
 
-from .. import harmonics
+from .. import harmonics, validation
+from .._util.io import FRAME_CARDS
 
 #: each template set and the templates it regresses, in the regression's order
 TEMPLATES = {
@@ -74,11 +79,22 @@ class Deprojection:
     ----------
     templates : tuple of str
         Template sets from :data:`TEMPLATES` (none by default); kept in that order.
+    block_hours : float, optional
+        Regress once per this many hours of consecutive CESs; None: once per CES.
+    template_map : str, optional
+        A HEALPix FITS map of T to read the templates from (the sky's own T by default); not
+        part of the text.
     """
 
     templates: tuple[str, ...] = ()
+    block_hours: float | None = None
+    template_map: str | None = None
 
     def __post_init__(self):
+        if self.block_hours is not None:
+            hours = validation.number("deprojection block_hours", self.block_hours, 0.0, 1e5)
+            if hours <= 0:
+                raise ValueError(f"deprojection block_hours = {hours} must be > 0")
         names = tuple(self.templates)
         unknown = [name for name in names if name not in TEMPLATES]
         if unknown:
@@ -110,18 +126,49 @@ class Deprojection:
 
     @classmethod
     def parse(cls, text: str) -> Deprojection:
-        """A deprojection from its text (the module's docstring), e.g. ``"gain+pointing"``."""
+        """A deprojection from its text (the module's docstring), e.g. ``"gain+pointing"`` or
+        ``"bk/10h"``."""
         text = text.strip().lower()
-        if text in ("", "none"):
-            return cls()
-        if text == "bk":
-            return cls(BK)
-        return cls(tuple(part.strip() for part in text.replace("+", ",").split(",")))
+        text, _, block = text.partition("/")
+        hours = None
+        if block.strip() not in ("", "ces"):
+            match = re.fullmatch(r"([0-9.]+(?:e[-+]?[0-9]+)?)h", block.strip())
+            if match is None:
+                raise ValueError(
+                    f"deprojection block {block!r}: write ces or <hours>h after '/' (e.g. bk/10h)"
+                )
+            hours = float(match.group(1))
+        if text.strip() in ("", "none"):
+            return cls(block_hours=hours)
+        if text.strip() == "bk":
+            return cls(BK, hours)
+        return cls(tuple(part.strip() for part in text.replace("+", ",").split(",")), hours)
 
     def __str__(self) -> str:
-        if self.templates == BK:
-            return "bk"
-        return ",".join(self.templates) or "none"
+        names = "bk" if self.templates == BK else ",".join(self.templates) or "none"
+        return names if self.block_hours is None else f"{names}/{self.block_hours:g}h"
+
+    def blocks(self, ces) -> list:
+        """The blocks of a schedule's CESs: (name, indices of its CESs), in order.
+
+        Parameters
+        ----------
+        ces : sequence of boresight.schedule.CES
+            In observing order.
+
+        Returns
+        -------
+        list of (str, list of int)
+        """
+        if self.block_hours is None:
+            return [(f"CES {i}", [i]) for i in range(len(ces))]
+        out, first = [], None
+        for i, one in enumerate(ces):
+            if first is None or one.start_unix >= first + 3600.0 * self.block_hours:
+                first = one.start_unix
+                out.append([])
+            out[-1].append(i)
+        return [(f"block {k} (CES {m[0]}-{m[-1]})", m) for k, m in enumerate(out)]
 
     def templates_at(
         self,
@@ -138,9 +185,10 @@ class Deprojection:
         Parameters
         ----------
         alm : numpy.ndarray, complex128, shape (nalm,)
-            The temperature sky's beam-smoothed alm.
+            The temperature sky's beam-smoothed alm (or the template map's).
         value : numpy.ndarray, shape (n,)
-            T as the engine reads it at the samples (the gain template).
+            T as the engine reads it at the samples (the gain template; the template map's alm
+            at the samples).
         theta, phi, psi : numpy.ndarray, shape (n,)
             The pair's pointing and angle [rad].
         nthreads : int
@@ -209,6 +257,48 @@ class Deprojection:
             coefficients = _least_squares(x[:, fit], signal[rows, fit], self.names, block)
             out[rows] = signal[rows] - coefficients.T @ x
         return out
+
+
+def template_alm(path: str, *, nside: int, lmax: int, frame: str) -> np.ndarray:
+    """The T alm of a template map file, checked against the sky it deprojects.
+
+    Parameters
+    ----------
+    path : str
+        A HEALPix FITS map (its first column is T, RING or NESTED as its header says).
+    nside, lmax : int
+        The sky's.
+    frame : str
+        The schedule's sky frame (:data:`boresight.frames.FRAMES`); a COORDSYS card, where the
+        file has one, must name it.
+
+    Returns
+    -------
+    numpy.ndarray, complex128, shape (nalm,)
+
+    Raises
+    ------
+    ValueError
+        A file that is not a full-sky map of the sky's Nside in its frame, naming the file.
+    """
+    try:
+        values, header = hp.read_map(path, field=0, h=True, dtype=np.float64)
+    except (OSError, ValueError, TypeError, IndexError) as err:
+        raise ValueError(f"deprojection template map {path}: {err}") from None
+    found = hp.npix2nside(values.size)
+    if found != nside:
+        raise ValueError(f"deprojection template map {path} has Nside {found}; the sky has {nside}")
+    cards = dict(header)
+    want = dict((key, value) for key, value, _ in FRAME_CARDS[frame])["COORDSYS"]
+    coordsys = str(cards.get("COORDSYS", want)).strip().upper()[:1]
+    if coordsys != want:
+        raise ValueError(
+            f"deprojection template map {path} is in COORDSYS {cards['COORDSYS']!r}; the "
+            f"schedule's pointing is {frame} ({want})"
+        )
+    if np.any(values == hp.UNSEEN) or not np.all(np.isfinite(values)):
+        raise ValueError(f"deprojection template map {path} has unseen or non-finite pixels")
+    return harmonics.map2alm(values, lmax)
 
 
 def _least_squares(x, y, names, block):

@@ -265,3 +265,69 @@ def test_it_equals_toasts_filterbin_with_precomputed_templates(tmp_path):
     assert seen.size > 50 and np.all(filtered[:, seen] != 0)
     scale = np.max(np.abs(want))
     assert np.max(np.abs(filtered[:, seen] - want)) < 1e-9 * scale
+
+
+def test_blocks_group_consecutive_cess_by_hours_and_read_from_text():
+    from boresight.schedule import CES
+
+    ces = [CES(1.8e9 + 3600.0 * h, 1800.0, 50.0, 180.0, 20.0) for h in (0, 1, 2, 9.5, 10, 10.2)]
+    assert Deprojection(("gain",)).blocks(ces) == [(f"CES {i}", [i]) for i in range(6)]
+    blocks = Deprojection(("gain",), block_hours=10.0).blocks(ces)
+    assert [m for _, m in blocks] == [[0, 1, 2, 3], [4, 5]]
+    assert blocks[1][0] == "block 1 (CES 4-5)"
+    assert Deprojection.parse("bk/10h") == Deprojection(BK.templates, 10.0)
+    assert str(Deprojection.parse("gain,pointing/0.5h")) == "gain,pointing/0.5h"
+    assert Deprojection.parse("gain/ces") == Deprojection(("gain",))
+    for text, match in (("gain/10d", "write ces or <hours>h"), ("gain/0h", "must be > 0")):
+        with pytest.raises(ValueError, match=match):
+            Deprojection.parse(text)
+
+
+def test_a_template_map_leaves_the_leak_of_t_less_the_template(tmp_path):
+    """T read from a noisy map (a Planck-like template: T plus white noise of 1 % of its rms):
+    what the gain leaves after deprojection is exactly (1e-10 of the leak) what it leaves of a
+    sky whose T is the sky's less the template's (the template's part is fitted exactly), of the
+    order of that sky's raw leak and under a tenth of the undeprojected one; a map of another
+    Nside or frame is refused."""
+    hp = pytest.importorskip("healpy")
+    from boresight.sky import sky_of_alm
+
+    nside = 16
+    sky = make_sky(SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=120.0, seed=4))
+    sky = sky.without_polarisation()
+    rng = np.random.default_rng(7)
+    noisy = sky.maps[0] + 0.01 * np.std(sky.maps[0]) * rng.normal(size=sky.maps[0].size)
+    path = tmp_path / "template.fits"
+    hp.write_map(path, noisy, extra_header=[("COORDSYS", "C")], dtype=np.float64)
+    schedule = replace(
+        load_schedule(EXAMPLES / "schedule_deep_sat.toml"), repeat_boresight_deg=(0.0,)
+    )
+    schedule = replace(schedule, ces=schedule.ces[:4])
+    deprojected = Filtering(deprojection=Deprojection(("gain",), template_map=str(path)))
+    gain = Systematics(dg=0.01)
+    run = dict(evaluation="exact")
+    left = engine.simulate_schedule(sky, schedule, Instrument(), gain, filtering=deprojected, **run)
+    alm = sky.alm.copy()
+    alm[0] -= harmonics.map2alm(noisy, 2 * nside)
+    difference = sky_of_alm(alm, nside, fwhm_arcmin=0.0)  # alm already smoothed
+    want = engine.simulate_schedule(
+        difference, schedule, Instrument(), gain, filtering=deprojected, **run
+    )
+    raw = engine.simulate_schedule(difference, schedule, Instrument(), gain, **run)
+    ok = left.rcond_obs > 0.1
+    scale = np.max(np.abs(want.q_obs[ok]))
+    assert 0.3 < scale / np.max(np.abs(raw.q_obs[ok])) < 3  # the template's error leaks
+    leak = np.max(np.abs(engine.simulate_schedule(sky, schedule, Instrument(), gain, **run).q_obs))
+    assert scale < 0.1 * leak  # most of the leak is gone
+    # to rounding of the leak itself (its T part, 1e-10)
+    assert np.max(np.abs(left.q_obs[ok] - want.q_obs[ok])) < 1e-10 * leak
+    assert np.max(np.abs(left.u_obs[ok] - want.u_obs[ok])) < 1e-10 * leak
+    for name, cards, match in (
+        ("nside.fits", [("COORDSYS", "C")], "has Nside 8; the sky has 16"),
+        ("galactic.fits", [("COORDSYS", "G")], "is in COORDSYS 'G'"),
+    ):
+        values = noisy if name != "nside.fits" else hp.ud_grade(noisy, 8)
+        hp.write_map(tmp_path / name, values, extra_header=cards, dtype=np.float64)
+        bad = Filtering(deprojection=Deprojection(("gain",), template_map=str(tmp_path / name)))
+        with pytest.raises(ValueError, match=match):
+            engine.simulate_schedule(sky, schedule, Instrument(), gain, filtering=bad, **run)

@@ -140,13 +140,23 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
             ["--filter", "deproject(gain)", "--deproject", "gain", "--schedule", "S"],
             "give one of them",
         ),
+        (["--deproject", "gain/2d", "--schedule", "S"], "write ces or <hours>h"),
+        (["--deproject-template", "T", "--filter", "p1", "--schedule", "S"], "give --deproject"),
+        (["--deproject", "gain", "--deproject-template", "NO", "--schedule", "S"], "no such"),
+        (["--deproject", "gain", "--deproject-template", "T8", "--schedule", "S"], "Nside 8"),
     ],
 )
 def test_the_command_refuses_a_filter_it_cannot_run_before_any_work(tmp_path, capsys, flags, words):
     path = _schedule_file(tmp_path / "s.toml")
     short = tmp_path / "short.toml"  # 4 deg throws: 8 samples a scan, between turnarounds
     short.write_text(open(path).read().replace("az_throw_deg = 40", "az_throw_deg = 4"))
-    flags = [{"S": path, "SHORT": str(short)}.get(f, f) for f in flags]
+    import healpy as hp
+
+    for name, nside in (("t.fits", 32), ("t8.fits", 8)):
+        hp.write_map(tmp_path / name, np.ones(12 * nside**2), dtype=np.float64)
+    files = {"S": path, "SHORT": str(short), "T": str(tmp_path / "t.fits")}
+    files |= {"T8": str(tmp_path / "t8.fits"), "NO": str(tmp_path / "none.fits")}
+    flags = [files.get(f, f) for f in flags]
     out = tmp_path / "bad"
     assert main(["-q", "suppression", "--out", str(out), "--nside", "32", *flags]) == 2
     err = capsys.readouterr().err
