@@ -662,7 +662,7 @@ def simulate_schedule(
             sky, pointing(schedule, chunk_samples), instrument, systematics, **run
         )
     cleaning = _Cleaning(filtering, sky, schedule.frame)
-    cleaning.check(backend, mapmaker, evaluation)
+    cleaning.check(schedule, backend, mapmaker, evaluation)
     binner = _Binner(
         sky, instrument, systematics, (0.0,), evaluation, leak_template, nthreads, backend
     )
@@ -706,7 +706,9 @@ class _Cleaning:
                 frame=frame,
             )
 
-    def check(self, backend, mapmaker, evaluation, hwp=None):
+    def check(self, schedule, backend, mapmaker, evaluation, hwp=None):
+        """Refuse, before any work, what the pipeline cannot run; every CES against the filters
+        (its :class:`~boresight.mitigation.CesScan` kept for :meth:`blocks`)."""
         if backend != "cpu" or mapmaker != "pairs" or hwp is not None:
             raise ValueError(
                 f"filtering ({self.filtering}) runs on the CPU backend with the pairs' "
@@ -719,12 +721,13 @@ class _Cleaning:
                 f"only with evaluation 'exact', not {evaluation!r} (interpolated or pixelised "
                 "maps differ from their derivatives)"
             )
+        self.scans = ces_scans(self.filtering, schedule)
 
     def blocks(self, schedule):
         """(its name, [(a schedule of one CES of one repeat, its CesScan), ...]) per block of the
-        deprojection (:meth:`boresight.mitigation.Deprojection.blocks`), in observing order;
-        every CES checked against the filters before the first is simulated."""
-        scans = ces_scans(self.filtering, schedule)
+        deprojection (:meth:`boresight.mitigation.Deprojection.blocks`), in observing order,
+        after :meth:`check`."""
+        scans = self.scans
         for repeat in schedule.repeat_boresight_deg:
             for name, members in self.deprojection.blocks(schedule.ces):
                 one = [
@@ -757,16 +760,19 @@ class _Cleaning:
 
     def bin_block(self, parts, c_s, normal, block):
         """A block's parts (:meth:`part`) and their weights (c, s) regressed together and binned
-        into ``normal``."""
-        d = np.concatenate([p[0] for p in parts], axis=1)
+        into ``normal`` (a block of one CES without a copy)."""
+
+        def joined(items, axis):
+            return items[0] if len(items) == 1 else np.concatenate(items, axis=axis)
+
+        d = joined([p[0] for p in parts], 1)
         if self.deprojection:
-            templates = np.concatenate([p[1] for p in parts], axis=-1)
-            fit = np.concatenate([p[2] for p in parts])
+            templates = joined([p[1] for p in parts], -1)
+            fit = joined([p[2] for p in parts], 0)
             d = self.deprojection.apply(d, templates, fit, block=block)
-        keep = np.concatenate([p[3] for p in parts])
-        pix = np.concatenate([p[4] for p in parts])
-        c = np.concatenate([x[0] for x in c_s], axis=1)
-        s = np.concatenate([x[1] for x in c_s], axis=1)
+        keep = joined([p[3] for p in parts], 0)
+        pix = joined([p[4] for p in parts], 0)
+        c, s = (joined([x[k] for x in c_s], 1) for k in (0, 1))
         bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
 
 
@@ -831,8 +837,7 @@ def simulate_focalplane(
         raise ValueError(f"backend {backend!r}: a focal plane's TOD runs on the CPU backend only")
     cleaning = _Cleaning(filtering, sky, schedule.frame)
     if filtering:
-        cleaning.check(backend, mapmaker, evaluation, hwp)
-        ces_scans(filtering, schedule)  # every CES against the filter, before any work
+        cleaning.check(schedule, backend, mapmaker, evaluation, hwp)
     if hwp is not None:
         systematics = reflected_systematics(hwp, systematics, own_angles=True)
     _check_mapmaker(mapmaker, backend)

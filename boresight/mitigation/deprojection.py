@@ -100,7 +100,7 @@ class Deprojection:
         if unknown:
             raise ValueError(
                 f"deprojection templates {unknown}: choose from {', '.join(TEMPLATES)} "
-                "(or bk for all), joined by '+'"
+                "(or bk for all), joined by ','"
             )
         if len(set(names)) != len(names):
             raise ValueError(f"deprojection templates {list(names)}: one of them twice")
