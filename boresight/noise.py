@@ -19,6 +19,7 @@ and sigma(r) = (sum_b F_b)^(-1/2): the uncertainty of the inverse-variance weigh
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -219,6 +220,7 @@ def band_fisher(
     *,
     r: float = 0.0,
     a_lens: float = 1.0,
+    time_fraction: float = 1.0,
 ) -> np.ndarray:
     """The Fisher information on r of each band of C_BB.
 
@@ -230,6 +232,8 @@ def band_fisher(
         Band edges: band b is edges[b] <= ell < edges[b + 1], ell >= 2.
     r, a_lens : float
         Fiducial tensor-to-scalar ratio and lensing amplitude.
+    time_fraction : float
+        The share of the survey's observing time kept, in (0, 1]: N_ell / time_fraction.
 
     Returns
     -------
@@ -243,7 +247,8 @@ def band_fisher(
     if lmax > theory.lmax:
         raise ValueError(f"bands reach ell = {lmax}, beyond the spectra's lmax = {theory.lmax}")
     ell = np.arange(lmax + 1)
-    total = theory.bb(r=r, a_lens=a_lens)[: lmax + 1] + noise.n_ell(lmax)
+    validation.number("time_fraction", time_fraction, 1e-12, 1.0)
+    total = theory.bb(r=r, a_lens=a_lens)[: lmax + 1] + noise.n_ell(lmax) / time_fraction
     per_ell = 0.5 * noise.fsky * (2 * ell + 1) * (theory.bb_tensor[: lmax + 1] / total) ** 2
     return np.array([per_ell[lo:hi].sum() for lo, hi in zip(edges[:-1], edges[1:])])
 
@@ -255,19 +260,23 @@ def sigma_r(
     *,
     r: float = 0.0,
     a_lens: float = 1.0,
+    time_fraction: float = 1.0,
 ) -> float:
     """The survey's 1-sigma uncertainty on r: the Fisher sum over the bands, F^(-1/2).
 
     Parameters
     ----------
-    noise, theory, edges, r, a_lens
+    noise, theory, edges, r, a_lens, time_fraction
         As in :func:`band_fisher`.
 
     Returns
     -------
     float
-        The given sigma(r) where the noise states it.
+        The given sigma(r) where the noise states it, times time_fraction^(-1/2) (the
+        white-noise Knox regime: a sigma(r) given as a number has no N_ell to scale).
     """
     if noise.sigma_r is not None:
-        return float(noise.sigma_r)
-    return float(1.0 / np.sqrt(np.sum(band_fisher(noise, theory, edges, r=r, a_lens=a_lens))))
+        validation.number("time_fraction", time_fraction, 1e-12, 1.0)
+        return float(noise.sigma_r) / math.sqrt(time_fraction)
+    fisher = band_fisher(noise, theory, edges, r=r, a_lens=a_lens, time_fraction=time_fraction)
+    return float(1.0 / np.sqrt(np.sum(fisher)))

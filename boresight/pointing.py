@@ -262,6 +262,12 @@ def _ces_detector_pointing(k0, n, chunk, terms, vectors):
 N_CHUNK = 11
 
 
+def ces_angle_deg(schedule: Schedule, repeat: int, index: int) -> float:
+    """The boresight angle [deg] of CES ``index`` in boresight repeat ``repeat``
+    (:func:`ces_chunks`' numbering)."""
+    return schedule.ces[index].boresight_deg + schedule.repeat_boresight_deg[repeat]
+
+
 def ces_chunks(schedule, chunk_samples=1 << 20):
     """Every chunk of a schedule with its kernel arguments, in observing order: the CES set in time order,
     once per boresight repeat.
@@ -388,6 +394,8 @@ def detector_pointing(
     vectors = focalplane.vectors()
     per_pair = max(1, chunk_samples // focalplane.n_pairs)
     for repeat, index, args in ces_chunks(schedule, per_pair):
+        if not focalplane.centred:  # the boresight turns about another point: per CES
+            vectors = focalplane.vectors(ces_angle_deg(schedule, repeat, index))
         theta, phi, psi, turning = _ces_detector_pointing(*args, vectors)
         out = (theta, phi, psi)
         if hwp is not None:

@@ -102,11 +102,15 @@ KERNELS = {
         Kernel("predict.cl", "_block_sums", (_C1, _I1, _F1, _I1, nt.int64), 0.9),
         Kernel("moments.axis", "ces_hits", (*_CHUNK, nt.int64, nt.int64, nt.bool_), 2.2),
         Kernel("design.white", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
+        Kernel(
+            "design.operations",
+            "_timeline",
+            (*[_F1] * 3, _I1, _F1, _F1, nt.float64, nt.float64, _F1, _F1, nt.int64[:, ::1]),
+            0.5,
+        ),
         Kernel("predict.field_products", "_recurse", (_F1, *[nt.int64] * 3, _F1, _F2), 0.6),
         Kernel("design.exact", "_apply", (_F3, _I1, _F1, _C2, nt.int64, nt.int64, _C2), 0.6),
-        Kernel(
-            "moments.axis", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, nt.int64), 1.1
-        ),
+        Kernel("moments.axis", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, _I1), 1.1),
         Kernel("moments.axis", "_runs", (_U2, nt.int64, _I1), 2.8),
         Kernel(
             "moments.axis",
@@ -118,9 +122,10 @@ KERNELS = {
             "moments.axis",
             "bin_pairs",
             (nt.int64[:, ::1], _F2, _F2, nt.int32[:, ::1], _C2, _I1, _U2)
-            + (nt.complex128[:, :, ::1], nt.int64[:, ::1], nt.int64),
+            + (nt.complex128[:, :, ::1], nt.int64[:, ::1], _I1),
             1.0,
         ),
+        Kernel("moments.axis", "pixel_ranges", (_I1, nt.int64, nt.int64), 0.3),
         Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
         Kernel("kernels.pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel(
@@ -138,13 +143,13 @@ _JOBS = {
         ("_legendre_sums", "_delta_p", "_response", "_inside", "_block_sums"),
         ("accumulate", "interpolate_interleaved", "generate_hits", "moments"),
     ),
-    "design": (("ces_hits", "_rotate_and_sum", "_recurse", "_apply"), ()),
+    "design": (("ces_hits", "_rotate_and_sum", "_recurse", "_apply", "_timeline"), ()),
     "validation": (
         ("_ces_pointing", "ang2pix_array", "_response"),
         ("interpolate_interleaved", "_scatter"),
     ),
-    "schedule-stats": (("ces_hits", "_bin", "_runs"), ()),
-    "focalplane-stats": (("ces_hits_pairs", "bin_pairs", "_runs"), ()),
+    "schedule-stats": (("ces_hits", "_bin", "_runs", "pixel_ranges"), ()),
+    "focalplane-stats": (("ces_hits_pairs", "bin_pairs", "_runs", "pixel_ranges"), ()),
 }
 
 

@@ -4,6 +4,7 @@ of schedule files, focal planes and half-wave plates."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 from ..frames import FRAMES
@@ -77,11 +78,30 @@ def focalplane_flag(parser: argparse.ArgumentParser, replaces: str = "") -> None
         "(name, xi_deg, eta_deg, gamma_deg, pol_angle_deg), 'hexagon:N:WIDTH_DEG' or 'axis' "
         f"(the paper's pairs on the boresight, the default){replaces}",
     )
+    parser.add_argument(
+        "--rotation-centre",
+        metavar="XI0,ETA0",
+        help="where in the focal plane the boresight rotation turns about [deg] (sotodlib's "
+        "sat_v1 fp_rot_xi0, fp_rot_eta0; default 0,0, its centre)",
+    )
 
 
 def focalplane(args: argparse.Namespace):
-    """The :class:`boresight.instrument.focalplane.FocalPlane` of --focalplane, or None."""
-    return load_focalplane(args.focalplane) if args.focalplane else None
+    """The :class:`boresight.instrument.focalplane.FocalPlane` of --focalplane (turning about
+    --rotation-centre), or None."""
+    centre = getattr(args, "rotation_centre", None)
+    if not args.focalplane:
+        if centre:
+            raise ConfigError("--rotation-centre needs --focalplane: it moves the pairs off it")
+        return None
+    focal = load_focalplane(args.focalplane)
+    if centre:
+        try:
+            xi0, eta0 = (float(x) for x in centre.split(","))
+        except ValueError:
+            raise ConfigError(f"--rotation-centre {centre!r}: give XI0,ETA0 in degrees") from None
+        focal = dataclasses.replace(focal, rotation_centre_deg=(xi0, eta0))
+    return focal
 
 
 def hwp_flags(parser: argparse.ArgumentParser) -> None:

@@ -16,6 +16,7 @@ from ..config import check_systematics
 from ..cosmology import load_spectra
 from ..design.budget import load_budget, search_instrument
 from ..design.job import design
+from ..design.operations import shortened, timeline_rows
 from ..design.tod_check import validation_report
 from ..design.white import units_of
 from ..instrument.hwp import check_sampling
@@ -32,10 +33,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NAME = "design"
-N_STRATEGIES = 7  #: the baselines and the optimised one
+N_STRATEGIES = 8  #: the baselines, the schedule as given and the optimised one
 HELP = "choose the boresight angles of a schedule against a systematics budget"
 #: the designed schedule's file name ending, by the input's format
-SUFFIX = {"toml": ".toml", "csv": ".csv", "toast": ".txt"}
+SUFFIX = {"toml": ".toml", "csv": ".csv", "toast": ".txt", "so-master": ".txt"}
 
 
 def run(
@@ -51,6 +52,7 @@ def run(
     turnarounds: str | None = None,
     focalplane: FocalPlane | None = None,
     checks: resources.Checks = resources.Checks(),
+    search: bool = True,
 ) -> dict:
     """Choose a boresight angle per unit of a schedule against a budget.
 
@@ -60,11 +62,18 @@ def run(
     (``units.csv``), the residual spectra of each strategy with the noise and r references
     (``design.png``/``.pdf``), ``|h_n|^2`` maps before and after (``hn_before_after.png``), and
     with ``validate`` a TOD simulation of the budget on the designed and the unrotated schedule
-    (``validation.csv``). The science is :func:`boresight.design.job.design`; this writes its
-    files. Ctrl-C or SIGTERM during the search keeps the best schedule found so far (without the
-    figures), during the validation the finished design without it; the manifest says which,
-    and the :class:`boresight._util.interrupts.Interrupted` raised after the outputs are written
-    says what was kept.
+    (``validation.csv``). With the budget's ``[operations]``, ``strategies.csv`` adds each
+    strategy's lost observing time, sigma(r) with it and the total, ``operations.csv`` lists the
+    operations before each CES of the design and the minutes it loses, and the designed schedule's
+    CESs start later by what the operations eat. With ``[constraints]`` the search keeps them,
+    each strategy's row counts what it breaks (``violations``) and ``constraints.csv`` says what
+    each constraint costs. Without ``search`` the schedule's own angles are scored beside the
+    baselines ("as given"), and no schedule is written. The science is
+    :func:`boresight.design.job.design`; this writes its files. Ctrl-C or SIGTERM during the
+    search keeps the best schedule found so far (without the figures), during the validation the
+    finished design without it; the manifest says which, and the
+    :class:`boresight._util.interrupts.Interrupted` raised after the outputs are written says what
+    was kept.
 
     Parameters
     ----------
@@ -84,6 +93,8 @@ def run(
         (``strategies.csv``' ``delta_r`` and ``fp_*`` columns), and validated there.
     checks : boresight.jobs.resources.Checks
         The memory and time checks to make.
+    search : bool
+        Search for the best angles (False: score the schedule as given).
 
     Returns
     -------
@@ -97,7 +108,9 @@ def run(
     io.check_output_dir(out_dir, force, inputs)
     timer = provenance.Timer(log)
     estimate = _prepare(budget, schedule, validate=validate, checks=checks, timer=timer)
-    result = design(budget, schedule, timer=timer, validate=validate, progress=progress)
+    result = design(
+        budget, schedule, timer=timer, validate=validate, progress=progress, search_angles=search
+    )
     with io.staged_dir(out_dir, force, inputs) as stage:
         _write(result, budget, schedule, schedule_path, stage)
         io.write_json(
@@ -117,6 +130,8 @@ def run(
         angles_deg=result.found.angles_deg,
         steps_deg=result.found.steps_deg,
         validation=result.validation,
+        chosen=result.chosen,
+        constraint_costs=result.constraint_costs,
     )
 
 
@@ -157,6 +172,10 @@ def _manifest(result, budget, schedule, paths, timer, estimate):
             "hwp": None if budget.hwp is None else dataclasses.asdict(budget.hwp),
             "sigma_r": result.sigma_r,
             "search_interrupted": result.found.interrupted is not None,
+            "searched": result.chosen == "optimised",
+            "operations": None
+            if budget.operations is None
+            else dataclasses.asdict(budget.operations),
             "validation": result.checked,
         },
         {"design": budget.design.seed},
@@ -170,6 +189,17 @@ def _budget(budget_path, focalplane):
     budget = load_budget(budget_path)
     if focalplane is None:
         return budget
+    if not focalplane.centred:
+        raise ConfigError(
+            "--rotation-centre with design: a design of a focal plane whose rotation centre is "
+            "off its centre is not made yet (its per-unit moments turn by phases only about the "
+            "centre)"
+        )
+    if budget.operations is not None or budget.constraints is not None:
+        raise ConfigError(
+            f"--focalplane with budget {budget_path}'s [operations] or [constraints]: they bind a "
+            "design of pairs on the axis, not of a focal plane yet; leave out one of them"
+        )
     if budget.hwp is not None:  # the budget's own check, for the flag
         raise ConfigError(
             f"--focalplane with budget {budget_path}'s [hwp]: a design behind a plate is of "
@@ -192,7 +222,18 @@ def _write(result, budget, schedule, schedule_path, stage):
     moments, found = result.moments, result.found
     fmt = schedule_format(schedule_path)
     designed = moments.schedule(schedule, found.angles_deg)
-    write_schedule(designed, stage / f"schedule_designed{SUFFIX[fmt]}", fmt)
+    if result.time_price is not None:
+        line = result.time_price.timeline(found.angles_deg)
+        ops = timeline_rows(result.time_price, moments.rows, found.angles_deg)
+        io.write_csv(stage / "operations.csv", ops, list(ops[0]))
+        kept = shortened(designed.ces, line.lost_s)
+        if len(kept) < len(designed.ces):
+            log.info(
+                "%d CESs lost whole to the operations before them", len(designed.ces) - len(kept)
+            )
+        designed = dataclasses.replace(designed, ces=kept)
+    if result.chosen == "optimised":
+        write_schedule(designed, stage / f"schedule_designed{SUFFIX[fmt]}", fmt)
     io.write_csv(stage / "strategies.csv", result.rows, list(result.rows[0]))
     fields = ["start", "sweep", "objective", "moves"]
     fields += ["round"] if budget.focalplane is not None else []
@@ -207,12 +248,18 @@ def _write(result, budget, schedule, schedule_path, stage):
     io.write_csv(stage / "units.csv", units, list(units[0]))
     if result.validation:
         io.write_csv(stage / "validation.csv", result.validation, list(result.validation[0]))
+    if result.constraint_costs:
+        costs = result.constraint_costs
+        io.write_csv(stage / "constraints.csv", costs, list(costs[0]))
     curves = {name: e.residual for name, e in result.expected.items()}
     if curves:
-        _figures(curves, result.white, budget, result.sigma_r, moments, result.h_maps, stage)
+        _figures(
+            curves, result.white, budget, result.sigma_r, moments, result.h_maps, stage,
+            result.chosen,
+        )  # fmt: skip
 
 
-def _figures(curves, white, budget, sigma, moments, h_maps, stage):
+def _figures(curves, white, budget, sigma, moments, h_maps, stage, chosen):
     """design.png (every strategy's expected residual) and hn_before_after.png."""
     plots.design_figure(
         curves, white, budget.noise, sigma, theory=load_spectra(), path_stem=stage / "design"
@@ -221,9 +268,9 @@ def _figures(curves, white, budget, sigma, moments, h_maps, stage):
     dominant = max(white.terms, key=lambda n: white.alpha[n] + white.beta[n], default=2)
     maps = [
         np.where(moments.mask > 0, np.abs(moments.full_sky(h_maps[k][dominant])) ** 2, hp.UNSEEN)
-        for k in ("none", "optimised")
+        for k in ("none", chosen)
     ]
-    names = [f"|h_{dominant}|^2, no rotation", f"|h_{dominant}|^2, optimised"]
+    names = [f"|h_{dominant}|^2, no rotation", f"|h_{dominant}|^2, {chosen}"]
     plots.map_figure(maps, names, stage / "hn_before_after.png", unit="")
 
 
@@ -236,6 +283,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-validate",
         action="store_true",
         help="skip the TOD simulation of the design",
+    )
+    parser.add_argument(
+        "--no-search",
+        action="store_true",
+        help="score the schedule's own angles beside the baselines, without a search",
     )
     _common.focalplane_flag(parser, "; replaces the budget's [instrument] focalplane")
     _common.motion_flags(parser)
@@ -253,14 +305,27 @@ def main(args: argparse.Namespace) -> int:
         progress=_common.progress(args),
         focalplane=_common.focalplane(args),
         checks=_common.checks(args),
+        search=not args.no_search,
         **_common.pointing(args),
     )
     for row in result["strategies"]:
+        line = (
+            f"{row['strategy']:<14} delta_r = {row['delta_r']:.3g}  "
+            f"({row['delta_r_over_sigma_r']:.3g} sigma(r))"
+        )
+        if "delta_r_total" in row:
+            line += (
+                f"; loses {row['lost_min']:.0f} min ({100 * row['lost_fraction']:.1f} %), "
+                f"sigma(r) {row['sigma_r_with_lost_time']:.3g}, total {row['delta_r_total']:.3g}"
+            )
+        log.info("%s", line)
+    for row in result["constraint_costs"]:
         log.info(
-            "%-14s delta_r = %.3g  (%.3g sigma(r))",
-            row["strategy"],
-            row["delta_r"],
-            row["delta_r_over_sigma_r"],
+            "constraint: %s costs %.3g (objective %.4g, without it %.4g)",
+            row["constraint"],
+            row["cost"],
+            row["objective"],
+            row["objective_without"],
         )
     if result["validation"]:
         lines, warnings = validation_report(result["validation"])

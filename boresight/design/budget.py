@@ -15,6 +15,8 @@ from ..instrument.focalplane import FocalPlane, focalplane_of_table
 from ..instrument.hwp import HWP, pairs_behind
 from ..instrument.pairs import AMPLITUDES, Instrument, Systematics, is_nonzero
 from ..noise import SurveyNoise
+from .constraints import AngleRule, Constraints
+from .operations import OPERATIONS_KEYS, Operations
 from .white import DesignOptions
 
 if TYPE_CHECKING:
@@ -42,6 +44,12 @@ class Budget:
         The ``[hwp]`` table (:class:`boresight.instrument.hwp.HWP`'s fields, ``mode`` "continuous" or
         "stepped"): a HWP in front of the pairs, its IP in the budget. A stepped plate's
         ``angles_deg`` are the steps the design may give each unit.
+    operations : boresight.design.operations.Operations, optional
+        The ``[operations]`` table: the observing time a change of angle or of the plate's
+        direction costs, priced in the objective as the sigma(r) it loses.
+    constraints : boresight.design.constraints.Constraints, optional
+        The ``[constraints]`` table: ``[[constraints.angles]]`` rules (``elevation_deg = [lo,
+        hi]``, ``angles_deg``, optional ``patch``) and ``max_changes_per_day``.
     """
 
     systematics: Systematics
@@ -50,6 +58,8 @@ class Budget:
     instrument: Instrument = Instrument()
     focalplane: FocalPlane | None = None
     hwp: HWP | None = None
+    operations: Operations | None = None
+    constraints: Constraints | None = None
 
 
 def search_instrument(focal: FocalPlane) -> Instrument:
@@ -84,12 +94,15 @@ def load_budget(path: str) -> Budget:
     """
 
     raw = read_toml(path, "budget")
-    unknown = sorted(set(raw) - set(BUDGET_SECTIONS) - {"hwp"})
+    extra = ("hwp", "operations", "constraints")
+    unknown = sorted(set(raw) - set(BUDGET_SECTIONS) - set(extra))
     if unknown:
         raise ConfigError(
-            f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS + ('hwp',)}"
+            f"budget {path}: unknown tables {unknown}; allowed: {BUDGET_SECTIONS + extra}"
         )
     plate = _budget_hwp(path, raw.get("hwp"))
+    operations = _budget_operations(path, raw.get("operations"))
+    constraints = _budget_constraints(path, raw.get("constraints"))
     if "noise" not in raw:
         raise ConfigError(f"budget {path}: a [noise] table is required")
     tables, focal = {}, None
@@ -114,6 +127,13 @@ def load_budget(path: str) -> Budget:
                 focal = focalplane_of_table(table, Path(path).parent)
             except ConfigError as err:
                 raise ConfigError(f"budget {path}: {err}") from None
+            if focal is not None and not focal.centred:
+                raise ConfigError(
+                    f"budget {path}: [instrument] rotation_centre_deg: a design of a focal plane "
+                    "whose rotation centre is off its centre is not made yet (its per-unit "
+                    "moments turn by phases only about the centre); scan-stats and suppression "
+                    "take it"
+                )
             table = {}
         try:
             tables[name] = build_section(name, cls, table)
@@ -147,7 +167,73 @@ def load_budget(path: str) -> Budget:
             pairs_behind(plate, sysm, instrument)
     except ValueError as err:
         raise ConfigError(f"budget {path}: [systematics] / [instrument]: {err}") from None
-    return Budget(**tables, focalplane=focal, hwp=plate)
+    if operations is not None and (focal is not None or plate is not None):
+        raise ConfigError(
+            f"budget {path}: [operations] prices the observing time of a design of pairs on the "
+            "axis without a plate, not with [instrument] focalplane or [hwp] yet; leave out one "
+            "of them"
+        )
+    if constraints is not None and focal is not None:
+        raise ConfigError(
+            f"budget {path}: [constraints] bind a design of pairs on the axis, not of a focal "
+            "plane yet; leave out one of them"
+        )
+    return Budget(
+        **tables, focalplane=focal, hwp=plate, operations=operations, constraints=constraints
+    )
+
+
+def _budget_constraints(path, table):
+    """The budget's [constraints] table as Constraints, or None."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError(f"budget {path}: [constraints] must be a table")
+    unknown = sorted(set(table) - {"angles", "max_changes_per_day"})
+    if unknown:
+        raise ConfigError(
+            f"budget {path}: unknown key constraints.{unknown[0]}; allowed: angles "
+            "([[constraints.angles]] tables), max_changes_per_day"
+        )
+    rules = table.get("angles", [])
+    if not isinstance(rules, list) or not all(isinstance(r, dict) for r in rules):
+        raise ConfigError(
+            f"budget {path}: constraints.angles must be [[constraints.angles]] tables"
+        )
+    out = []
+    for i, rule in enumerate(rules, start=1):
+        where = f"budget {path}: [[constraints.angles]] number {i}"
+        bad = sorted(set(rule) - {"elevation_deg", "angles_deg", "patch"})
+        missing = [k for k in ("elevation_deg", "angles_deg") if k not in rule]
+        if bad or missing:
+            raise ConfigError(f"{where}: unknown keys {bad}, missing keys {missing}")
+        try:
+            out.append(
+                AngleRule(**{k: tuple(v) if isinstance(v, list) else v for k, v in rule.items()})
+            )
+        except (ValueError, TypeError) as err:
+            raise ConfigError(f"{where}: {err}") from None
+    try:
+        return Constraints(tuple(out), table.get("max_changes_per_day"))
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"budget {path}: [constraints] {err}") from None
+
+
+def _budget_operations(path, table):
+    """The budget's [operations] table as Operations, or None."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError(f"budget {path}: [operations] must be a table")
+    unknown = sorted(set(table) - set(OPERATIONS_KEYS))
+    if unknown:
+        raise ConfigError(
+            f"budget {path}: unknown key operations.{unknown[0]}; allowed: {OPERATIONS_KEYS}"
+        )
+    try:
+        return Operations(**table)
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"budget {path}: [operations] {err}") from None
 
 
 def _budget_hwp(path, table):

@@ -49,6 +49,8 @@ if TYPE_CHECKING:
     from ..cosmology import Spectra
     from ..instrument.hwp import HWP
     from ..instrument.pairs import Instrument, Systematics
+    from .constraints import Feasibility
+    from .operations import TimePrice
     from .white import UnitMoments
 
 #: (E, B) rows of Y_n = i X_n: the unit's alm turned by a quarter of a period of n a
@@ -124,6 +126,11 @@ class ExactObjective:
     lmax, band : int
     channels : tuple of Channel
         Default the bare pairs' h_1 .. h_N_MAX (:data:`PAIRS`).
+    time_price : boresight.design.operations.TimePrice, optional
+        The delta_r equivalent of the observing time the assignment's changes lose, added to
+        the search's objective (the budget's ``[operations]``).
+    feasibility : boresight.design.constraints.Feasibility, optional
+        The mount's constraints: an assignment that breaks one costs infinity.
     """
 
     moments: UnitMoments
@@ -136,6 +143,8 @@ class ExactObjective:
     lmax: int
     band: int
     channels: tuple = PAIRS
+    time_price: TimePrice | None = None
+    feasibility: Feasibility | None = None
 
     @property
     def unit_count(self) -> int:
@@ -178,14 +187,27 @@ class ExactObjective:
         return angle_changes(choices(angles_deg, steps_deg))
 
     def __call__(self, angles_deg: np.ndarray, steps_deg: np.ndarray | None = None) -> float:
-        """The search's objective: delta_r + change_cost x changes."""
-        return self.delta_r(angles_deg, steps_deg) + self.change_cost * self.changes(
-            angles_deg, steps_deg
-        )
+        """The search's objective: delta_r + change_cost x changes + the lost time's price."""
+        return self.value_at(choices(angles_deg, steps_deg))
 
     def value_at(self, choice: np.ndarray) -> float:
         """The search's objective of (angle, step) rows (n_units, 2)."""
-        return self.value_of(self.alm_of(choice)) + self.change_cost * angle_changes(choice)
+        return self.value_of(self.alm_of(choice)) + price_of(self, choice)
+
+
+def price_of(obj, choice) -> float:
+    """What an assignment's changes cost beside delta_r: change_cost per change and the
+    delta_r equivalent of the observing time lost (``obj.time_price``); infinity where it breaks
+    a constraint (``obj.feasibility``)."""
+    choice = np.asarray(choice, dtype=float)
+    feasibility = getattr(obj, "feasibility", None)
+    if feasibility is not None and not feasibility.ok(choice if choice.ndim == 1 else choice[:, 0]):
+        return np.inf
+    cost = obj.change_cost * angle_changes(choice)
+    price = getattr(obj, "time_price", None)
+    if price is not None:
+        cost += price.value(choice if choice.ndim == 1 else choice[:, 0])
+    return cost
 
 
 def exact_objective(
@@ -201,6 +223,8 @@ def exact_objective(
     hwp: HWP | None = None,
     plate_moments: UnitMoments | None = None,
     nthreads: int = 0,
+    time_price: TimePrice | None = None,
+    feasibility: Feasibility | None = None,
 ) -> ExactObjective:
     """The exact expected delta_r objective of a budget over a schedule's units.
 
@@ -231,6 +255,10 @@ def exact_objective(
         A continuous plate's: :func:`boresight.design.unit_moments` with ``hwp``; needed where
         the pairs carry systematics.
     nthreads : int
+    time_price : boresight.design.operations.TimePrice, optional
+        The lost observing time's price, added to the search's objective.
+    feasibility : boresight.design.constraints.Feasibility, optional
+        The mount's constraints, which the search keeps.
 
     Returns
     -------
@@ -288,8 +316,9 @@ def exact_objective(
     const = model.scatter(mask) * float(np.sum(weight_l)) - sky_form.value(_padded(sky_alm))
     unit_alm = _unit_alm(moments, sources, channels, mask, lw, nthreads)
     return ExactObjective(
-        moments, form, sky_alm, unit_alm, const, change_cost, template, lmax, band, channels
-    )
+        moments, form, sky_alm, unit_alm, const, change_cost, template, lmax, band, channels,
+        time_price, feasibility,
+    )  # fmt: skip
 
 
 def _offset_terms(model):
@@ -547,7 +576,8 @@ def exhaustive(
     value = value + np.einsum("muan,uan->m", vec, lin)
     value = value + np.einsum("muan,uvanbk,mvbk->m", vec, q, vec, optimize=True)
     chosen = opts[picks]  # (M, U, 2)
-    cost = np.array([obj.change_cost * angle_changes(c) for c in chosen]) if obj.change_cost else 0
+    priced = obj.change_cost or obj.time_price is not None
+    cost = np.array([price_of(obj, c) for c in chosen]) if priced else 0
     total = value + cost
     best = int(np.argmin(total))
     history = [dict(start=0, sweep=0, objective=float(total[best]), moves=0)]
@@ -604,9 +634,7 @@ def search(
     rng = np.random.default_rng(seed)
     single = [_blocks(obj, u, u) for u in range(obj.unit_count)]
     cross = [_blocks(obj, u, u + 1) for u in range(obj.unit_count - 1)]
-    starts = [choices(start_deg, start_steps_deg)] + [
-        opts[rng.choice(len(opts), obj.unit_count)] for _ in range(restarts)
-    ]
+    starts = [choices(start_deg, start_steps_deg)] + _random_starts(obj, opts, restarts, rng)
     best, history = None, []
     try:
         for k, start in enumerate(starts):
@@ -628,6 +656,23 @@ def search(
         best.interrupted = stop
     best.history = history
     return best
+
+
+def _random_starts(obj, opts, restarts, rng):
+    """``restarts`` random assignments of the options; under constraints each unit's drawn
+    from those it may take, and an assignment that breaks the most changes per day dropped."""
+    feasibility = getattr(obj, "feasibility", None)
+    out = []
+    for _ in range(restarts):
+        pick = opts[rng.choice(len(opts), obj.unit_count)]
+        if feasibility is not None:
+            for u in range(obj.unit_count):
+                mine = [k for k, o in enumerate(opts) if feasibility.unit_ok(u, o[0])]
+                pick[u] = opts[mine[rng.integers(len(mine))]]
+            if not feasibility.ok(pick[:, 0]):
+                continue
+        out.append(pick)
+    return out
 
 
 def _sweep(obj, state, opts, single, cross, rng, progress):
@@ -684,25 +729,62 @@ def _differs(a, b) -> bool:
 
 
 def change_cost_delta(obj, choice, u, opts):
-    """The change cost's change (K,) of moving unit u to each option (an allowed angle, or an
-    (angle, step) row)."""
-    if not obj.change_cost:
-        return np.zeros(len(opts))
-    near = [choice[v] for v in (u - 1, u + 1) if 0 <= v < len(choice)]
-    count = np.array([sum(_differs(a, b) for b in near) for a in opts])
-    return obj.change_cost * (count - sum(_differs(choice[u], b) for b in near))
+    """The change of what the changes cost (K,) of moving unit u to each option (an allowed
+    angle, or an (angle, step) row): change_cost and the lost time's price."""
+    out = np.zeros(len(opts))
+    if obj.change_cost:
+        near = [choice[v] for v in (u - 1, u + 1) if 0 <= v < len(choice)]
+        count = np.array([sum(_differs(a, b) for b in near) for a in opts])
+        out += obj.change_cost * (count - sum(_differs(choice[u], b) for b in near))
+    price = getattr(obj, "time_price", None)
+    if price is not None:
+        trial = _angles(choice)
+        now = price.value(trial)
+        for k, a in enumerate(opts):
+            trial[u] = np.atleast_1d(a)[0]
+            out[k] += price.value(trial) - now
+    feasibility = getattr(obj, "feasibility", None)
+    if feasibility is not None:
+        trial = _angles(choice)
+        for k, a in enumerate(opts):
+            trial[u] = np.atleast_1d(a)[0]
+            if not (feasibility.unit_ok(u, trial[u]) and feasibility.ok(trial)):
+                out[k] = np.inf
+    return out
 
 
 def pair_change_cost_delta(obj, choice, u, opts):
-    """The change cost's change (K, K) of moving units u and u + 1."""
-    if not obj.change_cost:
-        return np.zeros((len(opts), len(opts)))
-    v = u + 1
-    before = angle_changes(choice[max(u - 1, 0) : v + 2])
+    """The change of what the changes cost (K, K) of moving units u and u + 1."""
     out = np.zeros((len(opts), len(opts)))
-    trial = np.array(choice, dtype=float)
-    for i, a in enumerate(opts):
-        for j, b in enumerate(opts):
-            trial[u], trial[v] = a, b
-            out[i, j] = angle_changes(trial[max(u - 1, 0) : v + 2]) - before
-    return obj.change_cost * out
+    v = u + 1
+    if obj.change_cost:
+        before = angle_changes(choice[max(u - 1, 0) : v + 2])
+        trial = np.array(choice, dtype=float)
+        for i, a in enumerate(opts):
+            for j, b in enumerate(opts):
+                trial[u], trial[v] = a, b
+                out[i, j] = angle_changes(trial[max(u - 1, 0) : v + 2]) - before
+        out *= obj.change_cost
+    price = getattr(obj, "time_price", None)
+    if price is not None:
+        trial = _angles(choice)
+        now = price.value(trial)
+        for i, a in enumerate(opts):
+            for j, b in enumerate(opts):
+                trial[u], trial[v] = np.atleast_1d(a)[0], np.atleast_1d(b)[0]
+                out[i, j] += price.value(trial) - now
+    feasibility = getattr(obj, "feasibility", None)
+    if feasibility is not None:
+        trial = _angles(choice)
+        for i, a in enumerate(opts):
+            for j, b in enumerate(opts):
+                trial[u], trial[v] = np.atleast_1d(a)[0], np.atleast_1d(b)[0]
+                if not feasibility.ok(trial):
+                    out[i, j] = np.inf
+    return out
+
+
+def _angles(choice):
+    """The angles [deg] (U,) of angles (U,) or (angle, step) rows (U, 2), as a new array."""
+    choice = np.array(choice, dtype=float)
+    return choice if choice.ndim == 1 else choice[:, 0].copy()

@@ -4,6 +4,7 @@ delta_r, the optimised angles and the TOD check out (:func:`design`, a :class:`D
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -16,12 +17,14 @@ from ..cosmology import load_spectra
 from ..moments.offsets import centroid_moments
 from ..noise import sigma_r
 from ..predict import R_RANGE, expected_residual
-from ..validation import require_finite
+from ..validation import ConfigError, require_finite
+from .constraints import Feasibility
 from .exact import exact_objective, search
 from .focalplane import exact_delta_r, search_strategies, strategy_columns, target_of
 from .hwp import Plate
+from .operations import TimePrice, observed, table_columns
 from .tod_check import tod_check
-from .white import baselines, objective, unit_moments
+from .white import Design, baselines, objective, unit_moments
 
 if TYPE_CHECKING:
     from .._util.provenance import Timer
@@ -40,7 +43,8 @@ class DesignResult:
     sigma_r : float
         The survey's sigma(r) from its noise.
     strategies : dict of str to numpy.ndarray
-        Each strategy's angle per unit [deg]: the baselines and ``"optimised"``.
+        Each strategy's angle per unit [deg]: the baselines, the schedule's own angles ("as
+        given") and, unless the search was skipped, ``"optimised"``.
     steps : dict of str to numpy.ndarray or None
         Each strategy's stepped plate's step per unit [deg] (None without one).
     rows : list of dict
@@ -61,6 +65,11 @@ class DesignResult:
         The TOD check: "done", "skipped" or "interrupted".
     stopped : boresight._util.interrupts.Interrupted or None
         The interrupt that stopped the search or the TOD check.
+    time_price : boresight.design.operations.TimePrice or None
+        The budget's [operations] priced: each strategy's lost observing time.
+    constraint_costs : list of dict
+        constraints.csv's rows: each of the budget's constraints, the objective the search
+        reaches without it and what it costs (empty without constraints or a search).
     """
 
     sigma_r: float
@@ -76,6 +85,29 @@ class DesignResult:
     validation: list
     checked: str
     stopped: object = None
+    time_price: TimePrice | None = None
+    constraint_costs: list = dataclasses.field(default_factory=list)
+
+    @property
+    def chosen(self) -> str:
+        """The strategy the design gives: "optimised", or "as given" without a search."""
+        return "optimised" if "optimised" in self.strategies else AS_GIVEN
+
+
+#: the strategy of the schedule's own angles
+AS_GIVEN = "as given"
+
+
+def given_angles(moments) -> np.ndarray | None:
+    """The schedule's own angle of each unit [deg] (its CESs' boresight angles, repeats in);
+    None where a unit's CESs have different angles (a day holding a repeat at another angle)."""
+    out = np.empty(moments.n_units)
+    for u, idx in enumerate(moments.units):
+        angles = {moments.rows[i].boresight_deg for i in idx}
+        if len(angles) > 1:
+            return None
+        out[u] = angles.pop()
+    return out
 
 
 def design(
@@ -85,6 +117,7 @@ def design(
     timer: Timer,
     validate: bool = True,
     progress: bool = False,
+    search_angles: bool = True,
 ) -> DesignResult:
     """Choose a boresight angle per unit of ``schedule`` against ``budget``.
 
@@ -105,6 +138,8 @@ def design(
         Run the TOD check.
     progress : bool
         Progress bars.
+    search_angles : bool
+        Search for the best angles; False scores the schedule as given beside the baselines.
 
     Returns
     -------
@@ -116,6 +151,13 @@ def design(
         exact = opts.evaluation == "exact"
         moments = unit_moments(schedule, opts.nside, opts.group, centroids=exact)
         plate = Plate.of(budget, schedule, moments)
+    sigma = sigma_r(budget.noise, theory, np.array([R_RANGE[0], R_RANGE[1] + 1]))
+    price = None
+    if budget.operations is not None:
+        price = TimePrice(
+            moments.rows, moments.units, budget.operations, budget.noise, theory,
+            np.array([R_RANGE[0], R_RANGE[1] + 1]),
+        )  # fmt: skip
     with timer("objective"):
         obj = exact_objective(
             moments,
@@ -127,20 +169,43 @@ def design(
             evaluation=opts.evaluation,
             hwp=plate.hwp,
             plate_moments=plate.moments,
+            time_price=price,
+            feasibility=_feasibility(budget, moments),
         )
         white = objective(  # the paper's white-h_n approximation, reported beside
             moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
             instrument=budget.instrument,
         )  # fmt: skip
-    sigma = sigma_r(budget.noise, theory, np.array([R_RANGE[0], R_RANGE[1] + 1]))
     strategies = baselines(moments.n_units, opts.angles_deg, opts.seed)
+    given = given_angles(moments)
+    if given is not None:
+        strategies[AS_GIVEN] = given
+    elif not search_angles:
+        raise ConfigError(
+            f"the schedule as given has no one angle per design unit (group = {opts.group!r}: a "
+            "unit holds CESs at different angles); score it with group = 'ces'"
+        )
+    else:
+        log.info("the schedule as given has no one angle per %s: no 'as given' row", opts.group)
     allowed = set(opts.angles_deg)
-    startable = {k: v for k, v in strategies.items() if set(v) <= allowed}
-    start = (
-        min(startable.values(), key=lambda a: obj(a, plate.baseline))
-        if startable
-        else np.full(moments.n_units, opts.angles_deg[0])
-    )
+    feasibility = obj.feasibility
+    startable = {
+        k: v
+        for k, v in strategies.items()
+        if set(v) <= allowed and (feasibility is None or feasibility.ok(v))
+    }
+    if startable:
+        start = min(startable.values(), key=lambda a: obj(a, plate.baseline))
+    elif feasibility is not None:
+        start = feasibility.greedy(opts.angles_deg)
+        if not feasibility.ok(start):
+            raise ConfigError(
+                "the budget's [constraints] cannot all be kept: the fewest changes their angle "
+                f"rules force break max_changes_per_day = "
+                f"{budget.constraints.max_changes_per_day}"
+            )
+    else:
+        start = np.full(moments.n_units, opts.angles_deg[0])
     log.info(
         "%d units, %d pixels; sigma(r) = %.3g",
         moments.n_units,
@@ -157,7 +222,16 @@ def design(
         total = moments.n_units * len(opts.angles_deg) + total
     bar = tqdm(total=total, desc="design search", unit="unit", disable=not progress)
     tick = bar.update if progress else None
-    if focal is None:
+    if not search_angles:
+        if focal is not None:
+            raise ConfigError("--no-search scores pairs on the axis, not a focal plane yet")
+        value = dataclasses.replace(obj, feasibility=None)(strategies[AS_GIVEN], plate.baseline)
+        found = Design(
+            strategies[AS_GIVEN], value, [dict(start=0, sweep=0, objective=value, moves=0)],
+            steps_deg=None if plate.allowed is None else plate.baseline,
+        )  # fmt: skip
+        bar.update(total)
+    elif focal is None:
         with timer("search"):
             found = search(
                 obj, opts.angles_deg, start, steps_deg=plate.allowed,
@@ -173,9 +247,16 @@ def design(
         bar.total = bar.n
         bar.set_postfix_str("converged", refresh=False)
     bar.close()
-    strategies["optimised"] = found.angles_deg
+    seen = None
+    if price is not None:  # each strategy's delta_r on its CESs as observed
+        seen = _Observed(budget, schedule, moments, obj, theory)
+        if search_angles and focal is None and found.interrupted is None:
+            with timer("the search again on the CESs as observed"):
+                found = _search_observed(budget, seen, found, startable, plate)
     steps = {name: plate.baseline for name in strategies}
-    steps["optimised"] = found.steps_deg
+    if search_angles:
+        strategies["optimised"] = found.angles_deg
+        steps["optimised"] = found.steps_deg
     rows, h_maps = [], {}
     for name, angles in strategies.items():
         h = moments.h(angles)
@@ -192,6 +273,16 @@ def design(
                 **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(h[n]) ** 2)) for n in range(1, 5)},
             )
         )
+        if price is not None:
+            whole, dr = dr, seen.delta_r(angles, steps[name])
+            rows[-1].update(
+                delta_r=dr,
+                delta_r_over_sigma_r=dr / sigma,
+                delta_r_ces_whole=whole,
+                **table_columns(price, angles, dr),
+            )
+        if feasibility is not None:
+            rows[-1]["violations"] = feasibility.violations(angles)
     stopped = found.interrupted
     if focal is None:
         expected = {}  # an interrupted search writes its best schedule at once, without figures
@@ -214,6 +305,10 @@ def design(
         if stopped is not None:
             expected = {}
     require_finite("the strategies' delta_r", [r["delta_r"] for r in rows])
+    costs = []
+    if feasibility is not None and search_angles and stopped is None and focal is None:
+        with timer("the cost of each constraint"):
+            costs = _constraint_costs(budget, moments, obj, found, start, plate)
     validation, checked = [], "skipped"
     if validate and stopped is None:
         try:
@@ -239,7 +334,155 @@ def design(
         validation=validation,
         checked=checked,
         stopped=stopped,
+        time_price=price,
+        constraint_costs=costs,
     )
+
+
+#: the most searches again on the CESs as the previous one's design observes them
+OBSERVED_ROUNDS = 3
+
+
+class _Observed:
+    """Each assignment's systematic delta_r on its CESs as observed, the operations before
+    each cut from its start (:func:`boresight.design.operations.observed`): the units' moments
+    of those CESs and their exact objective, made once per pattern of lost time."""
+
+    def __init__(self, budget, schedule, moments, obj, theory):
+        self.budget, self.schedule, self.moments, self.obj = budget, schedule, moments, obj
+        self.theory, self._objectives = theory, {}
+
+    def objective(self, angles_deg):
+        """The exact objective of the CESs as ``angles_deg`` leaves them."""
+        lost = self.obj.time_price.timeline(angles_deg).lost_s
+        if not lost.any():
+            return self.obj
+        key = tuple(np.round(lost, 3))
+        if key not in self._objectives:
+            opts, moments = self.budget.design, self.moments
+            rows = observed(moments.rows, lost, self.schedule.sample_rate_hz)
+            scan = dataclasses.replace(self.schedule, ces=rows, repeat_boresight_deg=(0.0,))
+            seen = unit_moments(scan, opts.nside, opts.group, centroids=opts.evaluation == "exact",
+                                units=moments.units)  # fmt: skip
+            self._objectives[key] = exact_objective(
+                seen, self.budget.systematics, self.theory, self.budget.noise.fwhm_arcmin,
+                change_cost=opts.change_cost, instrument=self.budget.instrument,
+                evaluation=opts.evaluation, time_price=self.obj.time_price,
+                feasibility=self.obj.feasibility,
+            )  # fmt: skip
+        return self._objectives[key]
+
+    def delta_r(self, angles_deg, steps_deg=None) -> float:
+        return self.objective(angles_deg).delta_r(angles_deg, steps_deg)
+
+    def total(self, angles_deg, steps_deg=None) -> float:
+        """The search's objective on the CESs as observed."""
+        return self.objective(angles_deg)(angles_deg, steps_deg)
+
+
+def _search_observed(budget, seen, found, startable, plate):
+    """The search again, each time on the moments of the CESs as the previous design observes
+    them (the objective credits each CES whole, a rotation's lost samples included), until the
+    lost time repeats or :data:`OBSERVED_ROUNDS`; the design kept is the one whose objective on
+    its own observed CESs is lowest, among these and the startable baselines."""
+    opts = budget.design
+    pool = [(found.angles_deg, found.steps_deg)]
+    pool += [(a, plate.baseline) for a in startable.values()]
+    pool.append((_stretch_search(seen.obj, opts, startable, found), found.steps_deg))
+    last = found
+    for _ in range(OBSERVED_ROUNDS):
+        obj = seen.objective(last.angles_deg)
+        if obj is seen.obj:  # nothing lost: the objective was exact
+            break
+        again = search(
+            obj, opts.angles_deg, last.angles_deg, steps_deg=plate.allowed,
+            start_steps_deg=last.steps_deg, sweeps=opts.sweeps, restarts=opts.restarts,
+            seed=opts.seed,
+        )  # fmt: skip
+        pool.append((again.angles_deg, again.steps_deg))
+        if seen.objective(again.angles_deg) is obj:  # the same lost time: a fixed point
+            break
+        last = again
+    totals = [seen.total(a, b) for a, b in pool]
+    k = int(np.argmin(totals))
+    log.info(
+        "on the CESs as observed: the search's first design %.4g, the kept one %.4g",
+        totals[0],
+        totals[k],
+    )
+    return Design(pool[k][0], totals[k], found.history, steps_deg=found.steps_deg
+                  if pool[k][1] is None else pool[k][1])  # fmt: skip
+
+
+def _stretch_search(obj, opts, startable, found):
+    """The best assignment of one angle per stretch that rotations cannot cut
+    (:meth:`boresight.design.operations.TimePrice.segments`), by coordinate descent over the
+    stretches from the best startable baseline: designs that lose no time to rotations, which
+    the search's one- and two-unit moves cannot reach from a design that does."""
+    stretches = obj.time_price.segments()
+    start = min(startable.values(), key=obj) if startable else found.angles_deg
+    angles = np.array(start, dtype=float)
+    for stretch in stretches:  # one angle per stretch: its first unit's
+        angles[stretch] = angles[stretch[0]]
+    value = obj(angles, found.steps_deg)
+    for _ in range(opts.sweeps):
+        moved = False
+        for stretch in stretches:
+            for a in opts.angles_deg:
+                trial = angles.copy()
+                trial[stretch] = a
+                v = obj(trial, found.steps_deg)
+                if v < value - 1e-12 * abs(value):
+                    angles, value, moved = trial, v, True
+        if not moved:
+            break
+    return angles
+
+
+def _feasibility(budget, moments):
+    """The budget's constraints bound to the units, or None; ConfigError where a unit can take
+    none of the design's angles."""
+    if budget.constraints is None:
+        return None
+    tolerance = 1.0 if budget.operations is None else budget.operations.angle_tolerance_deg
+    try:
+        out = Feasibility(budget.constraints, moments.rows, moments.units, tolerance)
+        out.check_allowed(budget.design.angles_deg)
+    except ValueError as err:
+        raise ConfigError(f"[constraints]: {err}") from None
+    return out
+
+
+def _constraint_costs(budget, moments, obj, found, start, plate):
+    """What each constraint costs: the search rerun without it (from the same start and
+    seed), its objective's rise from that one's."""
+    opts, constraints = budget.design, budget.constraints
+    rows = []
+    for k, name in enumerate(constraints.names):
+        loose = _feasibility(
+            dataclasses.replace(budget, constraints=constraints.without(k)), moments
+        )
+        freer = dataclasses.replace(obj, feasibility=loose)
+        other = search(
+            freer, opts.angles_deg, start, steps_deg=plate.allowed,
+            start_steps_deg=plate.baseline, sweeps=opts.sweeps, restarts=opts.restarts,
+            seed=opts.seed,
+        )  # fmt: skip
+        best = min(other.value, found.value)  # a search without it can do no worse
+        rows.append(
+            dict(
+                constraint=name,
+                objective=found.value,
+                objective_without=best,
+                cost=found.value - best,
+                delta_r=obj.delta_r(found.angles_deg, found.steps_deg),
+                delta_r_without=obj.delta_r(other.angles_deg, other.steps_deg)
+                if other.value < found.value
+                else obj.delta_r(found.angles_deg, found.steps_deg),
+            )
+        )
+        log.info("constraint %s costs %.3g in the objective", name, found.value - best)
+    return rows
 
 
 def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):

@@ -257,6 +257,7 @@ def unit_moments(
     *,
     hwp: HWP | None = None,
     centroids: bool = False,
+    units: list | None = None,
 ) -> UnitMoments:
     """Build every unit's spin sums once, with the fused pointing of ``scanstats``.
 
@@ -274,6 +275,9 @@ def unit_moments(
         Also the sums of the samples' offsets from their pixel centres
         (:attr:`UnitMoments.centroids`; on the axis a boresight angle moves no sample, so they
         turn by exp(i n a) too), for a sky read exactly at each sample.
+    units : list of list of int, optional
+        The CES rows of each unit (default :func:`units_of` the schedule's rows by ``group``):
+        another schedule's units, its CESs shortened.
 
     Returns
     -------
@@ -282,7 +286,7 @@ def unit_moments(
     if hwp is not None and not hwp.spinning:
         raise ValueError("unit_moments turns the angles by a continuous HWP's only")
     rows = schedule.expanded()
-    units = units_of(rows, group)
+    units = units_of(rows, group) if units is None else units
     per_unit = []
     for idx in units:
         pix, e1, deltas = [], [], []

@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import csv
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from .. import validation
 from .._util.io import tomllib
 from ..constants import DEG
 from ..validation import ConfigError
@@ -71,6 +72,11 @@ class FocalPlane:
         [deg]: what sotodlib's ``Hn`` psi adds to the pair's crossing angle.
     source : str
         The file or preset it came from.
+    rotation_centre_deg : tuple of float
+        (xi0, eta0) [deg, as xi]: where in the focal plane the boresight rotation turns about
+        (sotodlib's ``fp_rot_xi0``, ``fp_rot_eta0`` of its ``sat_v1`` pointing model; SO's
+        ``bs_xi0``, ``bs_eta0``); (0, 0), the default, is the focal plane's centre. Off it, a
+        boresight angle moves every pair (:meth:`vectors`).
     """
 
     names: tuple
@@ -80,6 +86,7 @@ class FocalPlane:
     gamma_deg: np.ndarray
     hn_offset_deg: np.ndarray
     source: str = ""
+    rotation_centre_deg: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         n = len(self.names)
@@ -109,6 +116,16 @@ class FocalPlane:
                 "focal plane: a pair off the boresight's hemisphere (xi^2 + eta^2 >= 1 in sine "
                 "units, xi and eta given in degrees as xi [rad] x 180 / pi)"
             )
+        try:
+            centre = validation.numbers_array(
+                "focal plane rotation_centre_deg", self.rotation_centre_deg, -MAX_RADIUS_DEG,
+                MAX_RADIUS_DEG,
+            )  # fmt: skip
+        except (TypeError, ValueError) as err:
+            raise FocalPlaneError(str(err)) from None
+        if centre.shape != (2,):
+            raise FocalPlaneError("focal plane rotation_centre_deg: give (xi0, eta0) [deg]")
+        object.__setattr__(self, "rotation_centre_deg", (float(centre[0]), float(centre[1])))
 
     @property
     def n_pairs(self) -> int:
@@ -134,11 +151,21 @@ class FocalPlane:
         """Whether every pair sits on the boresight."""
         return bool(np.all(self.xi_deg == 0) and np.all(self.eta_deg == 0))
 
-    def vectors(self) -> np.ndarray:
+    @property
+    def centred(self) -> bool:
+        """Whether the boresight rotation turns about the focal plane's centre."""
+        return self.rotation_centre_deg == (0.0, 0.0)
+
+    def vectors(self, boresight_deg: float = 0.0) -> np.ndarray:
         """Each pair's direction and orientation in the boresight's frame, (pairs, 6): the z and
         x axes of ``xieta_to_quat(xi, eta, 0)`` (TOAST's detector frame at gamma = 0), for
-        :func:`boresight.pointing.detector_pointing`."""
-        return xieta_vectors(self.xi_deg * DEG, self.eta_deg * DEG)
+        :func:`boresight.pointing.detector_pointing`; at a boresight angle, turned about the
+        rotation centre (:func:`off_centre`)."""
+        return off_centre(
+            xieta_vectors(self.xi_deg * DEG, self.eta_deg * DEG),
+            self.rotation_centre_deg,
+            boresight_deg,
+        )
 
     def subset(self, pairs) -> FocalPlane:
         """The focal plane of some of the pairs, in the order given."""
@@ -151,7 +178,43 @@ class FocalPlane:
             gamma_deg=self.gamma_deg[idx],
             hn_offset_deg=self.hn_offset_deg[idx],
             source=self.source,
+            rotation_centre_deg=self.rotation_centre_deg,
         )
+
+
+def off_centre(vectors: np.ndarray, centre_deg: tuple, boresight_deg: float) -> np.ndarray:
+    """Detector vectors (n, 6) at a boresight angle, where the rotation turns about
+    ``centre_deg`` = (xi0, eta0) [deg] rather than the boresight.
+
+    sotodlib's ``sat_v1`` model (``coords.pointing_model.model_sat_v1``) writes the rolled
+    boresight as Q(az, el) R0 E(roll) R0^-1, R0 = ``rotation_xieta(xi0, eta0)``, and a detector
+    at R_d as that times R_d; boresight turns each detector by E(a) about the boresight (its
+    boresight angle a is sotodlib's roll, TOAST's rotation). So the vectors become
+    E(-a) R0 E(a) R0^-1 v: the same detector seen from the boresight turned by a.
+
+    Parameters
+    ----------
+    vectors : numpy.ndarray, shape (n, 6)
+        :func:`xieta_vectors`' directions and orientations at angle 0.
+    centre_deg : tuple of float
+    boresight_deg : float
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 6)
+        ``vectors`` itself where the centre is (0, 0) or the angle 0.
+    """
+    if tuple(centre_deg) == (0.0, 0.0) or boresight_deg == 0:
+        return vectors
+    centre = xieta_vectors(np.array([centre_deg[0] * DEG]), np.array([centre_deg[1] * DEG]))[0]
+    z, x = centre[:3], centre[3:]
+    r0 = np.stack([x, np.cross(z, x), z], axis=1)  # columns: R0's x, y, z axes
+    c, s = np.cos(boresight_deg * DEG), np.sin(boresight_deg * DEG)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    m = turn.T @ r0 @ turn @ r0.T
+    out = np.empty_like(vectors)
+    out[:, :3], out[:, 3:] = vectors[:, :3] @ m.T, vectors[:, 3:] @ m.T
+    return out
 
 
 def xieta_vectors(xi: np.ndarray, eta: np.ndarray) -> np.ndarray:
@@ -363,6 +426,16 @@ def _table_rows(path):
     return list(csv.DictReader(lines, skipinitialspace=True))
 
 
+def _file_centre(path):
+    """A TOML focal plane's top-level ``rotation_centre_deg = [xi0, eta0]``, else (0, 0)."""
+    if path.suffix.lower() != ".toml":
+        return (0.0, 0.0)
+    centre = tomllib.loads(_text(path)).get("rotation_centre_deg", (0.0, 0.0))
+    if not isinstance(centre, (list, tuple)):
+        raise FocalPlaneError(f"{path}: rotation_centre_deg: give [xi0, eta0] [deg]")
+    return tuple(centre)
+
+
 def _number(path, name, column, value):
     try:
         out = float(value)
@@ -509,7 +582,8 @@ def _pairs(path, names, pairs):
 
 
 def read_focalplane(path: str | Path) -> FocalPlane:
-    """A focal plane from a file: TOAST 3's HDF5 (``.h5``, ``.hdf5``) or a CSV/TOML table.
+    """A focal plane from a file: TOAST 3's HDF5 (``.h5``, ``.hdf5``) or a CSV/TOML table (a
+    TOML one may give its rotation centre, ``rotation_centre_deg = [xi0, eta0]``).
 
     Parameters
     ----------
@@ -575,6 +649,7 @@ def read_focalplane(path: str | Path) -> FocalPlane:
         gamma_deg=np.degrees(gamma[a]),
         hn_offset_deg=np.degrees(np.stack([gamma[a] - pol[a], gamma[b] - pol[b]], axis=-1)),
         source=str(path),
+        rotation_centre_deg=_file_centre(path),
     )
 
 
@@ -610,7 +685,8 @@ def focalplane_of_table(table: dict, base: str | Path) -> FocalPlane:
     """The focal plane of an ``[instrument]`` table with a ``focalplane`` key (a study's or a
     budget's): a file beside it (relative to ``base``), else a preset name
     (:func:`load_focalplane`). It gives the pairs and their angles, so the table holds nothing
-    else.
+    else but ``rotation_centre_deg`` = [xi0, eta0], the point the boresight turns about
+    (:attr:`FocalPlane.rotation_centre_deg`).
 
     Parameters
     ----------
@@ -625,10 +701,16 @@ def focalplane_of_table(table: dict, base: str | Path) -> FocalPlane:
     spec = table["focalplane"]
     if not isinstance(spec, str):
         raise FocalPlaneError("[instrument] focalplane must be a file or a preset name")
-    others = sorted(set(table) - {"focalplane"})
+    others = sorted(set(table) - {"focalplane", "rotation_centre_deg"})
     if others:
         raise FocalPlaneError(
             f"[instrument] focalplane gives the pairs and their angles: remove {others}"
         )
     beside = Path(base) / spec
-    return load_focalplane(str(beside) if beside.is_file() else spec)
+    focal = load_focalplane(str(beside) if beside.is_file() else spec)
+    if "rotation_centre_deg" not in table:
+        return focal
+    centre = table["rotation_centre_deg"]
+    if not isinstance(centre, (list, tuple)):
+        raise FocalPlaneError("[instrument] rotation_centre_deg: give [xi0, eta0] [deg]")
+    return replace(focal, rotation_centre_deg=tuple(centre))

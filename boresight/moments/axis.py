@@ -58,18 +58,46 @@ def _unit_angles(psi, nbins):
     return c, s, b
 
 
+#: coarse blocks of pixels the binning's threads are balanced over (at most; one per pixel below)
+BALANCE_BLOCKS = 12 * 64**2
+
+
+@njit
+def pixel_ranges(pixels, npix, nparts):
+    """Bounds (nparts + 1,) of pixel-index ranges holding about equal numbers of samples, from a
+    histogram of ``pixels`` (1-d; -1 skipped) over coarse blocks of pixels: the binning's
+    threads each own one range, so a field in one corner of the sky spreads over them all. The
+    sums do not depend on the ranges (each pixel's samples add in sample order, by one thread).
+    """
+    blocks = min(npix, BALANCE_BLOCKS)
+    size = (npix + blocks - 1) // blocks
+    counts = np.zeros(blocks + 1, dtype=np.int64)
+    for k in range(pixels.size):
+        if pixels[k] >= 0:
+            counts[pixels[k] // size + 1] += 1
+    cum = np.cumsum(counts)
+    bounds = np.empty(nparts + 1, dtype=np.int64)
+    bounds[0], bounds[nparts] = 0, npix
+    b = 0
+    for part in range(1, nparts):
+        target = cum[-1] * part // nparts
+        while b < blocks and cum[b] < target:
+            b += 1
+        bounds[part] = max(bounds[part - 1], min(b * size, npix))
+    return bounds
+
+
 @njit(parallel=True)
-def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, nparts):
+def _bin(pixels, cos_psi, sin_psi, angle_bin, sums, hits, occupancy, bounds):
     """Add samples to per-pixel sums of exp(i n psi) (n = 0..N_MAX), counts and angle bitmaps.
 
-    Each thread owns a range of pixel indices and scans every sample, so no two threads write the
-    same pixel; exp(i n psi) follows from exp(i psi) by multiplication. Pixel -1 (a sample left
-    out) is skipped.
+    Each thread owns a range of pixel indices, ``bounds[part]:bounds[part + 1]`` (balanced by
+    :func:`pixel_ranges`), and scans every sample, so no two threads write the same pixel;
+    exp(i n psi) follows from exp(i psi) by multiplication. Pixel -1 (a sample left out) is
+    skipped.
     """
-    npix = hits.size
-    for part in numba.prange(nparts):
-        lo = part * npix // nparts
-        hi = (part + 1) * npix // nparts
+    for part in numba.prange(bounds.size - 1):
+        lo, hi = bounds[part], bounds[part + 1]
         for k in range(pixels.size):
             p = pixels[k]
             if p < lo or p >= hi:
@@ -133,16 +161,16 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
 
 @njit(parallel=True)
 def bin_pairs(
-    pixels, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, nparts
+    pixels, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, bounds
 ):
     """:func:`_bin` of every pair's samples (m, n) together, and each pair's own per-pixel sums
     (m, npix, N_MAX + 1) and counts (m, npix), in one pass: each thread owns a range of pixel
-    indices and walks the pairs in turn, so the combined sums add in the order :func:`_bin` of
-    the pairs' samples one after another would, and no two threads write one pixel."""
-    m, npix = hits.shape
-    for part in numba.prange(nparts):
-        lo = part * npix // nparts
-        hi = (part + 1) * npix // nparts
+    indices (``bounds``, :func:`pixel_ranges`) and walks the pairs in turn, so the combined sums
+    add in the order :func:`_bin` of the pairs' samples one after another would, and no two
+    threads write one pixel."""
+    m = hits.shape[0]
+    for part in numba.prange(bounds.size - 1):
+        lo, hi = bounds[part], bounds[part + 1]
         for d in range(m):
             for k in range(pixels.shape[1]):
                 p = pixels[d, k]
@@ -314,7 +342,7 @@ class Accumulator:
             self.sums,
             self.hits,
             self.occupancy,
-            numba.get_num_threads(),
+            pixel_ranges(pixels, self.hits.size, numba.get_num_threads()),
         )
 
     def stats(self):

@@ -13,9 +13,10 @@ import numpy as np
 
 from .._util import interrupts, tasks
 from ..constants import N_MAX
+from ..instrument.focalplane import off_centre
 from ..instrument.hwp import chunk_angles
-from ..pointing import ces_chunks
-from .axis import Accumulator, ScanStats, bin_pairs, ces_hits_pairs
+from ..pointing import ces_angle_deg, ces_chunks
+from .axis import Accumulator, ScanStats, bin_pairs, ces_hits_pairs, pixel_ranges
 from .hwp import (
     BEAM_BEHIND_TERMS,
     IP_BEHIND_TERMS,
@@ -110,14 +111,14 @@ def pair_blocks(n_pairs: int, nside: int, *, per_pair: bool = False) -> list[ran
 
 
 def _block_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, per_pair, update=None):
-    """One block of pairs, ``pairs`` = (their ``vectors`` (m, 6), their angles (m,) [rad], the
-    HWP or None), over the whole
+    """One block of pairs, ``pairs`` = (their ``vectors`` (m, 6) at angle 0, their angles (m,)
+    [rad], the HWP or None, the rotation centre [deg]), over the whole
     schedule: its combined sums (an :class:`Accumulator`), its share of ``sum_sq`` and its
     pairs' weights, and where asked its pairs' hits and h_n; behind ``hwp``, of the pairs'
     reflected angles. An independent task (:mod:`boresight._util.tasks`)."""
     exclude = schedule.turnarounds == "exclude"
-    vectors, gammas, hwp = pairs
-    npix, m = 12 * nside**2, vectors.shape[0]
+    centred, gammas, hwp, centre = pairs
+    npix, m = 12 * nside**2, centred.shape[0]
     acc = Accumulator(nside, tolerance_deg)
     sums = np.zeros((m, npix, N_MAX + 1), dtype=np.complex128)
     hits = np.zeros((m, npix), dtype=np.int64)
@@ -129,9 +130,11 @@ def _block_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, per_pair,
             if hwp is None
             else chunk_angles(hwp, schedule, repeat, index, first=args[0], n=args[1])
         )
+        vectors = off_centre(centred, centre, ces_angle_deg(schedule, repeat, index))
         pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors, chi, gammas)
         interrupts.check()
-        bin_pairs(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, nparts)
+        bounds = pixel_ranges(pix.ravel(), npix, nparts)
+        bin_pairs(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, bounds)
         if update is not None:
             update(args[1] * m)
     sum_sq, weights = np.zeros((npix, N_MAX + 1)), np.zeros((m, N_MAX + 1))
@@ -244,6 +247,7 @@ def characterise_focalplane(
                     np.ascontiguousarray(vectors[b.start : b.stop]),
                     np.ascontiguousarray(gammas[b.start : b.stop]),
                     hwp,
+                    focalplane.rotation_centre_deg,
                 ),
                 nside,
                 tolerance_deg,

@@ -1,6 +1,7 @@
 """Real telescope schedules: the model (:mod:`~boresight.schedule.model`: sites, CESs, boresight
 repeats), boresight's TOML and CSV files (:mod:`~boresight.schedule.files`) and TOAST's text and
-ECSV files (:mod:`~boresight.schedule.toast`). :mod:`boresight.pointing` turns a schedule into
+ECSV files (:mod:`~boresight.schedule.toast`), SO's SAT master schedule
+(:mod:`~boresight.schedule.master`). :mod:`boresight.pointing` turns a schedule into
 pointing."""
 
 from ..validation import ScheduleError
@@ -12,6 +13,7 @@ from .model import (
     CES_METADATA,
     CES_REQUIRED,
     TURNAROUNDS,
+    Idle,
     Schedule,
     Site,
 )
@@ -23,6 +25,7 @@ __all__ = [
     "CES_LIMITS",
     "CES_METADATA",
     "CES_REQUIRED",
+    "Idle",
     "TURNAROUNDS",
     "ScanMotion",
     "Schedule",

@@ -1,5 +1,6 @@
-"""Schedule files: boresight's TOML (everything) and CSV (one CES per row), and TOAST's (read and
-written by :mod:`boresight.schedule.toast`), each recognised by its content."""
+"""Schedule files: boresight's TOML (everything) and CSV (one CES per row), TOAST's (read and
+written by :mod:`boresight.schedule.toast`) and SO's SAT master schedule
+(:mod:`boresight.schedule.master`), each recognised by its content."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from typing import TYPE_CHECKING
 from .._util import io
 from .._util.io import toml_text, tomllib
 from ..validation import ScheduleError
-from . import toast
+from . import master, toast
 from .model import CES, CES_LIMITS, CES_METADATA, CES_REQUIRED, Schedule, Site
 
 if TYPE_CHECKING:
@@ -26,19 +27,22 @@ def load_schedule(
     frame: str | None = None,
     turnarounds: str | None = None,
 ) -> Schedule:
-    """Read a schedule file: boresight's TOML or CSV, or any TOAST schedule.
+    """Read a schedule file: boresight's TOML or CSV, any TOAST schedule, or SO's SAT master
+    schedule.
 
     TOML: optional [site], sample_rate_hz, dut1_s, repeat_boresight_deg and [[ces]] tables of CES
     fields. CSV: a header naming CES fields and one CES per row. Unknown keys or columns are errors.
     A TOAST schedule (text of any version, or ECSV; see :mod:`boresight.schedule.toast`) is
-    recognised by its content, whatever its name.
+    recognised by its content, whatever its name; so is a master schedule (15 ``|``-separated
+    columns, :mod:`boresight.schedule.master`).
 
     Parameters
     ----------
     path : str or os.PathLike
     motion : boresight.toast.ScanMotion, optional
         Scan rate, acceleration and sample rate of a TOAST schedule, which its file leaves out
-        (default: ``SimGround``'s, at 20 Hz). boresight's own formats hold their own.
+        (default: ``SimGround``'s, at 20 Hz); of a master schedule, its sample rate.
+        boresight's own formats hold their own.
     frame, turnarounds : str, optional
         Replace the file's (:class:`Schedule`); a TOML schedule may give its own, the others
         take the defaults.
@@ -55,7 +59,10 @@ def load_schedule(
     path = str(path)
     if not os.path.isfile(path):
         raise ScheduleError(f"schedule not found (or not a file): {path}")
-    if toast.is_toast_schedule(path):
+    if master.is_master_schedule(path):
+        rate = (motion or toast.ScanMotion()).sample_rate_hz
+        schedule = master.read(path, sample_rate_hz=rate)
+    elif toast.is_toast_schedule(path):
         schedule = toast.read(path, motion or toast.ScanMotion())
     else:
         try:
@@ -82,7 +89,9 @@ def is_schedule(path: str) -> bool:
     -------
     bool
     """
-    if toast.is_toast_schedule(path) or str(path).endswith(".csv"):
+    if master.is_master_schedule(path) or toast.is_toast_schedule(path):
+        return True
+    if str(path).endswith(".csv"):
         return True
     try:
         return "ces" in toml_text(path)
@@ -173,7 +182,9 @@ def _toml_schedule(path):
 
 
 def schedule_format(path: str) -> str:
-    """The format of a schedule file: "toast", "csv" or "toml"."""
+    """The format of a schedule file: "so-master", "toast", "csv" or "toml"."""
+    if master.is_master_schedule(path):
+        return "so-master"
     if toast.is_toast_schedule(path):
         return "toast"
     return "csv" if str(path).endswith(".csv") else "toml"
@@ -186,10 +197,15 @@ def write_schedule(schedule: Schedule, path: str, fmt: str) -> None:
     ----------
     schedule : Schedule
     path : str
-    fmt : {"toml", "csv", "toast"}
-        TOML keeps everything; CSV holds the CESs only (the default site and sample rate), with
-        the repeats as rows; TOAST as :func:`boresight.toast.write`.
+    fmt : {"toml", "csv", "toast", "so-master"}
+        TOML keeps everything but the idle blocks and CES labels of a master schedule; CSV holds
+        the CESs only (the default site and sample rate), with the repeats as rows; TOAST as
+        :func:`boresight.schedule.toast.write`; SO's master schedule as
+        :func:`boresight.schedule.master.write`.
     """
+    if fmt == "so-master":
+        master.write(schedule, path)
+        return
     if fmt == "toast":
         toast.write(schedule, path)
         return
@@ -199,7 +215,7 @@ def write_schedule(schedule: Schedule, path: str, fmt: str) -> None:
         io.write_csv(path, rows, keys)
         return
     if fmt != "toml":
-        raise ValueError(f"schedule format must be toml, csv or toast, got {fmt!r}")
+        raise ValueError(f"schedule format must be toml, csv, toast or so-master, got {fmt!r}")
     s = schedule.site
 
     def value(v):

@@ -75,6 +75,13 @@ class CES:
         Patch name (TOAST's), kept as metadata.
     scan_index, subscan_index : int
         TOAST's pass and sub-pass of the patch, kept as metadata.
+    hwp_dir : int
+        Direction of the half-wave plate's spin: 1 forward (SO's ``hwp_dir`` 1, counter-clockwise,
+        positive frequency), 0 reversed. A change between CESs stops and restarts the plate
+        (:mod:`boresight.design.operations`).
+    labels : tuple of (str, str)
+        Labels another format carries verbatim (SO's master schedule: its priority, type and uid);
+        boresight's TOML and CSV leave them out.
     """
 
     start_unix: float
@@ -88,6 +95,8 @@ class CES:
     name: str = "ces"
     scan_index: int = 0
     subscan_index: int = 0
+    hwp_dir: int = 1
+    labels: tuple = ()
 
     def __post_init__(self):
         for name, (lo, hi) in CES_LIMITS.items():
@@ -95,6 +104,13 @@ class CES:
         validation.label("CES name", self.name)
         validation.integer("CES scan_index", self.scan_index, 0)
         validation.integer("CES subscan_index", self.subscan_index, 0)
+        if self.hwp_dir not in (0, 1) or isinstance(self.hwp_dir, bool):
+            raise ValueError(f"CES hwp_dir = {self.hwp_dir!r} must be 1 (forward) or 0 (reversed)")
+        if not all(
+            isinstance(pair, tuple) and len(pair) == 2 and all(isinstance(x, str) for x in pair)
+            for pair in self.labels
+        ):
+            raise ValueError("CES labels must be (key, text) pairs of strings")
         if not 0 < self.elevation_deg < 90:
             raise ValueError(f"CES elevation_deg = {self.elevation_deg} must lie in (0, 90)")
         if self.duration_s <= 0 or self.speed_deg_s <= 0:
@@ -118,8 +134,26 @@ CES_LIMITS = {
 CES_REQUIRED = ("start_unix", "duration_s", "elevation_deg", "az_centre_deg", "az_throw_deg")
 
 
-#: the CES labels a schedule may give (TOAST's patch name, pass and sub-pass)
-CES_METADATA = ("name", "scan_index", "subscan_index")
+#: the CES labels a schedule may give (TOAST's patch name, pass and sub-pass; the HWP's direction)
+CES_METADATA = ("name", "scan_index", "subscan_index", "hwp_dir")
+
+
+@dataclass(frozen=True)
+class Idle:
+    """A time the telescope does not observe, kept from a file that lists it (SO's master
+    schedule's "None" rows) and written back unchanged.
+
+    Parameters
+    ----------
+    start_unix, stop_unix : float
+        Its start and end [UTC seconds since 1970].
+    fields : tuple of (str, str)
+        The file's columns and their text, verbatim.
+    """
+
+    start_unix: float
+    stop_unix: float
+    fields: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -139,6 +173,8 @@ class Schedule:
         The sky frame of its pointing (:mod:`boresight.frames`).
     turnarounds : {"include", "exclude"}
         Keep or leave out the samples of the turnarounds (TOAST's map-making leaves them out).
+    idle : tuple of Idle
+        The times its file lists as not observing (SO's master schedule), kept to write back.
     """
 
     ces: tuple
@@ -148,6 +184,7 @@ class Schedule:
     repeat_boresight_deg: tuple = (0.0,)  #: the CES set is observed once per angle [deg]
     frame: str = "icrs"
     turnarounds: str = "include"
+    idle: tuple = ()
 
     def __post_init__(self):
         frames.check_frame(self.frame)

@@ -101,7 +101,7 @@ class ScanMotion:
         return 2 * self.mount_speed(elevation_deg) / self.accel_deg_s2
 
 
-def _text(path):
+def file_text(path: str | os.PathLike) -> str | None:
     """A text file's content, a UTF-8 byte-order mark dropped; None if it cannot be read."""
     try:
         with open(path, encoding="utf-8-sig") as f:
@@ -124,7 +124,7 @@ def is_toast_schedule(path: str | os.PathLike) -> bool:
     -------
     bool
     """
-    text = _text(path)
+    text = file_text(path)
     if text is None:
         return False
     if text.startswith("# %ECSV"):
@@ -174,7 +174,7 @@ def read(path: str | os.PathLike, motion: ScanMotion = ScanMotion()) -> Schedule
     path = str(path)
     if not os.path.isfile(path):
         raise ScheduleError(f"schedule not found (or not a file): {path}")
-    text = _text(path)
+    text = file_text(path)
     if text is None:
         raise ScheduleError(f"TOAST schedule {path} is not readable UTF-8 text")
     ecsv = text.startswith("# %ECSV")
@@ -219,9 +219,14 @@ def _parse_text(lines, path):
 
 def _site(fields, where):
     if len(fields) != 5:
+        hint = (
+            "; 15 fields is SO's master schedule, which load_schedule reads"
+            if len(fields) == 15
+            else ""
+        )
         raise ScheduleError(
             f"{where}: the site line needs 5 fields (site, telescope, latitude, longitude, "
-            f"altitude), got {len(fields)}"
+            f"altitude), got {len(fields)}{hint}"
         )
     try:
         lat, lon, alt = (float(x) for x in fields[2:])

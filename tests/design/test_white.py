@@ -121,7 +121,9 @@ def test_design_command_on_the_deep_example(tmp_path):
     rows = {
         r["strategy"]: float(r["delta_r"]) for r in csv.DictReader(open(out / "strategies.csv"))
     }
-    assert min(rows, key=rows.get) == "optimised" and len(rows) == 7
+    assert (
+        min(rows, key=rows.get) == "optimised" and len(rows) == 8
+    )  # 6 baselines, as given, optimised
     checked = list(csv.DictReader(open(out / "validation.csv")))
     assert {r["strategy"] for r in checked} == set(rows)
     for row in checked:
@@ -228,7 +230,7 @@ def test_design_on_the_axis_focal_plane_is_the_on_axis_design(tmp_path, schedule
     )
     out = run_design(tmp_path, schedule, budget, "--no-validate")
     rows = list(csv.DictReader(open(out / "strategies.csv")))
-    assert len(rows) == 7
+    assert len(rows) == 8
     for row in rows:
         total, axis = float(row["delta_r"]), float(row["delta_r_on_axis"])
         assert abs(total - axis) < 1e-8 * abs(axis), row["strategy"]
@@ -297,7 +299,7 @@ def test_a_design_read_exactly_validates_with_the_samples_offsets(tmp_path, sche
         r["strategy"]: float(r["delta_r"]) for r in csv.DictReader(open(out / "strategies.csv"))
     }
     checked = list(csv.DictReader(open(out / "validation.csv")))
-    assert len(checked) == 7
+    assert len(checked) == 8
     for row in checked:
         assert float(row["predicted_delta_r"]) == pytest.approx(
             objective[row["strategy"]], rel=1e-9, abs=1e-15

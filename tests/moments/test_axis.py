@@ -47,3 +47,43 @@ def test_fused_schedule_characterisation_equals_streamed():
     assert np.max(np.abs(a.h - b.h)) < 1e-12
     # Angle bins agree except where rounding moves an angle across a bin edge (1e-16 of 1 deg).
     assert np.mean(a.n_distinct != b.n_distinct) < 1e-3
+
+
+def test_binning_threads_own_balanced_pixel_ranges():
+    """A southern field lies in one corner of RING's pixel indices: the uniform halves put every
+    hit in one thread's range, the balanced ranges about half in each; whatever the ranges or the
+    threads, every pixel's sums are the same to the bit (each pixel's samples add in order)."""
+    import numba
+
+    from boresight.moments.axis import Accumulator, _bin, pixel_ranges
+
+    sched = night_schedule(rate=4)
+    pix, c, s, b = [], [], [], []
+    for args in pointing.ces_chunks(sched):
+        p, cc, ss, bb = moments.axis.ces_hits(*args[2], 64, 360, False)
+        pix.append(p), c.append(cc), s.append(ss), b.append(bb)
+    pix, c, s, b = (np.concatenate(x) for x in (pix, c, s, b))
+    npix = 12 * 64**2
+    uniform = np.array([0, npix // 2, npix])
+    halves = [np.sum((pix >= lo) & (pix < hi)) for lo, hi in zip(uniform[:-1], uniform[1:])]
+    assert min(halves) == 0  # the field is in one half
+    bounds = pixel_ranges(pix, npix, 2)
+    shares = [np.sum((pix >= lo) & (pix < hi)) for lo, hi in zip(bounds[:-1], bounds[1:])]
+    assert abs(shares[0] - shares[1]) < 0.05 * pix.size
+    assert np.array_equal(pixel_ranges(pix, npix, 1), [0, npix])
+    results = []
+    for ranges in (uniform, bounds, pixel_ranges(pix, npix, 7)):
+        acc = Accumulator(64, 1.0)
+        _bin(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, ranges)
+        results.append(acc)
+    for other in results[1:]:
+        assert np.array_equal(other.sums, results[0].sums)
+        assert np.array_equal(other.hits, results[0].hits)
+        assert np.array_equal(other.occupancy, results[0].occupancy)
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        single = moments.characterise_schedule(sched, 64)
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(single.h, moments.characterise_schedule(sched, 64).h)
