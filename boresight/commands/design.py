@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+from datetime import datetime, timezone
 from typing import TYPE_CHECKING
 
 import healpy as hp
@@ -104,6 +105,7 @@ def run(
     budget = _budget(budget_path, focalplane)
     schedule = load_schedule(schedule_path, motion, frame=frame, turnarounds=turnarounds)
     check_sampling(budget.hwp, schedule.sample_rate_hz)
+    _check_given(budget, schedule, schedule_path, scored=not search)
     inputs = [budget_path, schedule_path, *getattr(budget.focalplane, "files", [])]
     io.check_output_dir(out_dir, force, inputs)
     timer = provenance.Timer(log)
@@ -184,17 +186,35 @@ def _manifest(result, budget, schedule, paths, timer, estimate):
     )
 
 
+def _check_given(budget, schedule, path, *, scored):
+    """The schedule's own angles against the budget's angle rules: where it is scored as given,
+    a CES that breaks one is an error naming the file, the CES and its angle; before a search,
+    which gives every CES an allowed angle, a warning."""
+    if budget.constraints is None:
+        return
+    broken = []
+    for i, c in enumerate(schedule.expanded()):
+        for rule in budget.constraints.angles:
+            if rule.applies(c) and c.boresight_deg not in rule.angles_deg:
+                when = datetime.fromtimestamp(c.start_unix, timezone.utc).strftime(
+                    "%Y-%m-%d %H:%M:%S"
+                )
+                broken.append(
+                    f"schedule {path}, CES {i + 1} (start {when} UTC, elevation "
+                    f"{c.elevation_deg:g} deg), rotation {c.boresight_deg:g} deg: outside the "
+                    f"budget's {rule}"
+                )
+    if broken and scored:
+        raise ConfigError(broken[0] + (f" (and {len(broken) - 1} more)" if len(broken) > 1 else ""))
+    for line in broken[:3]:
+        log.warning("%s; the design gives it an allowed angle", line)
+
+
 def _budget(budget_path, focalplane):
     """The budget, its focal plane replaced by ``focalplane`` where given and checked alike."""
     budget = load_budget(budget_path)
     if focalplane is None:
         return budget
-    if not focalplane.centred:
-        raise ConfigError(
-            "--rotation-centre with design: a design of a focal plane whose rotation centre is "
-            "off its centre is not made yet (its per-unit moments turn by phases only about the "
-            "centre)"
-        )
     if budget.operations is not None or budget.constraints is not None:
         raise ConfigError(
             f"--focalplane with budget {budget_path}'s [operations] or [constraints]: they bind a "

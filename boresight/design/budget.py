@@ -127,13 +127,6 @@ def load_budget(path: str) -> Budget:
                 focal = focalplane_of_table(table, Path(path).parent)
             except ConfigError as err:
                 raise ConfigError(f"budget {path}: {err}") from None
-            if focal is not None and not focal.centred:
-                raise ConfigError(
-                    f"budget {path}: [instrument] rotation_centre_deg: a design of a focal plane "
-                    "whose rotation centre is off its centre is not made yet (its per-unit "
-                    "moments turn by phases only about the centre); scan-stats and suppression "
-                    "take it"
-                )
             table = {}
         try:
             tables[name] = build_section(name, cls, table)

@@ -252,13 +252,15 @@ def design(
         seen = _Observed(budget, schedule, moments, obj, theory)
         if search_angles and focal is None and found.interrupted is None:
             with timer("the search again on the CESs as observed"):
-                found = _search_observed(budget, seen, found, startable, plate)
+                found = _search_observed(budget, seen, found, startable, plate, progress)
     steps = {name: plate.baseline for name in strategies}
     if search_angles:
         strategies["optimised"] = found.angles_deg
         steps["optimised"] = found.steps_deg
     rows, h_maps = [], {}
-    for name, angles in strategies.items():
+    each = tqdm(strategies.items(), total=len(strategies), desc="each strategy as observed",
+                unit="strategy", disable=not (progress and price is not None))  # fmt: skip
+    for name, angles in each:
         h = moments.h(angles)
         h_maps[name] = h
         dr = obj.delta_r(angles, steps[name])
@@ -308,7 +310,7 @@ def design(
     costs = []
     if feasibility is not None and search_angles and stopped is None and focal is None:
         with timer("the cost of each constraint"):
-            costs = _constraint_costs(budget, moments, obj, found, start, plate)
+            costs = _constraint_costs(budget, moments, obj, found, start, plate, progress)
     validation, checked = [], "skipped"
     if validate and stopped is None:
         try:
@@ -380,7 +382,7 @@ class _Observed:
         return self.objective(angles_deg)(angles_deg, steps_deg)
 
 
-def _search_observed(budget, seen, found, startable, plate):
+def _search_observed(budget, seen, found, startable, plate, progress=False):
     """The search again, each time on the moments of the CESs as the previous design observes
     them (the objective credits each CES whole, a rotation's lost samples included), until the
     lost time repeats or :data:`OBSERVED_ROUNDS`; the design kept is the one whose objective on
@@ -390,7 +392,10 @@ def _search_observed(budget, seen, found, startable, plate):
     pool += [(a, plate.baseline) for a in startable.values()]
     pool.append((_stretch_search(seen.obj, opts, startable, found), found.steps_deg))
     last = found
+    bar = tqdm(total=OBSERVED_ROUNDS, desc="search on the CESs as observed", unit="round",
+               disable=not progress)  # fmt: skip
     for _ in range(OBSERVED_ROUNDS):
+        bar.update()
         obj = seen.objective(last.angles_deg)
         if obj is seen.obj:  # nothing lost: the objective was exact
             break
@@ -403,7 +408,9 @@ def _search_observed(budget, seen, found, startable, plate):
         if seen.objective(again.angles_deg) is obj:  # the same lost time: a fixed point
             break
         last = again
-    totals = [seen.total(a, b) for a, b in pool]
+    bar.close()
+    totals = [seen.total(a, b) for a, b in tqdm(pool, desc="each candidate as observed",
+                                                unit="design", disable=not progress)]  # fmt: skip
     k = int(np.argmin(totals))
     log.info(
         "on the CESs as observed: the search's first design %.4g, the kept one %.4g",
@@ -453,12 +460,14 @@ def _feasibility(budget, moments):
     return out
 
 
-def _constraint_costs(budget, moments, obj, found, start, plate):
+def _constraint_costs(budget, moments, obj, found, start, plate, progress=False):
     """What each constraint costs: the search rerun without it (from the same start and
     seed), its objective's rise from that one's."""
     opts, constraints = budget.design, budget.constraints
     rows = []
-    for k, name in enumerate(constraints.names):
+    names = tqdm(constraints.names, desc="each constraint's cost", unit="search",
+                 disable=not progress)  # fmt: skip
+    for k, name in enumerate(names):
         loose = _feasibility(
             dataclasses.replace(budget, constraints=constraints.without(k)), moments
         )

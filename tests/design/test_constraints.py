@@ -135,3 +135,27 @@ def test_budget_constraints_table(tmp_path):
     schedule = Schedule(rows_at([40, 50]), sample_rate_hz=1.0)
     with pytest.raises(ConfigError, match="none of the design's angles_deg"):
         design_job(budget_module.load_budget(path), schedule, timer=Timer(logging.getLogger("t")))
+
+
+def test_a_plan_that_breaks_a_rule_is_named(tmp_path, mixed, caplog, capsys):
+    """Scored as given (--no-search), a CES whose own angle breaks a rule is one error naming
+    the file, the CES, its elevation and its angle; a search warns and gives it an allowed one."""
+    from boresight import cli
+    from boresight.schedule import write_schedule
+
+    ces = tuple(replace(c, boresight_deg=45.0) for c in mixed.ces)
+    src = tmp_path / "plan.toml"
+    write_schedule(replace(mixed, ces=ces, repeat_boresight_deg=(0.0,)), str(src), "toml")
+    budget = budget_file(tmp_path, constraints=LOW_ZERO, design="nside = 32\nsweeps = 2")
+    args = ["-q", "design", budget, str(src), "--no-validate"]
+    assert cli.main([*args, "--out", str(tmp_path / "a"), "--no-search"]) == 2
+    error = capsys.readouterr().err
+    assert (
+        f"schedule {src}, CES 2 (start" in error and "elevation 40 deg), rotation 45 deg" in error
+    )
+    assert not (tmp_path / "a").exists()
+    assert cli.main([*args, "--out", str(tmp_path / "b")]) == 0
+    assert (
+        "CES 2 (start" in caplog.text
+        and "rotation 45 deg: outside the budget's angles {0}" in caplog.text
+    )

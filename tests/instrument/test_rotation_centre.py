@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from boresight import pointing
-from boresight.config import ConfigError
 from boresight.instrument import focalplane
 from boresight.instrument.focalplane import FocalPlaneError, off_centre, xieta_vectors
 from boresight.pointing import offset_sample
@@ -152,9 +151,7 @@ def test_the_centre_of_rotation_stays_put():
 
 def test_the_offset_reaches_every_input(tmp_path):
     """A TOML focal plane's rotation_centre_deg, [instrument] rotation_centre_deg beside
-    focalplane, --rotation-centre, and clear errors
-    for a bad one; a design of a focal plane turning off its centre is refused (its per-unit
-    moments turn by phases only about the centre)."""
+    focalplane (a study's or a budget's), --rotation-centre, and clear errors for a bad one."""
     from helpers import budget_file
 
     from boresight import cli
@@ -177,10 +174,11 @@ def test_the_offset_reaches_every_input(tmp_path):
     with pytest.raises(FocalPlaneError, match="rotation_centre_deg"):
         focalplane.focalplane_of_table({**table, "rotation_centre_deg": 3.0}, tmp_path)
     budget = budget_file(
-        tmp_path, instrument='focalplane = "hexagon:7:10"\nrotation_centre_deg = [0.5, 0.0]'
+        tmp_path,
+        systematics="dg = 0.01",
+        instrument='focalplane = "hexagon:7:10"\nrotation_centre_deg = [0.5, 0.0]',
     )
-    with pytest.raises(ConfigError, match="rotation centre"):
-        budget_module.load_budget(budget)
+    assert budget_module.load_budget(budget).focalplane.rotation_centre_deg == (0.5, 0.0)
     src = tmp_path / "s.toml"
     src.write_text("[[ces]]\nstart_unix = 1.8e9\nduration_s = 60\nelevation_deg = 50\n"
                    "az_centre_deg = 180\naz_throw_deg = 10\n")  # fmt: skip
@@ -189,3 +187,22 @@ def test_the_offset_reaches_every_input(tmp_path):
     assert cli.main([*args, "--rotation-centre", "0.5"]) == 2
     assert cli.main([*args, "--rotation-centre", "0.5,0"]) == 2  # needs --focalplane
     assert cli.main([*args, "--focalplane", "hexagon:7:10", "--rotation-centre", "0.5,0"]) == 0
+
+
+def test_a_design_of_an_off_centre_focal_plane_scans_each_angle():
+    """The focal-plane design builds every unit's sums at every allowed angle with the pairs'
+    own pointing (design.focalplane.unit_sums): with the rotation centre off the middle, the
+    sums at 0 deg are the centred plane's and those at 90 deg are not."""
+    from boresight.design import unit_moments
+    from boresight.design.focalplane import unit_sums
+
+    ces = (CES(1.8e9, 300.0, 50.0, 150.0, 20.0, speed_deg_s=1.0),)
+    schedule = Schedule(ces, sample_rate_hz=2.0)
+    moments = unit_moments(schedule, 32, "ces")
+    plane = focalplane.hexagon(7, 10.0)
+    off = dataclasses.replace(plane, rotation_centre_deg=(3.0, -2.0))
+    centred = unit_sums(moments, schedule, plane, (0.0, 90.0))
+    turned = unit_sums(moments, schedule, off, (0.0, 90.0))
+    assert np.array_equal(centred.pixels[0][0], turned.pixels[0][0])
+    assert np.array_equal(centred.sums[0][0], turned.sums[0][0])
+    assert not np.array_equal(centred.pixels[0][1], turned.pixels[0][1])
