@@ -199,10 +199,12 @@ def _check_given(budget, schedule, path, *, scored):
                 when = datetime.fromtimestamp(c.start_unix, timezone.utc).strftime(
                     "%Y-%m-%d %H:%M:%S"
                 )
+                uid = dict(c.labels).get("uid")  # a master schedule's row
+                named = f", uid {uid}" if uid else ""
                 broken.append(
                     f"schedule {path}, CES {i + 1} (start {when} UTC, elevation "
-                    f"{c.elevation_deg:g} deg), rotation {c.boresight_deg:g} deg: outside the "
-                    f"budget's {rule}"
+                    f"{c.elevation_deg:g} deg{named}), rotation {c.boresight_deg:g} deg: outside "
+                    f"the budget's {rule}"
                 )
     if broken and scored:
         raise ConfigError(broken[0] + (f" (and {len(broken) - 1} more)" if len(broken) > 1 else ""))
