@@ -151,13 +151,21 @@ class Feasibility:
         moved = (np.abs(np.diff(angle)) > self.tolerance) & self.same_session
         return np.bincount(self.day[moved], minlength=self.n_days)
 
+    def days_ok(self, angles_deg: np.ndarray) -> bool:
+        """Whether every day keeps the most changes (the search's check of a move, whose moved
+        units' angles :meth:`unit_ok` checks)."""
+        most = self.constraints.max_changes_per_day
+        if most is None or not self.day.size:
+            return True
+        return bool(self.changes_per_day(angles_deg).max(initial=0) <= most)
+
     def violations(self, angles_deg: np.ndarray) -> int:
         """Units at an angle their rules do not allow, and days over the most changes."""
         bad = sum(not self.unit_ok(u, a) for u, a in enumerate(angles_deg))
         most = self.constraints.max_changes_per_day
         if most is not None and self.day.size:
             bad += int(np.sum(self.changes_per_day(angles_deg) > most))
-        return bad
+        return int(bad)
 
     def ok(self, angles_deg: np.ndarray) -> bool:
         return self.violations(angles_deg) == 0

@@ -744,11 +744,11 @@ def change_cost_delta(obj, choice, u, opts):
             trial[u] = np.atleast_1d(a)[0]
             out[k] += price.value(trial) - now
     feasibility = getattr(obj, "feasibility", None)
-    if feasibility is not None:
+    if feasibility is not None:  # only the moved unit's rules and the days can break
         trial = _angles(choice)
         for k, a in enumerate(opts):
             trial[u] = np.atleast_1d(a)[0]
-            if not (feasibility.unit_ok(u, trial[u]) and feasibility.ok(trial)):
+            if not (feasibility.unit_ok(u, trial[u]) and feasibility.days_ok(trial)):
                 out[k] = np.inf
     return out
 
@@ -774,12 +774,16 @@ def pair_change_cost_delta(obj, choice, u, opts):
                 trial[u], trial[v] = np.atleast_1d(a)[0], np.atleast_1d(b)[0]
                 out[i, j] += price.value(trial) - now
     feasibility = getattr(obj, "feasibility", None)
-    if feasibility is not None:
+    if feasibility is not None:  # only the moved units' rules and the days can break
         trial = _angles(choice)
         for i, a in enumerate(opts):
             for j, b in enumerate(opts):
                 trial[u], trial[v] = np.atleast_1d(a)[0], np.atleast_1d(b)[0]
-                if not feasibility.ok(trial):
+                if not (
+                    feasibility.unit_ok(u, trial[u])
+                    and feasibility.unit_ok(v, trial[v])
+                    and feasibility.days_ok(trial)
+                ):
                     out[i, j] = np.inf
     return out
 

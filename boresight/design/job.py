@@ -146,18 +146,20 @@ def design(
     DesignResult
     """
     focal, opts = budget.focalplane, budget.design
+    if focal is not None and not search_angles:
+        raise ConfigError("--no-search scores pairs on the axis, not a focal plane yet")
     theory = load_spectra()
     with timer("per-unit spin moments"):
         exact = opts.evaluation == "exact"
         moments = unit_moments(schedule, opts.nside, opts.group, centroids=exact)
         plate = Plate.of(budget, schedule, moments)
-    sigma = sigma_r(budget.noise, theory, np.array([R_RANGE[0], R_RANGE[1] + 1]))
+    edges = np.array([R_RANGE[0], R_RANGE[1] + 1])  # sigma(r)'s band
+    sigma = sigma_r(budget.noise, theory, edges)
     price = None
     if budget.operations is not None:
         price = TimePrice(
-            moments.rows, moments.units, budget.operations, budget.noise, theory,
-            np.array([R_RANGE[0], R_RANGE[1] + 1]),
-        )  # fmt: skip
+            moments.rows, moments.units, budget.operations, budget.noise, theory, edges
+        )
     with timer("objective"):
         obj = exact_objective(
             moments,
@@ -223,8 +225,6 @@ def design(
     bar = tqdm(total=total, desc="design search", unit="unit", disable=not progress)
     tick = bar.update if progress else None
     if not search_angles:
-        if focal is not None:
-            raise ConfigError("--no-search scores pairs on the axis, not a focal plane yet")
         value = dataclasses.replace(obj, feasibility=None)(strategies[AS_GIVEN], plate.baseline)
         found = Design(
             strategies[AS_GIVEN], value, [dict(start=0, sweep=0, objective=value, moves=0)],

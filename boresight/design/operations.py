@@ -171,10 +171,10 @@ class TimePrice:
         gap = self.start[1:] - self.stop[:-1]
         cut = (gap < 0) | (gap >= full)  # a new session, or a gap that holds a rotation
         segment = np.concatenate([[0], np.cumsum(cut)])
+        units, first = np.unique(self.unit_of, return_index=True)  # each unit's first row
         out = {}
-        for u in range(int(self.unit_of.max()) + 1):
-            first = int(np.flatnonzero(self.unit_of == u)[0])
-            out.setdefault(int(segment[first]), []).append(u)
+        for u, row in zip(units, first):
+            out.setdefault(int(segment[row]), []).append(int(u))
         return list(out.values())
 
     def lost_s(self, angles_deg: np.ndarray) -> float:
@@ -267,8 +267,8 @@ def observed(rows, lost_s: np.ndarray, sample_rate_hz: float):
 
 
 def shortened(rows, lost_s: np.ndarray):
-    """The CESs with the time the operations eat cut from their starts; those lost whole
-    dropped.
+    """The CESs with the time the operations eat cut from their starts, those eaten whole left
+    out: :func:`observed`'s CESs, less its one-sample stand-ins.
 
     Parameters
     ----------
@@ -279,12 +279,8 @@ def shortened(rows, lost_s: np.ndarray):
     -------
     tuple of boresight.schedule.CES
     """
-    out = []
-    for c, lost in zip(rows, lost_s):
-        lost = float(lost)
-        if lost < c.duration_s:
-            out.append(replace(c, start_unix=c.start_unix + lost, duration_s=c.duration_s - lost))
-    return tuple(out)
+    kept = observed(rows, lost_s, 1.0)
+    return tuple(k for k, c, lost in zip(kept, rows, lost_s) if lost < c.duration_s)
 
 
 @njit

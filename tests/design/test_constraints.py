@@ -52,7 +52,8 @@ def test_changes_per_day_by_hand():
     feas = Feasibility(Constraints(max_changes_per_day=2), rows, [[i] for i in range(8)])
     angles = np.array([0, 45, 45, 0, 0.5, 90, 0, 0])
     np.testing.assert_array_equal(feas.changes_per_day(angles), [3, 1])
-    assert feas.violations(angles) == 1
+    assert feas.violations(angles) == 1 and not feas.days_ok(angles)
+    assert feas.days_ok(np.where(angles == 90, 0.5, angles))
     assert feas.ok(np.where(angles == 90, 0.5, angles))  # 0.5 -> 0 is within the tolerance
     assert feas.ok([0, 45, 45, 45, 45, 90, 90, 90])
     repeated = Schedule(rows[:2], repeat_boresight_deg=(0.0, 90.0)).expanded()

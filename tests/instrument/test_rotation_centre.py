@@ -125,7 +125,7 @@ def test_the_centre_of_rotation_stays_put():
     fp = focalplane.FocalPlane(
         names=("at_centre", "middle"),
         detectors=(("a1", "b1"), ("a2", "b2")),
-        xi_deg=np.array([np.degrees(np.sin(np.radians(0))) + centre[0], 0.0]),
+        xi_deg=np.array([centre[0], 0.0]),
         eta_deg=np.array([centre[1], 0.0]),
         gamma_deg=np.zeros(2),
         hn_offset_deg=np.zeros((2, 2)),
@@ -206,3 +206,24 @@ def test_a_design_of_an_off_centre_focal_plane_scans_each_angle():
     assert np.array_equal(centred.pixels[0][0], turned.pixels[0][0])
     assert np.array_equal(centred.sums[0][0], turned.sums[0][0])
     assert not np.array_equal(centred.pixels[0][1], turned.pixels[0][1])
+
+
+def test_the_quaternion_algebra_is_so3gs():
+    """The reproduction above against so3g itself (so3g.proj.quat, spt3g's quaternions):
+    products, rotation_xieta, rotation_lonlat and decompose_lonlat equal to 1e-12."""
+    quat = pytest.importorskip("so3g.proj.quat")
+    rng = np.random.default_rng(3)
+
+    def array(q):
+        return np.array([q.a, q.b, q.c, q.d])
+
+    for xi, eta, gamma, lon, lat, psi in rng.uniform(-0.3, 0.3, (20, 6)):
+        theirs = quat.rotation_lonlat(lon, lat, psi) * quat.rotation_xieta(xi, eta, gamma)
+        ours = mult(rotation_lonlat(lon, lat, psi), rotation_xieta(xi, eta, gamma))
+        np.testing.assert_allclose(array(theirs), ours, atol=1e-12)
+        np.testing.assert_allclose(array(quat.euler(2, psi)), euler(2, psi), atol=1e-15)
+        np.testing.assert_allclose(
+            wrap(np.array(quat.decompose_lonlat(theirs)) - np.array(decompose_lonlat(ours))),
+            0,
+            atol=1e-12,
+        )
