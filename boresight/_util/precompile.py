@@ -121,11 +121,18 @@ KERNELS = {
         Kernel(
             "moments.axis",
             "bin_pairs",
-            (nt.int64[:, ::1], _F2, _F2, nt.int32[:, ::1], _C2, _I1, _U2)
+            (nt.int64[:, ::1], nt.int64[:, ::1], _F2, _F2, nt.int32[:, ::1], _C2, _I1, _U2)
             + (nt.complex128[:, :, ::1], nt.int64[:, ::1], _I1),
             1.0,
         ),
         Kernel("moments.axis", "pixel_ranges", (_I1, nt.int64, nt.int64), 0.3),
+        Kernel("moments.observed", "_assign", (_I1, nt.int32[::1], _I1, nt.int64), 0.3),
+        Kernel(
+            "moments.focalplane",
+            "_pair_sums",
+            (nt.complex128[:, :, ::1], nt.int64[:, ::1], _I1, nt.bool_),
+            0.8,
+        ),
         Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
         Kernel("kernels.pixels", "ang2pix_array", (nt.int64, _F1, _F1), 1.6),
         Kernel(
@@ -149,7 +156,11 @@ _JOBS = {
         ("interpolate_interleaved", "_scatter"),
     ),
     "schedule-stats": (("ces_hits", "_bin", "_runs", "pixel_ranges"), ()),
-    "focalplane-stats": (("ces_hits_pairs", "bin_pairs", "_runs", "pixel_ranges"), ()),
+    "focalplane-stats": (
+        ("ces_hits", "ces_hits_pairs", "_assign", "bin_pairs", "_pair_sums", "_runs")
+        + ("pixel_ranges",),
+        (),
+    ),
 }
 
 

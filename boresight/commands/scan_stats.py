@@ -204,13 +204,19 @@ def _estimate(schedule, nside, *, focalplane, per_detector, hwp):
     """The run's memory and time estimate: the pairs pointed, the per-pair maps held at once
     (with ``per_detector`` every pair's), the plate's moments."""
     pairs = 0 if focalplane is None else focalplane.n_pairs
-    blocks = scanstats.pair_blocks(pairs, nside, per_pair=per_detector) if pairs else []
+    observed = scanstats.observed_pixels(schedule, focalplane, nside) if pairs else None
+    blocks = (
+        scanstats.pair_blocks(pairs, nside, per_pair=per_detector, observed=observed)
+        if pairs
+        else []
+    )
     estimate = resources.schedule_estimate(
         "schedule-stats",
         schedule,
         nside,
         pointed_pairs=pairs,
         pair_maps=max((len(b) for b in blocks), default=0),  # with per_detector: every pair
+        observed_pixels=observed,
         hwp_terms=len(scanstats.HWP_TERMS) if hwp is not None and hwp.present else 0,
     )
     return estimate

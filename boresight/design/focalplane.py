@@ -144,9 +144,9 @@ def unit_sums(
             rows = tuple(replace(moments.rows[i], boresight_deg=float(a)) for i in idx)
             one = replace(schedule, ces=rows, repeat_boresight_deg=(0.0,))
             stats = characterise_focalplane(one, focal, moments.nside, per_pair=True)
-            seen = np.flatnonzero(stats.combined.hits)
-            hits = stats.pair_hits[:, seen].astype(float)
-            s = stats.pair_h[:, :, seen] * hits[:, None, :]
+            seen = stats.observed
+            hits = stats.observed_pair_hits.astype(float)
+            s = stats.observed_pair_h * hits[:, None, :]
             s[:, 0] = hits
             pixels[-1].append(seen)
             sums[-1].append(s)

@@ -317,6 +317,7 @@ def schedule_estimate(
     fwhm_arcmin: float = 0.0,
     pointed_pairs: int = 0,
     pair_maps: int = 0,
+    observed_pixels: int | None = None,
     design_units: int = 0,
     hwp_terms: int = 0,
 ) -> Estimate:
@@ -340,6 +341,9 @@ def schedule_estimate(
         Pairs of a focal plane pointed each from its own place (0: the boresight alone).
     pair_maps : int
         Per-pair maps held at once (:func:`boresight.moments.pair_blocks`).
+    observed_pixels : int, optional
+        The pixels those maps are held on (:func:`boresight.moments.observed_pixels`; default
+        the whole sky).
     hwp_terms : int
         The h_{n,m} a schedule's statistics behind a HWP make (:data:`HWP_TERM_BYTES` a pixel
         each).
@@ -364,7 +368,9 @@ def schedule_estimate(
     if design_units:
         parts["unit alm"] = 16.0 * design_units * 4 * 2 * _n_alm(2 * lmax)
     if pair_maps:
-        parts["pair maps"] = 88.0 * 12 * nside**2 * pair_maps  # sums (5 complex) and hits
+        observed = 12.0 * nside**2 if observed_pixels is None else float(observed_pixels)
+        # sums (5 complex) and hits per pair on the observed pixels, and the pixels' slot table
+        parts["pair maps"] = 88.0 * observed * pair_maps + 4.0 * 12 * nside**2
         parts["chunk"] *= 28.0 / 48.0  # pixel, cos, sin, angle bin per pair-sample
     samples = float(schedule.n_samples)
     if pointed_pairs:

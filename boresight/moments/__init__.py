@@ -16,6 +16,7 @@ from .focalplane import (
     PAIR_BLOCK_BYTES,
     FocalPlaneStats,
     characterise_focalplane,
+    observed_pixels,
     pair_blocks,
 )
 from .hwp import (
@@ -59,5 +60,6 @@ __all__ = [
     "FocalPlaneStats",
     "PAIR_BLOCK_BYTES",
     "pair_blocks",
+    "observed_pixels",
     "characterise_focalplane",
 ]

@@ -161,13 +161,14 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
 
 @njit(parallel=True)
 def bin_pairs(
-    pixels, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, bounds
+    pixels, rows, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, bounds
 ):
-    """:func:`_bin` of every pair's samples (m, n) together, and each pair's own per-pixel sums
-    (m, npix, N_MAX + 1) and counts (m, npix), in one pass: each thread owns a range of pixel
-    indices (``bounds``, :func:`pixel_ranges`) and walks the pairs in turn, so the combined sums
-    add in the order :func:`_bin` of the pairs' samples one after another would, and no two
-    threads write one pixel."""
+    """:func:`_bin` of every pair's samples (m, n) together, and each pair's own sums
+    (m, rows, N_MAX + 1) and counts (m, rows) on its samples' ``rows`` (m, n): their pixels'
+    slots (:class:`~boresight.moments.observed.Slots`), one row per pixel. One pass: each thread
+    owns a range of pixel indices (``bounds``, :func:`pixel_ranges`) and walks the pairs in turn,
+    so the combined sums add in the order :func:`_bin` of the pairs' samples one after another
+    would, and no two threads write one pixel or one row."""
     m = hits.shape[0]
     for part in numba.prange(bounds.size - 1):
         lo, hi = bounds[part], bounds[part + 1]
@@ -176,13 +177,14 @@ def bin_pairs(
                 p = pixels[d, k]
                 if p < lo or p >= hi:
                     continue
-                hits[d, p] += 1
+                q = rows[d, k]
+                hits[d, q] += 1
                 acc_hits[p] += 1
                 c, s = cos_psi[d, k], sin_psi[d, k]
                 re, im = 1.0, 0.0
                 for n in range(sums.shape[2]):
                     z = complex(re, im)
-                    sums[d, p, n] += z
+                    sums[d, q, n] += z
                     acc_sums[p, n] += z
                     re, im = re * c - im * s, re * s + im * c
                 b = angle_bin[d, k]

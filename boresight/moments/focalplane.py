@@ -5,18 +5,20 @@ Dask.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
 from .._util import interrupts, tasks
+from .._util.jit import njit
 from ..constants import N_MAX
 from ..instrument.focalplane import off_centre
 from ..instrument.hwp import chunk_angles
 from ..pointing import ces_angle_deg, ces_chunks
-from .axis import Accumulator, ScanStats, bin_pairs, ces_hits_pairs, pixel_ranges
+from .axis import Accumulator, ScanStats, bin_pairs, ces_hits, ces_hits_pairs, pixel_ranges
 from .hwp import (
     BEAM_BEHIND_TERMS,
     IP_BEHIND_TERMS,
@@ -24,6 +26,7 @@ from .hwp import (
     T_BEHIND_TERMS,
     moments_behind,
 )
+from .observed import FOOTPRINT_NSIDE, Slots, grow_rows, observed_estimate
 
 if TYPE_CHECKING:
     from ..instrument.focalplane import FocalPlane
@@ -45,10 +48,13 @@ class FocalPlaneStats:
     focalplane : boresight.instrument.focalplane.FocalPlane
     pair_weights : numpy.ndarray, float64, shape (pairs, N_MAX + 1)
         Per pair, sum_p N_i ``|h_{n,i}|^2`` over pixels (n = 0: its hits).
-    pair_hits : numpy.ndarray, int64, shape (pairs, npix), or None
-        Each pair's hits N_i, where asked.
-    pair_h : numpy.ndarray, complex128, shape (pairs, N_MAX + 1, npix), or None
-        Each pair's h_{n,i}, where asked.
+    observed : numpy.ndarray, int64, shape (n_observed,), or None
+        With the per-pair maps: the observed pixels (those of ``combined.hits > 0``, in RING
+        order) on which ``observed_pair_hits`` and ``observed_pair_h`` are held.
+    observed_pair_hits : numpy.ndarray, int64, shape (pairs, n_observed), or None
+        Each pair's hits N_i on the observed pixels, where asked (:attr:`pair_hits` on the sky).
+    observed_pair_h : numpy.ndarray, complex128, shape (pairs, N_MAX + 1, n_observed), or None
+        Each pair's h_{n,i} on the observed pixels, where asked (:attr:`pair_h` on the sky).
     hwp : boresight.instrument.hwp.HWP, optional
         The HWP in front of the pairs: their moments are of their reflected angles.
     pair_behind_h : numpy.ndarray, complex128, shape (pairs, len(behind_terms), npix), or None
@@ -64,11 +70,29 @@ class FocalPlaneStats:
     sum_sq: np.ndarray
     focalplane: FocalPlane
     pair_weights: np.ndarray
-    pair_hits: np.ndarray | None = None
-    pair_h: np.ndarray | None = None
+    observed: np.ndarray | None = None
+    observed_pair_hits: np.ndarray | None = None
+    observed_pair_h: np.ndarray | None = None
     hwp: HWP | None = None
     pair_behind_h: np.ndarray | None = None
     behind_terms: tuple = ()
+
+    @cached_property
+    def pair_hits(self) -> np.ndarray | None:
+        """Each pair's hits N_i on the sky, (pairs, npix), or None (made on first use)."""
+        return self._on_sky(self.observed_pair_hits)
+
+    @cached_property
+    def pair_h(self) -> np.ndarray | None:
+        """Each pair's h_{n,i} on the sky, (pairs, N_MAX + 1, npix), or None (made on first use)."""
+        return self._on_sky(self.observed_pair_h)
+
+    def _on_sky(self, values):
+        if values is None:
+            return None
+        out = np.zeros((*values.shape[:-1], self.combined.hits.size), dtype=values.dtype)
+        out[..., self.observed] = values
+        return out
 
     def behind(self, n: int, m: int, offset: str | None = None) -> np.ndarray:
         """Each pair's moment (n, m, offset) behind the plate, (pairs, npix) (:func:`moments_behind`)."""
@@ -102,26 +126,67 @@ class FocalPlaneStats:
 PAIR_BLOCK_BYTES = 1 << 30
 
 
-def pair_blocks(n_pairs: int, nside: int, *, per_pair: bool = False) -> list[range]:
+#: bytes a pair's sums take per observed pixel: N_MAX + 1 complex sums and its hits
+PAIR_PIXEL_BYTES = 16 * (N_MAX + 1) + 8
+#: the sample rate [Hz] at which :func:`observed_pixels` follows the boresight: a sample every
+#: half degree at 1 deg/s, within a pixel of :data:`~boresight.moments.observed.FOOTPRINT_NSIDE`
+FOOTPRINT_RATE_HZ = 2.0
+
+
+def pair_blocks(
+    n_pairs: int, nside: int, *, per_pair: bool = False, observed: int | None = None
+) -> list[range]:
     """The blocks of pairs :func:`characterise_focalplane` streams the schedule for: all pairs at
-    once when their maps are kept, else as many as :data:`PAIR_BLOCK_BYTES` holds."""
-    per = 12 * nside**2 * (16 * (N_MAX + 1) + 8)
-    size = n_pairs if per_pair else max(1, min(n_pairs, PAIR_BLOCK_BYTES // per))
+    once when their maps are kept, else as many as :data:`PAIR_BLOCK_BYTES` holds on ``observed``
+    pixels (default the whole sky; :func:`observed_pixels` estimates them)."""
+    pixels = 12 * nside**2 if observed is None else max(1, observed)
+    size = (
+        n_pairs
+        if per_pair
+        else max(1, min(n_pairs, PAIR_BLOCK_BYTES // (pixels * PAIR_PIXEL_BYTES)))
+    )
     return [range(a, min(a + size, n_pairs)) for a in range(0, n_pairs, size)]
+
+
+def observed_pixels(schedule: Schedule, focalplane: FocalPlane, nside: int) -> int:
+    """An estimate, made before the scan is streamed, of how many pixels at ``nside`` the pairs
+    of ``focalplane`` observe: the boresight's track at :data:`FOOTPRINT_RATE_HZ` binned at
+    :data:`~boresight.moments.observed.FOOTPRINT_NSIDE` (at most ``nside``), widened by the
+    furthest a pair can sit from the boresight at any angle (its distance from the rotation
+    centre and the centre's; :func:`~boresight.moments.observed.observed_estimate`). Boresight repeats follow
+    the same tracks and are walked once."""
+    coarse = min(nside, FOOTPRINT_NSIDE)
+    thin = replace(
+        schedule,
+        sample_rate_hz=min(schedule.sample_rate_hz, FOOTPRINT_RATE_HZ),
+        repeat_boresight_deg=schedule.repeat_boresight_deg[:1],
+    )
+    seen = np.zeros(12 * coarse**2, dtype=bool)
+    for _, _, args in ces_chunks(thin):
+        pix = ces_hits(*args, coarse, 1, thin.turnarounds == "exclude")[0]
+        seen[pix[pix >= 0]] = True
+    xi0, eta0 = focalplane.rotation_centre_deg  # a pair circles the centre as the boresight turns
+    apart = np.hypot(focalplane.xi_deg - xi0, focalplane.eta_deg - eta0)
+    reach = float(np.max(apart, initial=0.0)) + float(np.hypot(xi0, eta0))
+    return observed_estimate(np.flatnonzero(seen), coarse, nside, reach)
 
 
 def _block_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, per_pair, update=None):
     """One block of pairs, ``pairs`` = (their ``vectors`` (m, 6) at angle 0, their angles (m,)
-    [rad], the HWP or None, the rotation centre [deg]), over the whole
-    schedule: its combined sums (an :class:`Accumulator`), its share of ``sum_sq`` and its
-    pairs' weights, and where asked its pairs' hits and h_n; behind ``hwp``, of the pairs'
-    reflected angles. An independent task (:mod:`boresight._util.tasks`)."""
+    [rad], the HWP or None, the rotation centre [deg], the observed pixels expected), over the
+    whole schedule: its combined sums (an :class:`Accumulator`), its share of ``sum_sq`` and its
+    pairs' weights, and where asked the observed pixels with its pairs' hits and h_n on them;
+    behind ``hwp``, of the pairs' reflected angles. Each pair's sums live on the observed pixels
+    (:class:`~boresight.moments.observed.Slots`), not the sky. An independent task
+    (:mod:`boresight._util.tasks`)."""
     exclude = schedule.turnarounds == "exclude"
-    centred, gammas, hwp, centre = pairs
+    centred, gammas, hwp, centre, expected = pairs
     npix, m = 12 * nside**2, centred.shape[0]
     acc = Accumulator(nside, tolerance_deg)
-    sums = np.zeros((m, npix, N_MAX + 1), dtype=np.complex128)
-    hits = np.zeros((m, npix), dtype=np.int64)
+    slots = Slots(npix)
+    capacity = min(npix, expected)
+    sums = np.zeros((m, capacity, N_MAX + 1), dtype=np.complex128)
+    hits = np.zeros((m, capacity), dtype=np.int64)
     nparts = numba.get_num_threads()
     none = np.zeros(0)
     for repeat, index, args in ces_chunks(schedule, max(1, chunk_samples // m)):
@@ -133,21 +198,57 @@ def _block_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, per_pair,
         vectors = off_centre(centred, centre, ces_angle_deg(schedule, repeat, index))
         pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors, chi, gammas)
         interrupts.check()
+        rows = slots.index(pix)
+        sums, hits = grow_rows(sums, slots.n, axis=1), grow_rows(hits, slots.n, axis=1)
         bounds = pixel_ranges(pix.ravel(), npix, nparts)
-        bin_pairs(pix, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, bounds)
+        bin_pairs(pix, rows, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, bounds)
         if update is not None:
             update(args[1] * m)
-    sum_sq, weights = np.zeros((npix, N_MAX + 1)), np.zeros((m, N_MAX + 1))
-    for d in range(m):  # one pair's (npix, N_MAX + 1) at a time: no block-sized temporaries
-        power = sums[d].real ** 2 + sums[d].imag ** 2  # N_i^2 |h_n,i|^2
-        sum_sq += power
-        weights[d] = np.sum(power / np.maximum(hits[d], 1)[:, None], axis=0)
-        if per_pair:
-            sums[d] /= np.maximum(hits[d], 1)[:, None]  # h_n,i in place
-    out = {"combined": acc, "sum_sq": sum_sq.T, "weights": weights}
+    order = np.argsort(slots.pixels)  # the observed pixels in RING order
+    observed, n = slots.pixels[order], slots.n
+    sum_sq, weights = _pair_sums(sums, hits, order, per_pair)
+    out = {"combined": acc, "weights": weights}
+    out["sum_sq"] = np.zeros((N_MAX + 1, npix))
+    out["sum_sq"][:, observed] = sum_sq
     if per_pair:
-        out["hits"], out["h"] = hits, np.swapaxes(sums, 1, 2)
+        out["observed"], out["hits"], out["h"] = (
+            observed,
+            hits[:, :n],
+            np.swapaxes(sums[:, :n], 1, 2),
+        )
     return out
+
+
+@njit(parallel=True)
+def _pair_sums(sums, hits, order, per_pair):
+    """From each pair's sums and hits on its slots (m, rows, N_MAX + 1), the observed pixels'
+    sum_i N_i^2 ``|h_{n,i}|^2`` (N_MAX + 1, pixels) and each pair's sum over pixels of N_i
+    ``|h_{n,i}|^2`` (m, N_MAX + 1), both in the pixels' RING order (``order`` of the slots);
+    with ``per_pair`` each pair's rows are put in that order and become h_n,i, in place."""
+    m, n, terms = sums.shape[0], order.size, sums.shape[2]
+    sum_sq = np.zeros((terms, n))
+    weights = np.zeros((m, terms))
+    for j in numba.prange(n):  # a pixel's pairs in pair order
+        k = order[j]
+        for d in range(m):
+            for t in range(terms):
+                z = sums[d, k, t]
+                sum_sq[t, j] += z.real * z.real + z.imag * z.imag
+    for d in numba.prange(m):  # a pair's pixels in RING order
+        for j in range(n):
+            k = order[j]
+            scale = 1.0 / max(hits[d, k], 1)
+            for t in range(terms):
+                z = sums[d, k, t]
+                weights[d, t] += (z.real * z.real + z.imag * z.imag) * scale
+        if per_pair:
+            rows, counts = sums[d, order].copy(), hits[d, order].copy()
+            for j in range(n):
+                hits[d, j] = counts[j]
+                scale = 1.0 / max(counts[j], 1)
+                for t in range(terms):
+                    sums[d, j, t] = rows[j, t] * scale
+    return sum_sq, weights
 
 
 def characterise_focalplane(
@@ -216,7 +317,8 @@ def characterise_focalplane(
 
     vectors = focalplane.vectors()
     npix = 12 * nside**2
-    blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair)
+    expected = observed_pixels(schedule, focalplane, nside)
+    blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair, observed=expected)
     total = schedule.n_samples * focalplane.n_pairs
     combined = Accumulator(nside, tolerance_deg)
     sum_sq = np.zeros((N_MAX + 1, npix))
@@ -236,7 +338,11 @@ def characterise_focalplane(
                 sum_sq[...] += part["sum_sq"]
                 weights[block.start : block.stop] = part["weights"]
                 if per_pair:
-                    kept.update(pair_hits=part["hits"], pair_h=part["h"])
+                    kept.update(
+                        observed=part["observed"],
+                        observed_pair_hits=part["hits"],
+                        observed_pair_h=part["h"],
+                    )
                 merged[0] += 1
 
         gammas = np.radians(focalplane.gamma_deg)
@@ -248,6 +354,7 @@ def characterise_focalplane(
                     np.ascontiguousarray(gammas[b.start : b.stop]),
                     hwp,
                     focalplane.rotation_centre_deg,
+                    expected,
                 ),
                 nside,
                 tolerance_deg,
@@ -273,8 +380,7 @@ def characterise_focalplane(
         sum_sq=sum_sq,
         focalplane=focalplane,
         pair_weights=weights,
-        pair_hits=kept.get("pair_hits"),
-        pair_h=kept.get("pair_h"),
+        **kept,
         hwp=hwp,
         pair_behind_h=behind,
         behind_terms=terms,

@@ -182,15 +182,19 @@ def write_focalplane(stage, planes, layout, frame):
     rows = planes.pair_means()
     io.write_csv(stage / "pairs.csv", rows, list(rows[0]))
     plots.pairs_figure(rows, stage / "pairs")
-    if planes.pair_h is None:
+    if planes.observed_pair_h is None:
         return
     plane = planes.focalplane
     n = np.arange(N_MAX + 1)[:, None]
+    npix = planes.combined.hits.size
     for i, pair in enumerate(plane.detectors):
         interrupts.check()  # hundreds of files: Ctrl-C stops between them
+        hits = np.zeros(npix, dtype=np.int64)  # one detector's maps on the sky at a time
+        hits[planes.observed] = planes.observed_pair_hits[i]
         for det, offset in zip(pair, np.radians(plane.hn_offset_deg[i])):
-            h = planes.pair_h[i] * np.exp(1j * n * offset)  # sotodlib's Hn psi: + gamma - pol
-            so.write(stage, f"{layout.prefix}_{det}", h, planes.pair_hits[i], frame=frame)
+            h = np.zeros((N_MAX + 1, npix), dtype=np.complex128)
+            h[:, planes.observed] = planes.observed_pair_h[i] * np.exp(1j * n * offset)  # Hn's psi
+            so.write(stage, f"{layout.prefix}_{det}", h, hits, frame=frame)
 
 
 def _hwp_columns(hits, moments):

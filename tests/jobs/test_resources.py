@@ -16,12 +16,14 @@ from boresight.schedule import CES, Schedule, write_schedule
 
 ROOT = Path(__file__).resolve().parents[2]
 FACTOR = 1.5  #: the estimate may be this much above or below the measured peak
-#: (command, Nside) measured here: every command at 64, four of a few seconds at 256, one at 512
+#: (command, Nside) measured here: every command at 64, a focal plane's at 128 (its per-pair sums
+#: on the observed pixels), four of a few seconds at 256, one at 512
 #: (bench_memory.py runs every command at 64, 128, 256 and 512)
 CASES = [
     *((c, 64) for c in ("simulate", "simulate (beams)", "predict", "scan-stats (schedule)",
                         "scan-stats (focal plane)", "compare-scans", "design", "suppression",
                         "suppression (filter)", "suppression (deproject)", "reproduce")),
+    *((c, 128) for c in ("scan-stats (focal plane)", "scan-stats (per detector)")),
     *((c, 256) for c in ("simulate", "predict (beams)", "scan-stats", "compare-scans",
                          "scan-stats (hwp)")),
     ("predict", 512),

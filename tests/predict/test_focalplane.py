@@ -195,7 +195,7 @@ def test_what_it_does_not_cover_is_refused(deep):
         predict_fp.expected_leak_bb(
             sky, one, Systematics(ellipticity_a=Spread(0.05, 0.01)), mask, LMAX
         )
-    bare = dataclasses.replace(one, pair_h=None, pair_hits=None)
+    bare = dataclasses.replace(one, observed_pair_h=None, observed_pair_hits=None)
     with pytest.raises(ValueError, match="per-pair maps"):
         predict_fp.delta_p(sky, bare, Systematics(dg=0.01))
     behind = dataclasses.replace(one, hwp=HWP("continuous", frequency_hz=0.37))
