@@ -268,7 +268,7 @@ def ces_angle_deg(schedule: Schedule, repeat: int, index: int) -> float:
     return schedule.ces[index].boresight_deg + schedule.repeat_boresight_deg[repeat]
 
 
-def ces_chunks(schedule, chunk_samples=1 << 20):
+def ces_chunks(schedule, chunk_samples=1 << 20, *, ces=None):
     """Every chunk of a schedule with its kernel arguments, in observing order: the CES set in time order,
     once per boresight repeat.
 
@@ -281,6 +281,9 @@ def ces_chunks(schedule, chunk_samples=1 << 20):
     ----------
     schedule : Schedule
     chunk_samples : int
+    ces : range, optional
+        Only the CESs whose place in observing order (repeat x CESs in the set + index) lies in
+        it (default: every one).
 
     Yields
     ------
@@ -296,6 +299,8 @@ def ces_chunks(schedule, chunk_samples=1 << 20):
     block = max(1, int(frames.CHUNK_SECONDS * rate))
     for r, repeat in enumerate(schedule.repeat_boresight_deg):
         for i, c in enumerate(schedule.ces):
+            if ces is not None and r * len(schedule.ces) + i not in ces:
+                continue
             n = int(c.duration_s * rate)
             chunk = np.array(
                 [

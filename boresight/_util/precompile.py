@@ -129,8 +129,14 @@ KERNELS = {
         Kernel("moments.observed", "_assign", (_I1, nt.int32[::1], _I1, nt.int64), 0.3),
         Kernel(
             "moments.focalplane",
+            "_in_order",
+            (nt.complex128[:, :, ::1], nt.int64[:, ::1], _I1),
+            0.5,
+        ),
+        Kernel(
+            "moments.focalplane",
             "_pair_sums",
-            (nt.complex128[:, :, ::1], nt.int64[:, ::1], _I1, nt.bool_),
+            (nt.complex128[:, :, ::1], nt.int64[:, ::1], nt.int64, nt.bool_),
             0.8,
         ),
         Kernel("pointing", "_ces_pointing", _CHUNK, 2.4),
@@ -157,8 +163,8 @@ _JOBS = {
     ),
     "schedule-stats": (("ces_hits", "_bin", "_runs", "pixel_ranges"), ()),
     "focalplane-stats": (
-        ("ces_hits", "ces_hits_pairs", "_assign", "bin_pairs", "_pair_sums", "_runs")
-        + ("pixel_ranges",),
+        ("ces_hits", "ces_hits_pairs", "_assign", "bin_pairs", "_in_order", "_pair_sums")
+        + ("_runs", "pixel_ranges"),
         (),
     ),
 }

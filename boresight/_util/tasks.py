@@ -7,7 +7,10 @@ index and adds in task order, so that nothing depends on which worker finished f
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import re
+import sys
 from typing import TYPE_CHECKING
 
 from ..validation import ConfigError
@@ -17,6 +20,20 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
 CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
+#: why a local cluster's workers fail to start from a script without a main guard
+GUARD = (
+    "a local Dask cluster's workers start by importing the script that made it: put the "
+    'script\'s work under `if __name__ == "__main__":` (or use --scheduler serial)'
+)
+
+
+def _in_a_workers_start() -> bool:
+    """Whether this is a worker process importing the main script of the process that spawned it
+    (multiprocessing's ``__mp_main__``)."""
+    main = sys.modules.get("__main__")
+    return multiprocessing.parent_process() is not None and getattr(main, "__name__", "") == (
+        "__mp_main__"
+    )
 
 
 def dask(what: str = "this"):
@@ -64,6 +81,7 @@ def run(
     *,
     scheduler: str | None = "serial",
     workers: int = 2,
+    window: int | None = None,
 ) -> None:
     """Call ``finish(i, function(*arguments[i]))`` for every task i.
 
@@ -78,6 +96,11 @@ def run(
         "serial" for this process, None for a local Dask cluster of ``workers`` processes, or the
         address of an existing scheduler.
     workers : int
+        Local worker processes; each runs numba on its share of this machine's cores
+        (``NUMBA_NUM_THREADS``), not on all of them.
+    window : int, optional
+        On Dask, at most this many tasks submitted and not yet finished (default: all at once):
+        a caller that keeps results until the earlier ones arrive then holds at most this many.
     """
     check_scheduler(scheduler)
     if scheduler == "serial":
@@ -88,12 +111,19 @@ def run(
     distributed = dask()
     cluster = None
     if scheduler is None:
-        cluster = distributed.LocalCluster(
-            n_workers=check_workers(workers),
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-        )
+        if _in_a_workers_start():
+            raise ConfigError(GUARD)
+        share = max(1, (os.cpu_count() or 1) // check_workers(workers))
+        try:
+            cluster = distributed.LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                env={"NUMBA_NUM_THREADS": str(share)},
+            )
+        except RuntimeError as err:  # distributed's "Nanny failed to start."
+            raise ConfigError(f"{err} {GUARD}") from None
     try:
         client = distributed.Client(
             cluster if cluster is not None else scheduler, timeout=CONNECT_TIMEOUT
@@ -101,9 +131,16 @@ def run(
     except (OSError, TimeoutError) as err:
         raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: {err}") from None
     try:
-        futures = {
-            client.submit(function, *args, pure=False): i for i, args in enumerate(arguments)
-        }
+        futures, queued = {}, iter(enumerate(arguments))
+        limit = len(arguments) if window is None else max(1, window)
+
+        def submit():
+            for i, args in queued:
+                futures[client.submit(function, *args, pure=False)] = i
+                if len(futures) >= limit:
+                    return
+
+        submit()
         running = set(futures)
         while running:
             interrupts.check()
@@ -114,7 +151,10 @@ def run(
             except TimeoutError:  # distributed's own, a TimeoutError
                 continue
             for fut in done:
-                finish(futures[fut], fut.result())
+                finish(futures.pop(fut), fut.result())
+                fut.release()
+            submit()
+            running = set(futures)
     finally:
         client.close()
         if cluster is not None:

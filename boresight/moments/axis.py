@@ -163,9 +163,10 @@ def ces_hits_pairs(k0, n, chunk, terms, nside, nbins, exclude_turnarounds, vecto
 def bin_pairs(
     pixels, rows, cos_psi, sin_psi, angle_bin, acc_sums, acc_hits, occupancy, sums, hits, bounds
 ):
-    """:func:`_bin` of every pair's samples (m, n) together, and each pair's own sums
-    (m, rows, N_MAX + 1) and counts (m, rows) on its samples' ``rows`` (m, n): their pixels'
-    slots (:class:`~boresight.moments.observed.Slots`), one row per pixel. One pass: each thread
+    """:func:`_bin` of every pair's samples (m, n) together into ``acc_sums``, ``acc_hits`` and
+    ``occupancy`` (rows, ...), and each pair's own sums (m, rows, N_MAX + 1) and counts (m, rows),
+    all on the samples' ``rows`` (m, n): their pixels' slots
+    (:class:`~boresight.moments.observed.Slots`), one row per pixel. One pass: each thread
     owns a range of pixel indices (``bounds``, :func:`pixel_ranges`) and walks the pairs in turn,
     so the combined sums add in the order :func:`_bin` of the pairs' samples one after another
     would, and no two threads write one pixel or one row."""
@@ -179,16 +180,16 @@ def bin_pairs(
                     continue
                 q = rows[d, k]
                 hits[d, q] += 1
-                acc_hits[p] += 1
+                acc_hits[q] += 1
                 c, s = cos_psi[d, k], sin_psi[d, k]
                 re, im = 1.0, 0.0
                 for n in range(sums.shape[2]):
                     z = complex(re, im)
                     sums[d, q, n] += z
-                    acc_sums[p, n] += z
+                    acc_sums[q, n] += z
                     re, im = re * c - im * s, re * s + im * c
                 b = angle_bin[d, k]
-                occupancy[p, b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
+                occupancy[q, b // _WORD] |= np.uint64(1) << np.uint64(b % _WORD)
 
 
 @njit(parallel=True)
@@ -323,10 +324,26 @@ class Accumulator:
             raise ValueError(f"tolerance_deg must be in (0, 180], got {tolerance_deg}")
         npix = 12 * nside**2
         self.tolerance_deg = tolerance_deg
-        self.nbins = int(round(360.0 / tolerance_deg))
-        self.occupancy = np.zeros((npix, (self.nbins + _WORD - 1) // _WORD), dtype=np.uint64)
+        self.nbins = self.bins(tolerance_deg)
+        self.occupancy = np.zeros((npix, self.words(self.nbins)), dtype=np.uint64)
         self.sums = np.zeros((npix, N_MAX + 1), dtype=np.complex128)  # pixel-major: a cache line
         self.hits = np.zeros(npix, dtype=np.int64)
+
+    @staticmethod
+    def bins(tolerance_deg):
+        """The angle bins of a tolerance [deg]."""
+        return int(round(360.0 / tolerance_deg))
+
+    @staticmethod
+    def words(nbins):
+        """The 64-bit words of a pixel's bitmap of ``nbins`` angle bins."""
+        return (nbins + _WORD - 1) // _WORD
+
+    def add_rows(self, pixels, sums, hits, occupancy):
+        """Add the sums, counts and bitmaps of ``pixels`` (distinct RING indices), row by row."""
+        self.sums[pixels] += sums
+        self.hits[pixels] += hits
+        self.occupancy[pixels] |= occupancy
 
     def merge(self, other):
         """Add another accumulator's samples: sums and counts add, bitmaps join."""

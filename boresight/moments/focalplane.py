@@ -171,84 +171,132 @@ def observed_pixels(schedule: Schedule, focalplane: FocalPlane, nside: int) -> i
     return observed_estimate(np.flatnonzero(seen), coarse, nside, reach)
 
 
-def _block_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, per_pair, update=None):
-    """One block of pairs, ``pairs`` = (their ``vectors`` (m, 6) at angle 0, their angles (m,)
-    [rad], the HWP or None, the rotation centre [deg], the observed pixels expected), over the
-    whole schedule: its combined sums (an :class:`Accumulator`), its share of ``sum_sq`` and its
-    pairs' weights, and where asked the observed pixels with its pairs' hits and h_n on them;
-    behind ``hwp``, of the pairs' reflected angles. Each pair's sums live on the observed pixels
-    (:class:`~boresight.moments.observed.Slots`), not the sky. An independent task
-    (:mod:`boresight._util.tasks`)."""
+#: samples of the schedule one task streams at most, its CESs whole: a season splits into groups
+#: of CESs that run as tasks of their own (fixed by the schedule, so the sums' rounding is too)
+GROUP_SAMPLES = 1 << 22
+
+
+def time_groups(schedule: Schedule, samples: int | None = None) -> list[tuple[range, int]]:
+    """The schedule's CESs in observing order (:func:`~boresight.pointing.ces_chunks`' places)
+    cut into consecutive groups of at least ``samples`` samples (default
+    :data:`GROUP_SAMPLES`; the last may hold fewer): each group's places and its samples."""
+    samples = GROUP_SAMPLES if samples is None else samples
+    per = [int(c.duration_s * schedule.sample_rate_hz) for c in schedule.ces]
+    per *= len(schedule.repeat_boresight_deg)
+    groups, first, count = [], 0, 0
+    for place, n in enumerate(per):
+        count += n
+        if count >= samples or place == len(per) - 1:
+            groups.append((range(first, place + 1), count))
+            first, count = place + 1, 0
+    return groups
+
+
+def _task_stats(schedule, pairs, nside, tolerance_deg, chunk_samples, ces, update=None):
+    """One block of pairs over one group of CESs (``ces``, places in observing order), ``pairs``
+    = (their ``vectors`` (m, 6) at angle 0, their angles (m,) [rad], the HWP or None, the
+    rotation centre [deg], the observed pixels expected). Every sum lives on the pixels the
+    group observes (:class:`~boresight.moments.observed.Slots`), none on the sky; returned in
+    RING order of those pixels: ``observed``, the pairs' combined sums, hits and angle bitmaps
+    (``acc``, as :class:`Accumulator` holds them) and each pair's sums and hits. Behind ``hwp``,
+    of the pairs' reflected angles. An independent task (:mod:`boresight._util.tasks`)."""
     exclude = schedule.turnarounds == "exclude"
     centred, gammas, hwp, centre, expected = pairs
     npix, m = 12 * nside**2, centred.shape[0]
-    acc = Accumulator(nside, tolerance_deg)
+    nbins = Accumulator.bins(tolerance_deg)
     slots = Slots(npix)
     capacity = min(npix, expected)
+    acc_sums = np.zeros((capacity, N_MAX + 1), dtype=np.complex128)
+    acc_hits = np.zeros(capacity, dtype=np.int64)
+    occupancy = np.zeros((capacity, Accumulator.words(nbins)), dtype=np.uint64)
     sums = np.zeros((m, capacity, N_MAX + 1), dtype=np.complex128)
     hits = np.zeros((m, capacity), dtype=np.int64)
     nparts = numba.get_num_threads()
     none = np.zeros(0)
-    for repeat, index, args in ces_chunks(schedule, max(1, chunk_samples // m)):
+    for repeat, index, args in ces_chunks(schedule, max(1, chunk_samples // m), ces=ces):
         chi = (
             none
             if hwp is None
             else chunk_angles(hwp, schedule, repeat, index, first=args[0], n=args[1])
         )
         vectors = off_centre(centred, centre, ces_angle_deg(schedule, repeat, index))
-        pix, c, s, b = ces_hits_pairs(*args, nside, acc.nbins, exclude, vectors, chi, gammas)
+        pix, c, s, b = ces_hits_pairs(*args, nside, nbins, exclude, vectors, chi, gammas)
         interrupts.check()
         rows = slots.index(pix)
+        acc_sums = grow_rows(acc_sums, slots.n, axis=0)
+        acc_hits = grow_rows(acc_hits, slots.n, axis=0)
+        occupancy = grow_rows(occupancy, slots.n, axis=0)
         sums, hits = grow_rows(sums, slots.n, axis=1), grow_rows(hits, slots.n, axis=1)
         bounds = pixel_ranges(pix.ravel(), npix, nparts)
-        bin_pairs(pix, rows, c, s, b, acc.sums, acc.hits, acc.occupancy, sums, hits, bounds)
+        bin_pairs(pix, rows, c, s, b, acc_sums, acc_hits, occupancy, sums, hits, bounds)
         if update is not None:
             update(args[1] * m)
     order = np.argsort(slots.pixels)  # the observed pixels in RING order
-    observed, n = slots.pixels[order], slots.n
-    sum_sq, weights = _pair_sums(sums, hits, order, per_pair)
-    out = {"combined": acc, "weights": weights}
-    out["sum_sq"] = np.zeros((N_MAX + 1, npix))
-    out["sum_sq"][:, observed] = sum_sq
-    if per_pair:
-        out["observed"], out["hits"], out["h"] = (
-            observed,
-            hits[:, :n],
-            np.swapaxes(sums[:, :n], 1, 2),
-        )
-    return out
+    _in_order(sums, hits, order)
+    return {  # the pairs' sums and hits whole (their first n rows): no copy of the largest arrays
+        "observed": slots.pixels[order],
+        "acc": (acc_sums[order], acc_hits[order], occupancy[order]),
+        "sums": sums,
+        "hits": hits,
+    }
 
 
 @njit(parallel=True)
-def _pair_sums(sums, hits, order, per_pair):
-    """From each pair's sums and hits on its slots (m, rows, N_MAX + 1), the observed pixels'
-    sum_i N_i^2 ``|h_{n,i}|^2`` (N_MAX + 1, pixels) and each pair's sum over pixels of N_i
-    ``|h_{n,i}|^2`` (m, N_MAX + 1), both in the pixels' RING order (``order`` of the slots);
-    with ``per_pair`` each pair's rows are put in that order and become h_n,i, in place."""
-    m, n, terms = sums.shape[0], order.size, sums.shape[2]
+def _in_order(sums, hits, order):
+    """Each pair's first ``order.size`` rows of sums (m, rows, N_MAX + 1) and hits (m, rows) put
+    in ``order``, in place."""
+    for d in numba.prange(sums.shape[0]):
+        rows, counts = sums[d][order], hits[d][order]
+        sums[d, : order.size] = rows
+        hits[d, : order.size] = counts
+
+
+@njit(parallel=True)
+def _pair_sums(sums, hits, n, per_pair):
+    """From each pair's sums and hits on the ``n`` observed pixels (the first n rows of
+    (m, rows, N_MAX + 1) and (m, rows)), in RING order, those pixels' sum_i N_i^2
+    ``|h_{n,i}|^2`` (N_MAX + 1, n) and each pair's sum over them of N_i ``|h_{n,i}|^2``
+    (m, N_MAX + 1); with ``per_pair`` the sums become h_n,i, in place."""
+    m, terms = sums.shape[0], sums.shape[2]
     sum_sq = np.zeros((terms, n))
     weights = np.zeros((m, terms))
     for j in numba.prange(n):  # a pixel's pairs in pair order
-        k = order[j]
         for d in range(m):
             for t in range(terms):
-                z = sums[d, k, t]
+                z = sums[d, j, t]
                 sum_sq[t, j] += z.real * z.real + z.imag * z.imag
     for d in numba.prange(m):  # a pair's pixels in RING order
         for j in range(n):
-            k = order[j]
-            scale = 1.0 / max(hits[d, k], 1)
+            scale = 1.0 / max(hits[d, j], 1)
             for t in range(terms):
-                z = sums[d, k, t]
+                z = sums[d, j, t]
                 weights[d, t] += (z.real * z.real + z.imag * z.imag) * scale
-        if per_pair:
-            rows, counts = sums[d, order].copy(), hits[d, order].copy()
-            for j in range(n):
-                hits[d, j] = counts[j]
-                scale = 1.0 / max(counts[j], 1)
-                for t in range(terms):
-                    sums[d, j, t] = rows[j, t] * scale
+                if per_pair:
+                    sums[d, j, t] = z * scale
     return sum_sq, weights
+
+
+class _Block:
+    """A block of pairs' sums and hits over the groups of CESs merged so far, on the union of
+    the pixels they observed (RING order)."""
+
+    def __init__(self):
+        self.observed = None
+
+    def add(self, part):
+        n = part["observed"].size
+        if self.observed is None:
+            self.observed, self.sums, self.hits = part["observed"], part["sums"], part["hits"]
+            return
+        union = np.union1d(self.observed, part["observed"])
+        old, new = np.searchsorted(union, self.observed), np.searchsorted(union, part["observed"])
+        m = self.sums.shape[0]
+        sums = np.zeros((m, union.size, N_MAX + 1), dtype=np.complex128)
+        hits = np.zeros((m, union.size), dtype=np.int64)
+        sums[:, old], hits[:, old] = self.sums[:, : old.size], self.hits[:, : old.size]
+        sums[:, new] += part["sums"][:, :n]
+        hits[:, new] += part["hits"][:, :n]
+        self.observed, self.sums, self.hits = union, sums, hits
 
 
 def characterise_focalplane(
@@ -276,9 +324,11 @@ def characterise_focalplane(
     (:data:`boresight.instrument.hwp.THROUGH_HWP`).
 
     Pairs are streamed in blocks (:func:`pair_blocks`), so memory holds one block's maps, not one
-    per pair. The blocks are independent tasks, run in this process or on Dask
-    (:mod:`boresight._util.tasks`); their sums add in block order, so the result is the same wherever
-    they run.
+    per pair, and the schedule in groups of CESs (:func:`time_groups`), each block over each
+    group an independent task, run in this process or on Dask (:mod:`boresight._util.tasks`);
+    every task's sums live on the pixels it observes, and they add in (block, group) order as
+    they arrive, so the result is the same wherever they run and the process holds one block's
+    sums and the tasks in flight.
 
     Parameters
     ----------
@@ -319,30 +369,40 @@ def characterise_focalplane(
     npix = 12 * nside**2
     expected = observed_pixels(schedule, focalplane, nside)
     blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair, observed=expected)
+    groups = time_groups(schedule)
     total = schedule.n_samples * focalplane.n_pairs
     combined = Accumulator(nside, tolerance_deg)
     sum_sq = np.zeros((N_MAX + 1, npix))
     weights = np.zeros((focalplane.n_pairs, N_MAX + 1))
     kept = {}  # with per_pair there is one block, whose maps are kept as they are
-    pending, merged = {}, [0]
+    order = [(b, g) for b in range(len(blocks)) for g in range(len(groups))]
+    pending, merged, block = {}, [0], [_Block()]
     with tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar:
         serial = scheduler == "serial"
 
         def finish(i, result):
             pending[i] = result
             if not serial:
-                bar.update(schedule.n_samples * len(blocks[i]))
-            while merged[0] in pending:  # in block order: the sums' rounding is fixed
-                part, block = pending.pop(merged[0]), blocks[merged[0]]
-                combined.merge(part["combined"])
-                sum_sq[...] += part["sum_sq"]
-                weights[block.start : block.stop] = part["weights"]
-                if per_pair:
-                    kept.update(
-                        observed=part["observed"],
-                        observed_pair_hits=part["hits"],
-                        observed_pair_h=part["h"],
+                bar.update(groups[order[i][1]][1] * len(blocks[order[i][0]]))
+            while merged[0] in pending:  # in (block, group) order: the sums' rounding is fixed
+                part = pending.pop(merged[0])
+                b, g = order[merged[0]]
+                combined.add_rows(part["observed"], *part["acc"])
+                block[0].add(part)
+                del part
+                if g == len(groups) - 1:  # the block's last group: its pairs' sums are whole
+                    done, block[0] = block[0], _Block()
+                    n = done.observed.size
+                    squares, weights[blocks[b].start : blocks[b].stop] = _pair_sums(
+                        done.sums, done.hits, n, per_pair
                     )
+                    sum_sq[:, done.observed] += squares
+                    if per_pair:
+                        kept.update(
+                            observed=done.observed,
+                            observed_pair_hits=done.hits[:, :n],
+                            observed_pair_h=np.swapaxes(done.sums[:, :n], 1, 2),
+                        )
                 merged[0] += 1
 
         gammas = np.radians(focalplane.gamma_deg)
@@ -350,8 +410,8 @@ def characterise_focalplane(
             (
                 schedule,
                 (
-                    np.ascontiguousarray(vectors[b.start : b.stop]),
-                    np.ascontiguousarray(gammas[b.start : b.stop]),
+                    np.ascontiguousarray(vectors[blocks[b].start : blocks[b].stop]),
+                    np.ascontiguousarray(gammas[blocks[b].start : blocks[b].stop]),
                     hwp,
                     focalplane.rotation_centre_deg,
                     expected,
@@ -359,12 +419,19 @@ def characterise_focalplane(
                 nside,
                 tolerance_deg,
                 chunk_samples,
-                per_pair,
+                groups[g][0],
                 bar.update if serial else None,
             )
-            for b in blocks
+            for b, g in order
         ]
-        tasks.run(_block_stats, arguments, finish, scheduler=scheduler, workers=workers)
+        tasks.run(
+            _task_stats,
+            arguments,
+            finish,
+            scheduler=scheduler,
+            workers=workers,
+            window=2 * workers,
+        )
     terms = ()  # the moments behind the plate: T's, the pointing's and the beams', each once
     if per_pair and hwp is not None and hwp.present:
         wanted = (POINTING_BEHIND_TERMS if pointing else ()) + (BEAM_BEHIND_TERMS if beams else ())

@@ -2,6 +2,9 @@
 with its index, and bad worker counts refused."""
 
 import operator
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -30,3 +33,33 @@ def test_a_local_cluster_gives_every_task_its_result():
 def test_bad_worker_counts_are_refused(workers):
     with pytest.raises(ConfigError, match="--workers"):
         tasks.check_workers(workers)
+
+
+def test_a_window_bounds_the_tasks_in_flight_and_workers_share_the_cores():
+    """With a window of 2 every task still arrives once; each of 2 workers runs numba on half
+    the cores, not on all of them."""
+    pytest.importorskip("dask.distributed")
+    import numba
+
+    got = {}
+    tasks.run(numba.get_num_threads, [()] * 7, got.__setitem__, scheduler=None, workers=2, window=2)
+    assert sorted(got) == list(range(7))
+    assert set(got.values()) == {max(1, (os.cpu_count() or 1) // 2)}
+
+
+@pytest.mark.slow
+def test_a_script_without_a_main_guard_gets_one_clear_error(tmp_path):
+    """A script that starts a local cluster at its top level: its workers import it again, and
+    the error names the guard instead of distributed's "Nanny failed to start" traceback alone."""
+    pytest.importorskip("dask.distributed")
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import operator\n"
+        "from boresight._util import tasks\n"
+        "tasks.run(operator.add, [(1, 2)], print, scheduler=None, workers=1)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=120, cwd=tmp_path
+    )
+    assert proc.returncode != 0
+    assert 'put the script\'s work under `if __name__ == "__main__":`' in proc.stderr

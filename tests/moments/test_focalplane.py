@@ -6,6 +6,7 @@ import pytest
 
 from boresight import moments, pointing
 from boresight.instrument import focalplane
+from boresight.moments import focalplane as focalplane_moments
 
 
 def _hexagon_schedule():
@@ -71,15 +72,21 @@ def test_rotation_cancels_h2_only_on_the_axis():
 
 @pytest.mark.slow
 def test_focal_plane_blocks_on_dask_give_the_serial_result_to_the_bit(monkeypatch):
-    """Blocks of pairs as tasks on a local Dask cluster add up in block order: the same result
-    as in this process, whichever worker finishes first."""
+    """Blocks of pairs over groups of CESs as tasks on a local Dask cluster, at most 4 in flight,
+    add up in (block, group) order: the same result as in this process to the bit, whichever
+    worker finishes first; the groups' sums are the whole schedule's to rounding."""
     pytest.importorskip("dask.distributed")
-    schedule = _hexagon_schedule()
+    schedule = _hexagon_schedule().repeated((0.0, 90.0))  # four CESs to cut
     fp = focalplane.hexagon(7, 30.0)
+    whole = moments.characterise_focalplane(schedule, fp, 32, per_pair=True)
     monkeypatch.setattr(
         "boresight.moments.focalplane.PAIR_BLOCK_BYTES", 3 * 12 * 32**2 * 88
-    )  # 3 pairs a block
+    )  # 3 pairs a block on the whole sky
+    monkeypatch.setattr("boresight.moments.focalplane.observed_pixels", lambda *a: 12 * 32**2)
+    monkeypatch.setattr("boresight.moments.focalplane.GROUP_SAMPLES", schedule.n_samples // 4)
     assert len(moments.pair_blocks(7, 32)) == 3
+    groups = focalplane_moments.time_groups(schedule)
+    assert len(groups) == 3 and sum(n for _, n in groups) == schedule.n_samples  # 1, 2 and 1 CES
     serial = moments.characterise_focalplane(schedule, fp, 32)
     dask = moments.characterise_focalplane(schedule, fp, 32, scheduler=None, workers=2)
     np.testing.assert_array_equal(dask.combined.hits, serial.combined.hits)
@@ -87,3 +94,12 @@ def test_focal_plane_blocks_on_dask_give_the_serial_result_to_the_bit(monkeypatc
     np.testing.assert_array_equal(dask.combined.n_distinct, serial.combined.n_distinct)
     np.testing.assert_array_equal(dask.sum_sq, serial.sum_sq)
     np.testing.assert_array_equal(dask.pair_weights, serial.pair_weights)
+    np.testing.assert_array_equal(serial.combined.hits, whole.combined.hits)
+    np.testing.assert_array_equal(serial.combined.n_distinct, whole.combined.n_distinct)
+    assert np.max(np.abs(serial.combined.h - whole.combined.h)) < 1e-13
+    np.testing.assert_allclose(serial.sum_sq, whole.sum_sq, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(serial.pair_weights, whole.pair_weights, rtol=1e-12, atol=1e-9)
+    grouped = moments.characterise_focalplane(schedule, fp, 32, per_pair=True)
+    np.testing.assert_array_equal(grouped.observed, whole.observed)
+    np.testing.assert_array_equal(grouped.observed_pair_hits, whole.observed_pair_hits)
+    assert np.max(np.abs(grouped.observed_pair_h - whole.observed_pair_h)) < 1e-13
