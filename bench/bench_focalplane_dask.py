@@ -3,11 +3,12 @@
 The deep example's CES set observed at 12 boresight angles (0, 30, ..., 330 deg: 8.6 million
 samples at 20 Hz, 120 hours, cut into groups of CESs of at least
 ``moments.focalplane.GROUP_SAMPLES`` samples, one task each) seen by TOAST's 37-pixel 35-deg
-hexagon at NSIDE. Each worker runs numba on its share of the cores (NUMBA_NUM_THREADS), at most
+hexagon at NSIDE. Each worker runs numba on its share of the cores (NUMBA_NUM_THREADS), or on
+one thread (how workers scale when each brings its own core, as a cluster's nodes do); at most
 two tasks a worker are in flight, and this process adds the results in task order as they
-arrive. Wall seconds and this process's own peak resident memory (the client's: what it holds
-of the tasks' results), best of REPEATS runs; every Dask result equal to the serial one to the
-bit.
+arrive. Wall and CPU seconds (this process's and its workers') and this process's own peak
+resident memory (the client's: what it holds of the tasks' results), best of REPEATS runs;
+every Dask result equal to the serial one to the bit.
 
 Usage: python bench/bench_focalplane_dask.py [NSIDE] [REPEATS]
 
@@ -16,6 +17,8 @@ Writes bench/results/focalplane_dask.json.
 
 import hashlib
 import json
+import os
+import resource
 import subprocess
 import sys
 import time
@@ -29,11 +32,14 @@ from boresight.moments.focalplane import characterise_focalplane, time_groups
 from boresight.schedule import load_schedule
 
 ROOT = Path(__file__).resolve().parent.parent
+#: name -> (scheduler, local workers, numba threads in each: None for its share of the cores)
 RUNS = {
-    "serial": ("serial", 1),
-    "1 worker": (None, 1),
-    "2 workers": (None, 2),
-    "4 workers": (None, 4),
+    "serial": ("serial", 1, None),
+    "1 worker, its share": (None, 1, None),
+    "2 workers, their share": (None, 2, None),
+    "4 workers, their share": (None, 4, None),
+    "1 worker, 1 thread": (None, 1, 1),
+    "2 workers, 1 thread each": (None, 2, 1),
 }
 
 
@@ -45,22 +51,45 @@ def season():
 def one(name, nside):
     """One run in this (fresh) process: its wall seconds, peak resident GiB and a digest of its
     maps, printed as JSON."""
-    scheduler, workers = RUNS[name]
+    scheduler, workers, threads = RUNS[name]
     schedule, focal = season(), hexagon(37, 35.0)
     characterise_focalplane(replace(schedule, ces=schedule.ces[:1]), focal, nside)  # compiled
+    before = cpu_seconds()
     t0 = time.perf_counter()
-    stats = characterise_focalplane(schedule, focal, nside, scheduler=scheduler, workers=workers)
+    stats = characterise_focalplane(
+        schedule, focal, nside, scheduler=scheduler, workers=workers, worker_threads=threads
+    )
     seconds = time.perf_counter() - t0
+    cpu = cpu_seconds() - before
     digest = hashlib.sha256()
     for array in (stats.sum_sq, stats.pair_weights, stats.combined.h, stats.combined.hits):
         digest.update(array.tobytes())
     with open("/proc/self/status") as f:
         peak = next(int(line.split()[1]) for line in f if line.startswith("VmHWM")) / 2**20
-    print(json.dumps({"seconds": seconds, "peak": peak, "digest": digest.hexdigest()}))
+    print(json.dumps({"seconds": seconds, "cpu": cpu, "peak": peak, "digest": digest.hexdigest()}))
+
+
+def cpu_seconds():
+    """CPU seconds of this process and of its children that have ended (the local cluster's
+    workers, once it has closed)."""
+    return sum(
+        u.ru_utime + u.ru_stime
+        for u in (
+            resource.getrusage(resource.RUSAGE_SELF),
+            resource.getrusage(resource.RUSAGE_CHILDREN),
+        )
+    )
+
+
+def _alike(name):
+    """The one-worker run with the same threads a worker as ``name``."""
+    if RUNS[name][0] == "serial":
+        return None
+    return "1 worker, 1 thread" if RUNS[name][2] == 1 else "1 worker, its share"
 
 
 def main(nside, repeats):
-    best, peaks, digests = {}, {}, set()
+    best, cpus, peaks, digests = {}, {}, {}, set()
     for _ in range(repeats):
         for name in RUNS:  # alternated, each in a fresh process
             out = (
@@ -75,15 +104,18 @@ def main(nside, repeats):
             )
             run = json.loads(out)
             digests.add(run["digest"])
-            best[name] = min(best.get(name, float("inf")), run["seconds"])
+            if run["seconds"] < best.get(name, float("inf")):
+                best[name], cpus[name] = run["seconds"], run["cpu"]
             peaks[name] = max(peaks.get(name, 0.0), run["peak"])
     assert len(digests) == 1, "a Dask run differs from the serial one"
-    first = best["1 worker"]
     rows = [
         {
             "run": name,
             "wall [s]": f"{seconds:.1f}",
-            "speed-up over 1 worker": f"{first / seconds:.2f}",
+            "CPU [s]": f"{cpus[name]:.1f}",
+            "speed-up over 1 worker alike": (
+                f"{best[first] / seconds:.2f}" if (first := _alike(name)) else ""
+            ),
             "this process's peak [GiB]": f"{peaks[name]:.2f}",
         }
         for name, seconds in best.items()
@@ -97,9 +129,12 @@ def main(nside, repeats):
             f"examples/schedule_deep_sat.toml's CES set at 12 boresight angles, "
             f"{season().n_samples:,} samples at 20 Hz in {len(time_groups(season()))} groups of "
             "CESs, TOAST's 37-pixel 35-deg hexagon (37 pairs, one block); wall seconds, best of "
-            f"{repeats}, each run in a fresh process, the runs alternated; the peak is that "
-            "process's (for Dask, the client's: the workers are processes of their own); every "
-            "result equal to the serial run's to the bit."
+            f"{repeats}, each run in a fresh process, the runs alternated, cluster start-up "
+            "included; CPU seconds of the process and its workers. A worker's share of the "
+            f"{os.cpu_count()} cores is cores / workers threads; with 1 thread each, the workers "
+            "scale as a cluster's nodes would. The peak is the process's own (for Dask, the "
+            "client's: the workers are processes of their own); every result equal to the serial "
+            "run's to the bit."
         ),
     )
 

@@ -121,6 +121,7 @@ def write_maps(
     *,
     comments: Sequence[str] = (),
     frame: str = "icrs",
+    observed: np.ndarray | None = None,
 ) -> None:
     """Write RING maps as a FITS table healpy.read_map reads.
 
@@ -137,20 +138,30 @@ def write_maps(
         COMMENT cards.
     frame : {"icrs", "galactic", "cirs"}
         The maps' sky frame, in their COORDSYS (and RADESYS) cards.
+    observed : numpy.ndarray of bool, optional
+        Write a HEALPix partial map of these pixels (explicit indexing: a PIXEL column beside
+        the maps' values there), which healpy.read_map reads back on the sky with UNSEEN
+        elsewhere; default the whole sky.
     """
     if len(units) != len(names):
         raise ValueError(f"{len(names)} column names but {len(units)} units")
     if frame not in FRAME_CARDS:
         raise ValueError(f"frame = {frame!r}; allowed: {tuple(FRAME_CARDS)}")
+    maps = np.array(maps, dtype=np.float64, ndmin=2)
+    if observed is not None:  # healpy takes the pixels of the first map that are not UNSEEN
+        if not np.any(observed):
+            raise ValueError("a partial map of no observed pixel")
+        maps[0] = np.where(observed, maps[0], hp.UNSEEN)
     with atomic_path(path) as tmp:
         hp.write_map(
             tmp,
-            np.asarray(maps, dtype=np.float64),
+            maps,
             column_names=list(names),
             column_units=list(units),
             extra_header=FITS_HEADER + FRAME_CARDS[frame] + [("COMMENT", c) for c in comments],
             overwrite=True,
             dtype=np.float64,
+            partial=observed is not None,
         )
 
 

@@ -111,7 +111,7 @@ KERNELS = {
         Kernel("predict.field_products", "_recurse", (_F1, *[nt.int64] * 3, _F1, _F2), 0.6),
         Kernel("design.exact", "_apply", (_F3, _I1, _F1, _C2, nt.int64, nt.int64, _C2), 0.6),
         Kernel("moments.axis", "_bin", (_I1, _F1, _F1, nt.int32[::1], _C2, _I1, _U2, _I1), 1.1),
-        Kernel("moments.axis", "_runs", (_U2, nt.int64, _I1), 2.8),
+        Kernel("moments.axis", "_runs", (_U2, nt.int64, _I1, _I1, nt.int64), 2.8),
         Kernel(
             "moments.axis",
             "ces_hits_pairs",

@@ -20,6 +20,11 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Sequence
 
 CONNECT_TIMEOUT = "10s"  #: how long to try an existing Dask scheduler before giving up
+#: the environment distributed sets in a worker before it starts that a local cluster's workers do
+#: without: a fixed MALLOC_TRIM_THRESHOLD_ turns off glibc's sliding mmap threshold, so every large
+#: array a chunk allocates is mapped afresh and its pages faulted in again (measured: 1.4-1.7x the
+#: CPU of the same task in this process, bench/bench_focalplane_dask.py)
+UNSET_IN_WORKERS = ("MALLOC_TRIM_THRESHOLD_",)
 #: why a local cluster's workers fail to start from a script without a main guard
 GUARD = (
     "a local Dask cluster's workers start by importing the script that made it: put the "
@@ -82,6 +87,7 @@ def run(
     scheduler: str | None = "serial",
     workers: int = 2,
     window: int | None = None,
+    threads: int | None = None,
 ) -> None:
     """Call ``finish(i, function(*arguments[i]))`` for every task i.
 
@@ -98,6 +104,9 @@ def run(
     workers : int
         Local worker processes; each runs numba on its share of this machine's cores
         (``NUMBA_NUM_THREADS``), not on all of them.
+    threads : int, optional
+        Numba threads in each local worker instead of its share of the cores (a benchmark of
+        how the workers scale holds each worker's threads fixed).
     window : int, optional
         On Dask, at most this many tasks submitted and not yet finished (default: all at once):
         a caller that keeps results until the earlier ones arrive then holds at most this many.
@@ -114,16 +123,32 @@ def run(
         if _in_a_workers_start():
             raise ConfigError(GUARD)
         share = max(1, (os.cpu_count() or 1) // check_workers(workers))
+        if threads is not None:
+            share = check_workers(threads)
+        from dask import config
+
+        # in this process's environment while the workers spawn (numba reads its threads on
+        # import, which a worker's re-import of the main script does before distributed's
+        # ``env`` applies; an existing variable outranks distributed's pre-spawn ones), then put
+        # back as it was
+        environ = dict(config.get("distributed.nanny.pre-spawn-environ", {}))
+        for name in UNSET_IN_WORKERS:
+            environ.pop(name, None)
+        saved = dict(os.environ)
+        os.environ["NUMBA_NUM_THREADS"] = str(share)
         try:
-            cluster = distributed.LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                env={"NUMBA_NUM_THREADS": str(share)},
-            )
+            with config.set({"distributed.nanny.pre-spawn-environ": environ}):
+                cluster = distributed.LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                )
         except RuntimeError as err:  # distributed's "Nanny failed to start."
             raise ConfigError(f"{err} {GUARD}") from None
+        finally:
+            os.environ.clear()
+            os.environ.update(saved)
     try:
         client = distributed.Client(
             cluster if cluster is not None else scheduler, timeout=CONNECT_TIMEOUT

@@ -257,6 +257,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "h_maps_det_boresight.h5 (groups 'n,m'; Galactic maps only)",
     )
     parser.add_argument("--prefix", default="hn", help="file name prefix of --format so")
+    parser.add_argument(
+        "--partial",
+        action="store_true",
+        help="write every FITS map as a HEALPix partial map of the observed pixels (healpy "
+        "reads it back with UNSEEN elsewhere; SMARTIES, which expects 0 there, then needs a mask "
+        "within the hits map's pixels)",
+    )
     _common.focalplane_flag(parser)
     parser.add_argument(
         "--scheduler",
@@ -276,7 +283,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    layout = Layout(args.format, args.prefix)
+    layout = Layout(format=args.format, prefix=args.prefix, partial=args.partial)
     if is_schedule(args.config):
         rows = run_schedule(
             args.config,

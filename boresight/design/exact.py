@@ -41,6 +41,7 @@ from ..constants import DEG, N_MAX
 from ..instrument.hwp import pairs_behind
 from ..predict import field_products as fp
 from ..predict.expectation import OFFSETS_BEHIND_HWP
+from . import descent
 from .white import Design
 
 if TYPE_CHECKING:
@@ -635,27 +636,14 @@ def search(
     single = [_blocks(obj, u, u) for u in range(obj.unit_count)]
     cross = [_blocks(obj, u, u + 1) for u in range(obj.unit_count - 1)]
     starts = [choices(start_deg, start_steps_deg)] + _random_starts(obj, opts, restarts, rng)
-    best, history = None, []
-    try:
-        for k, start in enumerate(starts):
-            state = _State(obj, start)
-            history.append(dict(start=k, sweep=0, objective=obj.value_at(state.choice), moves=0))
-            for sweep in range(1, sweeps + 1):
-                moves = _sweep(obj, state, opts, single, cross, rng, progress)
-                value = obj.value_at(state.choice)
-                history.append(dict(start=k, sweep=sweep, objective=value, moves=moves))
-                if moves == 0:
-                    break
-            value = obj.value_at(state.choice)  # re-anchored: no drift from the running sums
-            if best is None or value < best.value:
-                best = _design(state.choice, value, history, stepped)
-    except KeyboardInterrupt as err:  # the command line's Interrupted, or a notebook's Ctrl-C
-        stop = err if isinstance(err, interrupts.Interrupted) else interrupts.Interrupted()
-        if best is None:
-            best = _design(state.choice, obj.value_at(state.choice), history, stepped)
-        best.interrupted = stop
-    best.history = history
-    return best
+    return descent.descend(
+        starts,
+        state_of=lambda start: _State(obj, start),
+        sweep=lambda state: _sweep(obj, state, opts, single, cross, rng, progress),
+        value_of=lambda state: obj.value_at(state.choice),
+        design_of=lambda state, value, history: _design(state.choice, value, history, stepped),
+        sweeps=sweeps,
+    )
 
 
 def _random_starts(obj, opts, restarts, rng):

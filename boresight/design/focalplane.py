@@ -36,6 +36,7 @@ from ..predict import R_RANGE, delta_r
 from ..predict import field_products as fp
 from ..predict import focalplane as predict_fp
 from ..predict.expectation import budget_terms, sky_fields, smoothed_spectra
+from . import descent
 from .exact import (
     EXHAUSTIVE_LIMIT,
     QuadraticForm,
@@ -404,21 +405,16 @@ def descend(
         return _enumerate(form)
     rng = np.random.default_rng(seed)
     starts = [np.asarray(start)] + [rng.integers(0, n_allowed, n_units) for _ in range(restarts)]
-    best, history = None, []
-    for k, choice in enumerate(starts):
-        state = _DenseState(form, choice)
-        history.append(dict(start=k, sweep=0, objective=form(allowed[state.choice]), moves=0))
-        for sweep in range(1, sweeps + 1):
-            moves = state.sweep(rng, progress)
-            value = form(allowed[state.choice])
-            history.append(dict(start=k, sweep=sweep, objective=value, moves=moves))
-            if moves == 0:
-                break
-        value = form(allowed[state.choice])
-        if best is None or value < best.value:
-            best = Design(allowed[state.choice].copy(), value, history)
-    best.history = history
-    return best
+    return descent.descend(
+        starts,
+        state_of=lambda start: _DenseState(form, start),
+        sweep=lambda state: state.sweep(rng, progress),
+        value_of=lambda state: form(allowed[state.choice]),
+        design_of=lambda state, value, history: Design(
+            allowed[state.choice].copy(), value, history
+        ),
+        sweeps=sweeps,
+    )
 
 
 def _enumerate(form):
@@ -525,6 +521,8 @@ def search(
                 form, sums.choices(reference), sweeps=sweeps, restarts=restarts,
                 seed=seed + r, progress=progress,
             )  # fmt: skip
+            if found.interrupted is not None:  # keep the best exact value of the rounds done
+                raise found.interrupted
             history += [dict(row, round=r) for row in found.history]
             if np.array_equal(found.angles_deg, reference):
                 break

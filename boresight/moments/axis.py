@@ -193,22 +193,23 @@ def bin_pairs(
 
 
 @njit(parallel=True)
-def _runs(occupancy, nbins, observed):
-    """Distinct angles, range and centre [bins] of each observed pixel's angle bitmap.
+def _runs(occupancy, nbins, rows, pixels, npix):
+    """Distinct angles, range and centre [bins] of each observed pixel's angle bitmap, maps of
+    ``npix``: pixel ``pixels[i]``'s bitmap is row ``rows[i]`` of ``occupancy``.
 
     Walks the set bits only; runs of neighbouring occupied bins are one angle, and the occupied
     arc is the complement of the largest circular gap.
     """
-    npix, nwords = occupancy.shape
+    nwords = occupancy.shape[1]
     n_distinct = np.zeros(npix, dtype=np.int64)
     range_bins = np.zeros(npix, dtype=np.int64)
     centre_bin = np.zeros(npix)
-    for i in numba.prange(observed.size):
-        p = observed[i]
+    for i in numba.prange(pixels.size):
+        p = pixels[i]
         bins = np.empty(nbins, dtype=np.int64)
         count = 0
         for w in range(nwords):
-            x = occupancy[p, w]
+            x = occupancy[rows[i], w]
             while x:
                 low = x & (~x + np.uint64(1))
                 bins[count] = w * _WORD + int(np.log2(np.float64(low)))
@@ -345,12 +346,6 @@ class Accumulator:
         self.hits[pixels] += hits
         self.occupancy[pixels] |= occupancy
 
-    def merge(self, other):
-        """Add another accumulator's samples: sums and counts add, bitmaps join."""
-        self.sums += other.sums
-        self.hits += other.hits
-        self.occupancy |= other.occupancy
-
     def add(self, pixels, cos_psi, sin_psi, angle_bin):
         interrupts.check()
         _bin(
@@ -365,20 +360,34 @@ class Accumulator:
         )
 
     def stats(self):
-        hits = self.hits
-        observed = np.flatnonzero(hits)
-        h = np.zeros((N_MAX + 1, hits.size), dtype=np.complex128)
-        h[:, observed] = (self.sums[observed] / hits[observed, None]).T
-        n_distinct, range_bins, centre_bin = _runs(self.occupancy, self.nbins, observed)
-        width = 2 * np.pi / self.nbins
-        return ScanStats(
-            hits=hits,
-            h=h,
-            n_distinct=n_distinct,
-            range_rad=range_bins * width,
-            centre_rad=np.mod(centre_bin * width, 2 * np.pi),
-            tolerance_deg=self.tolerance_deg,
+        observed = np.flatnonzero(self.hits)
+        arrays = (self.sums, self.hits, self.occupancy)
+        return stats_of_rows(
+            self.hits.size, observed, observed, arrays, tolerance_deg=self.tolerance_deg
         )
+
+
+def stats_of_rows(npix, pixels, rows, arrays, *, tolerance_deg):
+    """ScanStats on the sky (``npix``) of ``arrays``: the sums (rows, N_MAX + 1), hits (rows,)
+    and angle bitmaps (rows, words) that :class:`Accumulator` holds, pixel ``pixels[i]`` in row
+    ``rows[i]`` (each pixel hit at least once): the sky's accumulator, or one on the observed
+    pixels (:class:`~boresight.moments.observed.Union`)."""
+    sums, hits, occupancy = arrays
+    nbins = Accumulator.bins(tolerance_deg)
+    full = np.zeros(npix, dtype=np.int64)
+    full[pixels] = hits[rows]
+    h = np.zeros((N_MAX + 1, npix), dtype=np.complex128)
+    h[:, pixels] = (sums[rows] / hits[rows, None]).T
+    n_distinct, range_bins, centre_bin = _runs(occupancy, nbins, rows, pixels, npix)
+    width = 2 * np.pi / nbins
+    return ScanStats(
+        hits=full,
+        h=h,
+        n_distinct=n_distinct,
+        range_rad=range_bins * width,
+        centre_rad=np.mod(centre_bin * width, 2 * np.pi),
+        tolerance_deg=tolerance_deg,
+    )
 
 
 def _stats(nside, tolerance_deg, binned_chunks):

@@ -18,7 +18,15 @@ from ..constants import N_MAX
 from ..instrument.focalplane import off_centre
 from ..instrument.hwp import chunk_angles
 from ..pointing import ces_angle_deg, ces_chunks
-from .axis import Accumulator, ScanStats, bin_pairs, ces_hits, ces_hits_pairs, pixel_ranges
+from .axis import (
+    Accumulator,
+    ScanStats,
+    bin_pairs,
+    ces_hits,
+    ces_hits_pairs,
+    pixel_ranges,
+    stats_of_rows,
+)
 from .hwp import (
     BEAM_BEHIND_TERMS,
     IP_BEHIND_TERMS,
@@ -26,7 +34,7 @@ from .hwp import (
     T_BEHIND_TERMS,
     moments_behind,
 )
-from .observed import FOOTPRINT_NSIDE, Slots, grow_rows, observed_estimate
+from .observed import FOOTPRINT_NSIDE, Slots, Union, grow_rows, observed_estimate
 
 if TYPE_CHECKING:
     from ..instrument.focalplane import FocalPlane
@@ -276,29 +284,6 @@ def _pair_sums(sums, hits, n, per_pair):
     return sum_sq, weights
 
 
-class _Block:
-    """A block of pairs' sums and hits over the groups of CESs merged so far, on the union of
-    the pixels they observed (RING order)."""
-
-    def __init__(self):
-        self.observed = None
-
-    def add(self, part):
-        n = part["observed"].size
-        if self.observed is None:
-            self.observed, self.sums, self.hits = part["observed"], part["sums"], part["hits"]
-            return
-        union = np.union1d(self.observed, part["observed"])
-        old, new = np.searchsorted(union, self.observed), np.searchsorted(union, part["observed"])
-        m = self.sums.shape[0]
-        sums = np.zeros((m, union.size, N_MAX + 1), dtype=np.complex128)
-        hits = np.zeros((m, union.size), dtype=np.int64)
-        sums[:, old], hits[:, old] = self.sums[:, : old.size], self.hits[:, : old.size]
-        sums[:, new] += part["sums"][:, :n]
-        hits[:, new] += part["hits"][:, :n]
-        self.observed, self.sums, self.hits = union, sums, hits
-
-
 def characterise_focalplane(
     schedule: Schedule,
     focalplane: FocalPlane,
@@ -313,6 +298,7 @@ def characterise_focalplane(
     ip: bool = False,
     scheduler: str | None = "serial",
     workers: int = 2,
+    worker_threads: int | None = None,
     progress: bool = False,
 ) -> FocalPlaneStats:
     """Statistics of a schedule seen by every pair of a focal plane, each from its own place
@@ -357,6 +343,8 @@ def characterise_focalplane(
         "serial" (this process), None (a local Dask cluster of ``workers`` processes) or a Dask
         scheduler's address.
     workers : int
+    worker_threads : int, optional
+        Numba threads in each local worker (default: its share of the cores).
     progress : bool
 
     Returns
@@ -371,12 +359,14 @@ def characterise_focalplane(
     blocks = pair_blocks(focalplane.n_pairs, nside, per_pair=per_pair, observed=expected)
     groups = time_groups(schedule)
     total = schedule.n_samples * focalplane.n_pairs
-    combined = Accumulator(nside, tolerance_deg)
-    sum_sq = np.zeros((N_MAX + 1, npix))
+    # on the pixels observed so far: the pairs' combined sums, hits and bitmaps; sum_i N_i^2
+    # |h_{n,i}|^2 of the blocks finished; the current block's pairs' sums and hits
+    combined = Union(axes=(0, 0, 0), joins=(False, False, True))
+    sum_sq = Union(axes=(1,))
     weights = np.zeros((focalplane.n_pairs, N_MAX + 1))
     kept = {}  # with per_pair there is one block, whose maps are kept as they are
     order = [(b, g) for b in range(len(blocks)) for g in range(len(groups))]
-    pending, merged, block = {}, [0], [_Block()]
+    pending, merged, block = {}, [0], [Union(axes=(1, 1))]
     with tqdm(total=total, unit="sample", unit_scale=True, disable=not progress) as bar:
         serial = scheduler == "serial"
 
@@ -387,22 +377,23 @@ def characterise_focalplane(
             while merged[0] in pending:  # in (block, group) order: the sums' rounding is fixed
                 part = pending.pop(merged[0])
                 b, g = order[merged[0]]
-                combined.add_rows(part["observed"], *part["acc"])
-                block[0].add(part)
+                combined.add(part["observed"], *part["acc"])
+                block[0].add(part["observed"], part["sums"], part["hits"])
                 del part
                 if g == len(groups) - 1:  # the block's last group: its pairs' sums are whole
-                    done, block[0] = block[0], _Block()
-                    n = done.observed.size
+                    done, block[0] = block[0], Union(axes=(1, 1))
+                    (sums, hits), n = done.arrays, done.pixels.size
                     squares, weights[blocks[b].start : blocks[b].stop] = _pair_sums(
-                        done.sums, done.hits, n, per_pair
+                        sums, hits, n, per_pair
                     )
-                    sum_sq[:, done.observed] += squares
+                    sum_sq.add(done.pixels, squares)
                     if per_pair:
                         kept.update(
-                            observed=done.observed,
-                            observed_pair_hits=done.hits[:, :n],
-                            observed_pair_h=np.swapaxes(done.sums[:, :n], 1, 2),
+                            observed=done.pixels,
+                            observed_pair_hits=hits[:, :n],
+                            observed_pair_h=np.swapaxes(sums[:, :n], 1, 2),
                         )
+                    del done, sums, hits
                 merged[0] += 1
 
         gammas = np.radians(focalplane.gamma_deg)
@@ -431,6 +422,7 @@ def characterise_focalplane(
             scheduler=scheduler,
             workers=workers,
             window=2 * workers,
+            threads=worker_threads,
         )
     terms = ()  # the moments behind the plate: T's, the pointing's and the beams', each once
     if per_pair and hwp is not None and hwp.present:
@@ -442,9 +434,14 @@ def characterise_focalplane(
         if terms
         else None
     )
+    sky_sq = np.zeros((N_MAX + 1, npix))
+    sky_sq[:, sum_sq.pixels] = sum_sq.arrays[0]
+    rows = np.flatnonzero(combined.arrays[1] > 0)
     return FocalPlaneStats(
-        combined=combined.stats(),
-        sum_sq=sum_sq,
+        combined=stats_of_rows(
+            npix, combined.pixels[rows], rows, combined.arrays, tolerance_deg=tolerance_deg
+        ),
+        sum_sq=sky_sq,
         focalplane=focalplane,
         pair_weights=weights,
         **kept,

@@ -109,3 +109,61 @@ def observed_estimate(
     seen = footprint_pixels(boresight_pixels, footprint_nside, radius_deg)
     ratio = (nside / footprint_nside) ** 2
     return int(min(12 * nside**2, np.ceil(seen.size * max(ratio, 1.0))))
+
+
+class Union:
+    """Arrays over the union of the pixels added so far, in RING order: each part's rows (its
+    pixels', the first along each array's pixel axis) added to the union's, or or-ed into them
+    for the arrays named in ``joins`` (angle bitmaps). A part whose pixels the union holds
+    already is added in place; one with new pixels grows the union once. The union's rows take
+    the parts' values in the order they are added, so their rounding is fixed by that order.
+
+    Parameters
+    ----------
+    axes : tuple of int
+        The pixel axis of each array.
+    joins : tuple of bool, optional
+        Which arrays join by bitwise or (default: none; they add).
+
+    Attributes
+    ----------
+    pixels : numpy.ndarray or None
+        The union, (n,).
+    arrays : list of numpy.ndarray
+        Each array's sums, in the layout added; the first ``n`` along its pixel axis are the
+        union's (the first part is kept as it came, rows to spare included).
+    """
+
+    def __init__(self, axes: tuple[int, ...], joins: tuple[bool, ...] | None = None):
+        self.axes = axes
+        self.joins = joins if joins is not None else (False,) * len(axes)
+        self.pixels = None
+        self.arrays = []
+
+    def _at(self, k, index):
+        return (slice(None),) * self.axes[k] + (index,)
+
+    def add(self, pixels: np.ndarray, *arrays: np.ndarray) -> None:
+        """Add the rows of ``pixels`` (distinct, RING order; an array may have more rows than
+        pixels, the first ones theirs)."""
+        if self.pixels is None:  # the first part as it is, no copy
+            self.pixels, self.arrays = pixels, list(arrays)
+            return
+        union = np.union1d(self.pixels, pixels)
+        if union.size > self.pixels.size:
+            old = np.searchsorted(union, self.pixels)
+            grown = []
+            for k, a in enumerate(self.arrays):
+                shape = list(a.shape)
+                shape[self.axes[k]] = union.size
+                b = np.zeros(shape, dtype=a.dtype)
+                b[self._at(k, old)] = a[self._at(k, slice(0, old.size))]
+                grown.append(b)
+            self.pixels, self.arrays = union, grown
+        new = np.searchsorted(self.pixels, pixels)
+        for k, part in enumerate(arrays):
+            rows = part[self._at(k, slice(0, pixels.size))]
+            if self.joins[k]:
+                self.arrays[k][self._at(k, new)] |= rows
+            else:
+                self.arrays[k][self._at(k, new)] += rows

@@ -36,10 +36,14 @@ class Layout:
         or litebird_sim's HDF5 file of :mod:`boresight.outputs.litebird` in boresight's.
     prefix : str
         File name prefix of the SO layout: letters, digits, '_', '-' and '.'.
+    partial : bool
+        Every FITS map a HEALPix partial map of the observed pixels (a PIXEL column beside the
+        values: healpy.read_map fills the rest with UNSEEN), not the whole sky.
     """
 
     format: str = "boresight"
     prefix: str = "hn"
+    partial: bool = False
 
     def __post_init__(self):
         if self.format not in FORMATS:
@@ -95,6 +99,11 @@ class Layout:
         if self.format == "litebird":
             litebird.check_frame(frame)
 
+    def observed(self, observed: np.ndarray) -> np.ndarray | None:
+        """The pixels a FITS map of this layout is written on: ``observed`` for partial maps,
+        else None (the whole sky)."""
+        return observed if self.partial else None
+
     @property
     def files_per_pair(self) -> bool:
         """Whether a plate's moments of each pair of a focal plane get files of their own
@@ -137,6 +146,7 @@ def _boresight(stage, maps, n_max, frame, layout, plate, lite):
         [""] * (2 * n_max),
         comments=[BORESIGHT_CONVENTION],
         frame=frame,
+        observed=layout.observed(obs),
     )
     if plate is not None:
         columns, names = _hwp_columns(*plate)
@@ -147,14 +157,16 @@ def _boresight(stage, maps, n_max, frame, layout, plate, lite):
             [""] * len(names),
             comments=[HWP_CONVENTION],
             frame=frame,
+            observed=layout.observed(plate[0] > 0),
         )
 
 
 def _so(stage, maps, n_max, frame, layout, plate, lite):
     """The SO/SMARTIES files ``{prefix}_cos_{n}.fits``... (a plate is refused up front)."""
     so.write(
-        stage, layout.prefix, maps.h, maps.crossings, n_values=range(1, n_max + 1), frame=frame
-    )
+        stage, layout.prefix, maps.h, maps.crossings, n_values=range(1, n_max + 1), frame=frame,
+        partial=layout.partial,
+    )  # fmt: skip
 
 
 def _litebird(stage, maps, n_max, frame, layout, plate, lite):
@@ -178,6 +190,7 @@ def write_focalplane(stage, planes, layout, frame):
         [""] * (N_MAX + 1),
         comments=["sum over pairs of N_i^2 |h_n,i|^2 / N^2 (n = 0: sum N_i^2 / N^2)"],
         frame=frame,
+        observed=layout.observed(observed),
     )
     rows = planes.pair_means()
     io.write_csv(stage / "pairs.csv", rows, list(rows[0]))
@@ -194,7 +207,7 @@ def write_focalplane(stage, planes, layout, frame):
         for det, offset in zip(pair, np.radians(plane.hn_offset_deg[i])):
             h = np.zeros((N_MAX + 1, npix), dtype=np.complex128)
             h[:, planes.observed] = planes.observed_pair_h[i] * np.exp(1j * n * offset)  # Hn's psi
-            so.write(stage, f"{layout.prefix}_{det}", h, hits, frame=frame)
+            so.write(stage, f"{layout.prefix}_{det}", h, hits, frame=frame, partial=layout.partial)
 
 
 def _hwp_columns(hits, moments):
@@ -263,6 +276,7 @@ def write(
             ["CROSSINGS", "N_PHI", "RANGE_RAD"],
             ["", "", "rad"],
             frame=frame,
+            observed=layout.observed(obs),
         )
         io.write_csv(stage / "hn_summary.csv", rows, list(rows[0]))
         if planes is not None:

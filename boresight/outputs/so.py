@@ -49,6 +49,7 @@ def write(
     n_values: range = range(1, 5),
     *,
     frame: str = "icrs",
+    partial: bool = False,
 ) -> list[Path]:
     """Write ``{prefix}_cos_{n}.fits``, ``{prefix}_sin_{n}.fits`` and ``{prefix}_hits.fits``.
 
@@ -65,6 +66,10 @@ def write(
         The moments written.
     frame : {"icrs", "galactic", "cirs"}
         The maps' sky frame (their COORDSYS card).
+    partial : bool
+        HEALPix partial maps of the observed pixels (healpy.read_map fills the rest with UNSEEN;
+        SMARTIES' reader, which expects 0 there, then needs a mask within the hits map's
+        pixels).
 
     Returns
     -------
@@ -85,15 +90,24 @@ def write(
                 [""],
                 comments=[CONVENTION],
                 frame=frame,
+                observed=seen if partial else None,
             )
             paths.append(path)
     path = directory / f"{prefix}_hits.fits"
-    write_maps(path, [np.where(seen, hits, 0)], ["HITS"], [""], frame=frame)
+    write_maps(
+        path,
+        [np.where(seen, hits, 0)],
+        ["HITS"],
+        [""],
+        frame=frame,
+        observed=seen if partial else None,
+    )
     return paths + [path]
 
 
 def read(directory: str | os.PathLike, prefix: str, n: int) -> np.ndarray:
-    """One moment from the SO layout, back in boresight's convention.
+    """One moment from the SO layout, back in boresight's convention (0 where unobserved, a
+    partial map's UNSEEN included).
 
     Parameters
     ----------
@@ -108,4 +122,5 @@ def read(directory: str | os.PathLike, prefix: str, n: int) -> np.ndarray:
     directory = Path(directory)
     cos = hp.read_map(directory / f"{prefix}_cos_{n}.fits", dtype=np.float64)
     sin = hp.read_map(directory / f"{prefix}_sin_{n}.fits", dtype=np.float64)
-    return to_so(cos + 1j * sin, n)
+    h = np.where(cos == hp.UNSEEN, 0.0, cos) + 1j * np.where(sin == hp.UNSEEN, 0.0, sin)
+    return to_so(h, n)

@@ -1,6 +1,7 @@
 """Independent tasks in this process or on a local Dask cluster: every task once, its result
 with its index, and bad worker counts refused."""
 
+import json
 import operator
 import os
 import subprocess
@@ -63,3 +64,31 @@ def test_a_script_without_a_main_guard_gets_one_clear_error(tmp_path):
     )
     assert proc.returncode != 0
     assert 'put the script\'s work under `if __name__ == "__main__":`' in proc.stderr
+
+
+def test_local_workers_keep_glibcs_sliding_mmap_threshold_and_take_the_threads_asked(tmp_path):
+    """From a script that imports numba first (its workers re-import it before distributed's
+    ``env`` applies): each worker runs numba on the threads asked, without the
+    MALLOC_TRIM_THRESHOLD_ that distributed fixes (it maps every large array afresh: 1.4-1.7x
+    the CPU of a focal-plane task), and the script's own environment is left as it was."""
+    pytest.importorskip("dask.distributed")
+    script = tmp_path / "threads.py"
+    script.write_text(
+        "import json, os\n"
+        "import numba\n"
+        "from boresight._util import tasks\n"
+        "def main():\n"
+        "    before, got = dict(os.environ), {}\n"
+        "    calls = [(numba.get_num_threads, ())] * 2 + [(os.getenv, ('MALLOC_TRIM_THRESHOLD_',))]\n"
+        "    tasks.run(lambda f, a: f(*a), calls, got.__setitem__, scheduler=None, workers=1, threads=1)\n"
+        "    print(json.dumps({'got': got, 'same': dict(os.environ) == before}))\n"
+        'if __name__ == "__main__":\n'
+        "    main()\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=180, cwd=tmp_path,
+        env={**os.environ, "NUMBA_NUM_THREADS": "2"},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out == {"got": {"0": 1, "1": 1, "2": None}, "same": True}

@@ -83,3 +83,35 @@ def test_per_pair_maps_on_the_observed_pixels_are_the_skys(monkeypatch):
     for name in ("observed", "observed_pair_hits", "observed_pair_h", "sum_sq", "pair_weights"):
         np.testing.assert_array_equal(getattr(small, name), getattr(planes, name), err_msg=name)
     np.testing.assert_array_equal(small.combined.hits, planes.combined.hits)
+
+
+def test_a_union_of_parts_holds_the_dense_sums_and_joined_bitmaps():
+    """Parts over random pixel sets (some inside the union so far, some growing it; arrays with
+    rows to spare, pixel axes 0 and 1) added to a Union equal the same parts added into the
+    sky's arrays with numpy's own scatter-add and scatter-or."""
+    rng = np.random.default_rng(3)
+    npix, m = 300, 2
+    union = observed.Union(axes=(0, 1, 0), joins=(False, False, True))
+    sums, per, bits = np.zeros((npix, 3)), np.zeros((m, npix)), np.zeros(npix, dtype=np.uint64)
+    first = np.sort(rng.choice(npix, 120, replace=False))
+    for k in range(6):
+        pixels = first[rng.random(first.size) < 0.5] if k % 2 else np.sort(
+            rng.choice(npix, 80, replace=False)
+        )  # fmt: skip
+        spare = 5  # rows past the pixels', which must be ignored
+        a = rng.normal(size=(pixels.size + spare, 3))
+        b = rng.normal(size=(m, pixels.size + spare))
+        c = rng.integers(0, 2**63, pixels.size + spare, dtype=np.uint64)
+        union.add(pixels, a, b, c)
+        np.add.at(sums, pixels, a[: pixels.size])
+        np.add.at(per, (slice(None), pixels), b[:, : pixels.size])
+        np.bitwise_or.at(bits, pixels, c[: pixels.size])
+    held = union.pixels
+    assert np.all(np.diff(held) > 0)
+    n = held.size
+    np.testing.assert_allclose(union.arrays[0][:n], sums[held], rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(union.arrays[1][:, :n], per[:, held], rtol=1e-15, atol=1e-15)
+    np.testing.assert_array_equal(union.arrays[2][:n], bits[held])
+    seen = np.zeros(npix, dtype=bool)
+    seen[held] = True
+    assert not np.any(sums[~seen]) and not np.any(per[:, ~seen])
