@@ -52,6 +52,17 @@ def budget_file(directory, nside):
     return str(path)
 
 
+def season_file(directory):
+    """The deep example's CES set at 12 boresight angles: 8.6 million samples, 3 groups of CESs
+    (moments.focalplane.time_groups)."""
+    text = (EXAMPLES / "schedule_deep_sat.toml").read_text()
+    angles = ", ".join(f"{30.0 * k}" for k in range(12))
+    text = text.replace("repeat_boresight_deg = [0.0, 90.0]", f"repeat_boresight_deg = [{angles}]")
+    path = Path(directory) / "season.toml"
+    path.write_text(text)
+    return str(path)
+
+
 def command_args(command, directory, nside):
     """The arguments of each benchmarked command at one Nside."""
     schedule = str(EXAMPLES / "schedule_deep_sat.toml")
@@ -81,6 +92,18 @@ def command_args(command, directory, nside):
             "--per-detector",
             "--format",
             "so",
+        ],
+        "scan-stats (per detector, a season)": [
+            "scan-stats",
+            season_file(directory),
+            "--nside",
+            str(nside),
+            "--focalplane",
+            "hexagon:91:35",
+            "--per-detector",
+            "--format",
+            "so",
+            "--partial",
         ],
         "scan-stats (hwp)": [
             "scan-stats",

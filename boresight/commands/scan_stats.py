@@ -16,6 +16,7 @@ from .._util import io, precompile, provenance, tasks
 from ..config import Study, as_dict, load_study
 from ..instrument.hwp import check_sampling
 from ..jobs import resources
+from ..moments.focalplane import time_groups
 from ..outputs import hn_maps
 from ..outputs.hn_maps import FORMATS, Layout, ScanMaps
 from ..schedule import is_schedule, load_schedule
@@ -202,7 +203,8 @@ def _config(schedule_path, schedule, nside, tolerance_deg, focalplane, hwp):
 
 def _estimate(schedule, nside, *, focalplane, per_detector, hwp):
     """The run's memory and time estimate: the pairs pointed, the per-pair maps held at once
-    (with ``per_detector`` every pair's), the plate's moments."""
+    (with ``per_detector`` every pair's; twice over several groups of CESs), the plate's
+    moments."""
     pairs = 0 if focalplane is None else focalplane.n_pairs
     observed = scanstats.observed_pixels(schedule, focalplane, nside) if pairs else None
     blocks = (
@@ -215,7 +217,10 @@ def _estimate(schedule, nside, *, focalplane, per_detector, hwp):
         schedule,
         nside,
         pointed_pairs=pairs,
-        pair_maps=max((len(b) for b in blocks), default=0),  # with per_detector: every pair
+        # a block's sums (with per_detector: every pair's); over several groups of CESs, those
+        # merged so far beside the next group's
+        pair_maps=max((len(b) for b in blocks), default=0)
+        * (2 if len(time_groups(schedule)) > 1 else 1),
         observed_pixels=observed,
         hwp_terms=len(scanstats.HWP_TERMS) if hwp is not None and hwp.present else 0,
     )
