@@ -53,7 +53,9 @@ def main(nside, text):
     transfer = "transfer_deprojected_deep" if deprojects else "transfer_deep"
     plots.transfer_figure(result.transfer, figures / transfer, formats=("png",))
     rows = [{k: _cell(v) for k, v in row.items() if k != "amplitude"} for row in result.rows]
-    verdict = filtered.verdict(result.rows, result.kept)
+    verdict = filtered.verdict(
+        result.rows, result.kept, noise=result.noise, transfer=result.transfer
+    )
     unrotated = next(k for k in result.kept if k["pipeline"] != filtered.RAW)
     kept = "; ".join(
         f"{field} " + "/".join(f"{v:.3f}" for k, v in unrotated.items() if k.startswith(field))
@@ -85,7 +87,10 @@ def main(nside, text):
             "schedule's raw leak; F_BB: the filter's transfer function of B on the CES set once "
             "(SOOPERCOOL's estimator, 4 pairs of pure skies); corrected over raw: over raw "
             "divided by F_BB, the leak's bias on r filtered over raw; over unrotated: over its "
-            "own pipeline's leak without rotation. "
+            "own pipeline's leak without rotation; delta_r: the r the leak fakes (corrected by "
+            "F_BB where filtered) over 30 <= ell <= 2 Nside, against its pipeline's sigma(r) "
+            f"over the bands ({result.noise.summary()}; filtered: N_ell / F_BB and the E "
+            "the filter moves into B). "
             f"A leak of ~1e-36 is rounding. {seconds:.0f} s in all. The transfer per band: "
             f"{mixing}; the spread of F^BB {'/'.join(f'{x:.3f}' for x in tf.error[3, 3])}. "
             f"The sky's own (CAMB) E and B kept without rotation, over raw: {kept}. "

@@ -15,6 +15,12 @@ over the multipoles of the chosen bands,
           + r C_ell^tensor + N_ell))^2,
 
 and sigma(r) = (sum_b F_b)^(-1/2): the uncertainty of the inverse-variance weighted estimate.
+
+A pipeline that filters its TOD keeps a fraction F_b^BB of the sky's B in band b and moves a
+fraction T_b^(EE->BB) of its E into B (:mod:`boresight.jobs.transfer`). Its spectra corrected by
+F_b^BB carry the noise N_ell / F_b^BB and, where the E-to-B part is not purified, the sky's E
+leaked into B, T_b^(EE->BB) C_ell^EE / F_b^BB, whose sample variance adds to the total in the
+Fisher sum as the noise does (``transfer_bb``, ``e_to_b``).
 """
 
 from __future__ import annotations
@@ -117,6 +123,17 @@ class SurveyNoise:
     def has_spectrum(self) -> bool:
         """Whether N_ell is known (everything but a given sigma_r)."""
         return self.sigma_r is None
+
+    def summary(self) -> str:
+        """The survey in a few words: its depth (or N_ell table, or sigma(r)), sky fraction and
+        beam."""
+        if self.sigma_r is not None:
+            level = f"sigma(r) {self.sigma_r:g}"
+        elif self.nl_bb_file is not None:
+            level = f"N_ell of {self.nl_bb_file}"
+        else:
+            level = f"{self.depth:.3g} muK arcmin"
+        return f"{level}, fsky {self.fsky:.3g}, beam {self.fwhm_arcmin:g} arcmin"
 
     @property
     def depth(self) -> float:
@@ -221,6 +238,8 @@ def band_fisher(
     r: float = 0.0,
     a_lens: float = 1.0,
     time_fraction: float = 1.0,
+    transfer_bb: np.ndarray | None = None,
+    e_to_b: np.ndarray | None = None,
 ) -> np.ndarray:
     """The Fisher information on r of each band of C_BB.
 
@@ -234,6 +253,11 @@ def band_fisher(
         Fiducial tensor-to-scalar ratio and lensing amplitude.
     time_fraction : float
         The share of the survey's observing time kept, in (0, 1]: N_ell / time_fraction.
+    transfer_bb : numpy.ndarray, optional
+        A filtering pipeline's F_b^BB per band, in (0, 1]: the noise becomes N_ell / F_b^BB.
+    e_to_b : numpy.ndarray, optional
+        Its T_b^(EE->BB) per band (negative estimates count as 0): the sky's E leaked into B,
+        T_b C_ell^EE / F_b^BB, joins the noise.
 
     Returns
     -------
@@ -248,9 +272,30 @@ def band_fisher(
         raise ValueError(f"bands reach ell = {lmax}, beyond the spectra's lmax = {theory.lmax}")
     ell = np.arange(lmax + 1)
     validation.number("time_fraction", time_fraction, 1e-12, 1.0)
-    total = theory.bb(r=r, a_lens=a_lens)[: lmax + 1] + noise.n_ell(lmax) / time_fraction
+    extra = noise.n_ell(lmax) / time_fraction
+    if transfer_bb is not None or e_to_b is not None:
+        extra = extra + _filtered(theory, edges, transfer_bb, e_to_b, extra)
+    total = theory.bb(r=r, a_lens=a_lens)[: lmax + 1] + extra
     per_ell = 0.5 * noise.fsky * (2 * ell + 1) * (theory.bb_tensor[: lmax + 1] / total) ** 2
     return np.array([per_ell[lo:hi].sum() for lo, hi in zip(edges[:-1], edges[1:])])
+
+
+def _filtered(theory, edges, transfer_bb, e_to_b, noise_ell):
+    """What a filter adds to N_ell (``noise_ell``, to the last band's end) per multipole of the
+    bands: N_ell (1 / F_b - 1) and T_b^(EE->BB) C_ell^EE / F_b."""
+    nbands = edges.size - 1
+    f = np.ones(nbands) if transfer_bb is None else np.asarray(transfer_bb, dtype=float)
+    t = np.zeros(nbands) if e_to_b is None else np.asarray(e_to_b, dtype=float)
+    if f.shape != (nbands,) or t.shape != (nbands,):
+        raise ValueError(f"transfer_bb and e_to_b need one value per band ({nbands})")
+    if not (np.all(np.isfinite(f)) and np.all(f > 0) and np.all(f <= 1 + 1e-6)):
+        raise ValueError(f"transfer_bb must lie in (0, 1], got {f}")
+    if not np.all(np.isfinite(t)):
+        raise ValueError(f"e_to_b must be finite, got {t}")
+    added = np.zeros_like(noise_ell)
+    for lo, hi, fb, tb in zip(edges[:-1], edges[1:], f, np.maximum(t, 0.0)):
+        added[lo:hi] = noise_ell[lo:hi] * (1.0 / fb - 1.0) + tb * theory.ee[lo:hi] / fb
+    return added
 
 
 def sigma_r(
@@ -261,13 +306,16 @@ def sigma_r(
     r: float = 0.0,
     a_lens: float = 1.0,
     time_fraction: float = 1.0,
+    transfer_bb: np.ndarray | None = None,
+    e_to_b: np.ndarray | None = None,
 ) -> float:
     """The survey's 1-sigma uncertainty on r: the Fisher sum over the bands, F^(-1/2).
 
     Parameters
     ----------
-    noise, theory, edges, r, a_lens, time_fraction
-        As in :func:`band_fisher`.
+    noise, theory, edges, r, a_lens, time_fraction, transfer_bb, e_to_b
+        As in :func:`band_fisher`; a filter's ``transfer_bb`` and ``e_to_b`` need N_ell (not a
+        sigma_r given as a number).
 
     Returns
     -------
@@ -276,7 +324,18 @@ def sigma_r(
         white-noise Knox regime: a sigma(r) given as a number has no N_ell to scale).
     """
     if noise.sigma_r is not None:
+        if transfer_bb is not None or e_to_b is not None:
+            raise ValueError("a sigma_r given as a number has no N_ell for a filter to scale")
         validation.number("time_fraction", time_fraction, 1e-12, 1.0)
         return float(noise.sigma_r) / math.sqrt(time_fraction)
-    fisher = band_fisher(noise, theory, edges, r=r, a_lens=a_lens, time_fraction=time_fraction)
+    fisher = band_fisher(
+        noise,
+        theory,
+        edges,
+        r=r,
+        a_lens=a_lens,
+        time_fraction=time_fraction,
+        transfer_bb=transfer_bb,
+        e_to_b=e_to_b,
+    )
     return float(1.0 / np.sqrt(np.sum(fisher)))

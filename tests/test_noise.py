@@ -52,6 +52,63 @@ def test_sigma_r_closed_form_full_sky_white_noise():
     assert two == pytest.approx(one, rel=1e-12)
 
 
+def test_a_filters_transfer_scales_the_noise_and_adds_the_leaked_e():
+    """A filtering pipeline's corrected spectrum: one band of flat spectra gives the closed form
+    with N / F + T C^EE / F, and a filter that keeps F of a white noise of depth d is a survey of
+    depth d / sqrt(F) (per band, each band its own F)."""
+    lens, tensor, depth, ee = 2e-6, 5e-5, 3.0, 4e-4
+    spectra = _flat_spectra(lens, tensor)
+    spectra = cosmology.Spectra(**{**spectra.__dict__, "ee": np.full(401, ee)})
+    n = noise.SurveyNoise(fsky=1.0, fwhm_arcmin=0.0, depth_uk_arcmin=depth)
+    big_n = (depth * ARCMIN) ** 2
+    nu = np.sum(2 * np.arange(20, 200) + 1)
+    for f, t in ((0.6, 0.0), (0.6, 0.01), (1.0, 0.02)):
+        expected = np.sqrt(2 / nu) * (0.5 * lens + (big_n + t * ee) / f) / tensor
+        got = noise.sigma_r(
+            n, spectra, np.array([20, 200]), a_lens=0.5, transfer_bb=[f], e_to_b=[t]
+        )
+        assert got == pytest.approx(expected, rel=1e-12)
+    theory = cosmology.load_spectra()
+    edges = np.array([30, 128, 192, 257])
+    f_bb = np.array([0.59, 0.89, 0.88])
+    per_band = [
+        noise.band_fisher(
+            noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, depth_uk_arcmin=depth / np.sqrt(f)),
+            theory,
+            edges,
+        )[b]
+        for b, f in enumerate(f_bb)
+    ]
+    model = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, depth_uk_arcmin=depth)
+    filtered = noise.band_fisher(model, theory, edges, transfer_bb=f_bb)
+    np.testing.assert_allclose(filtered, per_band, rtol=1e-12)
+    # a negative estimate of the E-to-B leak counts as none; no filter is the raw survey
+    assert noise.sigma_r(model, theory, edges, transfer_bb=f_bb, e_to_b=[-0.01, 0, 0]) == (
+        noise.sigma_r(model, theory, edges, transfer_bb=f_bb)
+    )
+    assert noise.sigma_r(model, theory, edges, transfer_bb=[1, 1, 1]) == pytest.approx(
+        noise.sigma_r(model, theory, edges), rel=1e-14
+    )
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(transfer_bb=[0.5, 0.5]), "one value per band"),
+        (dict(transfer_bb=[0.0, 0.5, 0.5]), r"\(0, 1\]"),
+        (dict(transfer_bb=[1.5, 0.5, 0.5]), r"\(0, 1\]"),
+        (dict(e_to_b=[np.nan, 0, 0]), "finite"),
+    ],
+)
+def test_a_bad_transfer_is_one_clear_error(kwargs, message, theory):
+    model = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, depth_uk_arcmin=3.0)
+    with pytest.raises(ValueError, match=message):
+        noise.sigma_r(model, theory, np.array([30, 128, 192, 257]), **kwargs)
+    given = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, sigma_r=0.003)
+    with pytest.raises(ValueError, match="no N_ell for a filter"):
+        noise.sigma_r(given, theory, np.array([30, 301]), transfer_bb=[0.5])
+
+
 def test_sigma_r_matches_the_scatter_of_simulated_estimates():
     """An independent route: full-sky Gaussian B realisations (lensing + noise, r = 0), r estimated
     from each multipole's C_ell and combined with inverse-variance weights 2 C_ell^2 / (2 ell + 1);
@@ -177,3 +234,17 @@ def test_a_table_short_of_the_bands_is_a_config_error(tmp_path):
     )
     with pytest.raises(ConfigError, match="reaches ell = 100, the bands need 300"):
         table.n_ell(300)
+
+
+def test_a_survey_says_itself_in_a_few_words(tmp_path):
+    assert noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, depth_uk_arcmin=3.0).summary() == (
+        "3 muK arcmin, fsky 0.1, beam 30 arcmin"
+    )
+    given = noise.SurveyNoise(fsky=0.2, fwhm_arcmin=0.0, sigma_r=0.003)
+    assert given.summary() == "sigma(r) 0.003, fsky 0.2, beam 0 arcmin"
+    table = _table(tmp_path, [(2, 1e-6), (500, 1e-6)])
+    assert (
+        noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, nl_bb_file=table)
+        .summary()
+        .startswith(f"N_ell of {table}")
+    )

@@ -202,6 +202,7 @@ def run_filtered(
     out_dir: str,
     *,
     focalplane: FocalPlane | None = None,
+    depth_uk_arcmin: float = filtered_suppression.DEPTH_UK_ARCMIN,
     force: bool = False,
     progress: bool = False,
     checks: resources.Checks = resources.Checks(),
@@ -229,6 +230,9 @@ def run_filtered(
     out_dir : str
     focalplane : boresight.instrument.focalplane.FocalPlane, optional
         The pairs, each on its own samples (default the paper's Q and U pairs on the axis).
+    depth_uk_arcmin : float
+        The survey's white polarisation depth [muK arcmin] over the footprint's sky fraction:
+        each row's delta_r is read against its pipeline's sigma(r).
     force, progress : bool
     checks : boresight.jobs.resources.Checks
 
@@ -237,6 +241,8 @@ def run_filtered(
     list of dict
         The table's rows.
     """
+    if not (np.isfinite(depth_uk_arcmin) and 1e-6 <= depth_uk_arcmin <= 1e6):
+        raise ConfigError(f"--depth-uk-arcmin {depth_uk_arcmin:g}: give a depth in [1e-6, 1e6]")
     if sky_config.nside < hwp_suppression.MIN_NSIDE:
         raise ConfigError(
             f"--nside = {sky_config.nside}: the table's bands start at ell = 30; give a power of "
@@ -283,6 +289,7 @@ def run_filtered(
             filtering,
             run_options=run_options,
             focalplane=focalplane,
+            depth_uk_arcmin=depth_uk_arcmin,
             progress=progress,
         )
     with io.staged_dir(out_dir, force, inputs) as stage:
@@ -311,13 +318,21 @@ def run_filtered(
                     "evaluation": run_options.evaluation,
                     "sky": dataclasses.asdict(sky_config),
                     "focalplane": None if focalplane is None else focalplane.names,
+                    "noise": dataclasses.asdict(result.noise),
                 },
                 {"sky": sky_config.seed},
                 timer.stages,
                 estimate.as_dict(),
             ),
         )
-    print(filtered_suppression.verdict(result.rows, result.kept))
+    print(
+        filtered_suppression.verdict(
+            result.rows,
+            result.kept,
+            noise=result.noise,
+            transfer=result.transfer,
+        )
+    )
     return result.rows
 
 
@@ -399,6 +414,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "frame) to build the templates from, a Planck-like map with its own noise and beam "
         "(default: the simulated sky's own T)",
     )
+    parser.add_argument(
+        "--depth-uk-arcmin",
+        type=float,
+        default=None,
+        help="with --filter or --deproject: the survey's white polarisation depth [muK arcmin] "
+        f"over the footprint, which each delta_r is read against "
+        f"({filtered_suppression.DEPTH_UK_ARCMIN:g})",
+    )
     _common.focalplane_flag(parser, "; with --hwp or --filter only")
 
 
@@ -412,6 +435,8 @@ def main(args: argparse.Namespace) -> int:
         )
     cleaning = args.filter is not None or args.deproject is not None
     on_schedule = plate is not None or cleaning  # the tables of a real schedule
+    if args.depth_uk_arcmin is not None and not cleaning:
+        raise ConfigError("--depth-uk-arcmin: with --filter or --deproject only")
     try:
         sky_config = SkyConfig(
             nside=args.nside,
@@ -463,12 +488,14 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"{flag} none: give a filter (e.g. p3+ground) or templates (e.g. gain,pointing)"
             )
+        depth = args.depth_uk_arcmin
         run_filtered(
             sky_config,
             args.schedule,
             filtering,
             args.out,
             focalplane=_common.focalplane(args),
+            depth_uk_arcmin=filtered_suppression.DEPTH_UK_ARCMIN if depth is None else depth,
             force=args.force,
             progress=_common.progress(args),
             checks=_common.checks(args),

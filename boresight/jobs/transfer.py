@@ -64,6 +64,10 @@ class Transfer:
         """T[into, source] per band, e.g. ``entry("BB", "BB")``, F_ell^BB."""
         return self.matrix[FIELD_PAIRS.index(into), FIELD_PAIRS.index(source)]
 
+    def entry_error(self, into: str, source: str) -> np.ndarray:
+        """The error of :meth:`entry` per band."""
+        return self.error[FIELD_PAIRS.index(into), FIELD_PAIRS.index(source)]
+
     def rows(self) -> list[dict]:
         """A row per band and entry: its band, the pair of fields from and to, value and error."""
         out = []

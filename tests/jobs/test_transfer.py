@@ -115,6 +115,10 @@ def test_a_filter_keeps_of_a_sky_like_leak_what_it_keeps_of_the_sky(sky):
     f_bb = tf.entry("BB", "BB")
     assert np.all((f_bb > 0.2) & (f_bb < 0.9)) and np.all(np.diff(f_bb) > 0), f_bb
     assert np.all(np.abs(tf.entry("BB", "EE")) < 0.05), tf.entry("BB", "EE")
+    for into, source in (("BB", "BB"), ("BB", "EE"), ("EB", "BE")):
+        i, j = FIELD_PAIRS.index(into), FIELD_PAIRS.index(source)
+        assert np.array_equal(tf.entry_error(into, source), tf.error[i, j])
+        assert np.array_equal(tf.entry(into, source), tf.matrix[i, j])
     angle = Systematics(pol_angle_deg=0.5)
     kept = []
     for pipeline in (Filtering(), filtering):

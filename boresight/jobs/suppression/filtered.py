@@ -19,6 +19,16 @@ leak's bias on r in the filtered pipeline, whose spectra are corrected by F_ell^
 in the raw one ("corrected over raw"). A filtered leak is measured here, not predicted: its
 prediction from h_n is still to come.
 
+Each row's delta_r (:func:`boresight.predict.delta_r` of its leak, corrected by F_ell^BB in the
+filtered pipeline, against the tensor template through the footprint) is read against its
+pipeline's sigma(r) (:func:`boresight.noise.sigma_r`, over the table's bands): a survey's noise
+(by default a white :data:`DEPTH_UK_ARCMIN` over the footprint's sky fraction, with the sky's
+beam), raw, and filtered with N_ell / F_ell^BB, its E purified ("sigma_r"); beside it, the
+filtered sigma(r) where the sky's E that the filter moves into B, T^(EE->BB) C_ell^EE / F_ell^BB,
+is not purified ("sigma_r unpurified"; a few pure skies estimate T^(EE->BB) no better than its
+error, which the verdict prints). The noise is the raw survey's read through the filter's
+transfer of the sky: a filter takes part of the noise too, so these are upper bounds.
+
 A pipeline that deprojects templates of T (:class:`boresight.mitigation.Deprojection`) runs here
 as one that filters; its transfer function's skies carry a T of their own. The no-systematic
 maps of the table's sky (T, E and B correlated as CAMB's) give what each pipeline keeps of the
@@ -35,11 +45,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
-from ... import harmonics, spectra
+from ... import harmonics, predict, spectra
 from ..._util import interrupts
 from ...config import RunOptions
+from ...cosmology import load_spectra
+from ...coupling import mask_coupling
 from ...instrument.pairs import Instrument, Systematics
 from ...mitigation import Filtering, ces_scans
+from ...noise import SurveyNoise, sigma_r
 from ..compare_scans import on_focalplane
 from ..residual import reference_from_maps, residual, simulate_maps
 from ..transfer import Transfer, transfer_function
@@ -62,6 +75,9 @@ RAW = "raw"
 N_SIMS = 4
 #: boresight schedules whose leaks (summed over the bands) lie within this factor leak alike
 ALIKE = 1.01
+#: the table's default survey: a white polarisation depth [muK arcmin] (an SO-SAT-like level,
+#: ``examples/budget_deep_sat.toml``'s) over the footprint's sky fraction
+DEPTH_UK_ARCMIN = 3.0
 
 
 @dataclass
@@ -78,6 +94,11 @@ class Result:
         The bands' edges.
     transfer : boresight.jobs.transfer.Transfer
         The filter's transfer function on the CES set once, in those bands.
+    noise : boresight.noise.SurveyNoise
+        The survey whose sigma(r) each row's delta_r is read against.
+    template : numpy.ndarray
+        The pseudo-C_BB of tensors at r = 1 through the footprint (lmax + 1,) [muK^2], each
+        row's delta_r's template.
     kept : list of dict
         Per pipeline and boresight schedule, the pseudo-C_EE and C_BB of the no-systematic maps
         per band over the raw pipeline's on the same schedule ("EE kept <band>", "BB kept
@@ -88,6 +109,8 @@ class Result:
     spectra: dict
     edges: np.ndarray
     transfer: Transfer
+    noise: SurveyNoise
+    template: np.ndarray
     kept: list
 
 
@@ -100,6 +123,8 @@ def run(
     run_options: RunOptions = RunOptions(),
     n_sims: int = N_SIMS,
     focalplane: FocalPlane | None = None,
+    noise: SurveyNoise | None = None,
+    depth_uk_arcmin: float = DEPTH_UK_ARCMIN,
     progress: bool = False,
 ) -> Result:
     """Every case raw and filtered, through each boresight schedule, and the filter's transfer
@@ -122,6 +147,11 @@ def run(
         The pairs, each on its own samples (default the paper's Q and U pairs on the axis); a
         value given per Q and U pair goes to each pair by its angle
         (:func:`boresight.jobs.compare_scans.on_focalplane`).
+    noise : boresight.noise.SurveyNoise, optional
+        The survey of each row's sigma(r), with N_ell (default: ``depth_uk_arcmin`` white over the
+        footprint's sky fraction, the sky's beam).
+    depth_uk_arcmin : float
+        Without ``noise``: the survey's white polarisation depth [muK arcmin].
     progress : bool
 
     Returns
@@ -216,12 +246,39 @@ def run(
         focalplane=focalplane,
     )
     f_bb = transfer.entry("BB", "BB")
+    theory = load_spectra()
+    template = predict.tensor_template(
+        mask_coupling(mask, lmax, run_options.nthreads, band=sky.lmax),
+        theory,
+        sky.fwhm_arcmin,
+        sky.nside,
+    )
+    if noise is None:
+        noise = SurveyNoise(
+            fsky=float(np.mean(mask)), fwhm_arcmin=sky.fwhm_arcmin, depth_uk_arcmin=depth_uk_arcmin
+        )
+    kept_bb = np.clip(f_bb, 1e-12, 1.0)  # an estimate above 1 (its noise) keeps the whole band
+    raw_sigma = sigma_r(noise, theory, edges)
+    sigma = {  # (E purified, E leaked into B as the transfer function says)
+        RAW: (raw_sigma, raw_sigma),
+        str(filtering): (
+            sigma_r(noise, theory, edges, transfer_bb=kept_bb),
+            sigma_r(noise, theory, edges, transfer_bb=kept_bb, e_to_b=transfer.entry("BB", "EE")),
+        ),
+    }
+    per_ell = np.ones(lmax + 1)  # F_BB of each multipole of the bands
+    for lo, hi, f in zip(edges[:-1], edges[1:], kept_bb):
+        per_ell[lo:hi] = f
     for row in rows:
         raw = row["pipeline"] == RAW
         for band, f in zip(names, f_bb):
             row[f"F_BB {band}"] = 1.0 if raw else float(f)
             row[f"corrected over raw {band}"] = row[f"over raw {band}"] / row[f"F_BB {band}"]
-    return Result(rows, cls, edges, transfer, kept)
+        leak = cls[row["systematic"], row["pipeline"], row["boresight"]]
+        row["delta_r"] = predict.delta_r(leak if raw else leak / per_ell, template)
+        row["sigma_r"], row["sigma_r unpurified"] = sigma[row["pipeline"]]
+        row["delta_r over sigma_r"] = row["delta_r"] / row["sigma_r"]
+    return Result(rows, cls, edges, transfer, noise, template, kept)
 
 
 def tod_runs(schedules=SCHEDULES) -> int:
@@ -231,14 +288,24 @@ def tod_runs(schedules=SCHEDULES) -> int:
     return sum(len(r) for r in schedules) * 2 * (1 + len(CASES)) + 4 * N_SIMS
 
 
-def verdict(rows: list[dict], kept: list[dict] = ()) -> str:
+def verdict(
+    rows: list[dict],
+    kept: list[dict] = (),
+    *,
+    noise: SurveyNoise | None = None,
+    transfer: Transfer | None = None,
+) -> str:
     """What the filter changes, in a few lines: its F_BB per band (and, given ``kept``, what it
-    keeps of the sky's E and B without rotation); per systematic, what it keeps of the unrotated
-    raw leak and of its bias on r (the leak corrected by F_BB), band by band, and the boresight
-    schedule that leaks least (summed over the bands) in each pipeline."""
+    keeps of the sky's E and B without rotation); sigma(r) of each pipeline (its survey named
+    when ``noise`` is given; with ``transfer``, the E it moves into B per band and its error);
+    per systematic,
+    what it keeps of the unrotated raw leak and of its bias on r (the leak corrected by F_BB),
+    band by band, its delta_r without rotation in each pipeline over that pipeline's sigma(r),
+    and the boresight schedule that leaks least (summed over the bands) in each pipeline."""
     pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
     bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
     filtered_row = next(r for r in rows if r["pipeline"] != RAW)
+    raw_first = next(r for r in rows if r["pipeline"] == RAW)
     f_bb = "/".join(_two(filtered_row[f"F_BB {b}"]) for b in bands_)
     lines = [
         f"What the filter {pipelines[-1]} changes (leaked pseudo-C_BB, bands {'/'.join(bands_)}; "
@@ -248,6 +315,16 @@ def verdict(rows: list[dict], kept: list[dict] = ()) -> str:
     if sky is not None:
         ee, bb = ("/".join(_two(sky[f"{f} kept {b}"]) for b in bands_) for f in ("EE", "BB"))
         lines.append(f"  the sky's own E and B, without rotation: keeps {ee} of EE, {bb} of BB")
+    survey = "" if noise is None else f" ({noise.summary()})"
+    moved = ""
+    if transfer is not None:
+        into = zip(transfer.entry("BB", "EE"), transfer.entry_error("BB", "EE"))
+        moved = f", where it moves {'/'.join(_share(t, e) for t, e in into)} of E into B"
+    lines.append(
+        f"  sigma(r){survey}: {_g(raw_first['sigma_r'])} raw, {_g(filtered_row['sigma_r'])} "
+        f"filtered (N_ell / F_BB, E purified); {_g(filtered_row['sigma_r unpurified'])} with "
+        f"the E it leaks into B unpurified{moved}"
+    )
     for name in dict.fromkeys(r["systematic"] for r in rows):
         mine = [r for r in rows if r["systematic"] == name]
         unrotated = next(r for r in mine if r["pipeline"] != RAW)  # the first schedule's
@@ -270,15 +347,28 @@ def verdict(rows: list[dict], kept: list[dict] = ()) -> str:
             choice = (
                 f"least leak with {best[RAW]} raw, {best[pipelines[-1]]} filtered ({same} schedule)"
             )
+        raw_row = next(r for r in mine if r["pipeline"] == RAW)  # the first schedule's
+        r_text = ", ".join(
+            f"{_g(r['delta_r'])} {label} ({_g(r['delta_r over sigma_r'])} sigma)"
+            for r, label in ((raw_row, "raw"), (unrotated, "filtered"))
+        )
         lines.append(
             f"  {name}: keeps {kept_text} of the raw leak without rotation, {bias_text} of its "
-            f"bias on r once corrected by F_BB; {choice}"
+            f"bias on r once corrected by F_BB (delta_r {r_text}); {choice}"
         )
     return "\n".join(lines)
 
 
 def _two(x):
     return "-" if not np.isfinite(x) else f"{x:.2f}"
+
+
+def _g(x):
+    return "-" if not np.isfinite(x) else f"{x:.3g}"
+
+
+def _share(x, error):
+    return f"{100 * x:.1f} +- {100 * error:.1f} %"
 
 
 def markdown(rows: list[dict]) -> str:
@@ -297,4 +387,25 @@ def markdown(rows: list[dict]) -> str:
         + ".\n"
     )
     kinds = ("over raw", "corrected over raw", "over unrotated")
-    return leak_markdown(rows, "pipeline", tuple((k, k) for k in kinds)) + note
+    r_note = (
+        "\ndelta_r: the r the leak fakes (corrected by F_BB in the filtered pipeline), against "
+        "its pipeline's sigma(r) (N_ell / F_BB and the E the filter leaks into B where filtered).\n"
+    )
+    return (
+        leak_markdown(rows, "pipeline", tuple((k, k) for k in kinds))
+        + note
+        + r_markdown(rows)
+        + r_note
+    )
+
+
+def r_markdown(rows: list[dict]) -> str:
+    """delta_r of each row and its pipeline's sigma(r), a row per systematic, pipeline and
+    boresight schedule."""
+    head = ["systematic", "pipeline", "boresight", "delta_r", "sigma(r)", "delta_r / sigma(r)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        cells = [row["systematic"], row["pipeline"], row["boresight"]]
+        cells += [_g(row[k]) for k in ("delta_r", "sigma_r", "delta_r over sigma_r")]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n" + "\n".join(lines) + "\n"

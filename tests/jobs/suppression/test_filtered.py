@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from helpers import T0
 
+from boresight import noise
 from boresight.cli import main
+from boresight.cosmology import load_spectra
 from boresight.jobs.suppression import filtered
 from boresight.mitigation import Filtering
 from boresight.schedule import load_schedule
@@ -33,11 +35,15 @@ def _schedule_file(path):
 
 
 @pytest.fixture(scope="module")
-def table(tmp_path_factory):
+def result(tmp_path_factory):
     d = tmp_path_factory.mktemp("filtered_table")
     schedule = load_schedule(_schedule_file(d / "s.toml"))
     sky = make_sky(SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=120.0, seed=3))
-    result = filtered.run(schedule, sky, Filtering.parse(FILTER))
+    return filtered.run(schedule, sky, Filtering.parse(FILTER))
+
+
+@pytest.fixture(scope="module")
+def table(result):
     return {(r["systematic"], r["pipeline"], r["boresight"]): r for r in result.rows}
 
 
@@ -91,6 +97,44 @@ def test_the_corrected_leak_is_the_leak_over_the_filters_f_bb(table):
             )  # NaN where the raw leak cancels to rounding
 
 
+def test_each_rows_delta_r_is_its_corrected_leaks_against_its_pipelines_sigma_r(result, table):
+    """delta_r of a raw row is the least-squares amplitude of the tensor template in its leak
+    (over 30 <= ell <= 2 Nside here); of a filtered row, in its leak over F_BB band by band. Each
+    pipeline's sigma(r) is the survey's Fisher sum: raw, and with N_ell / F_BB and the E the
+    filter moves into B (the transfer function's BB <- EE), so larger filtered."""
+    template = result.template
+    assert np.all(template[30:] > 0)
+    s = slice(30, 2 * NSIDE + 1)
+    f_bb = result.transfer.entry("BB", "BB")
+    per_ell = np.ones(2 * NSIDE + 1)
+    for lo, hi, f in zip(result.edges[:-1], result.edges[1:], f_bb):
+        per_ell[lo:hi] = f
+    theory = load_spectra()
+    sigma_raw = noise.sigma_r(result.noise, theory, result.edges)
+    sigma_filtered = noise.sigma_r(result.noise, theory, result.edges, transfer_bb=f_bb)
+    unpurified = noise.sigma_r(
+        result.noise,
+        theory,
+        result.edges,
+        transfer_bb=f_bb,
+        e_to_b=result.transfer.entry("BB", "EE"),
+    )
+    assert unpurified >= sigma_filtered > sigma_raw
+    for (name, pipeline, label), row in table.items():
+        leak = result.spectra[name, pipeline, label] / (1.0 if pipeline == "raw" else per_ell)
+        expected = np.sum(leak[s] * template[s]) / np.sum(template[s] ** 2)
+        assert row["delta_r"] == pytest.approx(expected, rel=1e-10)
+        sigma = sigma_raw if pipeline == "raw" else sigma_filtered
+        assert row["sigma_r"] == pytest.approx(sigma, rel=1e-12)
+        assert row["sigma_r unpurified"] == pytest.approx(
+            sigma_raw if pipeline == "raw" else unpurified, rel=1e-12
+        )
+        assert row["delta_r over sigma_r"] == pytest.approx(expected / sigma, rel=1e-10)
+    # the default survey: DEPTH_UK_ARCMIN over the footprint, the sky's beam
+    assert result.noise.depth == filtered.DEPTH_UK_ARCMIN and result.noise.fwhm_arcmin == 120.0
+    assert 0.0 < result.noise.fsky < 1.0
+
+
 def test_the_verdict_names_what_the_filter_keeps_and_the_best_schedules(table):
     text = filtered.verdict(list(table.values()))
     assert text.startswith(f"What the filter {FILTER} changes")
@@ -103,7 +147,8 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
     path = _schedule_file(tmp_path / "s.toml")
     out = tmp_path / "out"
     args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
-    assert main([*args, "--fwhm-arcmin", "120", "--filter", "p3+ground-split"]) == 0
+    flags = ["--fwhm-arcmin", "120", "--filter", "p3+ground-split", "--depth-uk-arcmin", "6"]
+    assert main([*args, *flags]) == 0
     rows = list(csv.DictReader(open(out / "filtered_suppression.csv")))
     assert len(rows) == 4 * 2 * 4  # boresight schedules x pipelines x systematics
     assert {r["pipeline"] for r in rows} == {"raw", "p3+ground5-split"}
@@ -119,7 +164,14 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
     assert "over unrotated" in (out / "filtered_suppression.md").read_text()
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["filter"] == "p3+ground5-split"
-    assert "What the filter p3+ground5-split changes" in capsys.readouterr().out
+    assert manifest["config"]["noise"]["depth_uk_arcmin"] == 6.0
+    text = capsys.readouterr().out
+    assert "What the filter p3+ground5-split changes" in text
+    assert "sigma(r) (6 muK arcmin, fsky " in text and "E purified" in text
+    assert " with the E it leaks into B unpurified, where it moves " in text and " % of E" in text
+    assert "(delta_r " in text and " sigma), " in text
+    assert "| delta_r / sigma(r) |" in (out / "filtered_suppression.md").read_text()
+    assert all(float(r["sigma_r"]) > 0 for r in rows)
 
 
 @pytest.mark.parametrize(
@@ -144,6 +196,9 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
         (["--deproject-template", "T", "--filter", "p1", "--schedule", "S"], "give --deproject"),
         (["--deproject", "gain", "--deproject-template", "NO", "--schedule", "S"], "no such"),
         (["--deproject", "gain", "--deproject-template", "T8", "--schedule", "S"], "Nside 8"),
+        (["--depth-uk-arcmin", "3"], "with --filter or --deproject only"),
+        (["--filter", "p1", "--schedule", "S", "--depth-uk-arcmin", "-1"], "give a depth"),
+        (["--filter", "p1", "--schedule", "S", "--depth-uk-arcmin", "nan"], "give a depth"),
     ],
 )
 def test_the_command_refuses_a_filter_it_cannot_run_before_any_work(tmp_path, capsys, flags, words):
