@@ -84,3 +84,37 @@ def noise_inflation(h2: np.ndarray, h4: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = 0.25 * plain * (1.0 / low + 1.0 / high)
     return np.where(low > 0, ratio, np.inf)
+
+
+def noise_factor(
+    h2: np.ndarray, h4: np.ndarray, hits: np.ndarray, weights: np.ndarray | None = None
+) -> float:
+    """How much a free spin-0 field raises a white noise's pseudo-spectrum, N_ell^EE + N_ell^BB:
+    white noise of pixel variances v_p, masked by weights w_p, has the flat pseudo-spectrum
+    Omega_pix / (4 pi) sum_p w_p^2 v_p (with the mask's mean w^2 to undo), so the factor is
+    sum_p w_p^2 v_p' / sum_p w_p^2 v_p with v and v' :func:`qu_variance` without and with the
+    field; a survey's N_ell and its sigma(r) take it as a shorter observing time
+    (:func:`boresight.noise.sigma_r`'s ``time_fraction`` = 1 / factor).
+
+    Parameters
+    ----------
+    h2, h4 : numpy.ndarray, complex
+        The pixels' pair-sample moments.
+    hits : numpy.ndarray
+        Pair-samples per pixel.
+    weights : numpy.ndarray, optional
+        The mask's weights on those pixels (default 1).
+
+    Returns
+    -------
+    float
+        >= 1; inf where a weighted pixel's deprojected system is singular.
+    """
+    w2 = np.ones(np.shape(hits)) if weights is None else np.asarray(weights, float) ** 2
+    used = np.atleast_1d(w2 > 0)
+    plain = np.atleast_1d(qu_variance(h2, h4, hits, deproject=False))[used]
+    free = np.atleast_1d(qu_variance(h2, h4, hits, deproject=True))[used]
+    if not used.any() or not np.all(np.isfinite(plain)):
+        raise ValueError("noise_factor: every weighted pixel must solve Q and U without the field")
+    w2 = np.atleast_1d(w2)[used]
+    return float(np.sum(w2 * free) / np.sum(w2 * plain))

@@ -11,7 +11,7 @@ from helpers import T0
 
 from boresight import engine, pointing
 from boresight.instrument.pairs import Instrument, Systematics
-from boresight.predict.deprojection import information, noise_inflation, qu_variance
+from boresight.predict.deprojection import information, noise_factor, noise_inflation, qu_variance
 from boresight.schedule import CES, Schedule, Site
 from boresight.sky import Sky
 
@@ -105,7 +105,7 @@ def test_a_noise_only_monte_carlo_through_the_engine_has_the_closed_form_varianc
     seen = hits >= 20
     h2, h4 = h2[seen] / hits[seen], h4[seen] / hits[seen]
     sigma = 0.5 * 0.01 * 100.0
-    measured = {}
+    measured, spectra = {}, {}
     for mapmaker in ("pairs", "pairs-spin0"):
         maps = [
             engine.simulate_schedule(
@@ -124,9 +124,31 @@ def test_a_noise_only_monte_carlo_through_the_engine_has_the_closed_form_varianc
         want = qu_variance(h2, h4, hits[seen], deproject=mapmaker == "pairs-spin0")
         assert seen.sum() > 30 and np.all(np.isfinite(want))
         assert abs(np.mean(measured[mapmaker] / want) - 1) < 0.03, mapmaker
+        # the same noise's pseudo-spectrum EE + BB on the footprint, every multipole averaged
+        mask = seen.astype(float)
+        power = 0.0
+        for m in maps:
+            qu = np.zeros((3, npix))
+            qu[1], qu[2] = m.q * mask, m.u * mask
+            cl = hp.anafast(qu, lmax=2 * nside, pol=True)
+            power += np.mean(cl[1, 2:] + cl[2, 2:]) / len(maps)
+        spectra[mapmaker] = power
     inflation = measured["pairs-spin0"] / measured["pairs"]
     assert np.median(noise_inflation(h2, h4)) > 1.2  # a real price on this scan
     assert abs(np.mean(inflation / noise_inflation(h2, h4)) - 1) < 0.03
+    # N_ell's factor. The pseudo-spectra's ratio (a harmonic route) is the ratio of the measured
+    # pixel variances' sums on the same draws; that is the closed form's within 3 standard errors
+    # of 400 draws' variances, a sum that a few ill-conditioned pixels dominate
+    factor = noise_factor(h2, h4, hits[seen])
+    summed = measured["pairs-spin0"].sum() / measured["pairs"].sum()
+    assert spectra["pairs-spin0"] / spectra["pairs"] == pytest.approx(summed, rel=0.03)
+    low, high = information(h2, h4, deproject=True)  # the (Q, U) covariance's eigenvalues
+    lam = np.array([1 / low, 1 / high]) / hits[seen]
+    error = np.sqrt(2 / 399 * np.sum(lam**2)) / np.sum(lam)  # of a sum of 400 draws' variances
+    assert factor > 100 and 0.01 < error < 0.08, (factor, error)
+    assert abs(summed / factor - 1) < 3 * error, (summed / factor, error)
+    with pytest.raises(ValueError, match="without the field"):
+        noise_factor(np.zeros(2), np.ones(2), np.ones(2))  # h_4 = 1: one angle, no Q and U
 
 
 def test_the_spin0_field_takes_a_common_gain_leak_and_keeps_the_sky(plain_sky):
@@ -150,3 +172,24 @@ def test_the_spin0_field_takes_a_common_gain_leak_and_keeps_the_sky(plain_sky):
     np.testing.assert_allclose(spin0.i_obs[ok], 0.5 * 0.02 * i_map[px], rtol=1e-8, atol=1e-12)
     kept = np.max(np.abs(pairs.q[px] - 0.99 * q_map[px]))
     assert kept > 1e-3 * scale  # the pairs' map-maker keeps the leak
+
+
+def test_the_noise_factor_is_the_weighted_sum_of_the_pixels_variances():
+    """N_ell's factor: sum w^2 v' / sum w^2 v with v, v' the closed-form variances without and with
+    the field; a pixel of weight 0 counts for nothing, even a singular one."""
+    rng = np.random.default_rng(2)
+    angles = [rng.uniform(0, 0.3 + k / 10, 40) for k in range(12)]
+    h2 = np.array([np.exp(2j * a).mean() for a in angles])
+    h4 = np.array([np.exp(4j * a).mean() for a in angles])
+    hits, weights = rng.integers(10, 100, 12), rng.uniform(0, 1, 12)
+    v = qu_variance(h2, h4, hits, deproject=False)
+    free = qu_variance(h2, h4, hits, deproject=True)
+    want = np.sum(weights**2 * free) / np.sum(weights**2 * v)
+    assert noise_factor(h2, h4, hits, weights) == pytest.approx(want, rel=1e-14)
+    assert noise_factor(np.zeros(3), 0.2 * np.ones(3), np.ones(3)) == pytest.approx(1.0)
+    two = np.radians([0.0, 45.0])  # a pixel the field makes singular, weighted 0
+    h2x = np.append(h2, np.exp(2j * two).mean())
+    h4x = np.append(h4, np.exp(4j * two).mean())
+    hx, wx = np.append(hits, 10), np.append(weights, 0.0)
+    assert noise_factor(h2x, h4x, hx, wx) == pytest.approx(want, rel=1e-14)
+    assert np.isinf(noise_factor(h2x, h4x, hx))
