@@ -298,10 +298,10 @@ def verdict(
     """What the filter changes, in a few lines: its F_BB per band (and, given ``kept``, what it
     keeps of the sky's E and B without rotation); sigma(r) of each pipeline (its survey named
     when ``noise`` is given; with ``transfer``, the E it moves into B per band and its error);
-    per systematic,
-    what it keeps of the unrotated raw leak and of its bias on r (the leak corrected by F_BB),
-    band by band, its delta_r without rotation in each pipeline over that pipeline's sigma(r),
-    and the boresight schedule that leaks least (summed over the bands) in each pipeline."""
+    per systematic, what it keeps of the unrotated raw leak and of its bias on r (the leak
+    corrected by F_BB), band by band, its delta_r without rotation in each pipeline over that
+    pipeline's sigma(r), and the boresight schedule that leaks least (summed over the bands) in
+    each pipeline."""
     pipelines = list(dict.fromkeys(r["pipeline"] for r in rows))
     bands_ = [k[5:] for k in rows[0] if k.startswith("leak ")]
     filtered_row = next(r for r in rows if r["pipeline"] != RAW)
