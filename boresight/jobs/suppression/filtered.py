@@ -26,7 +26,9 @@ pipeline's sigma(r) (:func:`boresight.noise.sigma_r`, over the table's bands): a
 beam), raw, and filtered with N_ell / F_ell^BB, its E purified ("sigma_r"); beside it, the
 filtered sigma(r) where the sky's E that the filter moves into B, T^(EE->BB) C_ell^EE / F_ell^BB,
 is not purified ("sigma_r unpurified"; a few pure skies estimate T^(EE->BB) no better than its
-error, which the verdict prints). The noise is the raw survey's read through the filter's
+error, which the verdict prints), and the r that E fakes there ("delta_r of its E in B", the raw
+unrotated sky's pseudo-C_EE times T^(EE->BB) per band over F_ell^BB, and its error from
+T^(EE->BB)'s). The noise is the raw survey's read through the filter's
 transfer of the sky: a filter takes part of the noise too, so these are upper bounds.
 
 A pipeline that deprojects templates of T (:class:`boresight.mitigation.Deprojection`) runs here
@@ -99,6 +101,9 @@ class Result:
     template : numpy.ndarray
         The pseudo-C_BB of tensors at r = 1 through the footprint (lmax + 1,) [muK^2], each
         row's delta_r's template.
+    sky_ee : numpy.ndarray
+        The raw unrotated no-systematic maps' pseudo-C_EE (lmax + 1,) [muK^2], whose share the
+        filter moves into B fakes "delta_r of its E in B".
     kept : list of dict
         Per pipeline and boresight schedule, the pseudo-C_EE and C_BB of the no-systematic maps
         per band over the raw pipeline's on the same schedule ("EE kept <band>", "BB kept
@@ -111,6 +116,7 @@ class Result:
     transfer: Transfer
     noise: SurveyNoise
     template: np.ndarray
+    sky_ee: np.ndarray
     kept: list
 
 
@@ -176,6 +182,7 @@ def run(
     names = [f"{lo}-{hi - 1}" for lo, hi in zip(edges[:-1], edges[1:])]
     pipelines = {RAW: Filtering(), str(filtering): filtering}
     rows, cls, first, kept, sky_power = [], {}, {}, [], {}
+    sky_ee = None
     jobs = [(r, p) for r in schedules for p in pipelines]
     with Transforms() as transforms:
         footprint = None
@@ -193,6 +200,8 @@ def run(
                 ref_maps, footprint, lmax, run=run_options, transforms=transforms
             )
             alm = footprint.alm(ref_maps.qu_at(footprint.pixels), lmax, 2)
+            if pipeline == RAW and sky_ee is None:  # the raw unrotated sky's pseudo-C_EE
+                sky_ee = harmonics.alm2cl(alm[0])
             power = [spectra.bin_spectrum(harmonics.alm2cl(a), edges)[1] for a in alm]
             sky_power[pipeline, label] = power
             row = {"pipeline": pipeline, "boresight": label}
@@ -266,9 +275,13 @@ def run(
             sigma_r(noise, theory, edges, transfer_bb=kept_bb, e_to_b=transfer.entry("BB", "EE")),
         ),
     }
-    per_ell = np.ones(lmax + 1)  # F_BB of each multipole of the bands
-    for lo, hi, f in zip(edges[:-1], edges[1:], kept_bb):
-        per_ell[lo:hi] = f
+    per_ell = _per_ell(kept_bb, edges, lmax, outside=1.0)  # F_BB of each multipole
+    # unpurified, the E the filter moves into B fakes an r of its own: T^(EE->BB) times the sky's
+    # pseudo-C_EE, corrected by F_BB (and the same with T's error)
+    e_in_b = [
+        predict.delta_r(sky_ee * _per_ell(t, edges, lmax, outside=0.0) / per_ell, template)
+        for t in (transfer.entry("BB", "EE"), transfer.entry_error("BB", "EE"))
+    ]
     for row in rows:
         raw = row["pipeline"] == RAW
         for band, f in zip(names, f_bb):
@@ -278,7 +291,17 @@ def run(
         row["delta_r"] = predict.delta_r(leak if raw else leak / per_ell, template)
         row["sigma_r"], row["sigma_r unpurified"] = sigma[row["pipeline"]]
         row["delta_r over sigma_r"] = row["delta_r"] / row["sigma_r"]
-    return Result(rows, cls, edges, transfer, noise, template, kept)
+        row["delta_r of its E in B"] = 0.0 if raw else e_in_b[0]
+        row["delta_r of its E in B error"] = 0.0 if raw else e_in_b[1]
+    return Result(rows, cls, edges, transfer, noise, template, sky_ee, kept)
+
+
+def _per_ell(values, edges, lmax, *, outside):
+    """Per-band ``values`` on every multipole of their band, ``outside`` elsewhere (lmax + 1,)."""
+    out = np.full(lmax + 1, outside, dtype=float)
+    for lo, hi, v in zip(edges[:-1], edges[1:], values):
+        out[lo:hi] = v
+    return out
 
 
 def tod_runs(schedules=SCHEDULES) -> int:
@@ -323,7 +346,9 @@ def verdict(
     lines.append(
         f"  sigma(r){survey}: {_g(raw_first['sigma_r'])} raw, {_g(filtered_row['sigma_r'])} "
         f"filtered (N_ell / F_BB, E purified); {_g(filtered_row['sigma_r unpurified'])} with "
-        f"the E it leaks into B unpurified{moved}"
+        f"the E it leaks into B unpurified{moved}, which alone fakes delta_r = "
+        f"{_g(filtered_row['delta_r of its E in B'])} +- "
+        f"{_g(filtered_row['delta_r of its E in B error'])}"
     )
     for name in dict.fromkeys(r["systematic"] for r in rows):
         mine = [r for r in rows if r["systematic"] == name]

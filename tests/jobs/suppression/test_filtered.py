@@ -130,6 +130,18 @@ def test_each_rows_delta_r_is_its_corrected_leaks_against_its_pipelines_sigma_r(
             sigma_raw if pipeline == "raw" else unpurified, rel=1e-12
         )
         assert row["delta_r over sigma_r"] == pytest.approx(expected / sigma, rel=1e-10)
+    # unpurified, the E the filter moves into B fakes its own r: T^(EE->BB) per band times the
+    # raw unrotated sky's pseudo-C_EE, over F_BB; the raw rows' is 0, the filtered rows' one value
+    assert np.all(result.sky_ee[30:] > 0)
+    for entry, key in ((result.transfer.entry, ""), (result.transfer.entry_error, " error")):
+        t = np.zeros(2 * NSIDE + 1)
+        for lo, hi, v in zip(result.edges[:-1], result.edges[1:], entry("BB", "EE")):
+            t[lo:hi] = v
+        leak = result.sky_ee * t / per_ell
+        want = np.sum(leak[s] * template[s]) / np.sum(template[s] ** 2)
+        for row in table.values():
+            got = row[f"delta_r of its E in B{key}"]
+            assert got == (0.0 if row["pipeline"] == "raw" else pytest.approx(want, rel=1e-10))
     # the default survey: DEPTH_UK_ARCMIN over the footprint, the sky's beam
     assert result.noise.depth == filtered.DEPTH_UK_ARCMIN and result.noise.fwhm_arcmin == 120.0
     assert 0.0 < result.noise.fsky < 1.0
@@ -169,6 +181,7 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
     assert "What the filter p3+ground5-split changes" in text
     assert "sigma(r) (6 muK arcmin, fsky " in text and "E purified" in text
     assert " with the E it leaks into B unpurified, where it moves " in text and " % of E" in text
+    assert ", which alone fakes delta_r = " in text
     assert "(delta_r " in text and " sigma), " in text
     assert "| delta_r / sigma(r) |" in (out / "filtered_suppression.md").read_text()
     assert all(float(r["sigma_r"]) > 0 for r in rows)
