@@ -1,7 +1,7 @@
 """A focal plane's h_n on a local Dask cluster of 1, 2 and 4 workers against this process alone.
 
-The deep example's CES set observed at 12 boresight angles (0, 30, ..., 330 deg: 8.6 million
-samples at 20 Hz, 120 hours, cut into groups of CESs of at least
+The deep example's CES set observed at ANGLES boresight angles (default 12: 0, 30, ..., 330
+deg, 8.6 million samples at 20 Hz, 120 hours; 24 doubles it), cut into groups of CESs of at least
 ``moments.focalplane.GROUP_SAMPLES`` samples, one task each) seen by TOAST's 37-pixel 35-deg
 hexagon at NSIDE. Each worker runs numba on its share of the cores (NUMBA_NUM_THREADS), or on
 one thread (how workers scale when each brings its own core, as a cluster's nodes do); at most
@@ -10,7 +10,7 @@ arrive. Wall and CPU seconds (this process's and its workers') and this process'
 resident memory (the client's: what it holds of the tasks' results), best of REPEATS runs;
 every Dask result equal to the serial one to the bit.
 
-Usage: python bench/bench_focalplane_dask.py [NSIDE] [REPEATS]
+Usage: python bench/bench_focalplane_dask.py [NSIDE] [REPEATS] [ANGLES]
 
 Writes bench/results/focalplane_dask.json.
 """
@@ -43,16 +43,16 @@ RUNS = {
 }
 
 
-def season():
+def season(angles=12):
     schedule = load_schedule(str(ROOT / "examples" / "schedule_deep_sat.toml"))
-    return replace(schedule, repeat_boresight_deg=tuple(30.0 * k for k in range(12)))
+    return replace(schedule, repeat_boresight_deg=tuple(360.0 / angles * k for k in range(angles)))
 
 
-def one(name, nside):
+def one(name, nside, angles):
     """One run in this (fresh) process: its wall seconds, peak resident GiB and a digest of its
     maps, printed as JSON."""
     scheduler, workers, threads = RUNS[name]
-    schedule, focal = season(), hexagon(37, 35.0)
+    schedule, focal = season(angles), hexagon(37, 35.0)
     characterise_focalplane(replace(schedule, ces=schedule.ces[:1]), focal, nside)  # compiled
     before = cpu_seconds()
     t0 = time.perf_counter()
@@ -88,13 +88,13 @@ def _alike(name):
     return "1 worker, 1 thread" if RUNS[name][2] == 1 else "1 worker, its share"
 
 
-def main(nside, repeats):
+def main(nside, repeats, angles):
     best, cpus, peaks, digests = {}, {}, {}, set()
     for _ in range(repeats):
         for name in RUNS:  # alternated, each in a fresh process
             out = (
                 subprocess.run(
-                    [sys.executable, __file__, "--one", name, str(nside)],
+                    [sys.executable, __file__, "--one", name, str(nside), str(angles)],
                     capture_output=True,
                     text=True,
                     check=True,
@@ -126,8 +126,9 @@ def main(nside, repeats):
         list(rows[0]),
         rows,
         notes=(
-            f"examples/schedule_deep_sat.toml's CES set at 12 boresight angles, "
-            f"{season().n_samples:,} samples at 20 Hz in {len(time_groups(season()))} groups of "
+            f"examples/schedule_deep_sat.toml's CES set at {angles} boresight angles, "
+            f"{season(angles).n_samples:,} samples at 20 Hz in "
+            f"{len(time_groups(season(angles)))} groups of "
             "CESs, TOAST's 37-pixel 35-deg hexagon (37 pairs, one block); wall seconds, best of "
             f"{repeats}, each run in a fresh process, the runs alternated, cluster start-up "
             "included; CPU seconds of the process and its workers. A worker's share of the "
@@ -141,9 +142,10 @@ def main(nside, repeats):
 
 if __name__ == "__main__":
     if sys.argv[1:2] == ["--one"]:
-        one(sys.argv[2], int(sys.argv[3]))
+        one(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
     else:
         main(
             int(sys.argv[1]) if len(sys.argv) > 1 else 256,
             int(sys.argv[2]) if len(sys.argv) > 2 else 1,
+            int(sys.argv[3]) if len(sys.argv) > 3 else 12,
         )

@@ -25,6 +25,7 @@ from ..config import RunOptions, Study
 from ..cosmology import load_spectra
 from ..coupling import Coupling, mask_coupling
 from ..instrument.focalplane import FocalPlane
+from ..instrument.hwp import HWP
 from ..instrument.pairs import Instrument, Systematics
 from ..mapmaking import Maps
 from ..masks import from_config
@@ -145,6 +146,7 @@ def simulate_maps(
     leak_template: np.ndarray | None = None,
     focalplane: FocalPlane | None = None,
     filtering: Filtering = Filtering(),
+    hwp: HWP | None = None,
     progress: bool = False,
 ) -> Maps:
     """Maps of a synthetic or a real scan.
@@ -169,6 +171,9 @@ def simulate_maps(
     filtering : boresight.mitigation.Filtering
         What the pipeline filters before binning (:func:`boresight.engine.simulate_schedule`,
         :func:`boresight.engine.simulate_focalplane`): a real schedule's only.
+    hwp : boresight.instrument.hwp.HWP, optional
+        A half-wave plate in front of ``focalplane``'s pairs
+        (:func:`boresight.engine.simulate_focalplane`).
     progress : bool
 
     Returns
@@ -187,6 +192,7 @@ def simulate_maps(
         zero_qu=False,
         focalplane=focalplane,
         filtering=filtering,
+        hwp=hwp,
     )
     return maps
 
@@ -203,6 +209,7 @@ def _simulate(
     zero_qu,
     focalplane,
     filtering=Filtering(),
+    hwp=None,
 ):
     """(maps, the maps of Q = U = 0 from the same hits with ``zero_qu``, else None)."""
     on_samples = dict(
@@ -216,13 +223,22 @@ def _simulate(
             f"filtering ({filtering}) acts per throw and per CES: it needs a real schedule, and a "
             "synthetic scan has neither"
         )
+    if hwp is not None and focalplane is None:
+        raise ValueError("a half-wave plate here goes in front of a focal plane's pairs")
     if focalplane is not None:
         if not isinstance(scan, Schedule):
             raise ValueError(
                 "a focal plane needs a real schedule: a synthetic scan has no pointing"
             )
         maps = engine.simulate_focalplane(
-            sky, scan, focalplane, systematics, filtering=filtering, progress=progress, **on_samples
+            sky,
+            scan,
+            focalplane,
+            systematics,
+            filtering=filtering,
+            hwp=hwp,
+            progress=progress,
+            **on_samples,
         )
         return maps, None
     if isinstance(scan, Schedule):
@@ -343,6 +359,7 @@ def simulate_reference(
     run: RunOptions = RunOptions(),
     focalplane: FocalPlane | None = None,
     filtering: Filtering = Filtering(),
+    hwp: HWP | None = None,
     transforms: Transforms | None = None,
     progress: bool = False,
 ) -> tuple[Reference, Maps]:
@@ -350,7 +367,7 @@ def simulate_reference(
 
     Parameters
     ----------
-    sky, scan, instrument, run, focalplane, filtering, progress
+    sky, scan, instrument, run, focalplane, filtering, hwp, progress
         As in :func:`residual`.
     mask : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
         Weights in [0, 1]; pixels with weight > 0 are simulated.
@@ -373,6 +390,7 @@ def simulate_reference(
         run=run,
         focalplane=focalplane,
         filtering=filtering,
+        hwp=hwp,
         progress=progress,
     )
     return reference_from_maps(maps, footprint, lmax, run=run, transforms=transforms), maps
@@ -454,6 +472,7 @@ def residual(
     leak_template: np.ndarray | None = None,
     focalplane: FocalPlane | None = None,
     filtering: Filtering = Filtering(),
+    hwp: HWP | None = None,
     transforms: Transforms | None = None,
     keep_maps: bool = False,
     zero_qu: bool = False,
@@ -496,6 +515,10 @@ def residual(
         What the pipeline filters before binning, on a real schedule's pairs on the boresight or
         on ``focalplane`` (:func:`simulate_maps`), the reference's as the systematic's. Its
         leak is not predicted yet: no ``prediction`` with a filter.
+    hwp : boresight.instrument.hwp.HWP, optional
+        A half-wave plate in front of ``focalplane``'s pairs, the reference's as the
+        systematic's; predicted by :mod:`boresight.predict.focalplane` and
+        :mod:`boresight.predict.hwp`, not here.
     transforms : Transforms, optional
         Where the transforms run (default: inline).
     keep_maps : bool
@@ -534,6 +557,7 @@ def residual(
             run=run,
             focalplane=focalplane,
             filtering=filtering,
+            hwp=hwp,
             transforms=transforms,
             progress=progress,
         )
@@ -549,6 +573,7 @@ def residual(
         zero_qu,
         focalplane,
         filtering,
+        hwp,
     )
     parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference, footprint, lmax, run)
     stages["simulate"] = time.perf_counter() - t0

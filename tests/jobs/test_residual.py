@@ -3,7 +3,7 @@ follows its simulation, and the map-level prediction makes the sky's gradient on
 
 import numpy as np
 import pytest
-from helpers import CENTRED
+from helpers import CENTRED, night_schedule
 
 from boresight import coupling, engine, harmonics, masks, predict, spectra
 from boresight.instrument.pairs import PAPER_GAIN, Systematics
@@ -122,3 +122,30 @@ def test_beam_terms_with_pixel_centre_hits_and_a_lower_output_lmax(tmp_path):
     edges = spectra.linear_bins(40, 128, 22)
     sim, pred = (spectra.bin_spectrum(x, edges)[1] for x in (job.auto, job.predicted_cl))
     assert np.all(np.abs(pred / sim - 1) < 0.10), pred / sim
+
+
+def test_the_one_job_puts_a_plate_in_front_of_a_focal_planes_pairs(small_sky):
+    """residual(..., focalplane=, hwp=) is the difference of the engine's maps behind the same
+    plate, with and without the systematic, its B on the footprint (the HWP table's rows); a
+    plate without a focal plane is refused."""
+    from boresight.instrument.focalplane import on_axis
+    from boresight.instrument.hwp import HWP
+    from boresight.jobs import residual
+
+    schedule = night_schedule(rate=2.0, n=2)
+    pairs, plate = on_axis((0.0, 45.0)), HWP(mode="continuous", frequency_hz=0.37)
+    gain = Systematics(dg=(0.01, -0.01))
+    maps = [
+        engine.simulate_focalplane(small_sky, schedule, pairs, s, hwp=plate)
+        for s in (Systematics(), gain)
+    ]
+    footprint = spectra.as_footprint((maps[0].rcond > 0.05).astype(float))
+    lmax = 2 * small_sky.nside
+    d = (maps[1].qu_at(footprint.pixels) - maps[0].qu_at(footprint.pixels)).copy()
+    want = harmonics.alm2cl(footprint.alm(d, lmax, 2)[1])
+    job = residual.residual(small_sky, schedule, gain, footprint, lmax, focalplane=pairs, hwp=plate)
+    np.testing.assert_array_equal(job.auto, want)
+    bare = residual.residual(small_sky, schedule, gain, footprint, lmax, focalplane=pairs)
+    assert not np.allclose(bare.auto[2:], want[2:])  # the plate took part
+    with pytest.raises(ValueError, match="in front of a focal plane"):
+        residual.residual(small_sky, schedule, gain, footprint, lmax, hwp=plate)

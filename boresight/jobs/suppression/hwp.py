@@ -2,7 +2,8 @@
 
 Each systematic of :data:`CASES` runs alone on a real schedule, every pair on its own samples
 (:func:`boresight.engine.simulate_focalplane`, the sky read exactly at each sample), without a
-plate and behind one, through the boresight schedules of :data:`SCHEDULES` (the schedule's CES
+plate and behind one, each row one run of the one job (:func:`boresight.jobs.residual.residual`)
+against the no-systematic maps of the same plate and schedule, through the boresight schedules of :data:`SCHEDULES` (the schedule's CES
 set repeated at each angle). For every row the leaked pseudo-C_BB of the TOD is binned in three
 bands, set beside its prediction from the schedule's moments and divided by the leak without a
 plate or rotation.
@@ -33,14 +34,16 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from tqdm import tqdm
 
-from ... import engine, harmonics, spectra
+from ... import harmonics, spectra
 from ..._util import interrupts
+from ...config import RunOptions
 from ...instrument.focalplane import on_axis
-from ...instrument.pairs import Systematics
+from ...instrument.pairs import Instrument, Systematics
 from ...moments import centroid_moments, characterise_focalplane, hwp_moments
 from ...predict import focalplane as predict_fp
 from ...predict import hwp as predict_hwp
 from ...validation import ConfigError
+from ..residual import reference_from_maps, residual, simulate_maps
 
 if TYPE_CHECKING:
     from ...instrument.focalplane import FocalPlane
@@ -295,7 +298,7 @@ def run(
             else DEFAULT_SYNCHRONOUS_MUK,
         ),
     }
-    edges = bands(sky.nside)
+    edges, lmax = bands(sky.nside), 2 * sky.nside
     names = [f"{lo}-{hi - 1}" for lo, hi in zip(edges[:-1], edges[1:])]
     rows, cls, first = [], {}, {}
     jobs = [(r, p) for r in schedules for p in ("none", "plate")]
@@ -303,10 +306,16 @@ def run(
         interrupts.check()
         scan = dataclasses.replace(schedule, repeat_boresight_deg=tuple(repeats))
         plate = None if which == "none" else ideal
-        run_ = dict(evaluation="exact")
-        ref = engine.simulate_focalplane(sky, scan, pairs, hwp=plate, **run_)
+        run_ = RunOptions(evaluation="exact")
+        ref = simulate_maps(
+            sky, scan, Instrument(), Systematics(), run=run_, focalplane=pairs, hwp=plate
+        )
         mask = (ref.rcond > RCOND_FOOTPRINT).astype(float)
         footprint = spectra.as_footprint(mask)
+        reference = reference_from_maps(ref, footprint, lmax, run=run_)
+        del ref
+        # each row the one job against this schedule's reference
+        job = dict(run=run_, reference=reference, focalplane=pairs)
         stats = characterise_focalplane(
             scan, pairs, sky.nside, per_pair=True, hwp=plate, pointing=True, beams=True,
             ip=plate is not None and off_axis,
@@ -317,7 +326,9 @@ def run(
             if case.plate and plate is None:
                 continue
             if case.plate:
-                tod = engine.simulate_focalplane(sky, scan, pairs, hwp=own[case.plate], **run_)
+                measured = residual(
+                    sky, scan, Systematics(), footprint, lmax, hwp=own[case.plate], **job
+                ).auto
             if case.plate and moments is None:
                 moments = plate_moments(scan, ideal, sky.nside, pairs)
             white = 0.0
@@ -343,7 +354,7 @@ def run(
                 dp = predict_fp.delta_p(sky, offset, Systematics())
             else:
                 systematics = _on(pairs, case.systematics)
-                tod = engine.simulate_focalplane(sky, scan, pairs, systematics, hwp=plate, **run_)
+                measured = residual(sky, scan, systematics, footprint, lmax, hwp=plate, **job).auto
                 if plate is None and offsets is None:
                     offsets = centroid_moments(scan, sky.nside, focalplane=pairs)
                 dp = predict_fp.delta_p(
@@ -353,7 +364,6 @@ def run(
                     offsets=offsets if plate is None else None,
                     second_order=True,
                 )
-            measured = _pseudo_bb(footprint, (tod.q - ref.q) + 1j * (tod.u - ref.u), sky.nside)
             predicted = _pseudo_bb(footprint, dp, sky.nside) + white
             label = boresight_label(repeats)
             cls[case.name, which, label] = (measured, predicted)
