@@ -414,7 +414,8 @@ def markdown(rows: list[dict]) -> str:
     kinds = ("over raw", "corrected over raw", "over unrotated")
     r_note = (
         "\ndelta_r: the r the leak fakes (corrected by F_BB in the filtered pipeline), against "
-        "its pipeline's sigma(r) (N_ell / F_BB and the E the filter leaks into B where filtered).\n"
+        "its pipeline's sigma(r) (filtered: N_ell / F_BB, its E purified; the CSV's "
+        "'sigma_r unpurified' adds the E the filter leaks into B).\n"
     )
     return (
         leak_markdown(rows, "pipeline", tuple((k, k) for k in kinds))

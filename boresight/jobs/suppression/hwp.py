@@ -3,8 +3,8 @@
 Each systematic of :data:`CASES` runs alone on a real schedule, every pair on its own samples
 (:func:`boresight.engine.simulate_focalplane`, the sky read exactly at each sample), without a
 plate and behind one, each row one run of the one job (:func:`boresight.jobs.residual.residual`)
-against the no-systematic maps of the same plate and schedule, through the boresight schedules of :data:`SCHEDULES` (the schedule's CES
-set repeated at each angle). For every row the leaked pseudo-C_BB of the TOD is binned in three
+against the no-systematic maps of the same plate and schedule, through the boresight schedules
+of :data:`SCHEDULES` (the schedule's CES set repeated at each angle). For every row the leaked pseudo-C_BB of the TOD is binned in three
 bands, set beside its prediction from the schedule's moments and divided by the leak without a
 plate or rotation.
 
