@@ -271,7 +271,8 @@ def _simulate(
     if chunk_pixels is None:
         chunk_pixels = DEFAULT_CHUNK_PIXELS[backend]
     pix = _pixel_list(pixels, npix)
-    q, u, rcond = np.empty((3, pix.size))
+    q, u = np.empty((2, pix.size))  # rows of one array: Maps.take_qu hands it on, no copy
+    rcond = np.empty(pix.size)
     ncross = np.empty(pix.size, dtype=np.int64)
     if zero_qu:  # Q = U = 0's q, u; its hits and rcond are the sky's (the same c, s sums)
         q0, u0 = np.empty((2, pix.size))
@@ -945,6 +946,7 @@ def scan_moments(
     nthreads: int = 0,
     backend: str = "cpu",
     progress: bool = False,
+    dtype: type = np.complex128,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The spin moments h_n = <exp(i n psi)> over each pixel's hits, rotations included.
 
@@ -959,10 +961,13 @@ def scan_moments(
         RING indices or a boolean map of the pixels (default: all).
     chunk_pixels, nthreads, backend, progress
         As in :func:`simulate`.
+    dtype : numpy.complex128 or numpy.complex64
+        Of h, summed in complex128 either way: complex64 keeps each h_n (of modulus at most 1)
+        to 6e-8 in half the memory (:func:`boresight.jobs.residual.compute_moments`).
 
     Returns
     -------
-    h : numpy.ndarray, complex128, shape (n_max + 1, npix)
+    h : numpy.ndarray, ``dtype``, shape (n_max + 1, npix)
         h_n per pixel, 0 where unobserved.
     crossings : numpy.ndarray, int64, shape (npix,)
         Hits per pixel times the number of rotations.
@@ -973,7 +978,9 @@ def scan_moments(
     npix = 12 * nside**2
     pix = _pixel_list(pixels, npix)
     chunk_pixels = DEFAULT_CHUNK_PIXELS[backend] if chunk_pixels is None else chunk_pixels
-    h = np.zeros((n_max + 1, npix), dtype=np.complex128)
+    if np.dtype(dtype) not in (np.complex128, np.complex64):
+        raise ValueError(f"dtype must be complex128 or complex64, got {dtype}")
+    h = np.zeros((n_max + 1, npix), dtype=dtype)
     ncross = np.zeros(npix, dtype=np.int64)
     with numba_threads(nthreads):
         for _, chunk in _chunks(pix, chunk_pixels, progress, "scan moments"):

@@ -26,21 +26,28 @@ class Footprint:
 
     Attributes
     ----------
-    mask : numpy.ndarray, float64, shape (npix,)
-        The mask itself (not a copy when it is float64).
-    nside : int
+    nside, npix : int
     pixels : numpy.ndarray, int64, shape (nobs,)
         The observed pixels, increasing.
     weights : numpy.ndarray, shape (nobs,)
-        The mask there.
+        The mask there. The full-sky mask is not kept (0.4 GB at Nside 2048): :attr:`mask`
+        makes it again.
     """
 
     def __init__(self, mask):
-        self.mask = np.asarray(mask, dtype=np.float64)
-        self.nside = int(round(np.sqrt(self.mask.size / 12)))
-        self.pixels = np.flatnonzero(self.mask)
-        self.weights = self.mask[self.pixels]
+        mask = np.asarray(mask, dtype=np.float64)
+        self.npix = mask.size
+        self.nside = int(round(np.sqrt(self.npix / 12)))
+        self.pixels = np.flatnonzero(mask)
+        self.weights = mask[self.pixels]
         self._parents = {}
+
+    @property
+    def mask(self) -> np.ndarray:
+        """The full-sky mask, float64 (npix,), made anew at each call."""
+        out = np.zeros(self.npix)
+        out[self.pixels] = self.weights
+        return out
 
     def parents(self, block: int) -> np.ndarray:
         """Each observed pixel's NEST parent at Nside / block, made once per block size.
@@ -159,10 +166,8 @@ def _observed(maps, mask):
     """The mask's :class:`Footprint` and the maps (..., npix) on its pixels (a copy)."""
     maps = np.asarray(maps)
     footprint = as_footprint(mask)
-    if maps.shape[-1] != footprint.mask.size:
-        raise ValueError(
-            f"maps have {maps.shape[-1]} pixels but the mask has {footprint.mask.size}"
-        )
+    if maps.shape[-1] != footprint.npix:
+        raise ValueError(f"maps have {maps.shape[-1]} pixels but the mask has {footprint.npix}")
     return footprint, maps[..., footprint.pixels].astype(np.float64, copy=False)
 
 

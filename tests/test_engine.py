@@ -81,6 +81,30 @@ def test_prediction_and_maps_at_observed_pixels(small_sky):
     np.testing.assert_array_equal(m.qu_at(pix), m.qu[:, pix])
 
 
+def test_take_qu_hands_on_the_engines_own_maps(small_sky):
+    """Maps.take_qu is qu_at on the observed pixels, as the engine's own (2, n) Q, U array (no
+    copy), for the sky's maps and for the Q = U = 0 maps made beside them; elsewhere a copy."""
+    scan = SyntheticScan(**CENTRED)
+    pix = np.arange(0, 12 * 64**2, 7)[::2]
+    sim, sim0 = engine.simulate_with_zero_qu(small_sky, scan, pixels=pix)
+    assert (~sim.valid).any()  # some pixels unobserved: their UNSEEN become 0
+    for maps in (sim, sim0):
+        want = maps.qu_at(maps.pixels)
+        other = maps.take_qu(maps.pixels[::3])
+        assert not np.shares_memory(other, maps.q_obs)
+        np.testing.assert_array_equal(other, want[:, ::3])
+        got = maps.take_qu(maps.pixels)
+        assert np.shares_memory(got, maps.q_obs) and np.shares_memory(got, maps.u_obs)
+        np.testing.assert_array_equal(got, want)
+    copy = engine.simulate(small_sky, scan, pixels=pix)  # Maps whose rows are not one array
+    copy = type(copy)(
+        copy.nside, copy.pixels, copy.q_obs.copy(), copy.u_obs.copy(), copy.hits_obs, copy.rcond_obs
+    )
+    got = copy.take_qu(copy.pixels)
+    assert not np.shares_memory(got, copy.q_obs)
+    np.testing.assert_array_equal(got, sim.qu_at(sim.pixels))
+
+
 def test_gain_cancels_with_90_degree_rotation(small_sky_unpolarised):
     scan = SyntheticScan(**CENTRED, rotations_deg=(0, 90))
     m = engine.simulate(small_sky_unpolarised, scan, systematics=Systematics(dg=(0.01, 0.01)))

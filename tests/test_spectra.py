@@ -142,3 +142,16 @@ def test_footprint_refuses_values_it_cannot_mask():
         footprint.alm(bad, 32, 2)
     qu = np.where(mask > 0, 1.0, np.nan) * np.ones((2, 1))
     assert np.all(np.isfinite(spectra.masked_pol_alm(qu, mask, 32)))
+
+
+def test_a_footprint_keeps_its_pixels_not_the_full_sky_mask():
+    """A Footprint holds the observed pixels and their weights only (the full-sky mask is 0.4 GB
+    at Nside 2048); its mask is made again, equal to the one it was built from."""
+    mask = masks.apodize(masks.survey_mask("deep", 32), 5.0)
+    footprint = spectra.Footprint(mask)
+    held = [v for v in vars(footprint).values() if isinstance(v, np.ndarray)]
+    assert held and all(v.size < mask.size for v in held)
+    np.testing.assert_array_equal(footprint.mask, mask)
+    assert footprint.npix == mask.size and footprint.nside == 32
+    with pytest.raises(ValueError, match="maps have 10 pixels but the mask has 12288"):
+        spectra.masked_alm(np.zeros((3, 10)), footprint, 8)

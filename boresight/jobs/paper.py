@@ -25,7 +25,7 @@ from ..config import ConfigError, OutputOptions, RunOptions, Study, build_sectio
 from ..cosmology import load_spectra
 from ..coupling import mask_coupling
 from ..instrument.pairs import PAPER_GAIN, PAPER_POINTING, Systematics
-from ..masks import fsky, survey_mask
+from ..masks import SURVEY_FSKY, fsky, survey_mask
 from ..scan import SyntheticScan, paper_scan
 from ..sky import SkyConfig, make_sky
 from ..spectra import Footprint
@@ -36,6 +36,9 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 log = logging.getLogger(__name__)
+#: a job waiting in the transforms' queue holds its Q, U on the observed pixels: two may wait
+#: while each is at most this many bytes, else one (0.3 GB a job at Nside 2048 on the wide mask)
+QUEUE_BYTES = 2**28
 
 
 @dataclass(frozen=True)
@@ -225,7 +228,7 @@ def run_study(
         sky = make_sky(study.sky, theory, study.run.nthreads)
     results = {}
     # one queue for every experiment: the next one starts while the last transforms run
-    with Transforms(background=True) as transforms:
+    with Transforms(background=True, depth=queue_depth(study, experiments)) as transforms:
         for exp in experiments:
             results[exp.name] = _run_experiment(
                 exp, study, sky, theory, timer, progress, transforms
@@ -233,6 +236,25 @@ def run_study(
         with timer("transforms still running"):
             transforms.wait()
     return results, timer.stages
+
+
+def queue_depth(study: Study, experiments: Sequence[Experiment] = EXPERIMENTS) -> int:
+    """How many transforms may wait at a time: 2 while a job's maps (Q and U, float64, on the
+    largest survey's observed pixels) take at most :data:`QUEUE_BYTES`, else 1. Either way the
+    numbers are the same bits (:class:`boresight.jobs.transforms.Transforms`).
+
+    Parameters
+    ----------
+    study : boresight.config.Study
+    experiments : sequence of Experiment
+
+    Returns
+    -------
+    int
+    """
+    largest = max(SURVEY_FSKY[exp.survey] for exp in experiments)
+    job = 2 * 8 * 12 * study.sky.nside**2 * largest
+    return 2 if job <= QUEUE_BYTES else 1
 
 
 def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
@@ -259,6 +281,7 @@ def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
     prediction = predict.Prediction(theory, couplings, fwhm, field_cl=local)
     job = dict(run=run, transforms=transforms, progress=progress)
     footprint = Footprint(mask)  # the observed pixels, shared by every job
+    del mask  # the footprint's pixels and weights are all the jobs read (0.4 GB at Nside 2048)
     with timer(f"{exp.name}: reference (no systematic)"):
         reference = simulate_reference(  # its maps are not kept (0.6 GiB at Nside 2048)
             sky, paper_scan(exp.survey, seed=seed), footprint, lmax, **job

@@ -37,6 +37,7 @@ from ..sky import Sky
 from .transforms import Transforms
 
 N_MAX = predict.N_MAX
+_POWER_CHUNK = 1 << 20  #: pixels per dot product of :func:`_mean_power`
 
 
 @dataclass(frozen=True)
@@ -258,7 +259,7 @@ def _simulate(
 class Moments(NamedTuple):
     """What the predictions need of a scan's crossings.
 
-    h : numpy.ndarray, complex128, shape (N_MAX + 1, npix)
+    h : numpy.ndarray, complex64 (a synthetic scan's) or complex128, shape (N_MAX + 1, npix)
         h_n of one repeat's crossings (a real schedule's, rotations included), 0 where unobserved.
     crossings : numpy.ndarray, int64, shape (npix,)
         Crossings per pixel in one repeat.
@@ -310,18 +311,26 @@ def compute_moments(
         stats = characterise_schedule(scan, nside)
         return Moments(stats.h, stats.hits, (0.0,), _mean_power(stats.h, pixels))
     h, crossings = engine.scan_moments(
-        scan.one_repeat(), nside, n_max, pixels=pixels, nthreads=run.nthreads, backend=run.backend
+        scan.one_repeat(),
+        nside,
+        n_max,
+        pixels=pixels,
+        nthreads=run.nthreads,
+        backend=run.backend,
+        dtype=np.complex64,  # |h_n| <= 1 to 6e-8: half of the Nside-2048 run's largest array
     )
     return Moments(h, crossings, scan.rotations_deg, _mean_power(h, pixels))
 
 
 def _mean_power(h, pixels):
     """``<|h_n|^2>`` over ``pixels`` (a boolean map or RING indices) for each n of h."""
-    out = np.empty(h.shape[0])
+    pixels = np.flatnonzero(pixels) if pixels.dtype == bool else pixels
+    out = np.zeros(h.shape[0])
     for n, hn in enumerate(h):
-        values = hn[pixels].view(np.float64)  # (re, im) pairs: |h|^2 summed is one dot product
-        out[n] = np.dot(values, values) / (values.size // 2)
-    return out
+        for start in range(0, pixels.size, _POWER_CHUNK):  # in float64, whatever h's dtype
+            values = hn[pixels[start : start + _POWER_CHUNK]].astype(np.complex128).view(np.float64)
+            out[n] += np.dot(values, values)  # (re, im) pairs: |h|^2 summed is one dot product
+    return out / max(pixels.size, 1)
 
 
 def n_max_for(systematics: Systematics) -> int:
@@ -575,17 +584,21 @@ def residual(
         filtering,
         hwp,
     )
-    parts = transforms.submit(_difference_parts, sim.qu_at(pixels), reference, footprint, lmax, run)
+    # the maps' own Q, U go to the queue, and the maps are let go before a full queue makes the
+    # submit wait: at the Nside-2048 peak copies waited beside their maps (1.1 GB)
+    qu = sim.qu_at(pixels) if keep_maps else sim.take_qu(pixels)
+    qu0 = None if sim_qu0 is None else sim_qu0.take_qu(pixels)
+    maps = (ref_maps, sim) if keep_maps else None  # kept in the result only when asked for
+    del sim, sim_qu0
+    parts = transforms.submit(_difference_parts, qu, reference, footprint, lmax, run)
+    del qu  # the job owns it
     stages["simulate"] = time.perf_counter() - t0
-    result = Residual(parts, maps=(ref_maps, sim) if keep_maps else None, stages=stages)
-    del sim  # kept in the result only when asked for
+    result = Residual(parts, maps=maps, stages=stages)
     if zero_qu:
         result.zero_qu = Residual(
-            transforms.submit(
-                _difference_parts, sim_qu0.qu_at(pixels), Reference.zero(), footprint, lmax, run
-            )
+            transforms.submit(_difference_parts, qu0, Reference.zero(), footprint, lmax, run)
         )
-        del sim_qu0
+    del qu0
     if prediction is None:
         return result
     t0 = time.perf_counter()

@@ -37,7 +37,7 @@ def test_background_transforms_match_direct_calls(study, exp):
         np.testing.assert_array_equal(res.cross[angle], cross)
         np.testing.assert_array_equal(res.auto[angle], auto)
         if angle in res.predicted_map:
-            h, _ = engine.scan_moments(scan, 64, pixels=obs)
+            h, _ = engine.scan_moments(scan, 64, pixels=obs, dtype=np.complex64)  # the job's
             dp = predict.delta_p(sky, h, exp.systematics) * obs
             expected = spectra.residual_bb(ref.qu + [dp.real, dp.imag], ref.qu, mask, lmax)
             # the direct route adds dP to the reference and subtracts it again: rounding of ref
@@ -50,6 +50,17 @@ def test_background_transforms_match_direct_calls(study, exp):
             np.testing.assert_array_equal(
                 res.zero_qu[angle], spectra.residual_bb(sim0.qu, zero, mask, lmax)
             )
+
+
+def test_the_queue_holds_one_waiting_transform_where_a_jobs_maps_are_large():
+    """Two transforms wait at a time while a job's Q, U on the wide survey's pixels take at most
+    QUEUE_BYTES, 0.27 GB (Nside 1024: 0.08 GB), one at the paper's Nside 2048 (0.33 GB); the deep
+    survey alone (0.1 of the sky) keeps two at 2048 (0.08 GB)."""
+    assert paper.queue_depth(paper.preset(quick=True)) == 2
+    assert paper.queue_depth(paper.preset(nside=1024, lmax=2047)) == 2
+    assert paper.queue_depth(paper.preset()) == 1
+    deep = [exp for exp in paper.EXPERIMENTS if exp.survey == "deep"]
+    assert paper.queue_depth(paper.preset(), deep) == 2
 
 
 def test_stages_cover_the_waiting_for_transforms(study):

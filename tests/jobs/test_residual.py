@@ -42,7 +42,8 @@ def test_a_prediction_makes_the_gradient_once_per_sky_and_pixels(small_sky, monk
 
 def test_rotated_power_is_that_of_the_rotated_scan():
     """Moments.rotated_power (one repeat's <|h_n|^2> times |<e^{i n alpha}>|^2) against the h_n
-    of the whole rotated scan, moments made of all its repeats."""
+    of the whole rotated scan, moments made of all its repeats (in complex128; the job keeps them
+    in complex64, 6e-8 per value, so 1e-7)."""
     from boresight.jobs import residual
 
     nside = 16
@@ -51,9 +52,10 @@ def test_rotated_power_is_that_of_the_rotated_scan():
         scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=angles)
         mom = residual.compute_moments(scan, nside, pixels, n_max=4)
         whole, _ = engine.scan_moments(scan, nside, 4, pixels=pixels)
+        assert mom.h.dtype == np.complex64
         for n in range(1, 5):
             want = np.mean(np.abs(whole[n, pixels]) ** 2)
-            assert mom.rotated_power(n) == pytest.approx(want, rel=1e-12), (angles, n)
+            assert mom.rotated_power(n) == pytest.approx(want, rel=1e-7), (angles, n)
 
 
 def test_zero_qu_needs_a_synthetic_scan(small_sky):
