@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import healpy as hp
 import numba
@@ -25,6 +26,9 @@ from ._util import io
 from ._util.jit import njit
 from .constants import DEG
 from .validation import ConfigError, option
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 FOOTPRINTS = {
     "deep": dict(ra_deg=(-60.0, 60.0), dec_deg=(-70.0, -20.0), galactic_cut_deg=0.0),
@@ -78,6 +82,48 @@ def _inside(theta, phi, box, pole, sin_cut):
             ok = abs(z) > sin_cut
         out[i] = ok
     return out
+
+
+#: rings kept beyond a survey's own by :func:`survey_span`: a reading near the survey's edge
+#: interpolates from the next ring, and the paper's pointing offset (0.1 arcmin) is a fraction of
+#: one at any Nside
+SPAN_MARGIN_RINGS = 4
+
+
+def survey_span(names: Sequence[str], nside: int, margin: int = SPAN_MARGIN_RINGS) -> tuple:
+    """The RING pixels [first, stop) of the rings whose centres lie in any of these surveys' Dec
+    ranges, and ``margin`` rings more either side: every pixel of their footprints (a pixel's
+    centre lies on its ring) and the neighbours a reading inside them interpolates from.
+
+    Parameters
+    ----------
+    names : sequence of {"deep", "wide", "none"}
+    nside : int
+    margin : int
+        Rings added either side, >= 0.
+
+    Returns
+    -------
+    tuple of int
+        (first, stop): one span, whole rings, from the first ring any survey reaches to the last.
+    """
+    validation.integer("margin", margin, 0, 4 * nside)
+    npix = 12 * nside**2
+    if "none" in names:
+        return 0, npix
+    rings = np.arange(1, 4 * nside)
+    start, _, cos_theta, _, _ = hp.ringinfo(nside, rings)
+    colatitude = np.arccos(cos_theta)
+    reached = np.zeros(rings.size, dtype=bool)
+    for name in names:
+        if name not in FOOTPRINTS:
+            raise ValueError(f"survey must be one of {sorted(SURVEYS)}, got {name!r}")
+        low, high = np.radians(90.0 - np.array(FOOTPRINTS[name]["dec_deg"][::-1], dtype=float))
+        reached |= (colatitude >= low) & (colatitude <= high)
+    inside = np.flatnonzero(reached)
+    first = max(inside[0] - margin, 0)
+    last = min(inside[-1] + margin, rings.size - 1)
+    return int(start[first]), int(start[last + 1]) if last + 1 < rings.size else npix
 
 
 #: the names a study's [mask] survey may take; "none" is the full sky

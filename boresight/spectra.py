@@ -59,10 +59,13 @@ class Footprint:
 
         Returns
         -------
-        numpy.ndarray, int64, shape (nobs,)
+        numpy.ndarray, int32, shape (nobs,)
+            Kept for the next job on the footprint: in int32, 0.08 GB on the wide mask at Nside
+            2048 (a parent index is below 12 (Nside / block)^2).
         """
         if block not in self._parents:
-            self._parents[block] = hp.ring2nest(self.nside, self.pixels) // (block * block)
+            parents = hp.ring2nest(self.nside, self.pixels) // (block * block)
+            self._parents[block] = parents.astype(np.int32)
         return self._parents[block]
 
     def alm(self, values, lmax, spin=0, *, nthreads=0, analysis="auto", overwrite=False):

@@ -72,3 +72,29 @@ def test_mask_from_a_study_config(tmp_path):
     path = tmp_path / "mask.fits"
     hp.write_map(path, deep)
     assert np.array_equal(masks.from_config(MaskSpec(file=str(path)), nside), deep)
+
+
+@pytest.mark.parametrize("nside", [16, 64, 256])
+def test_a_survey_span_holds_its_pixels_their_neighbours_and_its_margin(nside):
+    """survey_span's rings hold every pixel of the surveys' masks, with exactly ``margin`` whole
+    rings either side beyond the rings the masks reach (at these Nside the Dec range's rings all
+    hold some pixel of the mask); from 2 rings (the default is 4) they hold all eight neighbours
+    of every pixel (the north and south ones lie two rings away; an interpolation reads the
+    two rings around its point)."""
+    rings = lambda pix: np.unique(hp.pix2ang(nside, pix)[0])  # noqa: E731 (a ring per colatitude)
+    starts = set(hp.ringinfo(nside, np.arange(1, 4 * nside))[0]) | {12 * nside**2}
+    for names in (["wide"], ["deep"], ["wide", "deep"]):
+        pixels = np.flatnonzero(sum(masks.survey_mask(n, nside) for n in names))
+        neighbours = hp.get_all_neighbours(nside, pixels).ravel()
+        for margin in (0, 2, 4):
+            first, stop = masks.survey_span(names, nside, margin)
+            assert first <= pixels.min() and pixels.max() < stop
+            if margin:
+                assert first <= neighbours[neighbours >= 0].min()
+                assert neighbours.max() < stop
+            span = rings(np.arange(first, stop))
+            assert span.size == rings(pixels).size + 2 * margin
+            assert first in starts and stop in starts  # whole rings
+    assert masks.survey_span(["none"], nside) == (0, 12 * nside**2)
+    with pytest.raises(ValueError, match="survey must be"):
+        masks.survey_span(["shallow"], nside)

@@ -83,3 +83,18 @@ def test_one_copy_of_the_maps(small_sky):
     np.testing.assert_array_equal(bare.alm[0], small_sky.alm[0])
     assert not bare.maps[1:].any() and not bare.alm[1:].any()
     assert small_sky.maps[1:].any()  # the original is untouched
+
+
+def test_a_sky_kept_on_a_span_is_the_sky_there_and_zero_elsewhere(small_sky):
+    """kept_on keeps the maps' bits on [first, stop), zeros elsewhere, in the interleaved layout
+    of its own memory; the alm are shared; an empty or out-of-sky span is refused."""
+    npix = small_sky.maps.shape[1]
+    first, stop = npix // 5, npix // 2
+    kept = small_sky.kept_on(first, stop)
+    np.testing.assert_array_equal(kept.maps[:, first:stop], small_sky.maps[:, first:stop])
+    assert not kept.maps[:, :first].any() and not kept.maps[:, stop:].any()
+    assert np.shares_memory(kept.interleaved, kept.maps) and kept.interleaved.flags.c_contiguous
+    assert not np.shares_memory(kept.maps, small_sky.maps) and kept.alm is small_sky.alm
+    for bad in ((5, 5), (-1, 10), (0, npix + 1)):
+        with pytest.raises(ValueError):
+            small_sky.kept_on(*bad)

@@ -41,6 +41,7 @@ __all__ = ["Kernel", "KERNELS", "kernels_for", "missing", "precompile"]
 _F1, _I1, _C1 = nt.float64[::1], nt.int64[::1], nt.complex128[::1]
 _C2 = nt.complex128[:, ::1]
 _H1, _H2 = nt.complex64[::1], nt.complex64[:, ::1]  # a study's h_n (jobs.residual.compute_moments)
+_P1 = nt.int32[::1]  # a footprint's NEST parents (spectra.Footprint.parents)
 _F2, _F3, _F4 = nt.float64[:, ::1], nt.float64[:, :, ::1], nt.float64[:, :, :, ::1]
 _STRIDED = nt.float64[:]  # a row of the sky's interleaved (npix, F) stack
 
@@ -100,7 +101,7 @@ KERNELS = {
         Kernel("kernels.cpu", "offset_points", (_F1,) * 7, 0.7),
         Kernel("instrument.pairs", "_response", (_F1,) * 6, 0.4),
         Kernel("masks", "_inside", (_F1,) * 4 + (nt.float64,), 1.3),
-        Kernel("predict.cl", "_block_sums", (_H1, _I1, _F1, _I1, nt.int64), 0.9),
+        Kernel("predict.cl", "_block_sums", (_H1, _I1, _F1, _P1, nt.int64), 0.9),
         Kernel("moments.axis", "ces_hits", (*_CHUNK, nt.int64, nt.int64, nt.bool_), 2.2),
         Kernel("design.white", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
         Kernel(

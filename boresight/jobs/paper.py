@@ -25,7 +25,7 @@ from ..config import ConfigError, OutputOptions, RunOptions, Study, build_sectio
 from ..cosmology import load_spectra
 from ..coupling import mask_coupling
 from ..instrument.pairs import PAPER_GAIN, PAPER_POINTING, Systematics
-from ..masks import SURVEY_FSKY, fsky, survey_mask
+from ..masks import SURVEY_FSKY, fsky, survey_mask, survey_span
 from ..scan import SyntheticScan, paper_scan
 from ..sky import SkyConfig, make_sky
 from ..spectra import Footprint
@@ -226,6 +226,9 @@ def run_study(
     theory = load_spectra()
     with timer("sky"):
         sky = make_sky(study.sky, theory, study.run.nthreads)
+        # the experiments read the maps on their surveys' rings alone: the other rings' pages are
+        # let go (62 % of the sky kept, 0.43 GiB less at Nside 2048; the numbers' bits unchanged)
+        sky = sky.kept_on(*survey_span([exp.survey for exp in experiments], study.sky.nside))
     results = {}
     # one queue for every experiment: the next one starts while the last transforms run
     with Transforms(background=True, depth=queue_depth(study, experiments)) as transforms:
@@ -278,7 +281,13 @@ def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
     key = "r" if exp.reference == "r" else "a_lens"
     for value in exp.reference_values:
         res.references[value] = predict.reference_bb(couplings, theory, fwhm, nside, **{key: value})
-    prediction = predict.Prediction(theory, couplings, fwhm, field_cl=local)
+    angles = (None,) + exp.angles_deg
+    # the map-level and Q = U = 0 checks need no other angle than none and the ideal one; the
+    # T gradient of the map level goes once the last of them has read it (0.3 GB at Nside 2048)
+    checked = [angle in (None, exp.ideal_deg) for angle in angles]
+    prediction = predict.Prediction(
+        theory, couplings, fwhm, field_cl=local, map_checks=sum(checked)
+    )
     job = dict(run=run, transforms=transforms, progress=progress)
     footprint = Footprint(mask)  # the observed pixels, shared by every job
     del mask  # the footprint's pixels and weights are all the jobs read (0.4 GB at Nside 2048)
@@ -287,8 +296,7 @@ def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
             sky, paper_scan(exp.survey, seed=seed), footprint, lmax, **job
         )[0]
     label = {
-        angle: "no rotation" if angle is None else f"rotation {angle:g} deg"
-        for angle in (None,) + exp.angles_deg
+        angle: "no rotation" if angle is None else f"rotation {angle:g} deg" for angle in angles
     }
     with timer(f"{exp.name}: scan moments"):  # one repeat's: the same at every angle
         moments = compute_moments(
@@ -298,9 +306,7 @@ def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
             run=run,
             n_max=n_max_for(exp.systematics),
         )
-    for angle in (None,) + exp.angles_deg:
-        # the map-level and Q = U = 0 checks need no other angle than none and the ideal one
-        ideal = angle in (None, exp.ideal_deg)
+    for angle, ideal in zip(angles, checked):
         with timer(f"{exp.name}: {label[angle]}"):
             res.residuals[angle] = residual(
                 sky,
@@ -317,8 +323,6 @@ def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
             )
         if ideal:
             res.zero_qu_residuals[angle] = res.residuals[angle].zero_qu
-        if angle == exp.ideal_deg:  # the last map-level check: the other angles need no gradient
-            prediction.release()
     return res
 
 

@@ -261,7 +261,7 @@ class Moments(NamedTuple):
 
     h : numpy.ndarray, complex64 (a synthetic scan's) or complex128, shape (N_MAX + 1, npix)
         h_n of one repeat's crossings (a real schedule's, rotations included), 0 where unobserved.
-    crossings : numpy.ndarray, int64, shape (npix,)
+    crossings : numpy.ndarray, int32 (a synthetic scan's) or int64, shape (npix,)
         Crossings per pixel in one repeat.
     rotations_deg : tuple of float
         Boresight rotation of each repeat [deg]; (0,) for a real schedule.
@@ -319,7 +319,16 @@ def compute_moments(
         backend=run.backend,
         dtype=np.complex64,  # |h_n| <= 1 to 6e-8: half of the Nside-2048 run's largest array
     )
-    return Moments(h, crossings, scan.rotations_deg, _mean_power(h, pixels))
+    return Moments(h, _narrow(crossings, pixels), scan.rotations_deg, _mean_power(h, pixels))
+
+
+def _narrow(crossings, pixels):
+    """int32 ``crossings``, written on ``pixels`` only: the other pages stay untouched zeros (0.08
+    GB less on the wide mask at Nside 2048). What reads them divides by them in float64."""
+    pixels = np.flatnonzero(pixels) if pixels.dtype == bool else pixels
+    out = np.zeros(crossings.size, dtype=np.int32)
+    out[pixels] = crossings[pixels]
+    return out
 
 
 def _mean_power(h, pixels):
@@ -570,6 +579,33 @@ def residual(
             transforms=transforms,
             progress=progress,
         )
+    # the last map-level check of a prediction (Prediction.last_map_check) predicts first: the
+    # T gradient it reads (0.3 GB on the wide mask at Nside 2048) then goes before the simulated
+    # maps exist; the others predict after simulating, to make the gradient as late as they can
+    first = (
+        prediction is not None
+        and (predict_map or systematics.added)
+        and systematics.has_pointing
+        and prediction.last_map_check
+    )
+
+    def predicted():  # (h power, C_ell prediction, the map level's future or None), timed
+        start = time.perf_counter()
+        mom = _job_moments(scan, sky.nside, pixels, run, systematics, moments)
+        power, cl = _predicted_cl(
+            sky, scan, mom, systematics, instrument, footprint, prediction, run
+        )
+        map_parts = None
+        if predict_map or systematics.added:
+            dp = _predicted_map(
+                sky, mom, systematics, instrument, prediction, leak_template, pixels, run
+            )
+            map_parts = transforms.submit(_parts, _as_qu(dp), reference, footprint, lmax, run)
+            del dp  # the job owns it
+        stages["predict"] = time.perf_counter() - start
+        return power, cl, map_parts
+
+    ahead = predicted() if first else None
     sim, sim_qu0 = _simulate(
         sky,
         scan,
@@ -592,7 +628,7 @@ def residual(
     del sim, sim_qu0
     parts = transforms.submit(_difference_parts, qu, reference, footprint, lmax, run)
     del qu  # the job owns it
-    stages["simulate"] = time.perf_counter() - t0
+    stages["simulate"] = time.perf_counter() - t0 - stages.get("predict", 0.0)
     result = Residual(parts, maps=maps, stages=stages)
     if zero_qu:
         result.zero_qu = Residual(
@@ -601,51 +637,58 @@ def residual(
     del qu0
     if prediction is None:
         return result
-    t0 = time.perf_counter()
+    result.h_power, result.predicted_cl, result.predicted_map_parts = (
+        ahead if first else predicted()
+    )
+    return result
+
+
+def _predicted_cl(sky, scan, moments, systematics, instrument, footprint, prediction, run):
+    """(<|h_n|^2> n = 1..4 of the rotated scan, the C_ell prediction or None where it has none)."""
+    power = {n: float(moments.rotated_power(n)) for n in range(1, N_MAX + 1)}
+    # an added systematic's term is the map level's alone (boresight.instrument.added)
+    if not predict.supports(instrument, moments.rotations_deg) or systematics.added:
+        return power, None
+    return power, predict.residual_pseudo_bb(
+        moments.h,
+        footprint,
+        prediction,
+        systematics,
+        instrument=instrument,
+        rotations_deg=moments.rotations_deg,
+        crossings=moments.crossings,
+        # the hits' spread over their pixels, and the maps read by interpolation there
+        in_pixel=getattr(scan, "in_pixel", "random"),
+        interpolated=run.evaluation == "interp",
+        sky=sky if prediction.field_cl is not None else None,
+        analysis=run.analysis,
+    )
+
+
+def _job_moments(scan, nside, pixels, run, systematics, moments):
+    """A job's :class:`Moments`: the shared ones at ``scan``'s rotations, or its own."""
     n_max = n_max_for(systematics)
     if moments is None or isinstance(scan, Schedule):
-        moments = compute_moments(scan, sky.nside, pixels, run=run, n_max=n_max)
-    elif moments.h.shape[0] <= n_max:
+        return compute_moments(scan, nside, pixels, run=run, n_max=n_max)
+    if moments.h.shape[0] <= n_max:
         raise ValueError(f"moments hold h_n to {moments.h.shape[0] - 1}; these need {n_max}")
-    else:
-        moments = moments._replace(rotations_deg=tuple(scan.rotations_deg))
-    result.h_power = {n: float(moments.rotated_power(n)) for n in range(1, N_MAX + 1)}
-    # an added systematic's term is the map level's alone (boresight.instrument.added)
-    if predict.supports(instrument, moments.rotations_deg) and not systematics.added:
-        result.predicted_cl = predict.residual_pseudo_bb(
-            moments.h,
-            footprint,
-            prediction,
-            systematics,
-            instrument=instrument,
-            rotations_deg=moments.rotations_deg,
-            crossings=moments.crossings,
-            # the hits' spread over their pixels, and the maps read by interpolation there
-            in_pixel=getattr(scan, "in_pixel", "random"),
-            interpolated=run.evaluation == "interp",
-            sky=sky if prediction.field_cl is not None else None,
-            analysis=run.analysis,
-        )
-    if predict_map or systematics.added:
-        gradient = (
-            prediction.gradient(sky, pixels, run.nthreads) if systematics.has_pointing else None
-        )
-        dp = predict.delta_p(
-            sky,
-            moments.h,
-            systematics,
-            instrument,
-            template=leak_template,
-            nthreads=run.nthreads,
-            rotations_deg=moments.rotations_deg,
-            pixels=pixels,
-            gradient=gradient,
-        )
-        result.predicted_map_parts = transforms.submit(
-            _parts, _as_qu(dp), reference, footprint, lmax, run
-        )
-    stages["predict"] = time.perf_counter() - t0
-    return result
+    return moments._replace(rotations_deg=tuple(scan.rotations_deg))
+
+
+def _predicted_map(sky, moments, systematics, instrument, prediction, template, pixels, run):
+    """The h_n prediction of the spurious P on ``pixels`` (:func:`boresight.predict.delta_p`)."""
+    gradient = prediction.gradient(sky, pixels, run.nthreads) if systematics.has_pointing else None
+    return predict.delta_p(
+        sky,
+        moments.h,
+        systematics,
+        instrument,
+        template=template,
+        nthreads=run.nthreads,
+        rotations_deg=moments.rotations_deg,
+        pixels=pixels,
+        gradient=gradient,
+    )
 
 
 def study_prediction(

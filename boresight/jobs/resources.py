@@ -49,9 +49,10 @@ GIB = 2.0**30
 #: fitted to the measured peaks of bench/bench_memory.py at Nside 64-512 (2-core machine)
 BYTES_PER_PIXEL = {
     "simulate": 200.0,
-    # the sky's maps, h_n in complex64, the jobs' maps on the observed pixels and one queued
-    # transform: 116 B a pixel at Nside 2048 (6.08 GiB), more at 256-512 where the transforms'
-    # work space weighs more, so between the two (bench/bench_memory.py and bench_reproduce.py)
+    # the sky's maps on the surveys' rings, h_n in complex64, the jobs' maps on the observed
+    # pixels and one queued transform: 105 B a pixel at Nside 2048 (5.53 GiB: the estimate is
+    # 1.39x), more at 256-512 where the transforms' work space weighs more (0.96-1.02x there;
+    # bench/bench_memory.py and bench_reproduce.py)
     "reproduce": 150.0,
     "predict": 40.0,
     "scan-stats": 220.0,

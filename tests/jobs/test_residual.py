@@ -40,6 +40,92 @@ def test_a_prediction_makes_the_gradient_once_per_sky_and_pixels(small_sky, monk
         predict.delta_p(small_sky, h, sysm, pixels=pixels[:10], gradient=first)
 
 
+def test_a_prediction_lets_its_gradient_go_after_its_last_map_check(small_sky, monkeypatch):
+    """With map_checks=2 the gradient is made once, kept for the second read, and let go after
+    it: a third read makes it anew; without map_checks it is kept until release()."""
+    calls, original = [], harmonics.alm2map_gradient
+    monkeypatch.setattr(
+        harmonics, "alm2map_gradient", lambda *a, **k: calls.append(1) or original(*a, **k)
+    )
+    pixels = np.flatnonzero(masks.survey_mask("deep", small_sky.nside))
+    pred = predict.Prediction(None, None, 60.0, map_checks=2)
+    first = pred.gradient(small_sky, pixels)
+    assert pred._held and pred.gradient(small_sky, pixels) is first and len(calls) == 1
+    assert not pred._held  # the caller's copy is the only one left
+    assert pred.gradient(small_sky, pixels) is not first and len(calls) == 2
+    kept = predict.Prediction(None, None, 60.0)
+    for _ in range(3):
+        kept.gradient(small_sky, pixels)
+    assert kept._held and len(calls) == 3
+
+
+def test_the_last_map_check_predicts_before_it_simulates(small_sky, monkeypatch):
+    """The last job to read a prediction's gradient predicts its map before it simulates (the
+    paper job's gradient is then gone before the simulated maps exist), and lets the gradient go;
+    a job that keeps it predicts after simulating; the numbers are a lone job's either way."""
+    from boresight.jobs import residual
+
+    order, sim, dp = [], residual._simulate, predict.delta_p
+    monkeypatch.setattr(
+        residual, "_simulate", lambda *a, **k: order.append("simulate") or sim(*a, **k)
+    )
+    monkeypatch.setattr(
+        residual.predict, "delta_p", lambda *a, **k: order.append("delta_p") or dp(*a, **k)
+    )
+    nside, lmax = small_sky.nside, 2 * small_sky.nside
+    mask = masks.survey_mask("deep", nside)
+    couplings = coupling.mask_coupling(mask, lmax)
+    theory = residual.load_spectra()
+    scan = SyntheticScan(n_phi=3, range_rad=0.5, seed=3, rotations_deg=(0.0, 90.0))
+    sysm = Systematics(rho_arcmin=(0.5, 0.3))
+    pred = predict.Prediction(theory, couplings, 60.0, map_checks=2)
+    moments = residual.compute_moments(scan, nside, mask > 0)
+    jobs = []
+    for _ in range(2):
+        jobs.append(
+            residual.residual(
+                small_sky,
+                scan,
+                sysm,
+                mask,
+                lmax,
+                prediction=pred,
+                predict_map=True,
+                moments=moments,
+            )
+        )
+        assert bool(pred._held) == (len(jobs) == 1)  # kept for the second, then let go
+    # each job simulates its reference first; the second predicts before its own simulation
+    assert order == ["simulate", "simulate", "delta_p", "simulate", "delta_p", "simulate"]
+    alone = residual.residual(
+        small_sky,
+        scan,
+        sysm,
+        mask,
+        lmax,
+        prediction=predict.Prediction(theory, couplings, 60.0),
+        predict_map=True,
+    )
+    for job in jobs:
+        for name in ("total", "predicted_cl", "predicted_map"):
+            np.testing.assert_array_equal(getattr(job, name), getattr(alone, name))
+
+
+def test_the_jobs_crossings_are_int32_on_the_observed_pixels_only():
+    """compute_moments keeps the crossings in int32, equal to the engine's on the pixels asked
+    for and zero elsewhere."""
+    from boresight.jobs import residual
+
+    nside = 16
+    mask = masks.survey_mask("deep", nside) > 0
+    scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=(0.0, 70.0))
+    mom = residual.compute_moments(scan, nside, mask)
+    _, whole = engine.scan_moments(scan.one_repeat(), nside, 4)
+    assert mom.crossings.dtype == np.int32
+    np.testing.assert_array_equal(mom.crossings, np.where(mask, whole, 0))
+    assert whole[~mask].any()  # the scan crosses pixels outside the mask, which are left out
+
+
 def test_rotated_power_is_that_of_the_rotated_scan():
     """Moments.rotated_power (one repeat's <|h_n|^2> times |<e^{i n alpha}>|^2) against the h_n
     of the whole rotated scan, moments made of all its repeats (in complex128; the job keeps them
