@@ -18,6 +18,7 @@ import numpy as np
 from _table import report
 
 from boresight import engine, instrument
+from boresight.engine.binner import Binner
 from boresight.kernels import gpu
 from boresight.scan import SyntheticScan
 from boresight.sky import SkyConfig, make_sky
@@ -40,7 +41,7 @@ def core(sky, scan, systematics):
     The kernel gets the arguments the engine gives it (its binner's per-pair parameters)."""
     nside, npix = sky.nside, 12 * sky.nside**2
     inst = instrument.Instrument()
-    b = engine._Binner(sky, inst, systematics, scan.rotations_rad, "interp", None, 0, "gpu")
+    b = Binner(sky, inst, systematics, scan.rotations_rad, "interp", None, 0, "gpu")
     n_phi, rng, centre = scan.per_pixel(np.arange(npix), npix)
     args = [cp.arange(npix, dtype=cp.int64), cp.asarray(n_phi), cp.asarray(rng), cp.asarray(centre)]
     start, stop = cp.cuda.Event(), cp.cuda.Event()

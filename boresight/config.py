@@ -34,6 +34,7 @@ from .instrument.focalplane import focalplane_of_table
 from .instrument.hwp import HWP, behind, reflected_systematics
 from .instrument.pairs import Instrument, Spread, Systematics, response
 from .kernels import BACKENDS
+from .mapmaking import RCOND_MIN
 from .masks import MaskSpec
 from .scan import SyntheticScan
 from .sky import Sky, SkyConfig, make_sky
@@ -78,6 +79,9 @@ class RunOptions:
         How masked maps become pseudo-alm (:func:`boresight.harmonics.map2alm`): "auto" (one
         pass with ring weights at lmax <= 2 nside, LSQR above), "ring_weights", "jacobi"
         (healpy.anafast's 3 iterations) or "lsqr".
+    rcond_min : float
+        The map-maker's cut: pixels whose 2x2 (Q, U) system has a smaller reciprocal condition
+        number are invalid (0 in the maps the spectra read), in [0, 0.5].
     """
 
     evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
@@ -85,6 +89,7 @@ class RunOptions:
     chunk_pixels: int = option(None, "pixels per chunk, >= 1 (default: the backend's)", (int,))
     nthreads: int = option(0, "CPU threads, 0 for all the cores this process may use")
     analysis: str = option("auto", "masked maps -> pseudo-alm", choices=ANALYSES)
+    rcond_min: float = option(RCOND_MIN, "the map-maker's cut on each pixel's rcond, in [0, 0.5]")
 
     def __post_init__(self):
         if self.evaluation not in METHODS:
@@ -95,6 +100,7 @@ class RunOptions:
         check_threads("nthreads", self.nthreads)
         if self.analysis not in ANALYSES:
             raise ValueError(f"analysis = {self.analysis!r}; allowed: {ANALYSES}")
+        validation.number("rcond_min", self.rcond_min, 0.0, 0.5)
 
     def engine_kwargs(self):
         """The keyword arguments :func:`boresight.engine.simulate` takes from these options.
@@ -108,6 +114,7 @@ class RunOptions:
             backend=self.backend,
             chunk_pixels=self.chunk_pixels,
             nthreads=self.nthreads,
+            rcond_min=self.rcond_min,
         )
 
 

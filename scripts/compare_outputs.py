@@ -93,6 +93,16 @@ COMMANDS = {
     ],
     "scan_stats_hwp": ["scan-stats", DEEP, "--nside", "32", "--hwp", "continuous"],
     "design": ["design", "examples/budget_deep_sat.toml", DEEP],
+    "suppression_filtered": [
+        "suppression",
+        "--filter",
+        "p1+ground",
+        "--deproject",
+        "gain",
+        "--schedule",
+        DEEP,
+        *HWP_SKY,
+    ],
 }
 
 #: keys and columns that may differ between two runs of the same numbers

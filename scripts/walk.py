@@ -12,13 +12,20 @@ order first entered, how often the walk climbs back up to a caller in another ro
 often it calls into a room it had already left (a *return*: counted per call, and per distinct
 (from, to) edge, since a loop over chunks repeats one edge), with the commonest edges. Module
 bodies run by an import are not part of the walk.
+
+A return into a lower layer is a library call (the engine asks the instrument for a pair's
+parameters at every chunk); the walk goes against the data's flow only where a room calls into
+a layer *above* its own (``tests/test_layout.py``'s LAYERS, the order the architecture page
+draws). Those calls are counted apart: the command's data flows one way where there are none.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 from collections import Counter
+from pathlib import Path
 
 PLUMBING = {"_util", "kernels", "validation", "constants", "harmonics", "data"}
 
@@ -31,12 +38,22 @@ def room(module: str, depth: str) -> str | None:
     return ".".join(parts[1:]) if depth == "module" else parts[1]
 
 
+def layers() -> dict[str, int]:
+    """Each stage's layer, lowest 0, from ``tests/test_layout.py``'s LAYERS."""
+    path = Path(__file__).resolve().parent.parent / "tests" / "test_layout.py"
+    spec = importlib.util.spec_from_file_location("layout", path)
+    layout = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(layout)
+    return {stage: i for i, names in enumerate(layout.LAYERS.values()) for stage in names}
+
+
 def walk(argv: list[str], depth: str) -> dict:
     """Run ``boresight argv`` traced; the walk's rooms, climbs and returns."""
     from boresight import cli
 
-    order, left, returns, climbs = [], set(), Counter(), 0
+    order, left, returns, upward, climbs = [], set(), Counter(), Counter(), 0
     stack: list[str] = []
+    level = layers()
 
     def profile(frame, event, arg):
         nonlocal climbs
@@ -48,6 +65,8 @@ def walk(argv: list[str], depth: str) -> dict:
         if event == "call":
             caller = stack[-1] if stack else None
             if here != caller:
+                if caller is not None and level[here.split(".")[0]] > level[caller.split(".")[0]]:
+                    upward[(caller, here)] += 1
                 if here in order and here not in stack:
                     returns[(caller, here)] += 1
                 elif here not in order:
@@ -65,7 +84,7 @@ def walk(argv: list[str], depth: str) -> dict:
         code = cli.main(["-q", *argv])
     finally:
         sys.setprofile(None)
-    return {"code": code, "rooms": order, "climbs": climbs, "returns": returns}
+    return {"code": code, "rooms": order, "climbs": climbs, "returns": returns, "upward": upward}
 
 
 def main() -> int:
@@ -80,6 +99,12 @@ def main() -> int:
     print(f"climbs back up to another room: {out['climbs']}")
     print(f"calls back into a room it had left: {total} ({len(out['returns'])} distinct edges)")
     for (src, dst), n in out["returns"].most_common(12):
+        print(f"  {src} -> {dst}: {n}")
+    downward = sum(n for edge, n in out["returns"].items() if edge not in out["upward"])
+    print(f"  of which into a lower layer (library calls): {downward}")
+    up = out["upward"]
+    print(f"calls into a higher layer than the caller's: {sum(up.values())} ({len(up)} edges)")
+    for (src, dst), n in up.most_common(12):
         print(f"  {src} -> {dst}: {n}")
     return 0
 

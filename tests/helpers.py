@@ -33,6 +33,11 @@ FUZZ = settings(
 )
 
 
+def iqu(maps):
+    """(3, n) I, Q, U of a 3x3 map-maker's maps on their pixels."""
+    return np.array([maps.i_obs, maps.q_obs, maps.u_obs])
+
+
 def mostly(valid, invalid):
     """Nine draws in ten from ``valid``: a study with several fields then still runs often."""
     return st.integers(0, 9).flatmap(lambda k: invalid if k == 9 else valid)

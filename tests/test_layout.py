@@ -299,3 +299,32 @@ def test_no_private_name_is_imported_across_modules():
 
 #: private modules, imported whole
 PRIVATE_MODULES = {"_common"}
+
+
+#: the sizes a reader can hold: entries at the package's top, lines of a module, lines of a
+#: command's function (its docstring included)
+MAX_TOP_ENTRIES, MAX_MODULE_LINES, MAX_COMMAND_FUNCTION_LINES = 30, 800, 80
+
+
+def test_the_package_top_modules_and_commands_stay_small():
+    """At most 30 entries at boresight/'s top (modules and stage packages), no module over 800
+    lines, no function of a command over 80 lines: a command parses, calls one library job and
+    writes its files."""
+    top = sorted(
+        p.name for p in PACKAGE.iterdir() if p.name != "__pycache__" and not p.name.startswith(".")
+    )
+    assert len(top) <= MAX_TOP_ENTRIES, top
+    long = {
+        m: n
+        for m, p in MODULES.items()
+        if (n := len(p.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert long == {}
+    wide = []
+    for path in sorted((PACKAGE / "commands").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef):
+                first = min([node.lineno, *(d.lineno for d in node.decorator_list)])
+                if node.end_lineno - first + 1 > MAX_COMMAND_FUNCTION_LINES:
+                    wide.append(f"{path.stem}.{node.name}")
+    assert wide == []

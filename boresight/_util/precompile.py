@@ -40,7 +40,7 @@ __all__ = ["Kernel", "KERNELS", "kernels_for", "missing", "precompile"]
 
 _F1, _I1, _C1 = nt.float64[::1], nt.int64[::1], nt.complex128[::1]
 _C2 = nt.complex128[:, ::1]
-_H1, _H2 = nt.complex64[::1], nt.complex64[:, ::1]  # a study's h_n (jobs.residual.compute_moments)
+_H1, _H2 = nt.complex64[::1], nt.complex64[:, ::1]  # a study's h_n (moments.compute_moments)
 _P1 = nt.int32[::1]  # a footprint's NEST parents (spectra.Footprint.parents)
 _F2, _F3, _F4 = nt.float64[:, ::1], nt.float64[:, :, ::1], nt.float64[:, :, :, ::1]
 _STRIDED = nt.float64[:]  # a row of the sky's interleaved (npix, F) stack

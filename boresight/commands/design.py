@@ -1,5 +1,20 @@
 """``boresight design``: the boresight angle of each unit of a schedule (a CES, a day, a pass)
-chosen against a systematics budget, with the baseline strategies and a TOD check."""
+chosen against a systematics budget, with the baseline strategies and a TOD check.
+
+It writes the optimised schedule in the input's format (``schedule_designed.*``), a table of
+every strategy (``strategies.csv``: predicted delta_r, delta_r / sigma(r), changes of angle and
+``<|h_n|^2>``), the optimiser's history (``history.csv``), the angle of each unit
+(``units.csv``), the residual spectra of each strategy with the noise and r references
+(``design.png``/``.pdf``), ``|h_n|^2`` maps before and after (``hn_before_after.png``), and with
+the TOD check a simulation of the budget on the designed and the unrotated schedule
+(``validation.csv``). With the budget's ``[operations]``, ``strategies.csv`` adds each
+strategy's lost observing time, sigma(r) with it and the total, ``operations.csv`` lists the
+operations before each CES of the design and the minutes it loses, and the designed schedule's
+CESs start later by what the operations eat. With ``[constraints]`` the search keeps them, each
+strategy's row counts what it breaks (``violations``) and ``constraints.csv`` says what each
+constraint costs. Scoring the schedule as given (no search) adds its row ("as given") beside the
+baselines and writes no schedule.
+"""
 
 from __future__ import annotations
 
@@ -55,26 +70,11 @@ def run(
     checks: resources.Checks = resources.Checks(),
     search: bool = True,
 ) -> dict:
-    """Choose a boresight angle per unit of a schedule against a budget.
-
-    Writes the optimised schedule in the input's format (``schedule_designed.*``), a table of
-    every strategy (``strategies.csv``: predicted delta_r, delta_r / sigma(r), changes of angle
-    and ``<|h_n|^2>``), the optimiser's history (``history.csv``), the angle of each unit
-    (``units.csv``), the residual spectra of each strategy with the noise and r references
-    (``design.png``/``.pdf``), ``|h_n|^2`` maps before and after (``hn_before_after.png``), and
-    with ``validate`` a TOD simulation of the budget on the designed and the unrotated schedule
-    (``validation.csv``). With the budget's ``[operations]``, ``strategies.csv`` adds each
-    strategy's lost observing time, sigma(r) with it and the total, ``operations.csv`` lists the
-    operations before each CES of the design and the minutes it loses, and the designed schedule's
-    CESs start later by what the operations eat. With ``[constraints]`` the search keeps them,
-    each strategy's row counts what it breaks (``violations``) and ``constraints.csv`` says what
-    each constraint costs. Without ``search`` the schedule's own angles are scored beside the
-    baselines ("as given"), and no schedule is written. The science is
-    :func:`boresight.design.job.design`; this writes its files. Ctrl-C or SIGTERM during the
-    search keeps the best schedule found so far (without the figures), during the validation the
-    finished design without it; the manifest says which, and the
-    :class:`boresight._util.interrupts.Interrupted` raised after the outputs are written says what
-    was kept.
+    """Choose a boresight angle per unit of a schedule against a budget (the science is
+    :func:`boresight.design.job.design`) and write the files the module lists. Ctrl-C or SIGTERM
+    in the search keeps the best schedule found so far (without the figures), in the validation
+    the finished design without it; the manifest and the
+    :class:`boresight._util.interrupts.Interrupted` raised after the outputs say which.
 
     Parameters
     ----------

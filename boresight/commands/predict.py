@@ -11,7 +11,8 @@ from ..config import Study, load_study
 from ..cosmology import load_spectra
 from ..coupling import mask_coupling
 from ..jobs import resources
-from ..jobs.residual import compute_moments, n_max_for
+from ..jobs.residual import n_max_for
+from ..moments import compute_moments
 from ..predict import Prediction, residual_pseudo_bb
 from ..validation import ConfigError, require_finite
 from . import _common
@@ -55,7 +56,14 @@ def run(
     nside, lmax = study.sky.nside, study.output.lmax
     mask = masks.from_config(study.mask, nside)
     n_max = n_max_for(study.systematics)
-    moments = compute_moments(study.scan, nside, mask > 0, run=study.run, n_max=n_max)
+    moments = compute_moments(
+        study.scan,
+        nside,
+        mask > 0,
+        n_max=n_max,
+        nthreads=study.run.nthreads,
+        backend=study.run.backend,
+    )
     couplings = mask_coupling(mask, lmax, study.run.nthreads, band=study.sky.lmax)
     pred = residual_pseudo_bb(
         moments.h,

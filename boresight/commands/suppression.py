@@ -209,15 +209,8 @@ def run_filtered(
 ) -> list[dict]:
     """What boresight rotation buys a pipeline that filters (and/or deprojects) before binning, on
     a real schedule (:mod:`boresight.jobs.suppression.filtered`); a deprojection of T's
-    derivatives evaluates the sky exactly.
-
-    Writes ``filtered_suppression.csv`` (a row per systematic, pipeline and boresight schedule:
-    the leaked pseudo-C_BB in three bands, over the same schedule's raw leak, that over the
-    filter's F_BB and over its own pipeline's unrotated leak), ``filtered_suppression.md``,
-    ``filtered_suppression.png``/``.pdf``, the filter's transfer function (``transfer.csv``, a row
-    per band and pair of fields; ``transfer.npz``, its matrix T[to, from, band], error, edges and
-    field pairs; ``transfer.png``/``.pdf``), ``sky_kept.csv`` (per pipeline and boresight
-    schedule, the sky's own pseudo-C_EE and C_BB per band over the raw pipeline's) and
+    derivatives evaluates the sky exactly. Writes ``filtered_suppression.csv``/``.md``/``.png``,
+    the filter's transfer function (``transfer.csv``/``.npz``/``.png``), ``sky_kept.csv`` and
     ``manifest.json``.
 
     Parameters
@@ -229,7 +222,7 @@ def run_filtered(
     filtering : boresight.mitigation.Filtering
     out_dir : str
     focalplane : boresight.instrument.focalplane.FocalPlane, optional
-        The pairs, each on its own samples (default the paper's Q and U pairs on the axis).
+        The pairs, each on its own samples (default: the paper's pairs on the axis).
     depth_uk_arcmin : float
         The survey's white polarisation depth [muK arcmin] over the footprint's sky fraction:
         each row's delta_r is read against its pipeline's sigma(r).
@@ -241,6 +234,52 @@ def run_filtered(
     list of dict
         The table's rows.
     """
+    schedule, inputs, estimate = _filtered_inputs(
+        sky_config, schedule_path, filtering, focalplane=focalplane, depth_uk_arcmin=depth_uk_arcmin
+    )
+    io.check_output_dir(out_dir, force, inputs)
+    resources.require(estimate, checks)
+    timer = provenance.Timer(log)
+    kernels = precompile.kernels_for("validation", pointing=True)  # before the stages: Ctrl-C
+    precompile.precompile(kernels, timer=timer)
+    with timer("sky"):
+        sky = make_sky(sky_config)
+    exact = filtering.deprojection.derivatives > 0  # T's derivatives follow only an exact sky
+    run_options = RunOptions(evaluation="exact") if exact else RunOptions()
+    with timer("simulations"):
+        result = filtered_suppression.run(
+            schedule,
+            sky,
+            filtering,
+            run_options=run_options,
+            focalplane=focalplane,
+            depth_uk_arcmin=depth_uk_arcmin,
+            progress=progress,
+        )
+    manifest = provenance.manifest(
+        {
+            "schedule": schedule_path,
+            "filter": str(filtering),
+            "deprojection_template": filtering.deprojection.template_map,
+            "evaluation": run_options.evaluation,
+            "sky": dataclasses.asdict(sky_config),
+            "focalplane": None if focalplane is None else focalplane.names,
+            "noise": dataclasses.asdict(result.noise),
+        },
+        {"sky": sky_config.seed},
+        timer.stages,
+        estimate.as_dict(),
+    )
+    with io.staged_dir(out_dir, force, inputs) as stage:
+        _write_filtered(stage, result, manifest)
+    verdict = filtered_suppression.verdict
+    print(verdict(result.rows, result.kept, noise=result.noise, transfer=result.transfer))
+    return result.rows
+
+
+def _filtered_inputs(sky_config, schedule_path, filtering, *, focalplane, depth_uk_arcmin):
+    """(the schedule, the input files, the estimate) of the filtered table, every option checked
+    against the sky, the schedule and the template map before any work."""
     if not (np.isfinite(depth_uk_arcmin) and 1e-6 <= depth_uk_arcmin <= 1e6):
         raise ConfigError(f"--depth-uk-arcmin {depth_uk_arcmin:g}: give a depth in [1e-6, 1e6]")
     if sky_config.nside < hwp_suppression.MIN_NSIDE:
@@ -263,77 +302,42 @@ def run_filtered(
         except ValueError as err:
             raise ConfigError(f"--deproject-template: {err}") from None
         inputs.append(template)
-    io.check_output_dir(out_dir, force, inputs)
-    once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
-    # templates of T's derivatives follow the TOD only where the sky is evaluated exactly
-    exact = filtering.deprojection.derivatives > 0
     estimate = resources.schedule_estimate(
-        "deprojected-suppression" if exact else "filtered-suppression",
-        once,
+        "deprojected-suppression" if filtering.deprojection.derivatives else "filtered-suppression",
+        dataclasses.replace(schedule, repeat_boresight_deg=(0.0,)),
         sky_config.nside,
         lmax=sky_config.lmax,
         n_pairs=2 if focalplane is None else focalplane.n_pairs,
         tod_runs=filtered_suppression.tod_runs(),
     )
-    resources.require(estimate, checks)
-    timer = provenance.Timer(log)
-    kernels = precompile.kernels_for("validation", pointing=True)  # before the stages: Ctrl-C
-    precompile.precompile(kernels, timer=timer)
-    with timer("sky"):
-        sky = make_sky(sky_config)
-    run_options = RunOptions(evaluation="exact") if exact else RunOptions()
-    with timer("simulations"):
-        result = filtered_suppression.run(
-            schedule,
-            sky,
-            filtering,
-            run_options=run_options,
-            focalplane=focalplane,
-            depth_uk_arcmin=depth_uk_arcmin,
-            progress=progress,
-        )
-    with io.staged_dir(out_dir, force, inputs) as stage:
-        io.write_csv(stage / "filtered_suppression.csv", result.rows, list(result.rows[0]))
-        io.write_text(stage / "filtered_suppression.md", filtered_suppression.markdown(result.rows))
-        io.write_csv(stage / "sky_kept.csv", result.kept, list(result.kept[0]))
-        plots.filtered_suppression_figure(result, stage / "filtered_suppression")
-        transfer = result.transfer
-        io.write_csv(stage / "transfer.csv", transfer.rows(), list(transfer.rows()[0]))
-        io.write_npz(
-            stage / "transfer.npz",
-            edges=transfer.edges,
-            matrix=transfer.matrix,
-            error=transfer.error,
-            field_pairs=np.array(FIELD_PAIRS),
-            n_sims=transfer.n_sims,
-        )
-        plots.transfer_figure(transfer, stage / "transfer")
-        io.write_json(
-            stage / "manifest.json",
-            provenance.manifest(
-                {
-                    "schedule": schedule_path,
-                    "filter": str(filtering),
-                    "deprojection_template": filtering.deprojection.template_map,
-                    "evaluation": run_options.evaluation,
-                    "sky": dataclasses.asdict(sky_config),
-                    "focalplane": None if focalplane is None else focalplane.names,
-                    "noise": dataclasses.asdict(result.noise),
-                },
-                {"sky": sky_config.seed},
-                timer.stages,
-                estimate.as_dict(),
-            ),
-        )
-    print(
-        filtered_suppression.verdict(
-            result.rows,
-            result.kept,
-            noise=result.noise,
-            transfer=result.transfer,
-        )
+    return schedule, inputs, estimate
+
+
+def _write_filtered(stage, result, manifest):
+    """Write ``filtered_suppression.csv`` (a row per systematic, pipeline and boresight schedule:
+    the leaked pseudo-C_BB in three bands, over the same schedule's raw leak, that over the
+    filter's F_BB and over its own pipeline's unrotated leak), ``filtered_suppression.md``,
+    ``filtered_suppression.png``/``.pdf``, the filter's transfer function (``transfer.csv``, a row
+    per band and pair of fields; ``transfer.npz``, its matrix T[to, from, band], error, edges and
+    field pairs; ``transfer.png``/``.pdf``), ``sky_kept.csv`` (per pipeline and boresight
+    schedule, the sky's own pseudo-C_EE and C_BB per band over the raw pipeline's) and
+    ``manifest.json`` into ``stage``."""
+    io.write_csv(stage / "filtered_suppression.csv", result.rows, list(result.rows[0]))
+    io.write_text(stage / "filtered_suppression.md", filtered_suppression.markdown(result.rows))
+    io.write_csv(stage / "sky_kept.csv", result.kept, list(result.kept[0]))
+    plots.filtered_suppression_figure(result, stage / "filtered_suppression")
+    transfer = result.transfer
+    io.write_csv(stage / "transfer.csv", transfer.rows(), list(transfer.rows()[0]))
+    io.write_npz(
+        stage / "transfer.npz",
+        edges=transfer.edges,
+        matrix=transfer.matrix,
+        error=transfer.error,
+        field_pairs=np.array(FIELD_PAIRS),
+        n_sims=transfer.n_sims,
     )
-    return result.rows
+    plots.transfer_figure(transfer, stage / "transfer")
+    io.write_json(stage / "manifest.json", manifest)
 
 
 def _check_hwp_sky(sky_config):
@@ -425,6 +429,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _common.focalplane_flag(parser, "; with --hwp or --filter only")
 
 
+def _filtering(args, plate):
+    """The pipeline of ``--filter`` and ``--deproject`` (and its template map), refused with
+    what does not go with it, before any work."""
+    flag = "--filter" if args.filter is not None else "--deproject"
+    if plate is not None:
+        raise ConfigError(
+            f"{flag} and --hwp: give one of them (a filter behind a plate is to come)"
+        )
+    given = [f for f in PLATE_FLAGS if getattr(args, _dest(f)) is not None]
+    if given:
+        raise ConfigError(
+            f"{', '.join(given)} with {flag}: the filtered table runs without a plate"
+        )
+    if args.schedule is None:
+        raise ConfigError(f"{flag}: give --schedule, the schedule file the table repeats")
+    try:
+        filtering = Filtering.parse(args.filter or "none")
+    except ValueError as err:
+        raise ConfigError(f"--filter: {err}") from None
+    if args.deproject is not None:
+        try:
+            deprojection = Deprojection.parse(args.deproject)
+        except ValueError as err:
+            raise ConfigError(f"--deproject: {err}") from None
+        if filtering.deprojection and deprojection:
+            raise ConfigError("--filter deproject(...) and --deproject: give one of them")
+        filtering = dataclasses.replace(
+            filtering, deprojection=filtering.deprojection or deprojection
+        )
+    if args.deproject_template is not None:
+        if not filtering.deprojection:
+            raise ConfigError("--deproject-template: give --deproject too (what to fit)")
+        if not os.path.isfile(args.deproject_template):
+            raise ConfigError(f"--deproject-template {args.deproject_template}: no such file")
+        deprojection = dataclasses.replace(
+            filtering.deprojection, template_map=args.deproject_template
+        )
+        filtering = dataclasses.replace(filtering, deprojection=deprojection)
+    if not filtering:
+        raise ConfigError(
+            f"{flag} none: give a filter (e.g. p3+ground) or templates (e.g. gain,pointing)"
+        )
+    return filtering
+
+
 def main(args: argparse.Namespace) -> int:
     plate = _common.hwp(args)
     narrowest = MIN_AXIS_FWHM / ARCMIN  # the beam entries need a sky beam they can analyse
@@ -449,45 +498,7 @@ def main(args: argparse.Namespace) -> int:
     except (TypeError, ValueError) as err:
         raise ConfigError(f"--nside / --fwhm-arcmin / --seed: {err}") from None
     if cleaning:
-        flag = "--filter" if args.filter is not None else "--deproject"
-        if plate is not None:
-            raise ConfigError(
-                f"{flag} and --hwp: give one of them (a filter behind a plate is to come)"
-            )
-        given = [f for f in PLATE_FLAGS if getattr(args, _dest(f)) is not None]
-        if given:
-            raise ConfigError(
-                f"{', '.join(given)} with {flag}: the filtered table runs without a plate"
-            )
-        if args.schedule is None:
-            raise ConfigError(f"{flag}: give --schedule, the schedule file the table repeats")
-        try:
-            filtering = Filtering.parse(args.filter or "none")
-        except ValueError as err:
-            raise ConfigError(f"--filter: {err}") from None
-        if args.deproject is not None:
-            try:
-                deprojection = Deprojection.parse(args.deproject)
-            except ValueError as err:
-                raise ConfigError(f"--deproject: {err}") from None
-            if filtering.deprojection and deprojection:
-                raise ConfigError("--filter deproject(...) and --deproject: give one of them")
-            filtering = dataclasses.replace(
-                filtering, deprojection=filtering.deprojection or deprojection
-            )
-        if args.deproject_template is not None:
-            if not filtering.deprojection:
-                raise ConfigError("--deproject-template: give --deproject too (what to fit)")
-            if not os.path.isfile(args.deproject_template):
-                raise ConfigError(f"--deproject-template {args.deproject_template}: no such file")
-            deprojection = dataclasses.replace(
-                filtering.deprojection, template_map=args.deproject_template
-            )
-            filtering = dataclasses.replace(filtering, deprojection=deprojection)
-        if not filtering:
-            raise ConfigError(
-                f"{flag} none: give a filter (e.g. p3+ground) or templates (e.g. gain,pointing)"
-            )
+        filtering = _filtering(args, plate)
         depth = args.depth_uk_arcmin
         run_filtered(
             sky_config,

@@ -9,11 +9,9 @@ import numpy as np
 import scipy.stats
 from tqdm import tqdm
 
-from .. import engine, spectra
 from ..config import RunOptions
 from ..instrument.focalplane import on_axis
-from ..instrument.pairs import Systematics
-from ..jobs.residual import residual
+from ..jobs.residual import residual, simulate_reference
 from ..predict import delta_r
 from ..predict import focalplane as predict_fp
 from ..sky import SkyConfig, make_sky
@@ -169,30 +167,22 @@ def _few_skies(skies):
 
 
 def tod_parts(sky, scan, systematics, budget, mask, *, lmax, hwp=None):
-    """The TOD's residual pseudo-C_BB parts (cross with the sky, auto) of one sky, behind
-    ``hwp`` (the reference behind it without its IP)."""
-    evaluation = budget.design.evaluation
-    focal = budget.focalplane
+    """The TOD's residual pseudo-C_BB parts (cross with the sky, auto) of one sky, from the one
+    residual job (:func:`boresight.jobs.residual.residual`). A focal plane (or the budget's
+    pairs on the axis behind ``hwp``) is binned with the focal-plane prediction's cut
+    (:data:`boresight.predict.focalplane.RCOND_EXPECTATION`), the reference behind the plate
+    without its IP."""
+    focal = budget.focalplane if hwp is None else on_axis(budget.instrument.pair_angles_deg)
+    run = RunOptions(evaluation=budget.design.evaluation)
+    reference = None
+    if focal is not None:
+        run = dataclasses.replace(run, rcond_min=predict_fp.RCOND_EXPECTATION)
     if hwp is not None:
-        focal = on_axis(budget.instrument.pair_angles_deg)
-    elif focal is None:
-        job = residual(
-            sky, scan, systematics, mask, lmax, instrument=budget.instrument,
-            run=RunOptions(evaluation=evaluation),
-        )  # fmt: skip
-        return job.total - job.auto, job.auto
-    plates = (None, None) if hwp is None else (dataclasses.replace(hwp, ip=0.0), hwp)
-    maps = [
-        engine.simulate_focalplane(
-            sky,
-            scan,
-            focal,
-            s,
-            evaluation=evaluation,
-            rcond_min=predict_fp.RCOND_EXPECTATION,
-            hwp=p,
-        )  # fmt: skip
-        for s, p in zip((Systematics(), systematics), plates)
-    ]
-    ref, sys = (np.array([np.where(m.valid, m.q, 0.0), np.where(m.valid, m.u, 0.0)]) for m in maps)
-    return spectra.residual_bb_parts(sys, ref, mask, lmax)
+        reference, _ = simulate_reference(
+            sky, scan, mask, lmax, run=run, focalplane=focal, hwp=dataclasses.replace(hwp, ip=0.0)
+        )
+    job = residual(
+        sky, scan, systematics, mask, lmax, instrument=budget.instrument, run=run,
+        reference=reference, focalplane=focal, hwp=hwp,
+    )  # fmt: skip
+    return job.cross, job.auto

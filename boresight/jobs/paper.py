@@ -26,10 +26,11 @@ from ..cosmology import load_spectra
 from ..coupling import mask_coupling
 from ..instrument.pairs import PAPER_GAIN, PAPER_POINTING, Systematics
 from ..masks import SURVEY_FSKY, fsky, survey_mask, survey_span
+from ..moments import compute_moments
 from ..scan import SyntheticScan, paper_scan
 from ..sky import SkyConfig, make_sky
 from ..spectra import Footprint
-from .residual import Residual, band_rows, compute_moments, n_max_for, residual, simulate_reference
+from .residual import Residual, band_rows, n_max_for, residual, simulate_reference
 from .transforms import Transforms
 
 if TYPE_CHECKING:
@@ -303,8 +304,9 @@ def _run_experiment(exp, study, sky, theory, timer, progress, transforms):
             paper_scan(exp.survey, seed=seed),
             nside,
             footprint.pixels,
-            run=run,
             n_max=n_max_for(exp.systematics),
+            nthreads=run.nthreads,
+            backend=run.backend,
         )
     for angle, ideal in zip(angles, checked):
         with timer(f"{exp.name}: {label[angle]}"):

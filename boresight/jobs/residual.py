@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import ClassVar, NamedTuple
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,14 +30,13 @@ from ..instrument.pairs import Instrument, Systematics
 from ..mapmaking import Maps
 from ..masks import from_config
 from ..mitigation import Filtering
-from ..moments import characterise_schedule
+from ..moments import Moments, compute_moments
 from ..scan import SyntheticScan
 from ..schedule import Schedule
 from ..sky import Sky
 from .transforms import Transforms
 
 N_MAX = predict.N_MAX
-_POWER_CHUNK = 1 << 20  #: pixels per dot product of :func:`_mean_power`
 
 
 @dataclass(frozen=True)
@@ -218,6 +217,7 @@ def _simulate(
         leak_template=leak_template,
         nthreads=run.nthreads,
         backend=run.backend,
+        rcond_min=run.rcond_min,
     )
     if filtering and not isinstance(scan, Schedule):
         raise ValueError(
@@ -254,92 +254,6 @@ def _simulate(
         )
     maps = engine.simulate(sky, scan, instrument, systematics, **options, **run.engine_kwargs())
     return maps, None
-
-
-class Moments(NamedTuple):
-    """What the predictions need of a scan's crossings.
-
-    h : numpy.ndarray, complex64 (a synthetic scan's) or complex128, shape (N_MAX + 1, npix)
-        h_n of one repeat's crossings (a real schedule's, rotations included), 0 where unobserved.
-    crossings : numpy.ndarray, int32 (a synthetic scan's) or int64, shape (npix,)
-        Crossings per pixel in one repeat.
-    rotations_deg : tuple of float
-        Boresight rotation of each repeat [deg]; (0,) for a real schedule.
-    power : numpy.ndarray, shape (N_MAX + 1,)
-        ``<|h_n|^2>`` of ``h`` over the pixels it was made on.
-    """
-
-    h: np.ndarray
-    crossings: np.ndarray
-    rotations_deg: tuple
-    power: np.ndarray
-
-    def rotated_power(self, n):
-        """``<|h_n|^2>`` of all the repeats together: each repeat's h_n is the first's times
-        e^{i n alpha}, so their mean is h_n <e^{i n alpha}>."""
-        turn = np.mean(np.exp(1j * n * np.radians(self.rotations_deg)))
-        return self.power[n] * abs(turn) ** 2
-
-
-def compute_moments(
-    scan: SyntheticScan | Schedule,
-    nside: int,
-    pixels: np.ndarray,
-    *,
-    run: RunOptions = RunOptions(),
-    n_max: int = N_MAX,
-) -> Moments:
-    """h_n of a synthetic or real scan.
-
-    Parameters
-    ----------
-    scan : boresight.scan.SyntheticScan or boresight.schedule.Schedule
-    nside : int
-    pixels : numpy.ndarray
-        Pixels of a synthetic scan, and those :attr:`Moments.power` averages over: a boolean
-        map (npix,) or increasing RING indices.
-    run : boresight.config.RunOptions
-    n_max : int
-        The highest moment of a synthetic scan (:func:`n_max_for`); a real schedule's are
-        :data:`boresight.moments.N_MAX`.
-
-    Returns
-    -------
-    Moments
-    """
-    if isinstance(scan, Schedule):
-        stats = characterise_schedule(scan, nside)
-        return Moments(stats.h, stats.hits, (0.0,), _mean_power(stats.h, pixels))
-    h, crossings = engine.scan_moments(
-        scan.one_repeat(),
-        nside,
-        n_max,
-        pixels=pixels,
-        nthreads=run.nthreads,
-        backend=run.backend,
-        dtype=np.complex64,  # |h_n| <= 1 to 6e-8: half of the Nside-2048 run's largest array
-    )
-    return Moments(h, _narrow(crossings, pixels), scan.rotations_deg, _mean_power(h, pixels))
-
-
-def _narrow(crossings, pixels):
-    """int32 ``crossings``, written on ``pixels`` only: the other pages stay untouched zeros (0.08
-    GB less on the wide mask at Nside 2048). What reads them divides by them in float64."""
-    pixels = np.flatnonzero(pixels) if pixels.dtype == bool else pixels
-    out = np.zeros(crossings.size, dtype=np.int32)
-    out[pixels] = crossings[pixels]
-    return out
-
-
-def _mean_power(h, pixels):
-    """``<|h_n|^2>`` over ``pixels`` (a boolean map or RING indices) for each n of h."""
-    pixels = np.flatnonzero(pixels) if pixels.dtype == bool else pixels
-    out = np.zeros(h.shape[0])
-    for n, hn in enumerate(h):
-        for start in range(0, pixels.size, _POWER_CHUNK):  # in float64, whatever h's dtype
-            values = hn[pixels[start : start + _POWER_CHUNK]].astype(np.complex128).view(np.float64)
-            out[n] += np.dot(values, values)  # (re, im) pairs: |h|^2 summed is one dot product
-    return out / max(pixels.size, 1)
 
 
 def n_max_for(systematics: Systematics) -> int:
@@ -669,7 +583,9 @@ def _job_moments(scan, nside, pixels, run, systematics, moments):
     """A job's :class:`Moments`: the shared ones at ``scan``'s rotations, or its own."""
     n_max = n_max_for(systematics)
     if moments is None or isinstance(scan, Schedule):
-        return compute_moments(scan, nside, pixels, run=run, n_max=n_max)
+        return compute_moments(
+            scan, nside, pixels, n_max=n_max, nthreads=run.nthreads, backend=run.backend
+        )
     if moments.h.shape[0] <= n_max:
         raise ValueError(f"moments hold h_n to {moments.h.shape[0] - 1}; these need {n_max}")
     return moments._replace(rotations_deg=tuple(scan.rotations_deg))

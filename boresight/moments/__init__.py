@@ -6,11 +6,13 @@ focal plane (:mod:`~boresight.moments.focalplane`) and h_{n,m} behind a half-wav
 
 from ..constants import N_MAX
 from .axis import (
+    Moments,
     ScanStats,
     ces_hits,
     ces_hits_pairs,
     characterise,
     characterise_schedule,
+    compute_moments,
 )
 from .focalplane import (
     PAIR_BLOCK_BYTES,
@@ -44,6 +46,8 @@ __all__ = [
     "ScanStats",
     "characterise",
     "characterise_schedule",
+    "Moments",
+    "compute_moments",
     "sample_offsets",
     "centroid_moments",
     "HWP_TERMS",

@@ -7,6 +7,7 @@ from helpers import CENTRED, night_schedule
 
 from boresight import coupling, engine, harmonics, masks, predict, spectra
 from boresight.instrument.pairs import PAPER_GAIN, Systematics
+from boresight.moments import compute_moments
 from boresight.scan import SyntheticScan, paper_scan
 from boresight.schedule import CES, Schedule
 
@@ -79,7 +80,7 @@ def test_the_last_map_check_predicts_before_it_simulates(small_sky, monkeypatch)
     scan = SyntheticScan(n_phi=3, range_rad=0.5, seed=3, rotations_deg=(0.0, 90.0))
     sysm = Systematics(rho_arcmin=(0.5, 0.3))
     pred = predict.Prediction(theory, couplings, 60.0, map_checks=2)
-    moments = residual.compute_moments(scan, nside, mask > 0)
+    moments = compute_moments(scan, nside, mask > 0)
     jobs = []
     for _ in range(2):
         jobs.append(
@@ -111,39 +112,6 @@ def test_the_last_map_check_predicts_before_it_simulates(small_sky, monkeypatch)
             np.testing.assert_array_equal(getattr(job, name), getattr(alone, name))
 
 
-def test_the_jobs_crossings_are_int32_on_the_observed_pixels_only():
-    """compute_moments keeps the crossings in int32, equal to the engine's on the pixels asked
-    for and zero elsewhere."""
-    from boresight.jobs import residual
-
-    nside = 16
-    mask = masks.survey_mask("deep", nside) > 0
-    scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=(0.0, 70.0))
-    mom = residual.compute_moments(scan, nside, mask)
-    _, whole = engine.scan_moments(scan.one_repeat(), nside, 4)
-    assert mom.crossings.dtype == np.int32
-    np.testing.assert_array_equal(mom.crossings, np.where(mask, whole, 0))
-    assert whole[~mask].any()  # the scan crosses pixels outside the mask, which are left out
-
-
-def test_rotated_power_is_that_of_the_rotated_scan():
-    """Moments.rotated_power (one repeat's <|h_n|^2> times |<e^{i n alpha}>|^2) against the h_n
-    of the whole rotated scan, moments made of all its repeats (in complex128; the job keeps them
-    in complex64, 6e-8 per value, so 1e-7)."""
-    from boresight.jobs import residual
-
-    nside = 16
-    pixels = np.flatnonzero(masks.survey_mask("wide", nside))
-    for angles in ((0.0, 70.0), (0.0, 45.0, 160.0)):
-        scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=angles)
-        mom = residual.compute_moments(scan, nside, pixels, n_max=4)
-        whole, _ = engine.scan_moments(scan, nside, 4, pixels=pixels)
-        assert mom.h.dtype == np.complex64
-        for n in range(1, 5):
-            want = np.mean(np.abs(whole[n, pixels]) ** 2)
-            assert mom.rotated_power(n) == pytest.approx(want, rel=1e-7), (angles, n)
-
-
 def test_zero_qu_needs_a_synthetic_scan(small_sky):
     from boresight.jobs import residual
 
@@ -162,7 +130,7 @@ def test_shared_moments_give_the_same_prediction(small_sky, theory):
 
     mask = masks.survey_mask("deep", 64)
     prediction = predict.Prediction(theory, coupling.mask_coupling(mask, 128), 60.0)
-    shared = residual.compute_moments(paper_scan("deep"), 64, mask > 0)
+    shared = compute_moments(paper_scan("deep"), 64, mask > 0)
     for angle in (None, 90.0):
         scan = paper_scan("deep", angle)
         own, reused = (

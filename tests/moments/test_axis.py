@@ -2,9 +2,12 @@
 and the fused characterisation of a schedule against the streamed one."""
 
 import numpy as np
+import pytest
 from helpers import night_schedule
 
-from boresight import engine, moments, pointing
+from boresight import engine, masks, moments, pointing
+from boresight.moments import compute_moments
+from boresight.scan import SyntheticScan
 
 
 def test_repeat_at_180_cancels_h1_h3():
@@ -87,3 +90,32 @@ def test_binning_threads_own_balanced_pixel_ranges():
     finally:
         numba.set_num_threads(threads)
     assert np.array_equal(single.h, moments.characterise_schedule(sched, 64).h)
+
+
+def test_a_jobs_crossings_are_int32_on_the_observed_pixels_only():
+    """compute_moments keeps the crossings in int32, equal to the engine's on the pixels asked
+    for and zero elsewhere."""
+    nside = 16
+    mask = masks.survey_mask("deep", nside) > 0
+    scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=(0.0, 70.0))
+    mom = compute_moments(scan, nside, mask)
+    _, whole = engine.scan_moments(scan.one_repeat(), nside, 4)
+    assert mom.crossings.dtype == np.int32
+    np.testing.assert_array_equal(mom.crossings, np.where(mask, whole, 0))
+    assert whole[~mask].any()  # the scan crosses pixels outside the mask, which are left out
+
+
+def test_rotated_power_is_that_of_the_rotated_scan():
+    """Moments.rotated_power (one repeat's <|h_n|^2> times |<e^{i n alpha}>|^2) against the h_n
+    of the whole rotated scan, moments made of all its repeats (in complex128; the job keeps them
+    in complex64, 6e-8 per value, so 1e-7)."""
+    nside = 16
+    pixels = np.flatnonzero(masks.survey_mask("wide", nside))
+    for angles in ((0.0, 70.0), (0.0, 45.0, 160.0)):
+        scan = SyntheticScan(n_phi=3, range_rad=1.0, seed=2, rotations_deg=angles)
+        mom = compute_moments(scan, nside, pixels, n_max=4)
+        whole, _ = engine.scan_moments(scan, nside, 4, pixels=pixels)
+        assert mom.h.dtype == np.complex64
+        for n in range(1, 5):
+            want = np.mean(np.abs(whole[n, pixels]) ** 2)
+            assert mom.rotated_power(n) == pytest.approx(want, rel=1e-7), (angles, n)

@@ -660,7 +660,7 @@ def test_a_constant_plate_jitter_is_its_angle_offset_and_draws_ignore_the_chunks
         > 1e-3
     )
     monkeypatch.setattr(
-        engine, "angle_jitter", lambda hwp, seed, first, n: np.full(n, np.radians(0.5))
+        engine.focalplane, "angle_jitter", lambda hwp, seed, first, n: np.full(n, np.radians(0.5))
     )
     held = engine.simulate_focalplane(plain_sky, schedule, pairs, **run)
     offset = dataclasses.replace(plate, angle_jitter_deg=0.0, angle_offset_deg=0.5)

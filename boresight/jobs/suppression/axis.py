@@ -26,10 +26,11 @@ from ...coupling import mask_coupling
 from ...instrument.added import REGISTRY
 from ...instrument.pairs import PAPER_GAIN, PAPER_POINTING, Instrument, Systematics
 from ...masks import SURVEY_FSKY, survey_mask
+from ...moments import compute_moments
 from ...predict.terms import couples_through
 from ...scan import paper_scan
 from .. import resources
-from ..residual import compute_moments, residual, simulate_reference
+from ..residual import residual, simulate_reference
 from ..transforms import Transforms
 
 if TYPE_CHECKING:
@@ -209,8 +210,9 @@ def run(
             paper_scan(survey),
             nside,
             mask > 0,
-            run=run_options,
             n_max=predict.BEAM_N_MAX,
+            nthreads=run_options.nthreads,
+            backend=run_options.backend,
         )
         for entry in catalogue():
             for i, angle in enumerate(ANGLES):
