@@ -81,7 +81,8 @@ class RunOptions:
         (healpy.anafast's 3 iterations) or "lsqr".
     rcond_min : float
         The map-maker's cut: pixels whose 2x2 (Q, U) system has a smaller reciprocal condition
-        number are invalid (0 in the maps the spectra read), in [0, 0.5].
+        number are invalid (0 in the maps the spectra read), in [0, 1) (a 2x2 system's rcond is
+        (1 - |h_4|) / (1 + |h_4|), at most 1).
     """
 
     evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
@@ -89,7 +90,7 @@ class RunOptions:
     chunk_pixels: int = option(None, "pixels per chunk, >= 1 (default: the backend's)", (int,))
     nthreads: int = option(0, "CPU threads, 0 for all the cores this process may use")
     analysis: str = option("auto", "masked maps -> pseudo-alm", choices=ANALYSES)
-    rcond_min: float = option(RCOND_MIN, "the map-maker's cut on each pixel's rcond, in [0, 0.5]")
+    rcond_min: float = option(RCOND_MIN, "the map-maker's cut on each pixel's rcond, in [0, 1)")
 
     def __post_init__(self):
         if self.evaluation not in METHODS:
@@ -100,7 +101,8 @@ class RunOptions:
         check_threads("nthreads", self.nthreads)
         if self.analysis not in ANALYSES:
             raise ValueError(f"analysis = {self.analysis!r}; allowed: {ANALYSES}")
-        validation.number("rcond_min", self.rcond_min, 0.0, 0.5)
+        if not 0.0 <= validation.number("rcond_min", self.rcond_min, 0.0) < 1.0:
+            raise ValueError(f"rcond_min must be in [0, 1), got {self.rcond_min!r}")
 
     def engine_kwargs(self):
         """The keyword arguments :func:`boresight.engine.simulate` takes from these options.

@@ -2,12 +2,17 @@
 
 import os
 
+import healpy as hp
+import numpy as np
 import pytest
 from helpers import EXAMPLES, FUZZ, scalars, values
 from hypothesis import given
 from hypothesis import strategies as st
 
-from boresight.config import ConfigError, parse_study, schema
+from boresight import engine, masks
+from boresight.config import ConfigError, RunOptions, parse_study, schema
+from boresight.instrument.pairs import Instrument
+from boresight.scan import SyntheticScan
 
 
 @st.composite
@@ -39,3 +44,25 @@ def test_examples_are_valid(name):
 
     study = load_study(os.path.join(EXAMPLES, name))
     assert study.scan.rotations_deg[0] == 0.0
+
+
+def test_the_run_tables_rcond_cut_reaches_the_engine(small_sky):
+    """[run] rcond_min is the engine's cut: a scan of two angles about 20 deg apart (rcond
+    (1 - cos 40 deg) / (1 + cos 40 deg) = 0.13 in most pixels) keeps the pixels above the
+    default 1e-6 and loses those below 0.2, exactly where each pixel's rcond says; out of
+    [0, 1) it is refused."""
+    scan = SyntheticScan(n_phi=2, range_rad=0.349, in_pixel="centre")
+    pixels = masks.survey_mask("deep", small_sky.nside) > 0
+    kept, cut = (
+        engine.simulate(small_sky, scan, Instrument(pair_angles_deg=(0.0,)), pixels=pixels,
+                        **RunOptions(rcond_min=r).engine_kwargs())
+        for r in (RunOptions().rcond_min, 0.2)
+    )  # fmt: skip
+    np.testing.assert_array_equal(kept.rcond_obs, cut.rcond_obs)
+    rcond = kept.rcond_obs
+    assert np.mean(rcond < 0.2) > 0.5 and np.mean(rcond >= 1e-6) > 0.9
+    np.testing.assert_array_equal(kept.q_obs != hp.UNSEEN, rcond >= RunOptions().rcond_min)
+    np.testing.assert_array_equal(cut.q_obs != hp.UNSEEN, rcond >= 0.2)
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(ValueError, match="rcond_min"):
+            RunOptions(rcond_min=bad)
