@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 
 
 _WORD = 64
-POWER_CHUNK = 1 << 20  #: pixels per dot product of a mean power of h_n
+_POWER_CHUNK = 1 << 20  #: pixels per dot product of a mean power of h_n
 
 
 @numba.njit(inline="always")
@@ -545,7 +545,7 @@ def _mean_power(h, pixels):
     pixels = np.flatnonzero(pixels) if pixels.dtype == bool else pixels
     out = np.zeros(h.shape[0])
     for n, hn in enumerate(h):
-        for start in range(0, pixels.size, POWER_CHUNK):  # in float64, whatever h's dtype
-            values = hn[pixels[start : start + POWER_CHUNK]].astype(np.complex128).view(np.float64)
+        for start in range(0, pixels.size, _POWER_CHUNK):  # in float64, whatever h's dtype
+            values = hn[pixels[start : start + _POWER_CHUNK]].astype(np.complex128).view(np.float64)
             out[n] += np.dot(values, values)  # (re, im) pairs: |h|^2 summed is one dot product
     return out / max(pixels.size, 1)
