@@ -82,7 +82,7 @@ class RunOptions:
     rcond_min : float
         The map-maker's cut: pixels whose 2x2 (Q, U) system has a smaller reciprocal condition
         number are invalid (0 in the maps the spectra read), in [0, 1) (a 2x2 system's rcond is
-        (1 - |h_4|) / (1 + |h_4|), at most 1).
+        ``(1 - |h_4|) / (1 + |h_4|)``, at most 1).
     """
 
     evaluation: str = option("interp", "the sky at each hit", choices=METHODS)
