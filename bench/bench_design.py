@@ -30,10 +30,11 @@ from pathlib import Path
 import numpy as np
 from _table import report
 
-from boresight import cosmology, design
+from boresight import cosmology
 from boresight.commands import design as design_command
 from boresight.design.exact import exact_objective, search
 from boresight.instrument.pairs import Systematics
+from boresight.moments import unit_moments
 from boresight.schedule import load_schedule, write_schedule
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -60,7 +61,7 @@ def objective_costs(nside=256):
     budget = Systematics(dg=(0.01, -0.01), rho_arcmin=0.5, chi_deg=30.0)
     allowed = (-90.0, -45.0, 0.0, 45.0, 90.0)
     t0 = time.perf_counter()
-    moments = design.unit_moments(schedule, nside, "day")
+    moments = unit_moments(schedule, nside, "day")
     t1 = time.perf_counter()
     obj = exact_objective(moments, budget, cosmology.load_spectra(), 30.0)
     t2 = time.perf_counter()

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import healpy as hp
@@ -474,12 +475,33 @@ def build_section(section, cls, kwargs):
     ConfigError
         Naming section.key where the message starts with a field's name.
     """
+    with section_errors(section, cls, kwargs):
+        return cls(**kwargs)
+
+
+@contextmanager
+def section_errors(section, cls, kwargs):
+    """Refuse keys of a table that are not fields of ``cls``, and turn the ValueError or
+    TypeError of the block (``cls(**kwargs)``, made by the caller's own layer) into a
+    ConfigError naming section.key where the message starts with a field's name.
+
+    Parameters
+    ----------
+    section : str
+    cls : type
+        A dataclass.
+    kwargs : dict
+
+    Raises
+    ------
+    ConfigError
+    """
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(kwargs) - names)
     if unknown:
         raise ConfigError(f"unknown key {section}.{unknown[0]}; allowed: {sorted(names)}")
     try:
-        return cls(**kwargs)
+        yield
     except (ValueError, TypeError) as err:
         text = str(err)
         where = f"{section}." if text.split(" ")[0] in names else f"[{section}] "

@@ -66,3 +66,25 @@ def test_the_run_tables_rcond_cut_reaches_the_engine(small_sky):
     for bad in (-0.1, 1.0, float("nan")):
         with pytest.raises(ValueError, match="rcond_min"):
             RunOptions(rcond_min=bad)
+
+
+def test_a_sections_errors_name_its_key_whoever_builds_it():
+    """section_errors (the design's budget builds its own options inside it): an unknown key is
+    refused before the block runs, a field's ValueError becomes section.key, any other becomes
+    [section], and a clean block passes its value through."""
+    from boresight.config import section_errors
+
+    built = []
+    with pytest.raises(ConfigError, match=r"^unknown key run\.colour; allowed: \[") as err:
+        with section_errors("run", RunOptions, {"colour": 1}):
+            built.append(1)
+    assert not built and "\n" not in str(err.value)
+    with pytest.raises(ConfigError, match=r"^run\.rcond_min must"):
+        with section_errors("run", RunOptions, {"rcond_min": 2.0}):
+            RunOptions(rcond_min=2.0)
+    with pytest.raises(ConfigError, match=r"^\[run\] bad"):
+        with section_errors("run", RunOptions, {}):
+            raise TypeError("bad thing")
+    with section_errors("run", RunOptions, {"rcond_min": 0.1}):
+        options = RunOptions(rcond_min=0.1)
+    assert options.rcond_min == 0.1

@@ -103,7 +103,7 @@ KERNELS = {
         Kernel("masks", "_inside", (_F1,) * 4 + (nt.float64,), 1.3),
         Kernel("predict.cl", "_block_sums", (_H1, _I1, _F1, _P1, nt.int64), 0.9),
         Kernel("moments.axis", "ces_hits", (*_CHUNK, nt.int64, nt.int64, nt.bool_), 2.2),
-        Kernel("design.white", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
+        Kernel("moments.units", "_rotate_and_sum", (_I1, _I1, _C2, _C2, _C2), 0.8),
         Kernel(
             "design.operations",
             "_timeline",

@@ -34,9 +34,9 @@ from ..design.budget import load_budget, search_instrument
 from ..design.job import design
 from ..design.operations import shortened, timeline_rows
 from ..design.tod_check import validation_report
-from ..design.white import units_of
 from ..instrument.hwp import check_sampling
 from ..jobs import resources
+from ..moments.units import units_of
 from ..outputs import plots
 from ..schedule import load_schedule, schedule_format, write_schedule
 from ..validation import ConfigError

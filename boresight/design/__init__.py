@@ -1,5 +1,5 @@
 """Designing the boresight-rotation schedule: the budget file (:mod:`~boresight.design.budget`),
-units and the white-h_n objective (:mod:`~boresight.design.white`), the exact objective and its
+the white-h_n objective (:mod:`~boresight.design.white`), the exact objective and its
 search (:mod:`~boresight.design.exact`) and the same on a real focal plane
 (:mod:`~boresight.design.focalplane`). The budget's and the white objective's names are
 re-exported here."""
@@ -12,28 +12,20 @@ from .budget import (
     search_instrument,
 )
 from .white import (
-    GROUPS,
     KECK_DECKS,
     MAX_ANGLES,
     Design,
     DesignOptions,
     Objective,
-    UnitMoments,
     baselines,
     drawn,
     objective,
-    unit_moments,
-    units_of,
 )
 
 __all__ = [
-    "GROUPS",
     "KECK_DECKS",
     "DesignOptions",
     "MAX_ANGLES",
-    "units_of",
-    "UnitMoments",
-    "unit_moments",
     "Objective",
     "objective",
     "drawn",

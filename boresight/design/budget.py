@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import predict
-from ..config import ConfigError, build_section, check_systematics, read_toml
+from ..config import ConfigError, check_systematics, read_toml, section_errors
 from ..instrument.added import NOT_CARRIED, split_table
 from ..instrument.focalplane import FocalPlane, focalplane_of_table
 from ..instrument.hwp import HWP, pairs_behind
@@ -129,7 +129,8 @@ def load_budget(path: str) -> Budget:
                 raise ConfigError(f"budget {path}: {err}") from None
             table = {}
         try:
-            tables[name] = build_section(name, cls, table)
+            with section_errors(name, cls, table):  # built here: the design's own options too
+                tables[name] = cls(**table)
         except ConfigError as err:
             raise ConfigError(f"budget {path}: {err}") from None
     if focal is not None:
@@ -245,6 +246,7 @@ def _budget_hwp(path, table):
     if isinstance(table.get("angles_deg"), list):
         table = {**table, "angles_deg": tuple(table["angles_deg"])}
     try:
-        return build_section("hwp", HWP, table)
+        with section_errors("hwp", HWP, table):
+            return HWP(**table)
     except ConfigError as err:
         raise ConfigError(f"budget {path}: {err}") from None

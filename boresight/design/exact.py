@@ -50,9 +50,9 @@ if TYPE_CHECKING:
     from ..cosmology import Spectra
     from ..instrument.hwp import HWP
     from ..instrument.pairs import Instrument, Systematics
+    from ..moments.units import UnitMoments
     from .constraints import Feasibility
     from .operations import TimePrice
-    from .white import UnitMoments
 
 #: (E, B) rows of Y_n = i X_n: the unit's alm turned by a quarter of a period of n a
 _QUARTER = np.array([[0.0, -1.0], [1.0, 0.0]])
@@ -68,7 +68,7 @@ class Channel(NamedTuple):
     "plate": the crossing angles' own h_n (h_{n,0}), which a plate's instrumental polarisation
     reaches through and which only a turns, by n a; "delta", "conj delta": half the sums of
     exp(i n psi) delta and exp(i n psi) conj(delta) over the hits, delta the samples' offsets
-    from their pixel centres (:attr:`boresight.design.UnitMoments.centroids`), and "conjugate
+    from their pixel centres (:attr:`boresight.moments.UnitMoments.centroids`), and "conjugate
     conj delta" the conjugate of the latter (turned by -n a: ``moment`` is then -n). ``spin``:
     the weight's, as :class:`boresight.predict.field_products.Weight` takes it (default n).
     """
@@ -112,7 +112,7 @@ class ExactObjective:
 
     Parameters
     ----------
-    moments : boresight.design.UnitMoments
+    moments : boresight.moments.UnitMoments
     form : QuadraticForm
         omega, j = 2 (c + 1) + (0 for E, 1 for B) for channel c, j = 0, 1 the h_0 terms.
     fixed : numpy.ndarray, complex128, shape (2, nalm)
@@ -231,7 +231,7 @@ def exact_objective(
 
     Parameters
     ----------
-    moments : boresight.design.UnitMoments
+    moments : boresight.moments.UnitMoments
         The units' sums of the boresight's crossing angle.
     systematics, theory, fwhm_arcmin, instrument
         As :func:`boresight.predict.expected_residual`; the hits spread over their pixels as
@@ -252,8 +252,8 @@ def exact_objective(
         instrumental polarisation reaches them through ``moments``' own h_2, which only the
         boresight angle turns (:func:`boresight.predict.hwp.ip_delta_p`). Its angle
         jitter and synchronous signal are not in the objective.
-    plate_moments : boresight.design.UnitMoments, optional
-        A continuous plate's: :func:`boresight.design.unit_moments` with ``hwp``; needed where
+    plate_moments : boresight.moments.UnitMoments, optional
+        A continuous plate's: :func:`boresight.moments.unit_moments` with ``hwp``; needed where
         the pairs carry systematics.
     nthreads : int
     time_price : boresight.design.operations.TimePrice, optional
@@ -355,7 +355,7 @@ def _channels(model, hwp, moments, plate_moments, with_ip):
         if plate_moments is None:
             raise ValueError(
                 "the pairs' systematics behind a continuous HWP: give plate_moments "
-                "(boresight.design.unit_moments with the HWP)"
+                "(boresight.moments.unit_moments with the HWP)"
             )
         if not np.array_equal(plate_moments.pixels, moments.pixels) or not np.array_equal(
             plate_moments.offsets, moments.offsets

@@ -2,7 +2,7 @@
 
 Off the axis a pair's hits move when the boresight turns, so a unit's moments at angle a are not
 those at 0 turned by exp(i n a): they are built once per allowed angle, per pair
-(:func:`unit_sums`: S_n,i of every unit u at every allowed angle k, n = 0 its hits).
+(:func:`boresight.moments.unit_sums`: S_n,i of every unit u at every allowed angle k, n = 0 its hits).
 
 With the hits N(p) and the map-maker's H_4(p) of a reference assignment held fixed, every term
 of dP (:func:`boresight.predict.focalplane.expected_residual`) is linear in the units' sums, so
@@ -22,7 +22,7 @@ plus one pair's alm at a time.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -32,6 +32,7 @@ from .._util import interrupts
 from ..constants import N_MAX
 from ..moments.focalplane import characterise_focalplane
 from ..moments.offsets import centroid_moments
+from ..moments.units import UnitMoments, UnitSums, allowed_index, unit_sums
 from ..predict import R_RANGE, delta_r
 from ..predict import field_products as fp
 from ..predict import focalplane as predict_fp
@@ -54,46 +55,6 @@ if TYPE_CHECKING:
     from ..instrument.focalplane import FocalPlane
     from ..instrument.pairs import Systematics
     from ..schedule import Schedule
-    from .white import UnitMoments
-
-
-@dataclass
-class UnitSums:
-    """Every unit's per-pair spin sums at every allowed angle.
-
-    Parameters
-    ----------
-    nside : int
-    allowed_deg : numpy.ndarray, shape (K,)
-    pixels : list of list of numpy.ndarray
-        [u][k]: the RING pixels unit u's pairs see at allowed angle k.
-    sums : list of list of numpy.ndarray
-        [u][k]: S_n,i (pairs, N_MAX + 1, pixels) complex, n = 0 the pair's hits.
-    focalplane : boresight.instrument.focalplane.FocalPlane
-    """
-
-    nside: int
-    allowed_deg: np.ndarray
-    pixels: list
-    sums: list
-    focalplane: FocalPlane
-
-    @property
-    def unit_count(self) -> int:
-        return len(self.sums)
-
-    def choices(self, angles_deg: np.ndarray) -> np.ndarray:
-        """Each unit's index among the allowed angles (n_units,)."""
-        return _index(self.allowed_deg, angles_deg)
-
-
-def _index(allowed, angles_deg):
-    """The index among ``allowed`` of each angle."""
-    angles = np.asarray(angles_deg, dtype=float)
-    index = np.argmin(np.abs(angles[:, None] - allowed[None, :]), axis=1)
-    if np.any(allowed[index] != angles):
-        raise ValueError("every unit's angle must be one of the allowed angles")
-    return index
 
 
 class Target(NamedTuple):
@@ -109,51 +70,6 @@ class Target(NamedTuple):
     template: np.ndarray
     lmax: int
     evaluation: str = "interp"
-
-
-def unit_sums(
-    moments: UnitMoments,
-    schedule: Schedule,
-    focal: FocalPlane,
-    allowed_deg: tuple,
-    *,
-    progress: Callable | None = None,
-) -> UnitSums:
-    """Scan every unit at every allowed angle with every pair on its own samples.
-
-    Parameters
-    ----------
-    moments : boresight.design.UnitMoments
-        The units (their CES rows) and the Nside.
-    schedule : boresight.schedule.Schedule
-    focal : boresight.instrument.focalplane.FocalPlane
-    allowed_deg : tuple of float
-    progress : callable, optional
-        Called with 1 after each unit and angle.
-
-    Returns
-    -------
-    UnitSums
-    """
-    allowed = np.asarray(allowed_deg, dtype=float)
-    pixels, sums = [], []
-    for idx in moments.units:
-        pixels.append([])
-        sums.append([])
-        for a in allowed:
-            interrupts.check()
-            rows = tuple(replace(moments.rows[i], boresight_deg=float(a)) for i in idx)
-            one = replace(schedule, ces=rows, repeat_boresight_deg=(0.0,))
-            stats = characterise_focalplane(one, focal, moments.nside, per_pair=True)
-            seen = stats.observed
-            hits = stats.observed_pair_hits.astype(float)
-            s = stats.observed_pair_h * hits[:, None, :]
-            s[:, 0] = hits
-            pixels[-1].append(seen)
-            sums[-1].append(s)
-            if progress is not None:
-                progress(1)
-    return UnitSums(moments.nside, allowed, pixels, sums, focal)
 
 
 @dataclass
@@ -193,7 +109,7 @@ class DenseForm:
 
     def __call__(self, angles_deg: np.ndarray) -> float:
         """The search's objective of angles (U,): delta_r + change_cost x changes."""
-        index = _index(self.allowed_deg, angles_deg)
+        index = allowed_index(self.allowed_deg, angles_deg)
         return self.value(index) + self.change_cost * angle_changes(angles_deg)
 
 
@@ -254,7 +170,7 @@ def linearised(
 
     Parameters
     ----------
-    sums : UnitSums
+    sums : boresight.moments.UnitSums
     reference : numpy.ndarray, int, shape (n_units,)
     target : Target
     exact : float

@@ -8,11 +8,10 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from .white import unit_moments
+from ..moments.units import UnitMoments, unit_moments
 
 if TYPE_CHECKING:
     from ..instrument.hwp import HWP
-    from .white import UnitMoments
 
 
 class Plate(NamedTuple):

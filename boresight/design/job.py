@@ -15,6 +15,7 @@ from tqdm import tqdm
 from .._util import interrupts
 from ..cosmology import load_spectra
 from ..moments.offsets import centroid_moments
+from ..moments.units import unit_moments
 from ..noise import sigma_r
 from ..predict import R_RANGE, expected_residual
 from ..validation import ConfigError, require_finite
@@ -24,7 +25,7 @@ from .focalplane import exact_delta_r, search_strategies, strategy_columns, targ
 from .hwp import Plate
 from .operations import TimePrice, observed, table_columns
 from .tod_check import tod_check
-from .white import Design, baselines, objective, unit_moments
+from .white import Design, baselines, objective
 
 if TYPE_CHECKING:
     from .._util.provenance import Timer
@@ -51,7 +52,7 @@ class DesignResult:
         strategies.csv's rows: predicted delta_r, delta_r / sigma(r), changes, ``<|h_n|^2>``.
     found : boresight.design.white.Design
         The search's result: the optimised angles and steps, its history, whether interrupted.
-    moments : boresight.design.white.UnitMoments
+    moments : boresight.moments.UnitMoments
     plate : boresight.design.hwp.Plate
     white : boresight.design.white.Objective
         The paper's white-h_n approximation, reported beside.

@@ -243,7 +243,7 @@ def timeline_rows(price: TimePrice, rows, angles_deg: np.ndarray) -> list[dict]:
 def observed(rows, lost_s: np.ndarray, sample_rate_hz: float):
     """The CESs as the telescope observes them, for their moments: the time the operations eat
     cut from each start, a CES eaten whole kept as one sample so that the units keep their
-    rows (:func:`boresight.design.white.unit_moments`' ``units``).
+    rows (:func:`boresight.moments.unit_moments`' ``units``).
 
     Parameters
     ----------

@@ -1,7 +1,8 @@
 """h_n, the paper's central object, and its relatives, from any scan's samples: hits, h_n and
 crossing angles of the boresight (:mod:`~boresight.moments.axis`), moments weighted by the
 samples' offsets from their pixel's centre (:mod:`~boresight.moments.offsets`), every pair of a
-focal plane (:mod:`~boresight.moments.focalplane`) and h_{n,m} behind a half-wave plate
+focal plane (:mod:`~boresight.moments.focalplane`), each unit of a design's schedule
+(:mod:`~boresight.moments.units`) and h_{n,m} behind a half-wave plate
 (:mod:`~boresight.moments.hwp`). Every public name is re-exported here."""
 
 from ..constants import N_MAX
@@ -26,17 +27,33 @@ from .hwp import (
     BEAM_N_MAX,
     HWP_TERMS,
     IP_BEHIND_TERMS,
+    IP_TERMS,
+    JITTER_TERMS,
     OFFSET_WEIGHTS,
     OFFSETS,
+    PLATE_TERMS,
     POINTING_BEHIND_TERMS,
+    SYNCHRONOUS_TERMS,
     T_BEHIND_TERMS,
+    PlateMoments,
     beams_behind,
     hwp_moments,
+    plate_moments,
     pointing_behind,
+    synchronous_weights,
 )
 from .offsets import (
     centroid_moments,
     sample_offsets,
+)
+from .units import (
+    GROUPS,
+    UnitMoments,
+    UnitSums,
+    allowed_index,
+    unit_moments,
+    unit_sums,
+    units_of,
 )
 
 __all__ = [
@@ -61,9 +78,23 @@ __all__ = [
     "BEAM_N_MAX",
     "BEAM_BEHIND_TERMS",
     "beams_behind",
+    "IP_TERMS",
+    "SYNCHRONOUS_TERMS",
+    "JITTER_TERMS",
+    "PLATE_TERMS",
+    "synchronous_weights",
+    "PlateMoments",
+    "plate_moments",
     "FocalPlaneStats",
     "PAIR_BLOCK_BYTES",
     "pair_blocks",
     "observed_pixels",
     "characterise_focalplane",
+    "GROUPS",
+    "units_of",
+    "UnitMoments",
+    "unit_moments",
+    "UnitSums",
+    "unit_sums",
+    "allowed_index",
 ]

@@ -5,7 +5,7 @@ read).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -104,7 +104,7 @@ def hwp_moments(
     pair_weights : numpy.ndarray, complex, shape (pairs, len(terms)), optional
         With a focal plane and not ``relative``: each pair's weight of each term in the
         combination (the plate's synchronous signal,
-        :func:`boresight.predict.focalplane.synchronous_weights`).
+        :func:`synchronous_weights`).
     each : callable, optional
         With a focal plane, called as ``each(i, hits_i, h_i)`` with pair i's own moments as they
         are made (weighted as they enter the combination).
@@ -321,3 +321,60 @@ def beams_behind(
     return moments_behind(
         schedule, focalplane, hwp, nside, terms=BEAM_BEHIND_TERMS, chunk_samples=chunk_samples
     )
+
+
+#: the h_{n,m} of (psi, chi) the plate's instrumental polarisation reaches a pair's map through
+IP_TERMS = ((2, 0), (2, 8), (4, 8))
+
+
+#: the h_{n,m} the plate's synchronous 2 chi signal reaches a pair's map through
+SYNCHRONOUS_TERMS = ((2, 2), (2, 6), (4, 8))
+
+
+def synchronous_weights(focalplane) -> np.ndarray:
+    """Each pair's weights of :data:`SYNCHRONOUS_TERMS` in the map-maker's combination, 1,
+    exp(-4 i gamma) and exp(-4 i gamma), (pairs, 3) complex
+    (``boresight.moments.hwp_moments(..., focalplane=, pair_weights=)``)."""
+    w = np.exp(-4j * np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64)))
+    return np.stack([np.ones_like(w), w, w], axis=1)
+
+
+#: the h_{n,m} a HWP angle's jitter reaches a pair's map through
+JITTER_TERMS = ((4, 8), (8, 16))
+
+
+#: the moments the plate's own cases are predicted from
+PLATE_TERMS = tuple(dict.fromkeys(IP_TERMS + SYNCHRONOUS_TERMS + JITTER_TERMS))
+
+
+class PlateMoments(NamedTuple):
+    """The moments the plate's own cases are predicted from: the hits, h_{n,m} of
+    :data:`PLATE_TERMS`, those of the synchronous signal, and the pairs' angles the predictions
+    average exp(-4 i gamma) over (None where the moments carry each pair's own)."""
+
+    hits: np.ndarray
+    h: dict
+    synchronous: dict
+    pair_angles_deg: tuple | None
+
+
+def plate_moments(scan, plate, nside, pairs) -> PlateMoments:
+    """:class:`PlateMoments` of ``pairs`` behind ``plate``: the boresight's where every pair is on
+    the axis; else each pair on its own samples, combined as the map-maker combines them, those
+    of chi - gamma / 2 (the IP's and the jitter's: each pair's exp(-i m gamma / 2)) and the
+    synchronous signal's with :func:`synchronous_weights`. The
+    jitter's white part then takes the pairs' samples in a pixel as independent draws, as they
+    are for pairs more than a pixel apart."""
+    if not np.any(pairs.radius_deg > 0):
+        hits, h = hwp_moments(scan, plate, nside, PLATE_TERMS)
+        return PlateMoments(hits, h, h, pairs.pair_angles_deg)
+    hits, h = hwp_moments(scan, plate, nside, PLATE_TERMS, focalplane=pairs, relative=True)
+    _, synchronous = hwp_moments(
+        scan,
+        plate,
+        nside,
+        SYNCHRONOUS_TERMS,
+        focalplane=pairs,
+        pair_weights=synchronous_weights(pairs),
+    )
+    return PlateMoments(hits, h, synchronous, None)

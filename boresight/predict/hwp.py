@@ -16,6 +16,9 @@ from ..instrument.pairs import Systematics
 from ..mapmaking import check_mapmaker, solve_iqu
 from ..moments.hwp import (
     IP_BEHIND_TERMS,
+    IP_TERMS,
+    JITTER_TERMS,
+    SYNCHRONOUS_TERMS,
 )
 from . import field_products as fp_products
 from .pair_fields import (
@@ -123,10 +126,6 @@ def pair_mean_w(moments, terms, what, pair_angles_deg, *, k=4):
     if pair_angles_deg is None:
         return 1.0
     return np.mean(np.exp(-1j * k * np.radians(np.asarray(pair_angles_deg, dtype=np.float64))))
-
-
-#: the h_{n,m} of (psi, chi) the plate's instrumental polarisation reaches a pair's map through
-IP_TERMS = ((2, 0), (2, 8), (4, 8))
 
 
 #: with detector A alone (the "single" map-maker), those of its I row too, which a plate that
@@ -265,18 +264,6 @@ def ip_delta_p_across(sky: Sky, stats: FocalPlaneStats, hwp: HWP, *, nthreads: i
     return solve_pairs(hwp.ip * y, hit_mean(turn, weights, stats.pair_h[:, 4]))
 
 
-#: the h_{n,m} the plate's synchronous 2 chi signal reaches a pair's map through
-SYNCHRONOUS_TERMS = ((2, 2), (2, 6), (4, 8))
-
-
-def synchronous_weights(focalplane) -> np.ndarray:
-    """Each pair's weights of :data:`SYNCHRONOUS_TERMS` in the map-maker's combination, 1,
-    exp(-4 i gamma) and exp(-4 i gamma), (pairs, 3) complex
-    (``boresight.moments.hwp_moments(..., focalplane=, pair_weights=)``)."""
-    w = np.exp(-4j * np.radians(np.asarray(focalplane.gamma_deg, dtype=np.float64)))
-    return np.stack([np.ones_like(w), w, w], axis=1)
-
-
 def synchronous_delta_p(moments: dict, hwp: HWP, pair_angles_deg) -> np.ndarray:
     """The spurious P of a HWP's synchronous signal (:func:`boresight.instrument.hwp.plate_signals`) in the
     pair differences' map, the plate at its nominal angle.
@@ -289,7 +276,7 @@ def synchronous_delta_p(moments: dict, hwp: HWP, pair_angles_deg) -> np.ndarray:
 
     solved as in :func:`delta_p`. Pairs off the axis, each on its own samples, take the
     map-maker's combination of their moments, each pair's h_{2,6} and h_{4,8} weighted by its own
-    w (:func:`synchronous_weights`), with ``pair_angles_deg`` None. A spinning plate takes every
+    w (:func:`boresight.moments.hwp.synchronous_weights`), with ``pair_angles_deg`` None. A spinning plate takes every
     term to zero; a stepped one leaves h_{2,2} = exp(2 i chi_k) h_2 per step, which boresight
     rotation cancels with h_2.
 
@@ -314,10 +301,6 @@ def synchronous_delta_p(moments: dict, hwp: HWP, pair_angles_deg) -> np.ndarray:
     a2 = hwp.synchronous_muk[0]
     y = a2 * (phase * moments[2, 2] + np.conj(phase) * w * moments[2, 6])
     return solve_pairs(y, w * moments[4, 8])
-
-
-#: the h_{n,m} a HWP angle's jitter reaches a pair's map through
-JITTER_TERMS = ((4, 8), (8, 16))
 
 
 def angle_jitter_leak(

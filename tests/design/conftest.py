@@ -3,7 +3,8 @@
 import pytest
 from helpers import EXAMPLES
 
-from boresight import cosmology, design
+from boresight import cosmology
+from boresight.moments import unit_moments
 from boresight.schedule import CES, Schedule, load_schedule
 
 NSIDE = 32
@@ -21,7 +22,7 @@ def schedule():
 
 @pytest.fixture(scope="module")
 def moments(schedule):
-    return design.unit_moments(schedule, NSIDE, "ces")
+    return unit_moments(schedule, NSIDE, "ces")
 
 
 @pytest.fixture(scope="module")

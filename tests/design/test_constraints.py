@@ -14,7 +14,7 @@ from boresight.config import ConfigError
 from boresight.design import budget as budget_module
 from boresight.design.constraints import AngleRule, Constraints, Feasibility
 from boresight.design.job import design as design_job
-from boresight.design.white import units_of
+from boresight.moments.units import units_of
 from boresight.schedule import CES, Schedule, load_schedule
 
 LOW_ZERO = "[[constraints.angles]]\nelevation_deg = [0, 45]\nangles_deg = [0.0]"

@@ -18,6 +18,7 @@ from boresight.instrument.focalplane import on_axis
 from boresight.instrument.hwp import HWP, mirrored, reflected_systematics
 from boresight.instrument.pairs import Instrument, Spread, Systematics
 from boresight.jobs.residual import residual
+from boresight.moments import unit_moments
 from boresight.schedule import CES, Schedule, load_schedule
 from boresight.sky import SkyConfig, make_sky
 
@@ -36,7 +37,7 @@ def schedule():
 
 @pytest.fixture(scope="module")
 def moments(schedule):
-    return design.unit_moments(schedule, NSIDE, "ces")
+    return unit_moments(schedule, NSIDE, "ces")
 
 
 @pytest.fixture(scope="module")
@@ -194,7 +195,7 @@ SPINNING = HWP("continuous", frequency_hz=0.3)
 
 @pytest.fixture(scope="module")
 def spinning_moments(schedule):
-    return design.unit_moments(schedule, NSIDE, "ces", hwp=SPINNING)
+    return unit_moments(schedule, NSIDE, "ces", hwp=SPINNING)
 
 
 def test_behind_a_plate_the_objective_is_the_expectation_of_the_reflected_h_n(
@@ -325,7 +326,7 @@ def test_behind_a_plate_the_prediction_is_the_mean_of_tod_skies(
 
 @pytest.fixture(scope="module")
 def centred(schedule):
-    return design.unit_moments(schedule, NSIDE, "ces", centroids=True)
+    return unit_moments(schedule, NSIDE, "ces", centroids=True)
 
 
 @pytest.mark.slow

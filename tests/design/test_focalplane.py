@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from helpers import EXAMPLES
 
-from boresight import coupling, design, predict
+from boresight import coupling, predict
 from boresight.cosmology import load_spectra
 from boresight.design.exact import exact_objective
 from boresight.design.focalplane import (
@@ -19,6 +19,7 @@ from boresight.design.focalplane import (
 )
 from boresight.instrument import focalplane
 from boresight.instrument.pairs import Instrument, Spread, Systematics
+from boresight.moments import unit_moments
 from boresight.moments.focalplane import characterise_focalplane
 from boresight.predict import focalplane as predict_fp
 from boresight.schedule import CES, Schedule, load_schedule
@@ -39,7 +40,7 @@ def problem():
     base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3])
     schedule = Schedule(ces, base.site, 2.0)
-    moments = design.unit_moments(schedule, NSIDE, "ces")
+    moments = unit_moments(schedule, NSIDE, "ces")
     return schedule, moments, load_spectra()
 
 

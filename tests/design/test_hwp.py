@@ -13,6 +13,7 @@ from boresight.design.exact import exact_objective
 from boresight.design.hwp import Plate
 from boresight.instrument.hwp import HWP
 from boresight.instrument.pairs import Systematics
+from boresight.moments import unit_moments
 
 NSIDE = 32
 
@@ -86,7 +87,7 @@ def test_design_behind_a_continuous_plate_is_its_objective(tmp_path, schedule, m
     )  # fmt: skip
     out = run_design(tmp_path, schedule, budget, "--no-validate")
     plate = design.load_budget(budget).hwp
-    spun = design.unit_moments(schedule, NSIDE, "ces", hwp=plate)
+    spun = unit_moments(schedule, NSIDE, "ces", hwp=plate)
     obj = exact_objective(
         moments, Systematics(dg=(0.005, -0.005)), theory, 30.0, hwp=plate, plate_moments=spun
     )

@@ -15,7 +15,8 @@ from boresight.config import ConfigError
 from boresight.design import budget as budget_module
 from boresight.design.exact import change_cost_delta, exact_objective, pair_change_cost_delta
 from boresight.design.operations import NAMES, Operations, TimePrice, shortened
-from boresight.design.white import baselines, units_of
+from boresight.design.white import baselines
+from boresight.moments.units import units_of
 from boresight.predict import R_RANGE
 from boresight.schedule import CES, Schedule, load_schedule
 

@@ -71,18 +71,6 @@ def test_ellipticity_is_a_floor_no_schedule_moves_and_rms_falls_as_one_over_n(mo
     assert dr[4].delta_r(angles) == pytest.approx(4 * dr[16].delta_r(angles), rel=1e-10)
 
 
-def test_units_follow_the_schedule(schedule, moments):
-    assert moments.n_units == 2 * len(schedule.ces)
-    rows = schedule.expanded()
-    for unit in design.units_of(rows, "day"):  # the UTC date of the start
-        dates = {__import__("time").gmtime(rows[i].start_unix)[:3] for i in unit}
-        assert len(dates) == 1
-    np.testing.assert_allclose(moments.hits.sum(), schedule.n_samples)
-    # angles per unit replace the schedule's: the repeats become CESs of their own
-    designed = moments.schedule(schedule, np.arange(moments.n_units, dtype=float))
-    assert designed.repeat_boresight_deg == (0.0,) and len(designed.ces) == moments.n_units
-
-
 @pytest.mark.slow
 def test_gain_alone_is_cancelled_by_90_degree_pairs(moments, theory):
     """The design rule: with a gain error only, the search over {0, 90} makes h_2 vanish (each

@@ -191,10 +191,9 @@ def test_the_offset_reaches_every_input(tmp_path):
 
 def test_a_design_of_an_off_centre_focal_plane_scans_each_angle():
     """The focal-plane design builds every unit's sums at every allowed angle with the pairs'
-    own pointing (design.focalplane.unit_sums): with the rotation centre off the middle, the
+    own pointing (moments.unit_sums): with the rotation centre off the middle, the
     sums at 0 deg are the centred plane's and those at 90 deg are not."""
-    from boresight.design import unit_moments
-    from boresight.design.focalplane import unit_sums
+    from boresight.moments import unit_moments, unit_sums
 
     ces = (CES(1.8e9, 300.0, 50.0, 150.0, 20.0, speed_deg_s=1.0),)
     schedule = Schedule(ces, sample_rate_hz=2.0)

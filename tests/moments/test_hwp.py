@@ -215,3 +215,42 @@ def test_a_focal_planes_hwp_moments_are_its_pairs_own():
     weighted = sum(o[0] * o[1][(2, 4)] for o in own.values()) / np.maximum(hits, 1)
     np.testing.assert_allclose(h[(2, 4)], weighted, atol=1e-12)
     assert np.count_nonzero(own[0][0] != own[1][0]) > 5  # off the axis: their own pixels
+
+
+def test_the_plates_own_moments_combine_each_pairs_with_its_weights():
+    """plate_moments: on the axis the boresight's h_{n,m} of PLATE_TERMS serve every plate case
+    and the predictions average over the pairs' angles; off the axis the synchronous signal's
+    moments are the hit-weighted mean of each pair's own weighted by 1, exp(-4 i gamma),
+    exp(-4 i gamma) (summed here from the pairs' own moments, the map-maker's combination), and
+    the rest are the pairs' moments of chi - gamma / 2."""
+    schedule = minute_schedule([0.0, 600.0], repeats=(0.0, 90.0))
+    plate = HWP("continuous", frequency_hz=0.61)
+    assert set(moments.PLATE_TERMS) == set(
+        moments.IP_TERMS + moments.SYNCHRONOUS_TERMS + moments.JITTER_TERMS
+    )
+    axis = focalplane.on_axis((0.0, 45.0))
+    on = moments.plate_moments(schedule, plate, 16, axis)
+    hits, h = moments.hwp_moments(schedule, plate, 16, moments.PLATE_TERMS)
+    np.testing.assert_array_equal(on.hits, hits)
+    assert on.synchronous is on.h and on.pair_angles_deg == (0.0, 45.0)
+    for term in moments.PLATE_TERMS:
+        np.testing.assert_array_equal(on.h[term], h[term])
+    pairs = focalplane.hexagon(7, 10.0)
+    off = moments.plate_moments(schedule, plate, 16, pairs)
+    assert off.pair_angles_deg is None
+    own = {}
+    total, _ = moments.hwp_moments(
+        schedule, plate, 16, moments.SYNCHRONOUS_TERMS, focalplane=pairs,
+        each=lambda i, n, m: own.update({i: (n, m)}),
+    )  # fmt: skip
+    np.testing.assert_array_equal(off.hits, total)
+    weights = moments.synchronous_weights(pairs)
+    np.testing.assert_allclose(weights[:, 1], np.exp(-4j * np.radians(pairs.gamma_deg)))
+    for k, term in enumerate(moments.SYNCHRONOUS_TERMS):
+        mean = sum(weights[i, k] * n * h_i[term] for i, (n, h_i) in own.items())
+        np.testing.assert_allclose(off.synchronous[term], mean / np.maximum(total, 1), atol=1e-12)
+    _, relative = moments.hwp_moments(
+        schedule, plate, 16, moments.PLATE_TERMS, focalplane=pairs, relative=True
+    )
+    for term in moments.PLATE_TERMS:
+        np.testing.assert_array_equal(off.h[term], relative[term])

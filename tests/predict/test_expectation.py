@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from helpers import EXAMPLES
 
-from boresight import coupling, design, engine, masks, predict
+from boresight import coupling, engine, masks, predict
 from boresight.instrument.pairs import Instrument, Spread, Systematics
+from boresight.moments import unit_moments
 from boresight.scan import SyntheticScan
 from boresight.schedule import CES, Schedule, load_schedule
 from boresight.sky import SkyConfig, make_sky
@@ -41,7 +42,7 @@ def schedule_h():
     """A real schedule's striped h_n: 8 five-minute CESs of the deep example at random angles."""
     base = load_schedule(EXAMPLES / "schedule_deep_sat.toml")
     ces = tuple(CES(**{**c.__dict__, "duration_s": 300.0}) for c in base.ces[::3])
-    moments = design.unit_moments(Schedule(ces, base.site, 2.0), NSIDE, "ces")
+    moments = unit_moments(Schedule(ces, base.site, 2.0), NSIDE, "ces")
     angles = np.random.default_rng(1).choice([0.0, 45.0, 90.0], moments.n_units)
     return moments.full_sky(moments.h(angles)), moments.mask
 

@@ -546,12 +546,12 @@ def test_the_plates_synchronous_signal_is_its_moments_prediction(plain_sky, plat
     for repeats in (1, 2):
         schedule = dataclasses.replace(wide_schedule(1), repeat_boresight_deg=(0.0, 90.0)[:repeats])
         if where == "on the axis":
-            _, h = scanstats.hwp_moments(schedule, plate, 16, predict_hwp.SYNCHRONOUS_TERMS)
+            _, h = scanstats.hwp_moments(schedule, plate, 16, scanstats.SYNCHRONOUS_TERMS)
             want_all = predict_hwp.synchronous_delta_p(h, plate, pairs.pair_angles_deg)
         else:
             _, h = scanstats.hwp_moments(
-                schedule, plate, 16, predict_hwp.SYNCHRONOUS_TERMS, focalplane=pairs,
-                pair_weights=predict_hwp.synchronous_weights(pairs),
+                schedule, plate, 16, scanstats.SYNCHRONOUS_TERMS, focalplane=pairs,
+                pair_weights=scanstats.synchronous_weights(pairs),
             )  # fmt: skip
             want_all = predict_hwp.synchronous_delta_p(h, plate, None)
         made = {}
@@ -600,12 +600,12 @@ def test_the_plates_angle_jitter_leaks_as_its_expectation_over_draws(deep_bare, 
     ideal = dataclasses.replace(plate, angle_jitter_deg=0.0)
     if where == "on the axis":
         pairs = focalplane.on_axis((0.0, 30.0))
-        hits, h = scanstats.hwp_moments(base, plate, NSIDE, predict_hwp.JITTER_TERMS)
+        hits, h = scanstats.hwp_moments(base, plate, NSIDE, scanstats.JITTER_TERMS)
         angles = pairs.pair_angles_deg
     else:
         pairs = focalplane.hexagon(7, 20.0).subset([0, 1, 2])
         hits, h = scanstats.hwp_moments(
-            base, plate, NSIDE, predict_hwp.JITTER_TERMS, focalplane=pairs, relative=True
+            base, plate, NSIDE, scanstats.JITTER_TERMS, focalplane=pairs, relative=True
         )
         angles = None
     ref = engine.simulate_focalplane(sky, base, pairs, evaluation="pixel", hwp=ideal)

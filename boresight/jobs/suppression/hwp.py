@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -39,7 +39,8 @@ from ..._util import interrupts
 from ...config import RunOptions
 from ...instrument.focalplane import on_axis
 from ...instrument.pairs import Instrument, Systematics
-from ...moments import centroid_moments, characterise_focalplane, hwp_moments
+from ...moments import centroid_moments, characterise_focalplane
+from ...moments.hwp import plate_moments
 from ...predict import focalplane as predict_fp
 from ...predict import hwp as predict_hwp
 from ...validation import ConfigError
@@ -127,10 +128,6 @@ CASES = (
     ),
     Case("HWP synchronous signal", "A_2, A_4", "-", "A_2: h_{2,2}, h_{2,6}", plate="synchronous"),
 )
-#: the moments the plate's own cases are predicted from
-PLATE_TERMS = tuple(
-    dict.fromkeys(predict_hwp.IP_TERMS + predict_hwp.SYNCHRONOUS_TERMS + predict_hwp.JITTER_TERMS)
-)
 
 
 @dataclass(frozen=True)
@@ -193,39 +190,6 @@ def check_plate(hwp: HWP) -> None:
             "hwp step 'repeat': the table repeats the CES set at each boresight angle, which would "
             "step the plate with it; step per ces or per day"
         )
-
-
-class PlateMoments(NamedTuple):
-    """The moments the plate's own cases are predicted from: the hits, h_{n,m} of
-    :data:`PLATE_TERMS`, those of the synchronous signal, and the pairs' angles the predictions
-    average exp(-4 i gamma) over (None where the moments carry each pair's own)."""
-
-    hits: np.ndarray
-    h: dict
-    synchronous: dict
-    pair_angles_deg: tuple | None
-
-
-def plate_moments(scan, plate, nside, pairs) -> PlateMoments:
-    """:class:`PlateMoments` of ``pairs`` behind ``plate``: the boresight's where every pair is on
-    the axis; else each pair on its own samples, combined as the map-maker combines them, those
-    of chi - gamma / 2 (the IP's and the jitter's: each pair's exp(-i m gamma / 2)) and the
-    synchronous signal's with :func:`boresight.predict.hwp.synchronous_weights`. The
-    jitter's white part then takes the pairs' samples in a pixel as independent draws, as they
-    are for pairs more than a pixel apart."""
-    if not np.any(pairs.radius_deg > 0):
-        hits, h = hwp_moments(scan, plate, nside, PLATE_TERMS)
-        return PlateMoments(hits, h, h, pairs.pair_angles_deg)
-    hits, h = hwp_moments(scan, plate, nside, PLATE_TERMS, focalplane=pairs, relative=True)
-    _, synchronous = hwp_moments(
-        scan,
-        plate,
-        nside,
-        predict_hwp.SYNCHRONOUS_TERMS,
-        focalplane=pairs,
-        pair_weights=predict_hwp.synchronous_weights(pairs),
-    )
-    return PlateMoments(hits, h, synchronous, None)
 
 
 def tod_runs(schedules=SCHEDULES) -> int:
