@@ -141,6 +141,32 @@ class Maps:
         np.copyto(qu, 0.0, where=qu[0] == hp.UNSEEN)
         return qu
 
+    def i_at(self, pixels):
+        """I at some pixels, 0 where invalid or unobserved (:meth:`qu_at`'s rule).
+
+        Parameters
+        ----------
+        pixels : numpy.ndarray of int, shape (n,)
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+
+        Raises
+        ------
+        ValueError
+            For maps of pair differences, which do not see I.
+        """
+        if self.i_obs is None:
+            raise ValueError("these maps are of pair differences, which do not see I")
+        pixels = np.asarray(pixels)
+        out = np.zeros(pixels.size)
+        if self.pixels.size:
+            at = np.minimum(np.searchsorted(self.pixels, pixels), self.pixels.size - 1)
+            seen = (self.pixels[at] == pixels) & (self.q_obs[at] != hp.UNSEEN)
+            out[seen] = self.i_obs[at[seen]]
+        return out
+
     def qu_at(self, pixels):
         """Q, U at some pixels, 0 where invalid or unobserved.
 

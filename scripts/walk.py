@@ -11,7 +11,9 @@ the module itself. The plumbing the layers below share (``_util``, ``kernels``, 
 order first entered, how often the walk climbs back up to a caller in another room, and how
 often it calls into a room it had already left (a *return*: counted per call, and per distinct
 (from, to) edge, since a loop over chunks repeats one edge), with the commonest edges. Module
-bodies run by an import are not part of the walk.
+bodies run by an import are not part of the walk, nor is the building of the command line's
+parser (its help strings read every stage's defaults): the walk starts at the command's own
+``main``.
 
 A return into a lower layer is a library call (the engine asks the instrument for a pair's
 parameters at every chunk); the walk goes against the data's flow only where a room calls into
@@ -79,9 +81,11 @@ def walk(argv: list[str], depth: str) -> dict:
             if stack and stack[-1] != here:
                 climbs += 1
 
+    args = cli.parser().parse_args(["-q", *argv])  # the parser's help reads every stage's
+    cli.configure_logging(quiet=args.quiet, verbose=args.verbose)  # defaults: not the walk
     sys.setprofile(profile)
     try:
-        code = cli.main(["-q", *argv])
+        code = args.main(args)
     finally:
         sys.setprofile(None)
     return {"code": code, "rooms": order, "climbs": climbs, "returns": returns, "upward": upward}

@@ -4,6 +4,7 @@ module, keyword-only options on wide public functions, a test file per module, a
 on the architecture page. The tests run this checkout."""
 
 import ast
+import importlib.util
 import re
 import subprocess
 import sys
@@ -328,3 +329,42 @@ def test_the_package_top_modules_and_commands_stay_small():
                 if node.end_lineno - first + 1 > MAX_COMMAND_FUNCTION_LINES:
                     wide.append(f"{path.stem}.{node.name}")
     assert wide == []
+
+
+def _walk():
+    spec = importlib.util.spec_from_file_location("walk", ROOT / "scripts" / "walk.py")
+    walk = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(walk)
+    return walk.walk
+
+
+@pytest.mark.parametrize("command", ["design", "hwp table"])
+def test_a_design_and_the_hwp_table_never_call_a_stage_above_their_own(tmp_path, command):
+    """scripts/walk.py traces every call of a command's run (a design from its budget, the HWP
+    table behind a continuous plate, both small): the data flows one way, every call into a
+    room the walk had left is into a lower layer (a library call: the engine asking the
+    instrument per chunk), none into a higher one, and the command's own room comes first."""
+    from helpers import T0, budget_file
+
+    schedule = tmp_path / "s.toml"
+    schedule.write_text(
+        "sample_rate_hz = 1.0\n"
+        + "".join(
+            f"[[ces]]\nstart_unix = {T0 + 43200 * i}\nduration_s = 600\nelevation_deg = 50\n"
+            f"az_centre_deg = {134 if i % 2 else 226}\naz_throw_deg = 40\n"
+            for i in range(4)
+        )
+    )
+    out = str(tmp_path / "out")
+    if command == "design":
+        argv = ["design", budget_file(tmp_path, nside=16), str(schedule), "--out", out]
+    else:
+        argv = ["suppression", "--hwp", "continuous", "--hwp-frequency", "0.37", "--schedule"]
+        argv += [str(schedule), "--nside", "32", "--fwhm-arcmin", "450", "--out", out]
+    walked = _walk()(argv, "stage")
+    assert walked["code"] == 0
+    assert walked["rooms"][0] == "commands" and {"engine", "moments", "predict"} <= set(
+        walked["rooms"]
+    )
+    assert sum(walked["returns"].values()) > 0  # loops over chunks re-enter lower rooms
+    assert not walked["upward"], walked["upward"]

@@ -24,7 +24,6 @@ from ..instrument.pairs import Instrument
 from ..jobs import resources, suppression
 from ..jobs.suppression import filtered as filtered_suppression
 from ..jobs.suppression import hwp as hwp_suppression
-from ..jobs.transfer import FIELD_PAIRS
 from ..mitigation import Deprojection, Filtering, ces_scans
 from ..mitigation.deprojection import template_alm
 from ..outputs import plots
@@ -333,7 +332,7 @@ def _write_filtered(stage, result, manifest):
         edges=transfer.edges,
         matrix=transfer.matrix,
         error=transfer.error,
-        field_pairs=np.array(FIELD_PAIRS),
+        field_pairs=np.array(transfer.fields),
         n_sims=transfer.n_sims,
     )
     plots.transfer_figure(transfer, stage / "transfer")

@@ -342,7 +342,10 @@ def simulate_schedule(
             for one, scan in members:
                 theta, phi, psi = (np.concatenate(x) for x in zip(*pointing(one, chunk_samples)))
                 interrupts.check()
-                c, s, d = binner.differences(theta, phi, psi, seed=systematics.seed, first=first)
+                c, s, d = binner.differences(
+                    theta, phi, psi, seed=systematics.seed, first=first,
+                    detectors=cleaning.detectors,
+                )  # fmt: skip
                 parts.append(
                     cleaning.part(
                         d, binner, theta, phi, psi, scan=scan, schedule=schedule, nside=sky.nside

@@ -24,7 +24,7 @@ from ..instrument.pairs import response
 from ..kernels import get_backend
 
 # CPU only (not of the contract): the 3x3 maps, and the pair differences a filter acts on
-from ..kernels.cpu import accumulate_detectors, pair_differences
+from ..kernels.cpu import accumulate_detectors, pair_differences, pair_samples
 from ..kernels.fields import hit_offsets, pair_fields, sums_with_zero_qu
 from ..kernels.pixels import ang2pix_array
 from ..mapmaking import Maps, check_mapmaker, solve, solve_iqu
@@ -309,12 +309,17 @@ class Binner:
 
         return sums_with_zero_qu(sums, values_a, values_b, zero_qu)
 
-    def differences(self, theta, phi, psi, *, seed, first):
+    def differences(self, theta, phi, psi, *, seed, first, detectors=False):
         """(c, s, d), each (M, H): every sample's map-maker weights and pair difference per pair,
-        for a filter to act on (:func:`boresight.kernels.cpu.pair_differences`); CPU only."""
+        for a filter to act on (:func:`boresight.kernels.cpu.pair_differences`); with
+        ``detectors``, d (2M, H) is detector A's samples of every pair, then B's
+        (:func:`boresight.kernels.cpu.pair_samples`), for the detectors' map-maker. CPU only."""
         values_a, values_b = self._values(theta, phi, psi)
         beams = self._extra(theta, phi, psi)
         args = (psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
+        if detectors:
+            c, s, d_a, d_b = pair_samples(*args, seed, first)
+            return c, s, np.concatenate([d_a, d_b])
         return pair_differences(*args, seed, first)
 
     def templates(self, deprojection, theta, phi, psi, *, alm=None):

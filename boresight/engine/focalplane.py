@@ -119,8 +119,9 @@ def simulate_focalplane(
                         interrupts.check()
                         key = i * schedule.n_samples + first
                         c, s, d = pair.differences(
-                            theta[i], phi[i], psi[i], seed=systematics.seed, first=key
-                        )
+                            theta[i], phi[i], psi[i], seed=systematics.seed, first=key,
+                            detectors=cleaning.detectors,
+                        )  # fmt: skip
                         parts[i].append(
                             cleaning.part(
                                 d,

@@ -7,20 +7,20 @@ simulate_focalplane`.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import harmonics
 
 # CPU only (not of the contract): the 3x3 maps, and the pair differences a filter acts on
-from ..kernels.cpu import bin_differences
+from ..kernels.cpu import bin_detectors, bin_differences
 from ..kernels.pixels import ang2pix_array
 from ..mitigation import ces_scans
 from ..mitigation.deprojection import template_alm
 
-if TYPE_CHECKING:
-    pass
+#: the map-makers a cleaned stream bins into: the pair differences' (Q, U), or each detector's
+#: own samples' (I, Q, U), every detector's TOD filtered alike (a pipeline's T transfer)
+CLEANED_MAPMAKERS = ("pairs", "detectors")
 
 
 class Cleaning:
@@ -44,12 +44,18 @@ class Cleaning:
     def check(self, schedule, *, backend, mapmaker, evaluation, hwp=None):
         """Refuse, before any work, what the pipeline cannot run; every CES against the filters
         (its :class:`~boresight.mitigation.CesScan` kept for :meth:`blocks`)."""
-        if backend != "cpu" or mapmaker != "pairs" or hwp is not None:
+        if backend != "cpu" or mapmaker not in CLEANED_MAPMAKERS or hwp is not None:
             raise ValueError(
-                f"filtering ({self.filtering}) runs on the CPU backend with the pairs' "
-                f"map-maker and no plate, not backend {backend!r}, mapmaker {mapmaker!r}"
-                + ("" if hwp is None else ", a HWP")
+                f"filtering ({self.filtering}) runs on the CPU backend with the pairs' or the "
+                f"detectors' map-maker and no plate, not backend {backend!r}, mapmaker "
+                f"{mapmaker!r}" + ("" if hwp is None else ", a HWP")
             )
+        if self.deprojection and mapmaker != "pairs":
+            raise ValueError(
+                f"deprojecting {self.deprojection} regresses its templates from the pair "
+                f"differences: the pairs' map-maker, not {mapmaker!r}"
+            )
+        self.detectors = mapmaker == "detectors"
         if self.deprojection.derivatives and evaluation != "exact":
             raise ValueError(
                 f"deprojecting {self.deprojection} fits derivatives of T, which the TOD follows "
@@ -80,8 +86,9 @@ class Cleaning:
                 yield f"{name} at boresight {repeat:g} deg", one
 
     def part(self, d, binner, theta, phi, psi, *, scan, schedule, nside):
-        """One CES's pair differences d (M, H) of one pointing stream, filtered, with what its
-        block's regression and binning need."""
+        """One CES's pair differences d (M, H) of one pointing stream (or, for the detectors'
+        map-maker, both detectors' samples, (2M, H)), filtered, with what its block's regression
+        and binning need."""
         if self.filtering.filters:
             d = self.filtering.apply(d, scan)
         templates = None
@@ -108,4 +115,8 @@ class Cleaning:
         keep = joined([p[3] for p in parts], 0)
         pix = joined([p[4] for p in parts], 0)
         c, s = (joined([x[k] for x in c_s], 1) for k in (0, 1))
-        bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)
+        if self.detectors:  # d holds detector A's samples of every pair, then B's
+            a, b = np.split(d[:, keep], 2)
+            bin_detectors(pix, c[:, keep], s[:, keep], a, b, normal)
+        else:
+            bin_differences(pix, c[:, keep], s[:, keep], d[:, keep], normal)

@@ -147,6 +147,7 @@ def simulate_maps(
     focalplane: FocalPlane | None = None,
     filtering: Filtering = Filtering(),
     hwp: HWP | None = None,
+    mapmaker: str = "pairs",
     progress: bool = False,
 ) -> Maps:
     """Maps of a synthetic or a real scan.
@@ -174,6 +175,10 @@ def simulate_maps(
     hwp : boresight.instrument.hwp.HWP, optional
         A half-wave plate in front of ``focalplane``'s pairs
         (:func:`boresight.engine.simulate_focalplane`).
+    mapmaker : str
+        How a real schedule's samples become maps (:data:`boresight.mapmaking.MAPMAKERS`):
+        ``"detectors"`` gives I too, each detector's TOD filtered alike where ``filtering``
+        filters.
     progress : bool
 
     Returns
@@ -193,6 +198,7 @@ def simulate_maps(
         focalplane=focalplane,
         filtering=filtering,
         hwp=hwp,
+        mapmaker=mapmaker,
     )
     return maps
 
@@ -210,6 +216,7 @@ def _simulate(
     focalplane,
     filtering=Filtering(),
     hwp=None,
+    mapmaker="pairs",
 ):
     """(maps, the maps of Q = U = 0 from the same hits with ``zero_qu``, else None)."""
     on_samples = dict(
@@ -218,7 +225,12 @@ def _simulate(
         nthreads=run.nthreads,
         backend=run.backend,
         rcond_min=run.rcond_min,
+        mapmaker=mapmaker,
     )
+    if mapmaker != "pairs" and not isinstance(scan, Schedule):
+        raise ValueError(
+            f"mapmaker {mapmaker!r} takes a real schedule's samples, not a synthetic scan"
+        )
     if filtering and not isinstance(scan, Schedule):
         raise ValueError(
             f"filtering ({filtering}) acts per throw and per CES: it needs a real schedule, and a "

@@ -38,6 +38,9 @@ FIELD_PAIRS = ("EE", "EB", "BE", "BB")
 #: the pure skies, and the pairs of them whose cross-spectra make the transfer matrix
 PURE = ("E", "B")
 PURE_PAIRS = tuple((a, b) for a in PURE for b in PURE)
+#: the same with T: SOOPERCOOL's 9 fields and pure skies, for the detectors' map-maker
+PURE_TEB = ("T", "E", "B")
+FIELD_PAIRS_TEB = tuple(a + b for a in PURE_TEB for b in PURE_TEB)
 #: the pure skies' spectrum before the beam: C_ell = (ell + ELL_0)^-2 [muK^2]
 ELL_0 = 10.0
 
@@ -50,30 +53,34 @@ class Transfer:
     ----------
     edges : numpy.ndarray of int
         The bands' edges [lo, hi).
-    matrix, error : numpy.ndarray, shape (4, 4, n_bands)
-        T[i, j, b], field pair j into field pair i (:data:`FIELD_PAIRS`), and its error.
+    matrix, error : numpy.ndarray, shape (F, F, n_bands)
+        T[i, j, b], field pair j into field pair i (of ``fields``), and its error.
     n_sims : int
+    fields : tuple of str
+        The F field pairs: :data:`FIELD_PAIRS` (the pairs' map-maker, Q and U) or
+        :data:`FIELD_PAIRS_TEB` (the detectors', I too).
     """
 
     edges: np.ndarray
     matrix: np.ndarray
     error: np.ndarray
     n_sims: int
+    fields: tuple = FIELD_PAIRS
 
     def entry(self, into: str, source: str) -> np.ndarray:
         """T[into, source] per band, e.g. ``entry("BB", "BB")``, F_ell^BB."""
-        return self.matrix[FIELD_PAIRS.index(into), FIELD_PAIRS.index(source)]
+        return self.matrix[self.fields.index(into), self.fields.index(source)]
 
     def entry_error(self, into: str, source: str) -> np.ndarray:
         """The error of :meth:`entry` per band."""
-        return self.error[FIELD_PAIRS.index(into), FIELD_PAIRS.index(source)]
+        return self.error[self.fields.index(into), self.fields.index(source)]
 
     def rows(self) -> list[dict]:
         """A row per band and entry: its band, the pair of fields from and to, value and error."""
         out = []
         for b, (lo, hi) in enumerate(zip(self.edges[:-1], self.edges[1:])):
-            for i, into in enumerate(FIELD_PAIRS):
-                for j, source in enumerate(FIELD_PAIRS):
+            for i, into in enumerate(self.fields):
+                for j, source in enumerate(self.fields):
                     out.append(
                         {
                             "ell_lo": int(lo),
@@ -124,11 +131,18 @@ TEMPERATURE_SALT = 1 << 40
 
 
 def pure_skies(
-    nside: int, *, lmax: int, fwhm_arcmin: float, seed: int, temperature: bool = False
+    nside: int,
+    *,
+    lmax: int,
+    fwhm_arcmin: float,
+    seed: int,
+    temperature: bool = False,
+    pure: tuple = PURE,
 ) -> dict:
-    """A sky of E alone and one of B alone with the same alm (SOOPERCOOL's: one draw of fully
-    correlated power laws), C_ell = (ell + :data:`ELL_0`)^-2 before the beam, so that every pair
-    of them, the crossed ones too, carries power.
+    """A sky of E alone and one of B alone (and with ``pure`` :data:`PURE_TEB`, one of T alone)
+    with the same alm (SOOPERCOOL's: one draw of fully correlated power laws), C_ell = (ell +
+    :data:`ELL_0`)^-2 before the beam, so that every pair of them, the crossed ones too, carries
+    power.
 
     Parameters
     ----------
@@ -139,11 +153,13 @@ def pure_skies(
         Give both skies one T of the same spectrum, drawn apart (seed ^ :data:`TEMPERATURE_SALT`)
         and so uncorrelated with their E and B: the templates a deprojecting pipeline reads
         from T, which fit the polarisation only by chance.
+    pure : tuple of str
+        :data:`PURE` or :data:`PURE_TEB`.
 
     Returns
     -------
     dict
-        "E" and "B" -> boresight.sky.Sky.
+        Each of ``pure`` -> boresight.sky.Sky.
     """
     ell = np.arange(lmax + 1)
     power = (ell + ELL_0) ** -2.0
@@ -153,9 +169,9 @@ def pure_skies(
     if temperature:
         t = gaussian_alm((power, zero, zero, zero), lmax, seed ^ TEMPERATURE_SALT)[0]
     out = {}
-    for k, which in enumerate(PURE):
+    for which in pure:
         alm = np.zeros((3, draw.size), dtype=np.complex128)
-        alm[1 + k] = draw
+        alm["TEB".index(which)] = draw
         if temperature:
             alm[0] = t
         out[which] = sky_of_alm(alm, nside, fwhm_arcmin=fwhm_arcmin)
@@ -174,10 +190,12 @@ def transfer_function(
     seed: int = 0,
     run: RunOptions = RunOptions(),
     focalplane: FocalPlane | None = None,
+    intensity: bool = False,
 ) -> Transfer:
     """The filter's polarised transfer matrix on a schedule, from ``n_sims`` pairs of pure-E and
     pure-B skies through the raw and the filtered pipeline (the paper's Q and U pairs on the
-    boresight, or a focal plane's pairs). A pipeline that deprojects reads its templates from a
+    boresight, or a focal plane's pairs); with ``intensity``, SOOPERCOOL's 9x9 matrix from
+    pure-T, E and B skies through the detectors' map-maker, each detector's TOD filtered. A pipeline that deprojects reads its templates from a
     T the skies share, drawn apart from their E and B (:func:`pure_skies`): what the templates
     take by chance; what they take through the sky's TE correlation is
     :func:`boresight.jobs.suppression.filtered.run`'s ``kept``.
@@ -200,6 +218,10 @@ def transfer_function(
     run : boresight.config.RunOptions
     focalplane : boresight.instrument.focalplane.FocalPlane, optional
         Every pair at its own place (default the paper's pairs on the boresight).
+    intensity : bool
+        The T block too (:data:`FIELD_PAIRS_TEB`), from I, Q and U solved per pixel from each
+        detector's own filtered samples (``mapmaker="detectors"``); a pipeline that deprojects
+        regresses from the pair differences and is refused.
 
     Returns
     -------
@@ -207,11 +229,20 @@ def transfer_function(
     """
     if n_sims < 2:
         raise ValueError(f"n_sims = {n_sims}: the error needs at least 2 realisations")
+    if intensity and filtering.deprojection:
+        raise ValueError(
+            f"the T block takes each detector's TOD; deprojecting {filtering.deprojection} "
+            "regresses from the pair differences"
+        )
+    pure, fields = (PURE_TEB, FIELD_PAIRS_TEB) if intensity else (PURE, FIELD_PAIRS)
+    pure_pairs = tuple((a, b) for a in pure for b in pure)
     footprint = spectra.as_footprint(footprint)
     lmax = 2 * nside
     pipelines = {"raw": Filtering(), "filtered": filtering}
-    bandpowers = {k: np.empty((n_sims, 4, 4, len(edges) - 1)) for k in pipelines}
-    options = dict(run=run, filtering=None)
+    bandpowers = {
+        k: np.empty((n_sims, len(fields), len(fields), len(edges) - 1)) for k in pipelines
+    }
+    options = dict(run=run, filtering=None, mapmaker="detectors" if intensity else "pairs")
     for i in range(n_sims):
         skies = pure_skies(
             nside,
@@ -219,6 +250,7 @@ def transfer_function(
             fwhm_arcmin=fwhm_arcmin,
             seed=seed * 1_000_003 + i,
             temperature=bool(filtering.deprojection),
+            pure=pure,
         )
         for name, pipeline in pipelines.items():
             alm = {}
@@ -229,13 +261,16 @@ def transfer_function(
                     sky, schedule, Instrument(), Systematics(), focalplane=focalplane, **options
                 )
                 alm[which] = footprint.alm(maps.qu_at(footprint.pixels), lmax, 2)
-            for p, (a, b) in enumerate(PURE_PAIRS):
-                for f, (x, y) in enumerate(FIELD_PAIRS):
-                    cl = harmonics.alm2cl(alm[a][PURE.index(x)], alm[b][PURE.index(y)])
+                if intensity:
+                    t_alm = footprint.alm(maps.i_at(footprint.pixels), lmax, 0)
+                    alm[which] = np.vstack([t_alm, alm[which]])
+            for p, (a, b) in enumerate(pure_pairs):
+                for f, (x, y) in enumerate(fields):
+                    cl = harmonics.alm2cl(alm[a][pure.index(x)], alm[b][pure.index(y)])
                     bandpowers[name][i, p, f] = spectra.bin_spectrum(cl, edges)[1]
     matrix, error = soopercool_transfer(
         bandpowers["filtered"].mean(axis=0),
         bandpowers["raw"].mean(axis=0),
         bandpowers["filtered"],
     )
-    return Transfer(np.asarray(edges), matrix, error, n_sims)
+    return Transfer(np.asarray(edges), matrix, error, n_sims, fields)

@@ -31,8 +31,10 @@ __all__ = [
     "accumulate",
     "accumulate_scatter",
     "accumulate_detectors",
+    "pair_samples",
     "pair_differences",
     "bin_differences",
+    "bin_detectors",
     "bin_scan",
     "moments",
     "to_host",
@@ -336,9 +338,10 @@ def accumulate_detectors(
 
 
 @njit
-def pair_differences(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
-    """Each sample's pair difference and map-maker weights, per pair, for a filter to act on
-    before binning (:func:`bin_differences`): the terms :func:`accumulate_scatter` sums, kept.
+def pair_samples(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
+    """Each sample's map-maker weights and both detectors' samples, per pair, for a filter to act
+    on before binning (:func:`bin_differences`, :func:`bin_detectors`): the terms
+    :func:`accumulate_scatter` and :func:`accumulate_detectors` sum, kept.
 
     Parameters
     ----------
@@ -348,24 +351,40 @@ def pair_differences(psi, values_a, values_b, beams, response, leak, jitter, see
 
     Returns
     -------
-    c, s, d : float64 arrays, shape (M, H)
-        cos, sin 2 x the angle the map-maker assumes and the pair difference 0.5 (d_A - d_B) of
-        each pair m at each sample h.
+    c, s, d_a, d_b : float64 arrays, shape (M, H)
+        cos, sin 2 x the angle the map-maker assumes (detector A's; B's is 90 deg from it) and
+        the samples of detectors A and B of each pair m at each sample h.
     """
     values_b, beams = _flat(values_b), _flat(beams)
     nm, n = response.shape[1], psi.size
-    c, s, d = np.empty((nm, n)), np.empty((nm, n)), np.empty((nm, n))
+    c, s = np.empty((nm, n)), np.empty((nm, n))
+    d_a, d_b = np.empty((nm, n)), np.empty((nm, n))
     draws = np.any(jitter != 0.0)
     for h in range(n):
         key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
         field_a = _fields(values_a, h)
         c0, s0 = np.cos(2.0 * psi[h]), np.sin(2.0 * psi[h])
         for m in range(nm):
-            c[m, h], s[m, h], d_a, d_b = _pair_sample(
+            c[m, h], s[m, h], d_a[m, h], d_b[m, h] = _pair_sample(
                 h, 0, m, c0, s0, field_a, values_b, beams, response, leak, jitter, key, 0
             )
-            d[m, h] = 0.5 * (d_a - d_b)
-    return c, s, d
+    return c, s, d_a, d_b
+
+
+def pair_differences(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
+    """:func:`pair_samples` with the pair difference 0.5 (d_A - d_B) of each pair m at each
+    sample h in place of the two detectors' samples: (c, s, d), each (M, H)."""
+    c, s, d_a, d_b = pair_samples(
+        psi, values_a, values_b, beams, response, leak, jitter, seed, first
+    )
+    return c, s, 0.5 * (d_a - d_b)
+
+
+@numba.njit(inline="always")
+def _add_row(out, p, terms):
+    """out[p, k] += terms[k] for every k: one hit's sums added to its pixel's row."""
+    for k in range(len(terms)):
+        out[p, k] += terms[k]
 
 
 @njit
@@ -390,12 +409,36 @@ def bin_differences(pixels, c, s, d, out):
             t2 += s[m, h] * s[m, h]
             t3 += c[m, h] * d[m, h]
             t4 += s[m, h] * d[m, h]
-        p = pixels[h]
-        out[p, 0] += t0
-        out[p, 1] += t1
-        out[p, 2] += t2
-        out[p, 3] += t3
-        out[p, 4] += t4
+        _add_row(out, pixels[h], (t0, t1, t2, t3, t4))
+
+
+@njit
+def bin_detectors(pixels, c, s, d_a, d_b, out):
+    """Both detectors' samples (filtered or not) added into a full-sky (npix, 9) accumulator of
+    the per-pixel 3x3 system for (I, Q, U) in sample order, summed over the pairs first as
+    :func:`accumulate_detectors` (``mapmaker="detectors"``) does: A with weights (1, c, s), B
+    with (1, -c, -s), so that the I-Q and I-U terms cancel.
+
+    Parameters
+    ----------
+    pixels : int64 array, shape (H,)
+    c, s, d_a, d_b : float64 arrays, shape (M, H)
+        As :func:`pair_samples` gives them.
+    out : float64 array, shape (npix, 9)
+        Running sums (:func:`boresight.mapmaking.solve_iqu`), updated in place.
+    """
+    for h in range(pixels.size):
+        t0 = t3 = t4 = t5 = t6 = t7 = t8 = 0.0
+        for m in range(c.shape[0]):
+            cm, sm = c[m, h], s[m, h]
+            t0 += 2.0
+            t3 += 2.0 * cm * cm
+            t4 += 2.0 * cm * sm
+            t5 += 2.0 * sm * sm
+            t6 += d_a[m, h] + d_b[m, h]
+            t7 += cm * d_a[m, h] - cm * d_b[m, h]
+            t8 += sm * d_a[m, h] - sm * d_b[m, h]
+        _add_row(out, pixels[h], (t0, 0.0, 0.0, t3, t4, t5, t6, t7, t8))
 
 
 def bin_scan(

@@ -17,7 +17,6 @@ from ..constants import ARCMIN
 from ..jobs.suppression.axis import ANGLES, catalogue
 from ..jobs.suppression.filtered import RAW as FILTER_RAW
 from ..jobs.suppression.hwp import CASES as HWP_CASES
-from ..jobs.transfer import FIELD_PAIRS as TRANSFER_FIELDS
 from ..spectra import bin_spectrum
 
 if TYPE_CHECKING:
@@ -495,8 +494,8 @@ def filtered_suppression_figure(
 
 
 def transfer_figure(transfer, path_stem: str | os.PathLike, *, formats: tuple = ("png", "pdf")):
-    """A filter's polarised transfer function per band: F^EE and F^BB, and the filter's E-to-B
-    and B-to-E shares, each with its realisations' spread.
+    """A filter's transfer function per band: F^EE and F^BB (and F^TT where the matrix has the T
+    block), and the filter's E-to-B and B-to-E shares, each with its realisations' spread.
 
     Parameters
     ----------
@@ -507,19 +506,20 @@ def transfer_figure(transfer, path_stem: str | os.PathLike, *, formats: tuple = 
     lo, hi = transfer.edges[:-1], transfer.edges[1:] - 1
     centres = 0.5 * (lo + hi)
     fig, ax = plt.subplots(figsize=(5.4, 3.6))
-    entries = (
+    entries = (("TT", "TT", "F^TT"),) if "TT" in transfer.fields else ()
+    entries += (
         ("EE", "EE", "F^EE"),
         ("BB", "BB", "F^BB"),
         ("BB", "EE", "E to B"),
         ("EE", "BB", "B to E"),
     )
+    middle = 0.5 * (len(entries) - 1)
     for k, (into, source, label) in enumerate(entries):
-        i, j = (TRANSFER_FIELDS.index(x) for x in (into, source))
-        shift = (k - 1.5) * 0.06 * (hi - lo)  # the entries side by side in each band
+        shift = (k - middle) * 0.06 * (hi - lo)  # the entries side by side in each band
         ax.errorbar(
             centres + shift,
-            transfer.matrix[i, j],
-            yerr=transfer.error[i, j],
+            transfer.entry(into, source),
+            yerr=transfer.entry_error(into, source),
             xerr=None,
             fmt="o-" if into == source else "s--",
             color=f"C{k}",

@@ -93,3 +93,32 @@ def test_the_iqu_map_makers_refuse_the_gpu_and_unknown_names(plain_sky):
         engine.simulate_samples(plain_sky, chunks, backend="gpu", mapmaker="detectors")
     with pytest.raises(ValueError, match="mapmaker must be one of"):
         engine.simulate_samples(plain_sky, chunks, mapmaker="demodulated")
+
+
+@pytest.mark.parametrize("mapmaker", ["pairs", "detectors"])
+def test_the_kept_samples_binned_are_the_streams_sums(mapmaker):
+    """What a filter acts on, kept per sample (Binner.differences: the pair differences, or both
+    detectors' samples) and binned in sample order (bin_differences, bin_detectors), gives the
+    sums the stream bins directly (Binner.scatter), for pairs carrying a gain, a pointing offset,
+    a leak and a gain jitter: the same numbers in the same order, to the bit."""
+    from boresight.engine.binner import Binner, normal_sums
+    from boresight.kernels.cpu import bin_detectors, bin_differences
+
+    sky = make_sky(SkyConfig(nside=16, lmax=32, fwhm_arcmin=120.0, seed=5))
+    carried = Systematics(dg=(0.02, -0.01), rho_arcmin=1.0, leak=(0.003, 0.0), dg_jitter=0.01)
+    binner = Binner(
+        sky, Instrument(pair_angles_deg=(0.0, 45.0)), carried, (0.0,), "interp", None, 0, "cpu"
+    )
+    theta, phi, psi = (np.concatenate(x) for x in zip(*pointing.pointing(wide_schedule(1))))
+    pix = hp.ang2pix(16, theta, phi)
+    direct, kept = (normal_sums(binner.kernels, 16, mapmaker) for _ in range(2))
+    binner.scatter(pix, theta, phi, psi, direct, seed=3, first=11, mapmaker=mapmaker)
+    c, s, d = binner.differences(
+        theta, phi, psi, seed=3, first=11, detectors=mapmaker == "detectors"
+    )
+    if mapmaker == "pairs":
+        bin_differences(pix, c, s, d, kept)
+    else:
+        bin_detectors(pix, c, s, *np.split(d, 2), kept)
+    assert np.count_nonzero(direct[:, 0]) > 10
+    np.testing.assert_array_equal(kept, direct)

@@ -115,6 +115,74 @@ def test_filtered_maps_are_the_tod_filtered_by_hand_and_binned(plain_sky, turnar
     assert np.max(np.abs(maps.u_obs - u_ref)) < 1e-10 * scale
 
 
+@pytest.mark.parametrize("text", ["p3", "p1+ground3-split", "groundbin2"])
+@pytest.mark.parametrize("where", ["boresight", "hexagon:7:10"])
+def test_the_detectors_map_maker_bins_each_detectors_filtered_tod(plain_sky, text, where):
+    """mapmaker="detectors" with filters: each detector's own samples written from the sky's maps
+    in the samples' pixels (A at (1, c, s), B at (1, -c, -s) with its gain error), filtered CES by
+    CES, binned into each pixel's 3x3 system with bincount and solved with numpy, give I, Q and
+    U; the filters being linear, Q and U are the filtered pair differences' to rounding."""
+    schedule, filtering = _filtered_schedule("exclude"), Filtering.parse(text)
+    dg = 0.01
+    run = dict(evaluation="pixel", filtering=filtering)
+    if where == "boresight":
+        angles = np.radians([0.0, 45.0])
+        simulate = lambda **kw: engine.simulate_schedule(  # noqa: E731
+            plain_sky, schedule, Instrument(pair_angles_deg=(0.0, 45.0)), Systematics(dg=dg),
+            **run, **kw,
+        )  # fmt: skip
+    else:
+        plane = focalplane.load_focalplane(where)
+        angles = np.radians(plane.pair_angles_deg)
+        simulate = lambda **kw: engine.simulate_focalplane(  # noqa: E731
+            plain_sky, schedule, plane, Systematics(dg=dg), **run, **kw
+        )
+    maps, pairs = simulate(mapmaker="detectors"), simulate()
+    npix = 12 * plain_sky.nside**2
+    normal = np.zeros((3, 4, npix))  # rows (1, c, s) x columns (1, c, s, d)
+    i_map, q_map, u_map = plain_sky.maps
+    for repeat in schedule.repeat_boresight_deg:
+        for ces in schedule.ces:
+            one = replace(
+                schedule, ces=(ces,), repeat_boresight_deg=(repeat,), turnarounds="include"
+            )
+            if where == "boresight":
+                theta, phi, psi = (np.concatenate(x)[None] for x in zip(*pointing.pointing(one)))
+            else:
+                chunks = pointing.detector_pointing(one, plane)
+                theta, phi, psi = (np.concatenate(x, axis=1) for x in zip(*chunks))
+            pix = hp.ang2pix(plain_sky.nside, theta, phi)
+            c = np.cos(2 * (psi[:, None, :] + angles[None, :, None]))
+            s = np.sin(2 * (psi[:, None, :] + angles[None, :, None]))
+            if where != "boresight":
+                c, s = (np.einsum("mmh->mh", x)[:, None, :] for x in (c, s))
+            i, q, u = (m[pix][:, None, :] for m in (i_map, q_map, u_map))
+            scan = CesScan.of(ces, schedule)
+            keep = ~scan.turning
+            for sign, gain in ((1.0, 1.0), (-1.0, 1.0 - dg)):  # detector A, then B
+                d = gain * (i + sign * (q * c + u * s))
+                for row in range(pix.shape[0]):
+                    dr = filtering.apply(d[row], scan)
+                    w = (np.ones_like(c[row]), sign * c[row], sign * s[row])
+                    for a in range(3):
+                        for b, term in enumerate((*w, dr)):
+                            x = (w[a] * term)[:, keep].sum(axis=0)
+                            normal[a, b] += np.bincount(pix[row][keep], x, npix)
+    seen = maps.pixels
+    iqu = np.linalg.solve(np.moveaxis(normal[:, :3, seen], 2, 0), normal[:, 3, seen].T[..., None])
+    scale = np.max(np.abs(iqu[:, 1:]))
+    for k, got in enumerate((maps.i_obs, maps.q_obs, maps.u_obs)):
+        assert np.max(np.abs(got - iqu[:, k, 0])) < 1e-10 * np.max(np.abs(iqu[:, k])), k
+    assert np.array_equal(pairs.pixels, seen) and np.array_equal(pairs.hits_obs, maps.hits_obs)
+    assert np.max(np.abs(maps.q_obs - pairs.q_obs)) < 1e-10 * scale
+    assert np.max(np.abs(maps.u_obs - pairs.u_obs)) < 1e-10 * scale
+    assert np.allclose(maps.i_at(seen), maps.i_obs) and np.all(
+        maps.i_at([0]) == 0
+    )  # the north pole
+    with pytest.raises(ValueError, match="do not see I"):
+        pairs.i_at(seen)
+
+
 def test_a_filtered_focal_plane_on_the_axis_is_the_filtered_boresight(plain_sky):
     """The paper's two pairs as a focal plane on the axis, filtered: the boresight's maps."""
     schedule, filtering = _filtered_schedule(), Filtering.parse("p3+ground-split")
@@ -204,7 +272,9 @@ def test_filtered_maps_do_not_depend_on_the_chunks_or_threads(plain_sky):
     ("text", "options", "match"),
     [
         ("p3", dict(backend="gpu"), "CPU backend"),
-        ("p3", dict(mapmaker="detectors"), "pairs' map-maker"),
+        ("p3", dict(mapmaker="single"), "pairs' or the detectors' map-maker"),
+        ("p3", dict(mapmaker="pairs-spin0"), "pairs' or the detectors' map-maker"),
+        ("deproject(gain)", dict(mapmaker="detectors"), "templates from the pair differences"),
         ("p3", dict(hwp=HWP("continuous", frequency_hz=1.0)), "no plate"),
         ("p40", dict(sample_rate_hz=1.0), "samples per throw"),
         ("groundbin30", {}, "wider than the scan"),

@@ -10,7 +10,12 @@ from helpers import T0
 from boresight import engine
 from boresight.instrument.pairs import Systematics
 from boresight.jobs.residual import residual
-from boresight.jobs.transfer import FIELD_PAIRS, soopercool_transfer, transfer_function
+from boresight.jobs.transfer import (
+    FIELD_PAIRS,
+    FIELD_PAIRS_TEB,
+    soopercool_transfer,
+    transfer_function,
+)
 from boresight.mitigation import Filtering
 from boresight.schedule import CES, Schedule, Site, load_schedule
 from boresight.sky import SkyConfig, make_sky
@@ -100,6 +105,18 @@ def test_nothing_filtered_transfers_everything_as_it_is(sky):
     }
     with pytest.raises(ValueError, match="at least 2"):
         transfer_function(schedule, Filtering.parse("p1"), None, EDGES, nside=NSIDE, n_sims=1)
+    teb = transfer_function(
+        schedule, Filtering(), _footprint(sky, schedule), EDGES, nside=NSIDE, n_sims=2,
+        intensity=True,
+    )  # fmt: skip
+    assert teb.fields == FIELD_PAIRS_TEB and len(teb.rows()) == 81 * (EDGES.size - 1)
+    for b in range(EDGES.size - 1):
+        assert np.allclose(teb.matrix[:, :, b], np.eye(9), atol=1e-8)
+    with pytest.raises(ValueError, match="T block"):
+        transfer_function(
+            schedule, Filtering.parse("deproject(gain)"), None, EDGES, nside=NSIDE, n_sims=2,
+            intensity=True,
+        )  # fmt: skip
 
 
 @pytest.mark.slow
@@ -126,3 +143,28 @@ def test_a_filter_keeps_of_a_sky_like_leak_what_it_keeps_of_the_sky(sky):
         kept.append(bin_spectrum(leak, EDGES)[1])
     ratio = kept[1] / kept[0]
     assert np.all(np.abs(ratio - f_bb) < 2 * tf.error[3, 3]), (ratio, f_bb, tf.error[3, 3])
+
+
+@pytest.mark.slow
+def test_the_t_block_of_a_filter_on_each_detectors_tod(sky):
+    """The 9x9 matrix through the detectors' map-maker, each detector's TOD filtered by p3 +
+    ground on the deep example's CES set: F_ell^TT lies in (0.2, 0.9) and grows with ell; with
+    both detectors of a pair on the same samples and no systematic, T and P do not mix (T
+    cancels in the pair's Q and U, P in its I), so every T-to-P and P-to-T entry is 0 and the
+    polarised block is the pairs' pipeline's own to rounding (the same Q and U maps)."""
+    schedule = load_schedule(str(ROOT / "examples" / "schedule_deep_sat.toml")).single()
+    mask = _footprint(sky, schedule)
+    filtering = Filtering.parse("p3+ground")
+    teb = transfer_function(schedule, filtering, mask, EDGES, nside=NSIDE, n_sims=6, intensity=True)
+    f_tt = teb.entry("TT", "TT")
+    assert np.all((f_tt > 0.2) & (f_tt < 0.9)) and np.all(np.diff(f_tt) > 0), f_tt
+    for into in FIELD_PAIRS_TEB:
+        for source in FIELD_PAIRS_TEB:
+            if ("T" in into) != ("T" in source):
+                assert np.all(np.abs(teb.entry(into, source)) < 1e-8), (into, source)
+    pol = transfer_function(schedule, filtering, mask, EDGES, nside=NSIDE, n_sims=6)
+    for into in FIELD_PAIRS:
+        for source in FIELD_PAIRS:
+            np.testing.assert_allclose(
+                teb.entry(into, source), pol.entry(into, source), rtol=1e-6, atol=1e-8
+            )

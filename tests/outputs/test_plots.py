@@ -59,3 +59,19 @@ def test_a_pairs_figure_draws_every_moment_against_the_radius(tmp_path):
     plots.pairs_figure(rows, tmp_path / "pairs")
     image = matplotlib.image.imread(tmp_path / "pairs.png")
     assert image.shape[0] > 100 and image.std() > 0
+
+
+def test_a_transfer_figure_draws_f_tt_where_the_matrix_has_the_t_block(tmp_path, monkeypatch):
+    """The polarised matrix's four entries, and the 9x9 one's F^TT beside them, in each band."""
+    from boresight.jobs.transfer import FIELD_PAIRS, FIELD_PAIRS_TEB, Transfer
+
+    closed = []
+    monkeypatch.setattr(plots.plt, "close", closed.append)  # keep each figure to read it
+    for fields in (FIELD_PAIRS, FIELD_PAIRS_TEB):
+        matrix = np.repeat(np.eye(len(fields))[:, :, None] * 0.5, 3, axis=2)
+        transfer = Transfer(np.array([30, 40, 50, 65]), matrix, 0.1 * matrix, 2, fields)
+        plots.transfer_figure(transfer, tmp_path / f"transfer{len(fields)}")
+        assert (tmp_path / f"transfer{len(fields)}.png").is_file()
+    polarised, full = (fig.axes[0].get_legend_handles_labels()[1] for fig in closed)
+    assert polarised == ["F^EE", "F^BB", "E to B", "B to E"]
+    assert full == ["F^TT", *polarised]
