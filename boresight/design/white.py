@@ -1,20 +1,12 @@
 """Choosing the boresight-rotation schedule against a systematics budget and the survey's noise.
 
 The paper's design rule is to rotate so that the spin moments that couple to the systematics
-vanish. Here a schedule's CESs are grouped into units (each CES, each UTC day, or each TOAST pass)
-and every unit gets one boresight angle. A unit's hits contribute, per observed pixel p,
-
-    S_n,u(p) = sum over its samples of exp(i n psi0),
-
-with psi0 the crossing angle at boresight angle 0; at angle a_u they contribute
-S_n,u exp(i n a_u). So the h_n of any assignment is
-
-    h_n(p) = sum_u S_n,u(p) exp(i n a_u) / hits(p),
-
-and the hits do not depend on the angles. The design objective, the exact expected delta_r of
-these h_n maps, and its search are in :mod:`boresight.design.exact`. Here is also the
-paper's slowly-varying-h_n approximation of it, which ``boresight design`` reports beside:
-linear in the survey means ``<|h_n|^2>`` and their coherent parts,
+vanish. A schedule's CESs are grouped into units, each given one boresight angle, and the h_n of
+any assignment are the units' spin sums turned by their angles (:mod:`boresight.moments.units`,
+which derives it). The design objective, the exact expected delta_r of these h_n maps, and its
+search are in :mod:`boresight.design.exact`. Here is also the paper's slowly-varying-h_n
+approximation of it, which ``boresight design`` reports beside: linear in the survey means
+``<|h_n|^2>`` and their coherent parts,
 
     delta_r = const + sum_n (alpha_n ``<|h_n|^2>`` + beta_n coh_n),
 
