@@ -159,13 +159,7 @@ class Maps:
         """
         if self.i_obs is None:
             raise ValueError("these maps are of pair differences, which do not see I")
-        pixels = np.asarray(pixels)
-        out = np.zeros(pixels.size)
-        if self.pixels.size:
-            at = np.minimum(np.searchsorted(self.pixels, pixels), self.pixels.size - 1)
-            seen = (self.pixels[at] == pixels) & (self.q_obs[at] != hp.UNSEEN)
-            out[seen] = self.i_obs[at[seen]]
-        return out
+        return self._at((self.i_obs,), pixels)[0]
 
     def qu_at(self, pixels):
         """Q, U at some pixels, 0 where invalid or unobserved.
@@ -179,17 +173,24 @@ class Maps:
         -------
         numpy.ndarray, shape (2, n)
         """
+        return self._at((self.q_obs, self.u_obs), pixels)
+
+    def _at(self, rows, pixels):
+        """Maps on the observed pixels (a tuple of k (n,) arrays) read at ``pixels``, 0 where
+        invalid (Q UNSEEN) or unobserved: (k, len(pixels))."""
         pixels = np.asarray(pixels)
+        valid = self.q_obs != hp.UNSEEN
         if np.array_equal(pixels, self.pixels):
-            qu = np.array([self.q_obs, self.u_obs])
-        else:
-            qu = np.zeros((2, pixels.size))
-            if self.pixels.size:
-                at = np.minimum(np.searchsorted(self.pixels, pixels), self.pixels.size - 1)
-                seen = self.pixels[at] == pixels
-                qu[:, seen] = self.q_obs[at[seen]], self.u_obs[at[seen]]
-        np.copyto(qu, 0.0, where=qu[0] == hp.UNSEEN)
-        return qu
+            out = np.array(rows)
+            np.copyto(out, 0.0, where=~valid)
+            return out
+        out = np.zeros((len(rows), pixels.size))
+        if self.pixels.size:
+            at = np.minimum(np.searchsorted(self.pixels, pixels), self.pixels.size - 1)
+            seen = (self.pixels[at] == pixels) & valid[at]
+            for k, row in enumerate(rows):
+                out[k, seen] = row[at[seen]]
+        return out
 
 
 def solve(normal: np.ndarray, rcond_min: float = RCOND_MIN) -> tuple:

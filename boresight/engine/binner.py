@@ -317,10 +317,7 @@ class Binner:
         values_a, values_b = self._values(theta, phi, psi)
         beams = self._extra(theta, phi, psi)
         args = (psi, values_a, values_b, beams, self.response, self.leak, self.jitter)
-        if detectors:
-            c, s, d_a, d_b = pair_samples(*args, seed, first)
-            return c, s, np.concatenate([d_a, d_b])
-        return pair_differences(*args, seed, first)
+        return (pair_samples if detectors else pair_differences)(*args, seed, first)
 
     def templates(self, deprojection, theta, phi, psi, *, alm=None):
         """(T, H) templates of one pointing stream (:meth:`boresight.mitigation.Deprojection.

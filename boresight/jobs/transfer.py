@@ -35,9 +35,8 @@ if TYPE_CHECKING:
 
 #: the fields of a pair of polarised maps, in SOOPERCOOL's order of its 9 (T dropped)
 FIELD_PAIRS = ("EE", "EB", "BE", "BB")
-#: the pure skies, and the pairs of them whose cross-spectra make the transfer matrix
+#: the pure skies (each pair of them, crossed too, makes a row of the transfer's least squares)
 PURE = ("E", "B")
-PURE_PAIRS = tuple((a, b) for a in PURE for b in PURE)
 #: the same with T: SOOPERCOOL's 9 fields and pure skies, for the detectors' map-maker
 PURE_TEB = ("T", "E", "B")
 FIELD_PAIRS_TEB = tuple(a + b for a in PURE_TEB for b in PURE_TEB)

@@ -338,10 +338,33 @@ def accumulate_detectors(
 
 
 @njit
-def pair_samples(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
-    """Each sample's map-maker weights and both detectors' samples, per pair, for a filter to act
-    on before binning (:func:`bin_differences`, :func:`bin_detectors`): the terms
-    :func:`accumulate_scatter` and :func:`accumulate_detectors` sum, kept.
+def _kept_samples(psi, values_a, values_b, beams, response, leak, jitter, seed, first, both):
+    """(c, s, d) of :func:`pair_differences` (``both`` False: d (M, H), the pair differences) or
+    :func:`pair_samples` (``both`` True: d (2M, H), detector A's samples of every pair, then
+    B's)."""
+    values_b, beams = _flat(values_b), _flat(beams)
+    nm, n = response.shape[1], psi.size
+    c, s = np.empty((nm, n)), np.empty((nm, n))
+    d = np.empty((2 * nm if both else nm, n))
+    draws = np.any(jitter != 0.0)
+    for h in range(n):
+        key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
+        field_a = _fields(values_a, h)
+        c0, s0 = np.cos(2.0 * psi[h]), np.sin(2.0 * psi[h])
+        for m in range(nm):
+            c[m, h], s[m, h], d_a, d_b = _pair_sample(
+                h, 0, m, c0, s0, field_a, values_b, beams, response, leak, jitter, key, 0
+            )
+            if both:
+                d[m, h], d[nm + m, h] = d_a, d_b
+            else:
+                d[m, h] = 0.5 * (d_a - d_b)
+    return c, s, d
+
+
+def pair_differences(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
+    """Each sample's pair difference and map-maker weights, per pair, for a filter to act on
+    before binning (:func:`bin_differences`): the terms :func:`accumulate_scatter` sums, kept.
 
     Parameters
     ----------
@@ -351,33 +374,28 @@ def pair_samples(psi, values_a, values_b, beams, response, leak, jitter, seed, f
 
     Returns
     -------
-    c, s, d_a, d_b : float64 arrays, shape (M, H)
-        cos, sin 2 x the angle the map-maker assumes (detector A's; B's is 90 deg from it) and
-        the samples of detectors A and B of each pair m at each sample h.
+    c, s, d : float64 arrays, shape (M, H)
+        cos, sin 2 x the angle the map-maker assumes and the pair difference 0.5 (d_A - d_B) of
+        each pair m at each sample h.
     """
-    values_b, beams = _flat(values_b), _flat(beams)
-    nm, n = response.shape[1], psi.size
-    c, s = np.empty((nm, n)), np.empty((nm, n))
-    d_a, d_b = np.empty((nm, n)), np.empty((nm, n))
-    draws = np.any(jitter != 0.0)
-    for h in range(n):
-        key = derived_key(pixel_key(seed, first + h), JITTER_SALT) if draws else np.uint64(0)
-        field_a = _fields(values_a, h)
-        c0, s0 = np.cos(2.0 * psi[h]), np.sin(2.0 * psi[h])
-        for m in range(nm):
-            c[m, h], s[m, h], d_a[m, h], d_b[m, h] = _pair_sample(
-                h, 0, m, c0, s0, field_a, values_b, beams, response, leak, jitter, key, 0
-            )
-    return c, s, d_a, d_b
+    args = (psi, values_a, values_b, beams, response, leak, jitter, seed, first)
+    return _kept_samples(*args, False)
 
 
-def pair_differences(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
-    """:func:`pair_samples` with the pair difference 0.5 (d_A - d_B) of each pair m at each
-    sample h in place of the two detectors' samples: (c, s, d), each (M, H)."""
-    c, s, d_a, d_b = pair_samples(
-        psi, values_a, values_b, beams, response, leak, jitter, seed, first
-    )
-    return c, s, 0.5 * (d_a - d_b)
+def pair_samples(psi, values_a, values_b, beams, response, leak, jitter, seed, first):
+    """:func:`pair_differences` with both detectors' samples in place of their difference, for
+    the detectors' map-maker (:func:`bin_detectors`): the terms :func:`accumulate_detectors`
+    sums, kept.
+
+    Returns
+    -------
+    c, s : float64 arrays, shape (M, H)
+        cos, sin 2 x the angle the map-maker assumes for detector A (B's is 90 deg from it).
+    d : float64 array, shape (2M, H)
+        Detector A's samples of every pair m at each sample h, then detector B's.
+    """
+    args = (psi, values_a, values_b, beams, response, leak, jitter, seed, first)
+    return _kept_samples(*args, True)
 
 
 @numba.njit(inline="always")
@@ -423,7 +441,7 @@ def bin_detectors(pixels, c, s, d_a, d_b, out):
     ----------
     pixels : int64 array, shape (H,)
     c, s, d_a, d_b : float64 arrays, shape (M, H)
-        As :func:`pair_samples` gives them.
+        As :func:`pair_samples` gives them, its d split in two.
     out : float64 array, shape (npix, 9)
         Running sums (:func:`boresight.mapmaking.solve_iqu`), updated in place.
     """

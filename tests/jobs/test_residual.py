@@ -6,7 +6,7 @@ import pytest
 from helpers import CENTRED, night_schedule
 
 from boresight import coupling, engine, harmonics, masks, predict, spectra
-from boresight.instrument.pairs import PAPER_GAIN, Systematics
+from boresight.instrument.pairs import PAPER_GAIN, Instrument, Systematics
 from boresight.moments import compute_moments
 from boresight.scan import SyntheticScan, paper_scan
 from boresight.schedule import CES, Schedule
@@ -112,7 +112,7 @@ def test_the_last_map_check_predicts_before_it_simulates(small_sky, monkeypatch)
             np.testing.assert_array_equal(getattr(job, name), getattr(alone, name))
 
 
-def test_zero_qu_needs_a_synthetic_scan(small_sky):
+def test_zero_qu_needs_a_synthetic_scan_and_the_detectors_map_maker_a_real_one(small_sky):
     from boresight.jobs import residual
 
     ces = CES(
@@ -121,6 +121,14 @@ def test_zero_qu_needs_a_synthetic_scan(small_sky):
     schedule = Schedule((ces,), sample_rate_hz=1.0)
     with pytest.raises(ValueError, match="synthetic scan"):
         residual.residual(small_sky, schedule, Systematics(), np.ones(12 * 16**2), 32, zero_qu=True)
+    with pytest.raises(ValueError, match="takes a real schedule's samples"):
+        residual.simulate_maps(
+            small_sky, SyntheticScan(), Instrument(), Systematics(), mapmaker="detectors"
+        )
+    maps = residual.simulate_maps(
+        small_sky, schedule, Instrument(), Systematics(), mapmaker="detectors"
+    )
+    assert maps.i_obs is not None  # a real schedule's samples take the detectors' map-maker
 
 
 def test_shared_moments_give_the_same_prediction(small_sky, theory):
