@@ -139,9 +139,10 @@ def toast_schedule():
     return Schedule(ces, Site(-22.9, -67.8, 5190.0, "chajnantor", "sat1"), 5.0)
 
 
-def toast_december_schedule(directory):
-    """TOAST's own scheduler's three hours of 10-minute CESs of one patch at the Atacama site on
-    2026-12-01 (where ICRS and the frame of date are 0.15 deg apart), written to
+def toast_december_schedule(directory, *, width_deg=10, hours=(3, 6)):
+    """TOAST's own scheduler's CESs of one patch ``width_deg`` wide at RA 30, Dec -45 deg (of at
+    most 10 minutes, 20 for a patch wider than 10 deg) at the Atacama site on 2026-12-01 between
+    the UTC ``hours`` (where ICRS and the frame of date are 0.15 deg apart), written to
     ``directory / "schedule.txt"`` and read back as its GroundSchedule; the IERS tables are not
     downloaded. Needs toast."""
     from astropy.utils import iers
@@ -152,10 +153,11 @@ def toast_december_schedule(directory):
     iers.conf.auto_max_age = None
     site = ["--site-name", "atacama", "--telescope", "SAT", "--site-lat", " -22.958"]
     site += ["--site-lon", " -67.787", "--site-alt", "5200"]
-    patch = ["--patch", "deep,1,30,-45,10", "--el-min-deg", "45", "--el-max-deg", "60"]
-    patch += ["--start", "2026-12-01 03:00:00", "--stop", "2026-12-01 06:00:00"]
-    patch += ["--ces-max-time-s", "600", "--sun-avoidance-angle-deg", "0"]
-    patch += ["--moon-avoidance-angle-deg", "0"]
+    patch = ["--patch", f"deep,1,30,-45,{width_deg}", "--el-min-deg", "45", "--el-max-deg", "60"]
+    patch += ["--start", f"2026-12-01 {hours[0]:02d}:00:00"]
+    patch += ["--stop", f"2026-12-01 {hours[1]:02d}:00:00"]
+    patch += ["--ces-max-time-s", "600" if width_deg <= 10 else "1200"]
+    patch += ["--sun-avoidance-angle-deg", "0", "--moon-avoidance-angle-deg", "0"]
     run_scheduler(opts=[*site, *patch, "--out", str(directory / "schedule.txt")])
     schedule = GroundSchedule()
     schedule.read(str(directory / "schedule.txt"))

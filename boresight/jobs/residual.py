@@ -24,6 +24,7 @@ from .._util import interrupts
 from ..config import RunOptions, Study
 from ..cosmology import load_spectra
 from ..coupling import Coupling, mask_coupling
+from ..evaluation import ENGINE_METHODS
 from ..instrument.focalplane import FocalPlane
 from ..instrument.hwp import HWP
 from ..instrument.pairs import Instrument, Systematics
@@ -148,6 +149,7 @@ def simulate_maps(
     filtering: Filtering = Filtering(),
     hwp: HWP | None = None,
     mapmaker: str = "pairs",
+    evaluation: str | None = None,
     progress: bool = False,
 ) -> Maps:
     """Maps of a synthetic or a real scan.
@@ -179,6 +181,10 @@ def simulate_maps(
         How a real schedule's samples become maps (:data:`boresight.mapmaking.MAPMAKERS`):
         ``"detectors"`` gives I too, each detector's TOD filtered alike where ``filtering``
         filters.
+    evaluation : {"interp", "exact", "pixel"}, optional
+        How the TOD reads the sky, default ``run.evaluation``; ``"pixel"`` (the engine's alone:
+        no prediction reads it) takes each map's value in the sample's pixel, as TOAST's
+        ``ScanHealpixMap`` and an observation matrix do.
     progress : bool
 
     Returns
@@ -199,6 +205,7 @@ def simulate_maps(
         filtering=filtering,
         hwp=hwp,
         mapmaker=mapmaker,
+        evaluation=evaluation,
     )
     return maps
 
@@ -217,10 +224,13 @@ def _simulate(
     filtering=Filtering(),
     hwp=None,
     mapmaker="pairs",
+    evaluation=None,
 ):
     """(maps, the maps of Q = U = 0 from the same hits with ``zero_qu``, else None)."""
+    if evaluation is not None and evaluation not in ENGINE_METHODS:
+        raise ValueError(f"evaluation = {evaluation!r}; allowed: {ENGINE_METHODS}")
     on_samples = dict(
-        evaluation=run.evaluation,
+        evaluation=run.evaluation if evaluation is None else evaluation,
         leak_template=leak_template,
         nthreads=run.nthreads,
         backend=run.backend,

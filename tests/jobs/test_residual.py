@@ -131,6 +131,28 @@ def test_zero_qu_needs_a_synthetic_scan_and_the_detectors_map_maker_a_real_one(s
     assert maps.i_obs is not None  # a real schedule's samples take the detectors' map-maker
 
 
+def test_the_tod_reads_the_sky_as_asked(small_sky):
+    """``evaluation="pixel"`` (the engine's alone) reads each map's value in the sample's pixel:
+    the detectors' I map is then the sky's own pixels to rounding, where the interpolated TOD's
+    is not; a method the engine does not know is refused."""
+    from boresight.jobs import residual
+
+    ces = CES(
+        start_unix=1.79e9, duration_s=120, elevation_deg=50, az_centre_deg=134, az_throw_deg=40
+    )
+    schedule = Schedule((ces,), sample_rate_hz=5.0)
+    args = (small_sky, schedule, Instrument(), Systematics())
+    seen, gaps = None, {}
+    for evaluation in ("pixel", None):
+        maps = residual.simulate_maps(*args, mapmaker="detectors", evaluation=evaluation)
+        seen = np.flatnonzero(maps.rcond > 0.1) if seen is None else seen
+        gaps[evaluation] = np.max(np.abs(maps.i_at(seen) - small_sky.maps[0][seen]))
+    scale = np.std(small_sky.maps[0])
+    assert seen.size > 10 and gaps["pixel"] < 1e-10 * scale and gaps[None] > 1e-3 * scale
+    with pytest.raises(ValueError, match="evaluation = 'nearest'"):
+        residual.simulate_maps(*args, evaluation="nearest")
+
+
 def test_shared_moments_give_the_same_prediction(small_sky, theory):
     """One repeat's moments, shared across rotations (as the reproduction does), predict what
     each job's own moments predict; moments too short for the systematic are refused."""
