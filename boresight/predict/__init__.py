@@ -56,7 +56,10 @@ The package, in the order a prediction is made:
   leaked power and the total residual with its cross terms (``expected_residual``);
 * :mod:`~boresight.predict.bias`: delta_r and the reference curves;
 * :mod:`~boresight.predict.focalplane`: the map-level prediction and its expectation (coherent
-  and scattered) for pairs off the axis, each with its own h_n.
+  and scattered) for pairs off the axis, each with its own h_n;
+* :mod:`~boresight.predict.deprojection`: the noise price of map-domain deprojection;
+* :mod:`~boresight.predict.template_error`: what TOD template deprojection leaves of a leak (the
+  template's error and the fit's share), as the spectrum a prediction reads in place of T's.
 """
 
 from ..constants import N_MAX
