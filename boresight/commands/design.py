@@ -13,7 +13,9 @@ operations before each CES of the design and the minutes it loses, and the desig
 CESs start later by what the operations eat. With ``[constraints]`` the search keeps them, each
 strategy's row counts what it breaks (``violations``) and ``constraints.csv`` says what each
 constraint costs. Scoring the schedule as given (no search) adds its row ("as given") beside the
-baselines and writes no schedule.
+baselines and writes no schedule. With ``[deprojection]`` the pipeline regresses those templates
+of T from each pair difference per block: the objective leaves out the leaks of T they fit, the
+TOD check deprojects, and the manifest says so.
 """
 
 from __future__ import annotations
@@ -178,6 +180,9 @@ def _manifest(result, budget, schedule, paths, timer, estimate):
             "operations": None
             if budget.operations is None
             else dataclasses.asdict(budget.operations),
+            "deprojection": None
+            if budget.deprojection is None
+            else dataclasses.asdict(budget.deprojection),
             "validation": result.checked,
         },
         {"design": budget.design.seed},

@@ -1,5 +1,5 @@
-"""A design's budget file: its ``[systematics]``, ``[noise]``, ``[design]``, ``[instrument]``
-and ``[hwp]`` tables, read and checked.
+"""A design's budget file: its ``[systematics]``, ``[noise]``, ``[design]``, ``[instrument]``,
+``[hwp]``, ``[operations]``, ``[constraints]`` and ``[deprojection]`` tables, read and checked.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from ..instrument.added import NOT_CARRIED, split_table
 from ..instrument.focalplane import FocalPlane, focalplane_of_table
 from ..instrument.hwp import HWP, pairs_behind
 from ..instrument.pairs import AMPLITUDES, Instrument, Systematics, is_nonzero
+from ..mitigation import Deprojection
 from ..noise import SurveyNoise
 from .constraints import AngleRule, Constraints
 from .operations import OPERATIONS_KEYS, Operations
@@ -50,6 +51,11 @@ class Budget:
     constraints : boresight.design.constraints.Constraints, optional
         The ``[constraints]`` table: ``[[constraints.angles]]`` rules (``elevation_deg = [lo,
         hi]``, ``angles_deg``, optional ``patch``) and ``max_changes_per_day``.
+    deprojection : boresight.mitigation.Deprojection, optional
+        The ``[deprojection]`` table (``templates``, a list of :data:`DESIGN_TEMPLATES`;
+        ``block_hours``): the pipeline regresses those templates of T from each pair difference
+        per block, so the objective leaves out the leaks of T they fit and the TOD check
+        deprojects.
     """
 
     systematics: Systematics
@@ -60,6 +66,12 @@ class Budget:
     hwp: HWP | None = None
     operations: Operations | None = None
     constraints: Constraints | None = None
+    deprojection: Deprojection | None = None
+
+    @property
+    def deprojected(self) -> tuple:
+        """The template sets the pipeline deprojects (none without ``[deprojection]``)."""
+        return () if self.deprojection is None else self.deprojection.templates
 
 
 def search_instrument(focal: FocalPlane) -> Instrument:
@@ -74,6 +86,9 @@ def search_instrument(focal: FocalPlane) -> Instrument:
 
 
 BUDGET_SECTIONS = ("systematics", "noise", "design", "instrument")
+#: the template sets a design's objective can leave out: the beams' leaks of T (width,
+#: ellipticity) ride their filters beside their leaks of P, which it does not split yet
+DESIGN_TEMPLATES = ("gain", "pointing")
 #: the [hwp] table's keys (:class:`boresight.instrument.hwp.HWP`; its jitter and synchronous signal are not
 #: in the design's objective)
 BUDGET_HWP_KEYS = (
@@ -94,7 +109,7 @@ def load_budget(path: str) -> Budget:
     """
 
     raw = read_toml(path, "budget")
-    extra = ("hwp", "operations", "constraints")
+    extra = ("hwp", "operations", "constraints", "deprojection")
     unknown = sorted(set(raw) - set(BUDGET_SECTIONS) - set(extra))
     if unknown:
         raise ConfigError(
@@ -103,6 +118,7 @@ def load_budget(path: str) -> Budget:
     plate = _budget_hwp(path, raw.get("hwp"))
     operations = _budget_operations(path, raw.get("operations"))
     constraints = _budget_constraints(path, raw.get("constraints"))
+    deprojection = _budget_deprojection(path, raw.get("deprojection"))
     if "noise" not in raw:
         raise ConfigError(f"budget {path}: a [noise] table is required")
     tables, focal = {}, None
@@ -172,9 +188,65 @@ def load_budget(path: str) -> Budget:
             f"budget {path}: [constraints] bind a design of pairs on the axis, not of a focal "
             "plane yet; leave out one of them"
         )
+    if deprojection is not None:
+        _check_deprojection(path, deprojection, tables["design"], focal, plate)
     return Budget(
-        **tables, focalplane=focal, hwp=plate, operations=operations, constraints=constraints
+        **tables,
+        focalplane=focal,
+        hwp=plate,
+        operations=operations,
+        constraints=constraints,
+        deprojection=deprojection,
     )
+
+
+def _budget_deprojection(path, table):
+    """The budget's [deprojection] table as a Deprojection, or None."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError(f"budget {path}: [deprojection] must be a table")
+    allowed = ("templates", "block_hours")
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise ConfigError(
+            f"budget {path}: unknown key deprojection.{unknown[0]}; allowed: {allowed}"
+            + (" (a template map's error is not in the design's objective yet)"
+               if "template_map" in unknown else "")
+        )  # fmt: skip
+    templates = table.get("templates")
+    if not isinstance(templates, list) or not templates:
+        raise ConfigError(
+            f"budget {path}: deprojection.templates must be a list of template sets, e.g. "
+            f"{list(DESIGN_TEMPLATES)}"
+        )
+    other = [t for t in templates if t not in DESIGN_TEMPLATES]
+    if other:
+        raise ConfigError(
+            f"budget {path}: deprojection.templates {other}: the design leaves out the leaks of "
+            f"{', '.join(DESIGN_TEMPLATES)}; the beams' templates (width, ellipticity) are not in "
+            "its objective yet"
+        )
+    try:
+        with section_errors("deprojection", Deprojection, table):
+            return Deprojection(tuple(templates), block_hours=table.get("block_hours"))
+    except ConfigError as err:
+        raise ConfigError(f"budget {path}: {err}") from None
+
+
+def _check_deprojection(path, deprojection, design, focal, plate):
+    """What a design that deprojects cannot take yet, and what the TOD check needs."""
+    if focal is not None or plate is not None:
+        raise ConfigError(
+            f"budget {path}: [deprojection] designs pairs on the axis without a plate, not with "
+            "[instrument] focalplane or [hwp] yet; leave out one of them"
+        )
+    if deprojection.derivatives and design.evaluation != "exact":
+        raise ConfigError(
+            f"budget {path}: [deprojection] of {', '.join(deprojection.templates)} fits "
+            "derivatives of T, which the TOD check follows only with design.evaluation = "
+            "'exact'"
+        )
 
 
 def _budget_constraints(path, table):

@@ -226,6 +226,7 @@ def exact_objective(
     nthreads: int = 0,
     time_price: TimePrice | None = None,
     feasibility: Feasibility | None = None,
+    deprojected: tuple = (),
 ) -> ExactObjective:
     """The exact expected delta_r objective of a budget over a schedule's units.
 
@@ -260,6 +261,9 @@ def exact_objective(
         The lost observing time's price, added to the search's objective.
     feasibility : boresight.design.constraints.Feasibility, optional
         The mount's constraints, which the search keeps.
+    deprojected : tuple of str
+        Template sets the pipeline deprojects (:func:`boresight.predict.leak_model`): the leaks
+        of T they fit are out of the objective.
 
     Returns
     -------
@@ -275,7 +279,7 @@ def exact_objective(
         systematics, instrument, plate_ip = pairs_behind(hwp, systematics, instrument)
     model = predict.leak_model(
         systematics, theory, fwhm_arcmin, band, nside, instrument=instrument, hits=hits,
-        with_sky=True, evaluation=evaluation, plate_ip=plate_ip,
+        with_sky=True, evaluation=evaluation, plate_ip=plate_ip, deprojected=deprojected,
     )  # fmt: skip
     if any(abs(n) > N_MAX for n in model.term_n):
         model = _within(model, N_MAX)

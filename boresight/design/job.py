@@ -18,6 +18,7 @@ from ..moments.offsets import centroid_moments
 from ..moments.units import unit_moments
 from ..noise import sigma_r
 from ..predict import R_RANGE, expected_residual
+from ..predict.terms import TERMS, deprojected_by
 from ..validation import ConfigError, require_finite
 from .constraints import Feasibility
 from .exact import exact_objective, search
@@ -174,10 +175,11 @@ def design(
             plate_moments=plate.moments,
             time_price=price,
             feasibility=_feasibility(budget, moments),
+            deprojected=budget.deprojected,
         )
         white = objective(  # the paper's white-h_n approximation, reported beside
             moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
-            instrument=budget.instrument,
+            instrument=budget.instrument, deprojected=budget.deprojected,
         )  # fmt: skip
     strategies = baselines(moments.n_units, opts.angles_deg, opts.seed)
     given = given_angles(moments)
@@ -215,6 +217,13 @@ def design(
         moments.pixels.size,
         sigma,
     )
+    if budget.deprojection:
+        gone = [t for t in TERMS if t.name in deprojected_by(budget.deprojected)]
+        log.info(
+            "the pipeline deprojects %s: the objective leaves out %s",
+            budget.deprojection,
+            ", ".join(f"h_{t.n} {t.symbol}" for t in gone),
+        )
     if not white.terms:
         log.info(
             "the budget's systematics do not depend on the boresight angles (h_0 and white "
@@ -371,7 +380,7 @@ class _Observed:
                 seen, self.budget.systematics, self.theory, self.budget.noise.fwhm_arcmin,
                 change_cost=opts.change_cost, instrument=self.budget.instrument,
                 evaluation=opts.evaluation, time_price=self.obj.time_price,
-                feasibility=self.obj.feasibility,
+                feasibility=self.obj.feasibility, deprojected=self.budget.deprojected,
             )  # fmt: skip
         return self._objectives[key]
 
@@ -517,4 +526,5 @@ def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):
         offsets=offsets,
         hwp=plate.hwp,
         plate_h=moments.full_sky(moments.h(angles)),
+        deprojected=budget.deprojected,
     )

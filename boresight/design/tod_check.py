@@ -12,6 +12,7 @@ from tqdm import tqdm
 from ..config import RunOptions
 from ..instrument.focalplane import on_axis
 from ..jobs.residual import residual, simulate_reference
+from ..mitigation import Filtering
 from ..predict import delta_r
 from ..predict import focalplane as predict_fp
 from ..sky import SkyConfig, make_sky
@@ -171,7 +172,7 @@ def tod_parts(sky, scan, systematics, budget, mask, *, lmax, hwp=None):
     residual job (:func:`boresight.jobs.residual.residual`). A focal plane (or the budget's
     pairs on the axis behind ``hwp``) is binned with the focal-plane prediction's cut
     (:data:`boresight.predict.focalplane.RCOND_EXPECTATION`), the reference behind the plate
-    without its IP."""
+    without its IP. A budget that deprojects deprojects the TOD, its reference's as its own."""
     focal = budget.focalplane if hwp is None else on_axis(budget.instrument.pair_angles_deg)
     run = RunOptions(evaluation=budget.design.evaluation)
     reference = None
@@ -181,8 +182,9 @@ def tod_parts(sky, scan, systematics, budget, mask, *, lmax, hwp=None):
         reference, _ = simulate_reference(
             sky, scan, mask, lmax, run=run, focalplane=focal, hwp=dataclasses.replace(hwp, ip=0.0)
         )
+    filtering = Filtering(deprojection=budget.deprojection) if budget.deprojection else Filtering()
     job = residual(
         sky, scan, systematics, mask, lmax, instrument=budget.instrument, run=run,
-        reference=reference, focalplane=focal, hwp=hwp,
+        reference=reference, focalplane=focal, hwp=hwp, filtering=filtering,
     )  # fmt: skip
     return job.cross, job.auto

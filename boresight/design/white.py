@@ -188,6 +188,7 @@ def objective(
     *,
     nthreads: int = 0,
     instrument: Instrument | None = None,
+    deprojected: tuple = (),
 ) -> Objective:
     """The predicted-delta_r objective of a budget over a schedule's observed pixels.
 
@@ -208,6 +209,9 @@ def objective(
     nthreads : int
     instrument : boresight.instrument.pairs.Instrument, optional
         The focal plane (default: the paper's Q/U pairs).
+    deprojected : tuple of str
+        Template sets the pipeline deprojects: the leaks of T they fit are out
+        (:func:`boresight.predict.deprojected`).
 
     Returns
     -------
@@ -233,6 +237,9 @@ def objective(
     if drawn(systematics):
         power = predict.expected_power(systematics, instrument)
         coefs, t2_mean = predict.expected_coefficients(coefs, power), power.t2_mean
+    coefs = predict.deprojected(coefs, deprojected)
+    if coefs.t2 == 0 and t2_mean is not None:  # its mean goes with its power
+        t2_mean = 0.0
     leaked_const = 0.0
     beam_cl = predict.beam_spectra(theory, lmax, fwhm_arcmin)
     if systematics.has_beams:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..constants import DEG
 from ..instrument.pairs import BEAM_KEYS, LIMITS, UNITS, Instrument, Spread, Systematics
-from .terms import MOMENT_ORDER
+from .terms import MOMENT_ORDER, deprojected_by
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -111,6 +111,24 @@ def pair_terms(par, pair_angles, alpha, dg_repeat):
 
 
 QUADRATURE_NODES = 3  #: Gauss-Hermite nodes per drawn parameter (exact for powers of linear terms)
+
+
+def deprojected(coefs: Coefficients, templates) -> Coefficients:
+    """``coefs`` with the terms a pipeline deprojecting ``templates`` takes out set to 0
+    (:func:`boresight.predict.terms.deprojected_by`: a gain template takes h_2 T and h_2 S, the
+    pointing templates h_1 G and h_3 G*; the leaks of P stay).
+
+    Parameters
+    ----------
+    coefs : Coefficients
+    templates : tuple of str
+        :class:`boresight.mitigation.Deprojection`'s ``templates``.
+
+    Returns
+    -------
+    Coefficients
+    """
+    return replace(coefs, **dict.fromkeys(deprojected_by(templates), 0.0))
 
 
 class ExpectedPower(NamedTuple):

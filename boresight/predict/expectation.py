@@ -27,7 +27,7 @@ from ..instrument.hwp import pairs_behind
 from . import field_products as fp
 from .beam_fields import beam_filters
 from .coefficients import MOMENT_NAMES, coefficient_moments, coefficients, jitter_variance
-from .terms import ordered
+from .terms import deprojected_by, ordered
 from .windows import hit_spread_window, interpolation_window
 
 if TYPE_CHECKING:
@@ -139,6 +139,7 @@ def leak_model(
     with_sky: bool = False,
     evaluation: str = "interp",
     plate_ip: complex = 0.0,
+    deprojected: tuple = (),
 ) -> LeakModel:
     """The leak's terms of a budget (:func:`expected_residual` says how each enters).
 
@@ -161,6 +162,9 @@ def leak_model(
         P. Here ``systematics`` and ``instrument`` are the pairs' as the bare pairs at their
         reflected angles carry them (:func:`boresight.instrument.hwp.reflected_systematics`,
         :func:`boresight.instrument.hwp.mirrored`), whose h_n are those of psi + 2 chi. 0: none.
+    deprojected : tuple of str
+        Template sets a pipeline deprojects (:class:`boresight.mitigation.Deprojection`'s
+        ``templates``): the leaks of T they fit go (:func:`boresight.predict.terms.deprojected_by`).
 
     Returns
     -------
@@ -173,7 +177,8 @@ def leak_model(
     fields, value, exact = read = sky_fields(nside, band, hits=hits, evaluation=evaluation)
     terms = budget_terms(systematics, read)
     mean, second, pseudo = coefficient_moments(systematics, instrument)
-    kept = [k for k, name in enumerate(MOMENT_NAMES) if name in terms]
+    gone = deprojected_by(deprojected)
+    kept = [k for k, name in enumerate(MOMENT_NAMES) if name in terms and name not in gone]
     ns = [terms[MOMENT_NAMES[k]][0] for k in kept]
     field_list = [fields[terms[MOMENT_NAMES[k]][1]] for k in kept]
     readings = [terms[MOMENT_NAMES[k]][2] for k in kept]
@@ -296,6 +301,7 @@ def expected_residual(
     hwp: HWP | None = None,
     plate_h: np.ndarray | None = None,
     nthreads: int = 0,
+    deprojected: tuple = (),
 ) -> ExpectedResidual:
     """The exact expected leaked and total residual pseudo-C_BB of a schedule's h_n maps.
 
@@ -348,6 +354,9 @@ def expected_residual(
     plate_h : numpy.ndarray, complex, shape (>= 3, npix), optional
         The crossing angles' own h_n (h_{n,0}), where the plate has an IP.
     nthreads : int
+    deprojected : tuple of str
+        Template sets the pipeline deprojects, fitted from the sky itself (:func:`leak_model`):
+        the leaks of T they fit go, the rest is as without them.
 
     Returns
     -------
@@ -368,6 +377,7 @@ def expected_residual(
     model = leak_model(
         systematics, theory, fwhm_arcmin, band, nside, n_max=n_max, instrument=instrument,
         hits=hits, with_sky=True, evaluation=evaluation, plate_ip=plate_ip,
+        deprojected=deprojected,
     )  # fmt: skip
     lw = lmax + band
     alms = {}

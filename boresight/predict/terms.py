@@ -33,6 +33,9 @@ class Term(NamedTuple):
         The field in the docs' notation.
     switches : tuple of str
         The :class:`boresight.instrument.pairs.Systematics` keys that turn it on.
+    templates : tuple of str
+        The :class:`boresight.mitigation.Deprojection` template sets that fit it exactly when its
+        coefficient is constant in a block (a leak of T; none for a leak of P).
     """
 
     name: str
@@ -40,14 +43,15 @@ class Term(NamedTuple):
     field: str
     symbol: str
     switches: tuple
+    templates: tuple = ()
 
 
 #: the terms, in the order of Y
 TERMS = (
-    Term("t2", 2, "temperature", "T", ("dg", "dg_repeat")),
-    Term("s2", 2, "template", "S", ("leak",)),
-    Term("g1", 1, "gradient", "G", ("rho_arcmin",)),
-    Term("g3", 3, "conjugate gradient", "G*", ("rho_arcmin",)),
+    Term("t2", 2, "temperature", "T", ("dg", "dg_repeat"), ("gain",)),
+    Term("s2", 2, "template", "S", ("leak",), ("gain",)),  # where the template is T
+    Term("g1", 1, "gradient", "G", ("rho_arcmin",), ("pointing",)),
+    Term("g3", 3, "conjugate gradient", "G*", ("rho_arcmin",), ("pointing",)),
     Term("p0", 0, "polarisation", "P", ("dg", "dg_repeat", "pol_angle_deg", "nonortho_deg")),
     Term(
         "p4",
@@ -66,6 +70,14 @@ MOMENT_ORDER = ("t2", "s2", "g1", "g3", "p4", "p0")
 def ordered(names) -> tuple[Term, ...]:
     """The terms of ``names``, in that order."""
     return tuple(BY_NAME[name] for name in names)
+
+
+def deprojected_by(templates) -> frozenset:
+    """The names of the terms that deprojecting ``templates`` (template set names, e.g.
+    ``("gain", "pointing")``) takes out: a leak of T whose coefficient is constant in a block
+    goes whatever the h_n (what a template's error leaves is
+    :mod:`boresight.predict.template_error`'s)."""
+    return frozenset(term.name for term in TERMS if set(term.templates) & set(templates))
 
 
 def switched_on_by(key: str) -> tuple[Term, ...]:

@@ -46,6 +46,17 @@ from boresight.config import ConfigError
             "not with",
         ),  # fmt: skip
         (dict(systematics="dg = 0.0", hwp="mode = 'stepped'"), "no non-zero"),
+        (dict(deprojection="templates = 'gain'"), "must be a list"),
+        (dict(deprojection="templates = ['width']"), "not in its objective yet"),
+        (dict(deprojection="templates = ['gain']\ntemplate_map = 't.fits'"), "template map"),
+        (dict(deprojection="templates = ['gain']\nblock_hours = -1.0"), "block_hours"),
+        (dict(deprojection="templates = ['pointing']"), "evaluation = 'exact'"),
+        (
+            dict(
+                systematics="dg = 0.01", deprojection="templates = ['gain']", hwp="mode = 'stepped'"
+            ),
+            "without a plate",
+        ),  # fmt: skip
     ],
 )
 def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
@@ -69,3 +80,15 @@ def test_a_budget_focal_plane_is_checked(tmp_path):
                 instrument='focalplane = "hexagon:37:35"')
     )  # fmt: skip
     assert budget.focalplane.n_pairs == 37 and predict.supports(budget.instrument)
+
+
+def test_a_budget_that_deprojects_says_which_templates(tmp_path):
+    """[deprojection] gives the budget its Deprojection; without it nothing is deprojected."""
+    plain = design.load_budget(budget_file(tmp_path))
+    assert plain.deprojection is None and plain.deprojected == ()
+    tables = dict(
+        design="nside = 32\nevaluation = 'exact'",
+        deprojection="templates = ['pointing', 'gain']\nblock_hours = 10.0",
+    )
+    budget = design.load_budget(budget_file(tmp_path, **tables))
+    assert budget.deprojected == ("gain", "pointing") and budget.deprojection.block_hours == 10.0

@@ -46,22 +46,34 @@ def obj(moments, theory):
 
 
 @pytest.mark.parametrize(
-    "budget, instrument, evaluation",
+    "budget, instrument, evaluation, deprojected",
     [
-        (BUDGET, None, "interp"),
-        pytest.param(BUDGET, None, "exact", marks=pytest.mark.slow),
-        (Systematics(dg=Spread(0.002, 0.01), rho_arcmin=1.0), Instrument("uniform", 4), "interp"),
+        (BUDGET, None, "interp", ()),
+        pytest.param(BUDGET, None, "exact", (), marks=pytest.mark.slow),
+        (
+            Systematics(dg=Spread(0.002, 0.01), rho_arcmin=1.0),
+            Instrument("uniform", 4),
+            "interp",
+            (),
+        ),
+        (BUDGET, None, "interp", ("gain",)),
     ],
-    ids=["numbers", "numbers, read exactly", "rms over 4 pairs"],
+    ids=["numbers", "numbers, read exactly", "rms over 4 pairs", "gain deprojected"],
 )
 def test_the_objective_is_the_expectation_of_the_assignments_h_n(
-    moments, theory, budget, instrument, evaluation
+    moments, theory, budget, instrument, evaluation, deprojected
 ):
     """The quadratic form in the units' alm equals predict.expected_residual's delta_r of the
     assignment's own h_n maps (a transform of every weight, no unit decomposition) to rounding,
-    for either reading of the sky at the samples."""
+    for either reading of the sky at the samples, and for a pipeline that deprojects."""
     obj = exact_objective(
-        moments, budget, theory, FWHM, instrument=instrument, evaluation=evaluation
+        moments,
+        budget,
+        theory,
+        FWHM,
+        instrument=instrument,
+        evaluation=evaluation,
+        deprojected=deprojected,
     )
     rng = np.random.default_rng(2)
     for _ in range(3):
@@ -76,6 +88,7 @@ def test_the_objective_is_the_expectation_of_the_assignments_h_n(
             instrument=instrument,
             hits=moments.full_sky(moments.hits),
             evaluation=evaluation,
+            deprojected=deprojected,
         )
         want = predict.delta_r(expected.residual, obj.template)
         assert obj.delta_r(angles) == pytest.approx(want, rel=1e-10)

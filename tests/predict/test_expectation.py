@@ -2,6 +2,8 @@
 is white, against the mean of many skies of the map-level prediction on a real schedule's h_n,
 and its coefficients' moments against the mean of many drawn focal planes."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from helpers import EXAMPLES
@@ -147,3 +149,27 @@ def test_a_gain_with_h2_cancelled_leaves_h4_ps_cross_with_the_sky_not_a_leak(the
     assert abs(cross) > leaked  # the total is the cross term's, as the design's 3.2e-04
     unrotated, _ = parts((0.0,), 0.01)
     assert leaked < 1e-3 * unrotated
+
+
+def test_what_deprojection_takes_is_the_leak_of_t(theory, schedule_h):
+    """A pipeline that deprojects the gain and pointing templates of T (fitted from the sky
+    itself) keeps only the leaks of P: the gain's leaked power deprojected equals its leaked
+    power on a sky without T (TT = TE = 0), to rounding; a pointing offset deprojected leaks
+    nothing; the coefficients lose exactly the terms the term table names."""
+    h, mask = schedule_h
+    dark = dataclasses.replace(
+        theory, **dict.fromkeys(("tt", "te", "tt_tensor", "te_tensor"), np.zeros_like(theory.tt))
+    )
+    args = dict(lmax=LMAX, hits=None)
+    kept = predict.expected_residual(h, mask, GAIN, theory, FWHM, deprojected=("gain",), **args)
+    without_t = predict.expected_residual(h, mask, GAIN, dark, FWHM, **args)
+    raw = predict.expected_residual(h, mask, GAIN, theory, FWHM, **args)
+    assert np.all(kept.leaked[40:] < 0.1 * raw.leaked[40:])  # most of the gain's leak was T's
+    np.testing.assert_allclose(kept.leaked, without_t.leaked, rtol=1e-10, atol=1e-25)
+    gone = predict.expected_residual(
+        h, mask, POINTING, theory, FWHM, deprojected=("pointing",), **args
+    )
+    assert np.all(gone.leaked == 0.0)
+    coefs = predict.deprojected(predict.coefficients(EVERYTHING), ("gain", "pointing"))
+    assert coefs.t2 == coefs.s2 == coefs.g1 == coefs.g3 == 0
+    assert coefs.p0 != 0 and coefs.p4 != 0
