@@ -1,5 +1,6 @@
 """What boresight rotation buys a pipeline that filters before binning: the table of
-``boresight suppression --filter`` (boresight.jobs.suppression.filtered) on the deep example.
+``boresight suppression --filter`` (boresight.jobs.suppression.filtered) on the deep example (or
+the wide one).
 
 The example's CES set at its own sample rate, the paper's Q and U pairs on the boresight, a sky
 of FWHM 60 arcmin: per systematic, pipeline (raw, filtered) and boresight schedule (the CES set
@@ -7,14 +8,18 @@ once, and repeated at 45, 90 and 180 deg) the leaked pseudo-C_BB in three bands,
 schedule's raw leak and over its own pipeline's unrotated leak; then the verdict the command
 prints.
 
-Usage: python bench/bench_filtered_suppression.py [NSIDE] [FILTER]
+Usage: python bench/bench_filtered_suppression.py [NSIDE] [FILTER] [EXAMPLE]
 
-Writes the table to bench/results/filtered_suppression.json, its figure
-(boresight.outputs.plots.filtered_suppression_figure) to docs/figures/filtered_suppression_deep.png
-and the filter's transfer function (plots.transfer_figure) to docs/figures/transfer_deep.png. A
-FILTER that deprojects (e.g. ``"deproject(bk)"``) evaluates the sky exactly and writes
+EXAMPLE is ``deep`` (examples/schedule_deep_sat.toml, the default) or ``wide``
+(examples/schedule_wide_lat.toml). Writes the table to bench/results/filtered_suppression.json,
+its figure (boresight.outputs.plots.filtered_suppression_figure) to
+docs/figures/filtered_suppression_deep.png and the filter's transfer function
+(plots.transfer_figure) to docs/figures/transfer_deep.png. A FILTER that deprojects (e.g.
+``"deproject(bk)"``) evaluates the sky exactly and writes
 bench/results/deprojected_suppression.json, docs/figures/deprojected_suppression_deep.png and
-transfer_deprojected_deep.png, with what it keeps of the sky's own E and B.
+transfer_deprojected_deep.png, with what it keeps of the sky's own E and B. The wide example's
+files end in ``_wide`` (``filtered_suppression_wide.json``, ``..._suppression_wide.png``,
+``transfer_..._wide.png``).
 """
 
 import sys
@@ -34,8 +39,13 @@ from boresight.sky import SkyConfig, make_sky
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def main(nside, text):
-    schedule = load_schedule(str(ROOT / "examples" / "schedule_deep_sat.toml"))
+EXAMPLES = {"deep": "schedule_deep_sat.toml", "wide": "schedule_wide_lat.toml"}
+
+
+def main(nside, text, example="deep"):
+    if example not in EXAMPLES:
+        raise SystemExit(f"EXAMPLE {example!r}: one of {', '.join(EXAMPLES)}")
+    schedule = load_schedule(str(ROOT / "examples" / EXAMPLES[example]))
     sky = make_sky(SkyConfig(nside=nside, lmax=2 * nside, fwhm_arcmin=60.0, seed=10))
     filtering = Filtering.parse(text)
     deprojects = bool(filtering.deprojection)
@@ -48,9 +58,9 @@ def main(nside, text):
     figures = ROOT / "docs" / "figures"
     name = "deprojected" if deprojects else "filtered"
     plots.filtered_suppression_figure(
-        result, figures / f"{name}_suppression_deep", formats=("png",)
+        result, figures / f"{name}_suppression_{example}", formats=("png",)
     )
-    transfer = "transfer_deprojected_deep" if deprojects else "transfer_deep"
+    transfer = f"transfer_deprojected_{example}" if deprojects else f"transfer_{example}"
     plots.transfer_figure(result.transfer, figures / transfer, formats=("png",))
     rows = [{k: _cell(v) for k, v in row.items() if k != "amplitude"} for row in result.rows]
     verdict = filtered.verdict(
@@ -73,13 +83,13 @@ def main(nside, text):
     )
     print(verdict)
     report(
-        f"{name}_suppression",
-        f"What boresight rotation buys a pipeline that filters ({filtering}), the deep example, "
-        f"Nside {nside}",
+        f"{name}_suppression" + ("" if example == "deep" else f"_{example}"),
+        f"What boresight rotation buys a pipeline that filters ({filtering}), the {example} "
+        f"example, Nside {nside}",
         list(rows[0]),
         rows,
         notes=(
-            f"examples/schedule_deep_sat.toml's CES set at {schedule.sample_rate_hz:g} Hz, the "
+            f"examples/{EXAMPLES[example]}'s CES set at {schedule.sample_rate_hz:g} Hz, the "
             "paper's Q and U pairs on the boresight, a sky of FWHM 60 arcmin read by "
             f"{'exact evaluation' if deprojects else 'interpolation'}, the spectra on the raw unrotated maps' pixels with rcond > 0.05; gain "
             "dg = +-0.01, pointing rho = 0.1 arcmin, leak 0.01 and 0.005 T, angle 0.5 deg. leak: "
@@ -109,4 +119,5 @@ if __name__ == "__main__":
     main(
         int(sys.argv[1]) if len(sys.argv) > 1 else 128,
         sys.argv[2] if len(sys.argv) > 2 else "p3+ground",
+        sys.argv[3] if len(sys.argv) > 3 else "deep",
     )
