@@ -88,3 +88,10 @@ def _cell(value):
     if isinstance(value, float):
         return f"{value:.3g}"
     return "" if value is None else str(value)
+
+
+def print_verdict(heading: str, lines: list[str]) -> None:
+    """Print a bench's verdict: a heading and one indented line per case."""
+    print(heading)
+    for line in lines:
+        print("  " + line)

@@ -103,6 +103,14 @@ COMMANDS = {
         DEEP,
         *HWP_SKY,
     ],
+    "suppression_deprojected": [
+        "suppression",
+        "--deproject",
+        "gain,ellipticity",
+        "--schedule",
+        DEEP,
+        *HWP_SKY,
+    ],
 }
 
 #: keys and columns that may differ between two runs of the same numbers

@@ -164,6 +164,32 @@ def toast_december_schedule(directory, *, width_deg=10, hours=(3, 6)):
     return schedule
 
 
+def toast_binning(pixels, weights):
+    """TOAST's ``BinMap`` of the default detector data, with these pixels and Stokes weights,
+    its noise model "noise_model", the turnarounds' shared flags left out and invalid detector
+    samples too, and those flags as keywords for a ``FilterBin`` around it (whose fit leaves out
+    every non-science sample). Needs toast."""
+    from toast import ops
+    from toast.observation import default_values as defaults
+
+    flags = dict(
+        shared_flags=defaults.shared_flags,
+        shared_flag_mask=defaults.shared_mask_nonscience,  # the turnarounds among them
+        det_flags=defaults.det_flags,
+    )
+    binning = ops.BinMap(
+        pixel_dist="pixel_dist",
+        covariance="covariance",
+        det_data=defaults.det_data,
+        pixel_pointing=pixels,
+        stokes_weights=weights,
+        noise_model="noise_model",
+        det_flag_mask=defaults.det_mask_invalid,
+        **flags,
+    )
+    return binning, dict(flags, det_flag_mask=defaults.det_mask_nonscience)
+
+
 def run_design(tmp_path, schedule, budget, *args):
     """Run `boresight design` on ``schedule`` (written as TOML) with ``budget``; its output."""
     src = tmp_path / "s.toml"

@@ -319,7 +319,8 @@ def _write_filtered(stage, result, manifest):
     ``filtered_suppression.png``/``.pdf``, the filter's transfer function (``transfer.csv``, a row
     per band and pair of fields; ``transfer.npz``, its matrix T[to, from, band], error, edges and
     field pairs; ``transfer.png``/``.pdf``), ``sky_kept.csv`` (per pipeline and boresight
-    schedule, the sky's own pseudo-C_EE and C_BB per band over the raw pipeline's) and
+    schedule, the sky's own pseudo-C_EE and C_BB per band over the raw pipeline's; for a pipeline
+    that only deprojects, beside them the share the spin rule predicts) and
     ``manifest.json`` into ``stage``."""
     io.write_csv(stage / "filtered_suppression.csv", result.rows, list(result.rows[0]))
     io.write_text(stage / "filtered_suppression.md", filtered_suppression.markdown(result.rows))

@@ -29,6 +29,7 @@ from ..constants import N_MAX
 from ..evaluation import METHODS
 from ..instrument.pairs import LIMITS, Instrument, Spread, Systematics
 from ..moments.units import GROUPS, UnitMoments
+from ..predict.terms import deprojected_by
 from ..validation import option
 
 if TYPE_CHECKING:
@@ -238,8 +239,8 @@ def objective(
         power = predict.expected_power(systematics, instrument)
         coefs, t2_mean = predict.expected_coefficients(coefs, power), power.t2_mean
     coefs = predict.deprojected(coefs, deprojected)
-    if coefs.t2 == 0 and t2_mean is not None:  # its mean goes with its power
-        t2_mean = 0.0
+    if "t2" in deprojected_by(deprojected):  # its mean goes with its power
+        t2_mean = None if t2_mean is None else 0.0
     leaked_const = 0.0
     beam_cl = predict.beam_spectra(theory, lmax, fwhm_arcmin)
     if systematics.has_beams:

@@ -185,7 +185,7 @@ def _toast_filterbin_observation_matrix(directory, order):
     import toast
     from astropy import units as u
     from astropy.time import Time
-    from helpers import toast_december_schedule
+    from helpers import toast_binning, toast_december_schedule
     from toast import ops
     from toast.instrument import GroundSite, Telescope
     from toast.instrument_sim import fake_boresight_focalplane
@@ -208,20 +208,8 @@ def _toast_filterbin_observation_matrix(directory, order):
     pixels = ops.PixelsHealpix(
         nside=NSIDE, nest=False, create_dist="pixel_dist", detector_pointing=detpointing
     )
-    flags = dict(
-        shared_flags=defaults.shared_flags,
-        shared_flag_mask=defaults.shared_mask_nonscience,  # the turnarounds among them
-        det_flags=defaults.det_flags,
-    )
-    binning = ops.BinMap(
-        pixel_dist="pixel_dist",
-        covariance="covariance",
-        det_data=defaults.det_data,
-        pixel_pointing=pixels,
-        stokes_weights=ops.StokesWeights(mode="IQU", detector_pointing=detpointing),
-        noise_model="noise_model",
-        det_flag_mask=defaults.det_mask_invalid,
-        **flags,
+    binning, flags = toast_binning(
+        pixels, ops.StokesWeights(mode="IQU", detector_pointing=detpointing)
     )
     filterbin = ops.FilterBin(
         name="filterbin",
@@ -232,7 +220,6 @@ def _toast_filterbin_observation_matrix(directory, order):
         poly_filter_view="throw",
         write_obs_matrix=True,
         output_dir=str(directory),
-        det_flag_mask=defaults.det_mask_nonscience,
         **flags,
     )
     filterbin.apply(data)

@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from helpers import EXAMPLES
+from helpers import EXAMPLES, toast_binning
 
 from boresight import engine, harmonics, spectra
 from boresight.config import SkyConfig
@@ -206,24 +206,7 @@ def test_it_equals_toasts_filterbin_with_precomputed_templates(tmp_path):
         ob["bk"] = {"det_to_key": key} | {
             det: dict(zip("abc", templates[ob.name, det])) for det in ob.local_detectors
         }
-    binning = ops.BinMap(
-        pixel_dist="pixel_dist",
-        covariance="covariance",
-        det_data=defaults.det_data,
-        pixel_pointing=pixels,
-        stokes_weights=weights,
-        noise_model="noise_model",
-        shared_flags=defaults.shared_flags,
-        shared_flag_mask=defaults.shared_mask_nonscience,
-        det_flags=defaults.det_flags,
-        det_flag_mask=defaults.det_mask_invalid,
-    )
-    fits = dict(
-        shared_flags=defaults.shared_flags,
-        shared_flag_mask=defaults.shared_mask_nonscience,
-        det_flags=defaults.det_flags,
-        det_flag_mask=defaults.det_mask_nonscience,
-    )
+    binning, fits = toast_binning(pixels, weights)
     ops.FilterBin(
         name="filterbin",
         det_data=defaults.det_data,

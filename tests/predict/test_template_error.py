@@ -2,25 +2,18 @@
 regression of Gaussian fields on the sphere, and against the mean of TOD skies deprojected with
 noisy template maps through the engine."""
 
-import dataclasses
-
 import healpy as hp
 import numpy as np
 import pytest
 from helpers import EXAMPLES
 
-from boresight import moments as scanstats
 from boresight import spectra
-from boresight.config import RunOptions
 from boresight.constants import ARCMIN
 from boresight.cosmology import load_spectra
-from boresight.instrument.pairs import Instrument, Systematics
-from boresight.jobs.residual import residual, simulate_maps
-from boresight.mitigation import Deprojection, Filtering
-from boresight.predict import expected_residual
-from boresight.predict.template_error import deprojected_theory, template_error
+from boresight.instrument.pairs import Systematics
+from boresight.jobs.template_check import template_error_check
+from boresight.predict.template_error import template_error
 from boresight.schedule import load_schedule
-from boresight.sky import SkyConfig, make_sky
 
 
 def test_a_template_of_the_sky_itself_leaves_nothing_and_noise_leaves_its_own_less_the_fit():
@@ -88,75 +81,6 @@ def test_the_fit_and_what_it_leaves_are_numpys_regression_of_gaussian_fields(der
     np.testing.assert_allclose(got, want, rtol=0.04)
 
 
-def _deprojected_leak(directory, nside, systematic, names, noise, n_skies, template_fwhm=None):
-    """The mean over ``n_skies`` T-only skies (FWHM 60 arcmin) of the leak's pseudo-C_BB left by
-    deprojecting ``names`` with a template map (the sky at ``template_fwhm``, plus white noise of
-    ``noise`` times the sky's rms), the deep example's CES set evaluated exactly, and its
-    prediction: per band 40-59, 60-79, ..., 2 nside; (mean, error of the mean, prediction)."""
-    lmax, fwhm = 2 * nside, 60.0
-    schedule = load_schedule(str(EXAMPLES / "schedule_deep_sat.toml")).single()
-    run = RunOptions(evaluation="exact")
-    first = make_sky(SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=fwhm, seed=1))
-    first = first.without_polarisation()
-    raw = simulate_maps(first, schedule, Instrument(), Systematics(), run=run)
-    mask = (raw.rcond > 0.05).astype(float)
-    footprint = spectra.as_footprint(mask)
-    edges = np.append(np.arange(40, lmax, 20), lmax + 1)
-    sigma = noise * np.std(first.maps[0])
-    rng = np.random.default_rng(3)
-    measured = []
-    for i in range(n_skies):
-        config = SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=fwhm, seed=10 + i)
-        sky = make_sky(config).without_polarisation()
-        template = sky.maps[0]
-        if template_fwhm is not None:
-            template = make_sky(SkyConfig(**{**vars(config), "fwhm_arcmin": template_fwhm}))
-            template = template.maps[0]
-        path = directory / f"template_{i}.fits"
-        noisy = template + sigma * rng.normal(size=template.size)
-        hp.write_map(path, noisy, extra_header=[("COORDSYS", "C")], dtype=np.float64)
-        deprojection = Deprojection(names, template_map=str(path))
-        job = residual(
-            sky,
-            schedule,
-            systematic,
-            footprint,
-            lmax,
-            run=run,
-            filtering=Filtering(deprojection=deprojection),
-        )
-        measured.append(spectra.bin_spectrum(job.auto, edges)[1])
-    theory = load_spectra()  # T alone, as the skies: a gain's h_0 term would leak their P
-    nothing = np.zeros_like(theory.tt)
-    polarised = ("ee", "te", "bb_lens", "ee_tensor", "te_tensor", "bb_tensor")
-    theory = dataclasses.replace(theory, **dict.fromkeys(polarised, nothing))
-    left = template_error(
-        theory.tt,
-        lmax=lmax,
-        fwhm_arcmin=fwhm,
-        template_fwhm_arcmin=template_fwhm,
-        noise_cl=sigma**2 * 4 * np.pi / (12 * nside**2),
-        derivatives=0 if names == ("gain",) else 1,
-    )
-    # the exact expectation of the schedule's own h_n, the samples' offsets in their pixels too:
-    # the noise's gradient is blue, and its leak reads the pixel scale
-    stats = scanstats.characterise_schedule(schedule, nside)
-    predicted = expected_residual(
-        stats.h,
-        mask,
-        systematic,
-        deprojected_theory(theory, left, fwhm_arcmin=fwhm),
-        fwhm,
-        lmax=lmax,
-        hits=stats.hits,
-        evaluation="exact",
-        offsets=scanstats.centroid_moments(schedule, nside),
-    ).leaked
-    measured = np.array(measured)
-    mean, error = measured.mean(axis=0), measured.std(axis=0) / np.sqrt(n_skies)
-    return mean, error, spectra.bin_spectrum(predicted, edges)[1]
-
-
 SYSTEMATICS = {
     "gain": (Systematics(dg=0.01), ("gain",)),
     "pointing": (Systematics(rho_arcmin=1.0, chi_deg=30.0), ("pointing",)),
@@ -171,9 +95,10 @@ SYSTEMATICS = {
         ("gain", 0.5, None),
         ("pointing", 0.05, None),
         ("pointing", 0.5, None),
+        ("pointing", 0.05, 75.0),
     ],
 )
-def test_the_deprojected_leak_is_predicted_within_10_percent(tmp_path, name, noise, template_fwhm):
+def test_the_deprojected_leak_is_predicted_within_10_percent(name, noise, template_fwhm):
     """The deep example's CES set at Nside 64, T-only skies of FWHM 60 arcmin, a gain or a
     pointing offset deprojected (its own templates, fitted per CES) with a template map that is
     the sky plus white noise (5 % and 50 % of the sky's rms: kappa about 0.003 and 0.2) or the sky
@@ -183,11 +108,19 @@ def test_the_deprojected_leak_is_predicted_within_10_percent(tmp_path, name, noi
     2 nside. Measured (2026-12-07), prediction over the mean, bands 40-59 / 60-79 / 80-99 /
     100-119 / 120-128, each mean to 2-4 %: gain 1.02 / 1.06 / 1.01 / 1.02 / 0.96 (5 %) and
     1.01 / 1.07 / 1.02 / 1.03 / 0.98 (50 %); pointing 0.98 / 0.95 / 0.95 / 0.94 / 0.92 and
-    1.02 / 1.01 / 1.04 / 1.01 / 0.99. (A template at a 75 arcmin beam, not held here: 0.87 /
-    1.08 / 1.09 / 1.09 / 1.04.)"""
+    1.02 / 1.01 / 1.04 / 1.01 / 0.99; a pointing template at a 75 arcmin beam 1.01 / 0.95 /
+    0.94 / 0.99 / 0.97 (bench/bench_template_error.py prints them all). The gain's template at a
+    75 arcmin beam, not held here: 0.87 / 1.08 / 1.09 / 1.09 / 1.04.)"""
     systematic, names = SYSTEMATICS[name]
-    mean, error, predicted = _deprojected_leak(
-        tmp_path, 64, systematic, names, noise, 16, template_fwhm=template_fwhm
+    schedule = load_schedule(str(EXAMPLES / "schedule_deep_sat.toml")).single()
+    check = template_error_check(
+        schedule,
+        systematic,
+        names,
+        nside=64,
+        noise=noise,
+        n_skies=16,
+        template_fwhm_arcmin=template_fwhm,
     )
-    assert np.all(error < 0.05 * mean), error / mean  # 16 skies resolve 10 %
-    np.testing.assert_allclose(predicted, mean, rtol=0.1)
+    assert np.all(check.error < 0.05 * check.mean), check.error / check.mean  # resolves 10 %
+    np.testing.assert_allclose(check.predicted, check.mean, rtol=0.1)

@@ -55,6 +55,7 @@ from ...coupling import mask_coupling
 from ...instrument.pairs import Instrument, Systematics
 from ...mitigation import Filtering, ces_scans
 from ...noise import SurveyNoise, sigma_r
+from ...predict.template_cost import template_cost
 from ..compare_scans import on_focalplane
 from ..residual import reference_from_maps, residual, simulate_maps
 from ..transfer import Transfer, transfer_function
@@ -107,7 +108,8 @@ class Result:
     kept : list of dict
         Per pipeline and boresight schedule, the pseudo-C_EE and C_BB of the no-systematic maps
         per band over the raw pipeline's on the same schedule ("EE kept <band>", "BB kept
-        <band>").
+        <band>"); for a pipeline that only deprojects templates of the sky itself, beside them
+        the spin rule's prediction ("EE kept predicted <band>", "BB kept predicted <band>").
     """
 
     rows: list
@@ -242,6 +244,7 @@ def run(
                         float(mb / fb) if real and fb > ROUNDING else np.nan
                     )
                 rows.append(row)
+    _predict_kept(kept, filtering, mask, edges, names, sky, run_options)
     once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
     transfer = transfer_function(
         once,
@@ -296,6 +299,25 @@ def run(
     return Result(rows, cls, edges, transfer, noise, template, sky_ee, kept)
 
 
+def _predict_kept(kept, filtering, mask, edges, names, sky, run_options):
+    """Beside what a pipeline that only deprojects templates of the sky itself keeps of the sky's
+    E and B, the share the spin rule predicts (:mod:`boresight.predict.template_cost`: a spin-2
+    template's definite share of E through C^TE, read through the footprint; the blocks' chance
+    projection left out): "EE kept predicted <band>", "BB kept predicted <band>"."""
+    deprojection = filtering.deprojection
+    if filtering.filters or not deprojection or deprojection.template_map is not None:
+        return
+    lmax = 2 * sky.nside
+    cost = template_cost(
+        load_spectra(), lmax=lmax, fwhm_arcmin=sky.fwhm_arcmin, templates=deprojection.templates
+    )
+    pair = cost.pseudo_kept(mask_coupling(mask, lmax, run_options.nthreads), edges)
+    for row in kept:  # the raw pipeline keeps the whole sky
+        for field, predicted in zip("EB", pair):
+            values = np.ones_like(predicted) if row["pipeline"] == RAW else predicted
+            row |= {f"{field * 2} kept predicted {b}": float(x) for b, x in zip(names, values)}
+
+
 def _per_ell(values, edges, lmax, *, outside):
     """Per-band ``values`` on every multipole of their band, ``outside`` elsewhere (lmax + 1,)."""
     out = np.full(lmax + 1, outside, dtype=float)
@@ -338,6 +360,14 @@ def verdict(
     if sky is not None:
         ee, bb = ("/".join(_two(sky[f"{f} kept {b}"]) for b in bands_) for f in ("EE", "BB"))
         lines.append(f"  the sky's own E and B, without rotation: keeps {ee} of EE, {bb} of BB")
+        if f"EE kept predicted {bands_[0]}" in sky:
+            ee, bb = (
+                "/".join(_two(sky[f"{f} kept predicted {b}"]) for b in bands_) for f in ("EE", "BB")
+            )
+            lines.append(
+                f"  the spin rule predicts {ee} of EE, {bb} of BB (a spin-2 template's share of E "
+                "through C^TE; the blocks' chance projection left out)"
+            )
     survey = "" if noise is None else f" ({noise.summary()})"
     moved = ""
     if transfer is not None:

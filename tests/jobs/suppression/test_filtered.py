@@ -4,6 +4,7 @@ one clear errors."""
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -258,7 +259,8 @@ def test_the_command_deprojects_and_says_what_the_templates_take(tmp_path, capsy
     """--deproject bk alone: the BK templates take the gain's and the pointing's leak of T (what
     is left, 1e-5 of it, is the gain's own P and the offset's third order) and the additive leak,
     whose template is T, to rounding; an angle error leaks the sky's P, which the templates take
-    as they take the sky's E (sky_kept.csv, the same fraction to 2 %)."""
+    as they take the sky's E (sky_kept.csv, the same fraction to 2 %). Beside what is kept of the
+    sky, the spin rule's prediction (its accuracy is tests/predict/test_template_cost.py's)."""
     path = _schedule_file(tmp_path / "s.toml")
     out = tmp_path / "out"
     args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
@@ -277,9 +279,16 @@ def test_the_command_deprojects_and_says_what_the_templates_take(tmp_path, capsy
         float(v) == 1.0 for r in kept if r["pipeline"] == "raw" for k, v in r.items() if "kept" in k
     )
     unrotated = next(r for r in kept if r["pipeline"] != "raw" and r["boresight"] == "0")
-    ee = np.array([float(v) for k, v in unrotated.items() if k.startswith("EE kept")])
+    bands = [k[8:] for k in unrotated if re.match(r"EE kept \d", k)]
+    ee = np.array([float(unrotated[f"EE kept {b}"]) for b in bands])
+    predicted = np.array([float(unrotated[f"EE kept predicted {b}"]) for b in bands])
     assert np.all(ee < 0.9)  # a definite share of E goes with the templates
     np.testing.assert_allclose(over_raw("angle"), ee, rtol=0.02)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["evaluation"] == "exact"
-    assert "the sky's own E and B, without rotation: keeps" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "the sky's own E and B, without rotation: keeps" in printed
+    # beside it the spin rule's share (here, a 120 arcmin sky below ell 65, about 1 %: the E the
+    # templates take on this small footprint is the blocks' chance projection, 35-57 %)
+    assert np.all(np.abs(predicted - 1.0) < 0.02) and np.all(predicted != 1.0)
+    assert "the spin rule predicts 0.99/0.99/1.01 of EE" in printed
