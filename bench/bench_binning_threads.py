@@ -1,13 +1,14 @@
 """The binning's threads on a southern field: 1 against 2 threads, the pixel ranges uniform in RING
 index (as before) and balanced by the samples (``moments.axis.pixel_ranges``).
 
-The deep example's CES set (declination -45 deg, 24 CESs of 25 minutes at 20 Hz, 1.8 million
-samples) at NSIDE: (1) ``moments.axis._bin`` alone on its samples' pixels and angles, computed
-once; (2) the whole focal-plane path, ``scan-stats``' ``characterise_focalplane`` of TOAST's
+The deep example's CES set (declination -45 deg, 24 CESs) at NSIDE: (1) ``moments.axis._bin``
+alone on its samples' pixels and angles, computed once and repeated COPIES times (the same field
+observed that many times as long: a call of a few milliseconds times its threads' start more
+than their work); (2) the whole focal-plane path, ``scan-stats``' ``characterise_focalplane`` of TOAST's
 37-pixel 10-deg hexagon (pointing of every pair and binning). Wall seconds, best of REPEATS runs,
 the thread counts alternated; each result equal to the one-thread run's to the bit.
 
-Usage: python bench/bench_binning_threads.py [NSIDE] [REPEATS]
+Usage: python bench/bench_binning_threads.py [NSIDE] [REPEATS] [COPIES]
 
 Writes bench/results/binning_threads.json.
 """
@@ -42,10 +43,10 @@ def bin_once(pix, c, s, b, nside, bounds):
     return time.perf_counter() - t0, acc
 
 
-def main(nside, repeats):
+def main(nside, repeats, copies):
     schedule = load_schedule(str(ROOT / "examples" / "schedule_deep_sat.toml"))
     once = replace(schedule, repeat_boresight_deg=(0.0,))
-    pix, c, s, b = samples(once, nside)
+    pix, c, s, b = (np.tile(x, copies) for x in samples(once, nside))
     npix = 12 * nside**2
     ranges = {
         "uniform": lambda n: np.array([p * npix // n for p in range(n + 1)], dtype=np.int64),
@@ -97,7 +98,8 @@ def main(nside, repeats):
         list(rows[0]),
         rows,
         notes=(
-            f"examples/schedule_deep_sat.toml's CES set, {pix.size:,} samples; RING's uniform "
+            f"examples/schedule_deep_sat.toml's CES set, its samples {copies} times: "
+            f"{pix.size:,} samples; RING's uniform "
             f"halves hold {halves[0]:,} and {halves[1]:,} of them. Binning: moments.axis._bin "
             "alone; focal-plane path: characterise_focalplane of TOAST's 37-pixel 10-deg hexagon "
             f"over the first 6 CESs. Wall seconds, best of {repeats}, alternated; every result "
@@ -110,4 +112,5 @@ if __name__ == "__main__":
     main(
         int(sys.argv[1]) if len(sys.argv) > 1 else 512,
         int(sys.argv[2]) if len(sys.argv) > 2 else 3,
+        int(sys.argv[3]) if len(sys.argv) > 3 else 8,
     )
