@@ -49,7 +49,9 @@ def main(nside, skies, evaluation):
             path = Path(tmp) / "budget.toml"
             path.write_text(budget_text(nside, skies, evaluation, extra))
             t0 = time.process_time()
-            result = design_command.run(str(path), schedule, f"{tmp}/out", force=True)
+            result = design_command.run(
+                str(path), schedule, f"{tmp}/out", force=True, progress=True
+            )
             seconds = time.process_time() - t0
             checked = {v["strategy"]: v for v in result["validation"]}
             worst = 0.0

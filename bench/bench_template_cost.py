@@ -36,7 +36,7 @@ def main(nside, n_skies):
     for text in CASES:
         t0 = time.process_time()
         check = template_cost_check(
-            schedule, Deprojection.parse(text), nside=nside, n_skies=n_skies
+            schedule, Deprojection.parse(text), nside=nside, n_skies=n_skies, progress=True
         )
         seconds = time.process_time() - t0
         taken, predicted = 1.0 - check.ee_kept, 1.0 - check.ee_predicted

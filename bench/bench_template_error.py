@@ -53,6 +53,7 @@ def main(nside, n_skies):
             noise=noise,
             n_skies=n_skies,
             template_fwhm_arcmin=beam,
+            progress=True,
         )
         seconds = time.process_time() - t0
         within = bool(np.all(np.abs(check.ratio - 1) <= 0.1))

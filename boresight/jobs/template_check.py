@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import healpy as hp
 import numpy as np
+from tqdm import tqdm
 
 from .. import harmonics, spectra
 from .. import moments as scanstats
@@ -90,6 +91,7 @@ def template_error_check(
     band_width: int = 20,
     ell_min: int = 40,
     seed: int = 10,
+    progress: bool = False,
 ) -> TemplateCheck:
     """Deprojected TOD skies against the template error's prediction.
 
@@ -111,11 +113,15 @@ def template_error_check(
         Bands of ``band_width`` from ``ell_min`` to 2 nside.
     seed : int
         The first sky's seed (sky i has ``seed + i``; the noise its own generator).
+    progress : bool
+        A progress bar over the skies, with its ETA.
     """
     if templates not in (("gain",), ("pointing",)):
         raise ValueError(f"templates {templates}: the check fits ('gain',) or ('pointing',)")
     if n_skies < 2 or noise <= 0:
         raise ValueError(f"n_skies {n_skies}, noise {noise}: at least 2 skies, noise above 0")
+    if 2 * nside <= ell_min:
+        raise ValueError(f"nside {nside}: its bands start at ell_min {ell_min}, above 2 nside")
     lmax = 2 * nside
     run = RunOptions(evaluation="exact")
     config = SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin, seed=1)
@@ -128,7 +134,7 @@ def template_error_check(
     rng = np.random.default_rng(3)
     measured = []
     with tempfile.TemporaryDirectory() as directory:
-        for i in range(n_skies):
+        for i in tqdm(range(n_skies), desc="template error skies", disable=not progress):
             config = dataclasses.replace(config, seed=seed + i)
             sky = make_sky(config).without_polarisation()
             template = sky.maps[0]
@@ -222,6 +228,7 @@ def template_cost_check(
     fwhm_arcmin: float = 60.0,
     edges: np.ndarray | None = None,
     seed: int = 10,
+    progress: bool = False,
 ) -> CostCheck:
     """CAMB skies through the raw and the deprojected pipeline against the predicted cost.
 
@@ -239,6 +246,8 @@ def template_cost_check(
         The bands (default :func:`boresight.jobs.suppression.hwp.bands`' for ``nside``).
     seed : int
         The first sky's seed (sky i has ``seed + i``).
+    progress : bool
+        A progress bar over the skies, with its ETA.
     """
     if n_skies < 2:
         raise ValueError(f"n_skies {n_skies}: at least 2 skies")
@@ -248,10 +257,15 @@ def template_cost_check(
         )
     lmax = 2 * nside
     edges = bands(nside) if edges is None else np.asarray(edges)
+    if np.any(np.diff(edges) <= 0) or edges[-1] > lmax + 1:
+        raise ValueError(
+            f"bands {edges.tolist()}: increasing edges to at most 2 nside + 1 (the default bands "
+            "need nside >= 32)"
+        )
     run = RunOptions(evaluation="exact")
     config = SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin, seed=seed)
     footprint, power = None, {"raw": [], "deprojected": []}
-    for i in range(n_skies):
+    for i in tqdm(range(n_skies), desc="template cost skies", disable=not progress):
         sky = make_sky(dataclasses.replace(config, seed=seed + i))
         for name, filtering in (
             ("raw", Filtering()),

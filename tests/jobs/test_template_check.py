@@ -20,6 +20,8 @@ def test_the_tod_check_refuses_what_it_cannot_predict_before_any_work():
         template_error_check(schedule, gain, ("gain",), nside=16, noise=0.1, n_skies=1)
     with pytest.raises(ValueError, match="noise above 0"):
         template_error_check(schedule, gain, ("gain",), nside=16, noise=0.0, n_skies=4)
+    with pytest.raises(ValueError, match="ell_min 40, above 2 nside"):
+        template_error_check(schedule, gain, ("gain",), nside=16, noise=0.1, n_skies=4)
 
 
 def test_the_cost_check_refuses_what_it_does_not_predict():
@@ -28,6 +30,8 @@ def test_the_cost_check_refuses_what_it_does_not_predict():
         template_cost_check(schedule, Deprojection(("ellipticity",)), nside=16, n_skies=1)
     with pytest.raises(ValueError, match="templates of the sky itself"):
         template_cost_check(schedule, Deprojection(), nside=16, n_skies=4)
+    with pytest.raises(ValueError, match="the default bands need nside >= 32"):
+        template_cost_check(schedule, Deprojection(("ellipticity",)), nside=16, n_skies=4)
     mapped = Deprojection(("ellipticity",), template_map="planck.fits")
     with pytest.raises(ValueError, match="templates of the sky itself"):
         template_cost_check(schedule, mapped, nside=16, n_skies=4)
