@@ -8,7 +8,8 @@ templates, BK's six, the spin-0 gain template; per CES and per 10 hours of CESs)
 skies' mean pseudo-C_EE and pseudo-C_BB deprojected over raw, with their errors, against the
 definite share the spin rule predicts (boresight.predict.template_cost: only a spin-2 template
 takes a definite share of E; spins 0 and 1 only a chance projection, which the prediction leaves
-out), and the E taken (1 - kept) predicted over measured; then the verdict against 10 %.
+out), the E taken (1 - kept) predicted over measured, and the r the change of an unpurified
+pseudo-C_BB fakes; then the verdict against 10 %.
 
 Usage: python bench/bench_template_cost.py [NSIDE] [SKIES]
 
@@ -57,6 +58,8 @@ def main(nside, n_skies):
                     "E taken, predicted over measured": f"{ratio[i]:.2f}",
                     "BB kept": f"{check.bb_kept[i]:.3f} +- {check.bb_error[i]:.3f}",
                     "BB predicted": f"{check.bb_predicted[i]:.3f}",
+                    "delta_r faked (unpurified)": f"{check.delta_r:.2g} +- {check.delta_r_error:.1g}",
+                    "predicted": f"{check.delta_r_predicted:.2g}",
                     "correlation": round(check.correlation, 3),
                     "cpu_s": round(seconds, 1),
                 }
@@ -72,7 +75,10 @@ def main(nside, n_skies):
         "boresight.predict.template_cost's definite share of E (a spin-2 template's, through "
         "C^TE) read through the footprint's mask, whose E leaks into the pseudo-C_BB; the "
         "blocks' chance projection is not in it; correlation: the spin-2 template's zero-lag "
-        "correlation with P at lmax = 2 Nside; cpu_s: the case's CPU seconds.",
+        "correlation with P at lmax = 2 Nside; delta_r faked: the r the deprojected maps' "
+        "pseudo-C_BB fakes over the raw maps' (no purification: the E the mask leaks into B), the "
+        "skies' mean +- its error, and the same from the definite share of E taken; cpu_s: the "
+        "case's CPU seconds.",
     )
     print_verdict("verdict (E taken within 10 % in every band):", verdicts)
 

@@ -35,9 +35,10 @@ from ..cosmology import load_spectra
 from ..coupling import mask_coupling
 from ..instrument.pairs import Instrument, Systematics
 from ..mitigation import Deprojection, Filtering
-from ..predict import expected_residual
+from ..predict import delta_r, expected_residual, tensor_template
 from ..predict.template_cost import template_cost
 from ..predict.template_error import deprojected_theory, template_error
+from ..predict.windows import pixel_window
 from ..sky import SkyConfig, make_sky
 from .residual import residual, simulate_maps
 from .suppression.hwp import RCOND_FOOTPRINT, bands
@@ -207,6 +208,11 @@ class CostCheck:
         (1 without a spin-2 template).
     correlation : float
         The spin-2 template's zero-lag correlation with the sky's P (0 without one).
+    delta_r, delta_r_error : float
+        The r the deprojected maps' pseudo-C_BB fakes over the raw maps' (unpurified: the E the
+        mask leaks into B), the skies' mean and its error.
+    delta_r_predicted : float
+        The same from the E the spin-2 template takes (:meth:`TemplateCost.pseudo_bb_taken`).
     """
 
     edges: np.ndarray
@@ -217,6 +223,9 @@ class CostCheck:
     ee_predicted: np.ndarray
     bb_predicted: np.ndarray
     correlation: float
+    delta_r: float
+    delta_r_error: float
+    delta_r_predicted: float
 
 
 def template_cost_check(
@@ -264,7 +273,7 @@ def template_cost_check(
         )
     run = RunOptions(evaluation="exact")
     config = SkyConfig(nside=nside, lmax=lmax, fwhm_arcmin=fwhm_arcmin, seed=seed)
-    footprint, power = None, {"raw": [], "deprojected": []}
+    footprint, power, bb = None, {"raw": [], "deprojected": []}, {"raw": [], "deprojected": []}
     for i in tqdm(range(n_skies), desc="template cost skies", disable=not progress):
         sky = make_sky(dataclasses.replace(config, seed=seed + i))
         for name, filtering in (
@@ -278,14 +287,21 @@ def template_cost_check(
                 mask = (maps.rcond > RCOND_FOOTPRINT).astype(float)
                 footprint = spectra.as_footprint(mask)
             alm = footprint.alm(maps.qu_at(footprint.pixels), lmax, 2)
-            power[name].append([spectra.bin_spectrum(harmonics.alm2cl(a), edges)[1] for a in alm])
+            cls = [harmonics.alm2cl(a) for a in alm]
+            power[name].append([spectra.bin_spectrum(cl, edges)[1] for cl in cls])
+            bb[name].append(cls[1])
     raw, dep = (np.array(power[k]) for k in ("raw", "deprojected"))  # (skies, E/B, bands)
     kept = dep.mean(axis=0) / raw.mean(axis=0)
     error = np.std(dep / raw, axis=0, ddof=1) / np.sqrt(n_skies)
+    theory = load_spectra()
     cost = template_cost(
-        load_spectra(), lmax=lmax, fwhm_arcmin=fwhm_arcmin, templates=deprojection.templates
+        theory, lmax=lmax, fwhm_arcmin=fwhm_arcmin, templates=deprojection.templates
     )
-    ee_predicted, bb_predicted = cost.pseudo_kept(mask_coupling(mask, lmax), edges)
+    coupling = mask_coupling(mask, lmax)
+    ee_predicted, bb_predicted = cost.pseudo_kept(coupling, edges)
+    template = tensor_template(coupling, theory, fwhm_arcmin, nside)
+    faked = [delta_r(d - r, template) for d, r in zip(bb["deprojected"], bb["raw"])]
+    taken = cost.pseudo_bb_taken(coupling, pixel_window(nside, lmax))
     return CostCheck(
         edges=edges,
         ee_kept=kept[0],
@@ -295,4 +311,7 @@ def template_cost_check(
         ee_predicted=ee_predicted,
         bb_predicted=bb_predicted,
         correlation=cost.correlation,
+        delta_r=float(np.mean(faked)),
+        delta_r_error=float(np.std(faked, ddof=1) / np.sqrt(n_skies)),
+        delta_r_predicted=delta_r(taken, template),
     )

@@ -102,6 +102,28 @@ class TemplateCost(NamedTuple):
         kept = pseudo(self.ee_left) / pseudo(self.ee)
         return kept[0], kept[1]
 
+    def pseudo_bb_taken(self, coupling: Coupling, window: np.ndarray | None = None) -> np.ndarray:
+        """What the E taken changes in the pseudo-C_BB through a mask, per ell: M^{BB,EE}
+        (C^EE,left - C^EE), the E the mask no longer leaks into B (an unpurified pipeline's; a
+        purified one's B does not change).
+
+        Parameters
+        ----------
+        coupling : boresight.coupling.Coupling
+        window : numpy.ndarray, optional
+            The maps' pixel window per ell (:func:`boresight.predict.windows.pixel_window`), to
+            the cost's lmax at least; none by default.
+
+        Returns
+        -------
+        numpy.ndarray, shape (coupling.lmax + 1,)
+            [muK^2].
+        """
+        change = self.ee_left - self.ee
+        if window is not None:
+            change = change * np.asarray(window)[: change.size] ** 2
+        return coupling.pseudo_bb(np.zeros_like(change), change)
+
 
 def eth2_eigenvalue(lmax: int) -> np.ndarray:
     """lambda_l = sqrt((l + 2)! / (l - 2)!), the E of eth^2 T per T_lm, l = 0..lmax (0 at l < 2)."""

@@ -9,6 +9,7 @@ from helpers import EXAMPLES
 
 from boresight.constants import ARCMIN
 from boresight.cosmology import load_spectra
+from boresight.coupling import mask_coupling
 from boresight.jobs.template_check import template_cost_check
 from boresight.mitigation import Deprojection
 from boresight.predict.template_cost import eth2_eigenvalue, template_cost
@@ -34,6 +35,33 @@ def test_only_a_spin_2_template_takes_a_definite_share_of_e():
         template_cost(theory, lmax=64, fwhm_arcmin=60.0, templates=("tilt",))
     with pytest.raises(ValueError, match="lmax 9000 needs"):
         template_cost(theory, lmax=9000, fwhm_arcmin=60.0, templates=("ellipticity",))
+
+
+def test_the_e_taken_changes_a_pseudo_bb_only_where_a_mask_leaks_e_into_b():
+    """M^{BB,EE} (C^EE,left - C^EE): zero on the full sky (no E leaks into B) and without a
+    spin-2 template; on a cap the mask's leak of the E taken; and the pseudo-C_BB kept per band
+    is the sky's own plus that change."""
+    theory, lmax, nside = load_spectra(), 64, 32
+    cost = template_cost(theory, lmax=lmax, fwhm_arcmin=60.0, templates=("ellipticity",))
+    full = mask_coupling(np.ones(12 * nside**2), lmax)
+    none = template_cost(theory, lmax=lmax, fwhm_arcmin=60.0, templates=("gain",))
+    cap = np.zeros(12 * nside**2)
+    cap[: hp.ang2pix(nside, np.radians(30.0), 0.0)] = 1.0
+    coupling = mask_coupling(cap, lmax)
+    assert not np.any(none.pseudo_bb_taken(coupling))
+    taken = cost.pseudo_bb_taken(coupling)
+    # the full sky's is the ones-mask's quadrature error (its W_2 is 2e-9 of W_0): 1e-4 of a cap's
+    assert np.max(np.abs(cost.pseudo_bb_taken(full))) < 1e-3 * np.max(np.abs(taken))
+    leak_of_taken = coupling.pseudo_bb(np.zeros(lmax + 1), cost.ee_left - cost.ee)
+    np.testing.assert_allclose(taken, leak_of_taken, rtol=1e-12, atol=0)
+    edges = np.array([30, 48, 65])
+    kept_bb = cost.pseudo_kept(coupling, edges)[1]
+    sky_bb = coupling.pseudo_bb(cost.bb, cost.ee)
+    want = [
+        np.mean(sky_bb[a:b] + taken[a:b]) / np.mean(sky_bb[a:b])
+        for a, b in zip(edges[:-1], edges[1:])
+    ]
+    np.testing.assert_allclose(kept_bb, want, rtol=1e-12)
 
 
 def test_the_spin_2_fit_and_what_it_leaves_are_numpys_regression_of_gaussian_fields():
