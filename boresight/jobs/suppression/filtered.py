@@ -244,7 +244,8 @@ def run(
                         float(mb / fb) if real and fb > ROUNDING else np.nan
                     )
                 rows.append(row)
-    _predict_kept(kept, filtering, mask, edges, names, sky, run_options)
+    coupling = mask_coupling(mask, lmax, run_options.nthreads, band=sky.lmax)
+    _predict_kept(kept, filtering, coupling, edges, names, sky)
     once = dataclasses.replace(schedule, repeat_boresight_deg=(0.0,))
     transfer = transfer_function(
         once,
@@ -260,7 +261,7 @@ def run(
     f_bb = transfer.entry("BB", "BB")
     theory = load_spectra()
     template = predict.tensor_template(
-        mask_coupling(mask, lmax, run_options.nthreads, band=sky.lmax),
+        coupling,
         theory,
         sky.fwhm_arcmin,
         sky.nside,
@@ -299,7 +300,7 @@ def run(
     return Result(rows, cls, edges, transfer, noise, template, sky_ee, kept)
 
 
-def _predict_kept(kept, filtering, mask, edges, names, sky, run_options):
+def _predict_kept(kept, filtering, coupling, edges, names, sky):
     """Beside what a pipeline that only deprojects templates of the sky itself keeps of the sky's
     E and B, the share the spin rule predicts (:mod:`boresight.predict.template_cost`: a spin-2
     template's definite share of E through C^TE, read through the footprint; the blocks' chance
@@ -311,7 +312,7 @@ def _predict_kept(kept, filtering, mask, edges, names, sky, run_options):
     cost = template_cost(
         load_spectra(), lmax=lmax, fwhm_arcmin=sky.fwhm_arcmin, templates=deprojection.templates
     )
-    pair = cost.pseudo_kept(mask_coupling(mask, lmax, run_options.nthreads), edges)
+    pair = cost.pseudo_kept(coupling, edges)
     for row in kept:  # the raw pipeline keeps the whole sky
         for field, predicted in zip("EB", pair):
             values = np.ones_like(predicted) if row["pipeline"] == RAW else predicted
