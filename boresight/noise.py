@@ -240,6 +240,7 @@ def band_fisher(
     time_fraction: float = 1.0,
     transfer_bb: np.ndarray | None = None,
     e_to_b: np.ndarray | None = None,
+    noise_kept: np.ndarray | None = None,
 ) -> np.ndarray:
     """The Fisher information on r of each band of C_BB.
 
@@ -258,6 +259,10 @@ def band_fisher(
     e_to_b : numpy.ndarray, optional
         Its T_b^(EE->BB) per band (negative estimates count as 0): the sky's E leaked into B,
         T_b C_ell^EE / F_b^BB, joins the noise.
+    noise_kept : numpy.ndarray, optional
+        What the pipeline keeps of the noise's own B power per band, K_b > 0 (a filter takes
+        noise as it takes the sky): the noise becomes N_ell K_b / F_b^BB (default K_b = 1, the
+        raw survey's noise read through the filter, an upper bound).
 
     Returns
     -------
@@ -273,28 +278,31 @@ def band_fisher(
     ell = np.arange(lmax + 1)
     validation.number("time_fraction", time_fraction, 1e-12, 1.0)
     extra = noise.n_ell(lmax) / time_fraction
-    if transfer_bb is not None or e_to_b is not None:
-        extra = extra + _filtered(theory, edges, transfer_bb, e_to_b, extra)
+    if transfer_bb is not None or e_to_b is not None or noise_kept is not None:
+        extra = extra + _filtered(theory, edges, transfer_bb, e_to_b, noise_kept, extra)
     total = theory.bb(r=r, a_lens=a_lens)[: lmax + 1] + extra
     per_ell = 0.5 * noise.fsky * (2 * ell + 1) * (theory.bb_tensor[: lmax + 1] / total) ** 2
     return np.array([per_ell[lo:hi].sum() for lo, hi in zip(edges[:-1], edges[1:])])
 
 
-def _filtered(theory, edges, transfer_bb, e_to_b, noise_ell):
+def _filtered(theory, edges, transfer_bb, e_to_b, noise_kept, noise_ell):
     """What a filter adds to N_ell (``noise_ell``, to the last band's end) per multipole of the
-    bands: N_ell (1 / F_b - 1) and T_b^(EE->BB) C_ell^EE / F_b."""
+    bands: N_ell (K_b / F_b - 1) and T_b^(EE->BB) C_ell^EE / F_b."""
     nbands = edges.size - 1
     f = np.ones(nbands) if transfer_bb is None else np.asarray(transfer_bb, dtype=float)
     t = np.zeros(nbands) if e_to_b is None else np.asarray(e_to_b, dtype=float)
-    if f.shape != (nbands,) or t.shape != (nbands,):
-        raise ValueError(f"transfer_bb and e_to_b need one value per band ({nbands})")
+    k = np.ones(nbands) if noise_kept is None else np.asarray(noise_kept, dtype=float)
+    if f.shape != (nbands,) or t.shape != (nbands,) or k.shape != (nbands,):
+        raise ValueError(f"transfer_bb, e_to_b and noise_kept need one value per band ({nbands})")
     if not (np.all(np.isfinite(f)) and np.all(f > 0) and np.all(f <= 1 + 1e-6)):
         raise ValueError(f"transfer_bb must lie in (0, 1], got {f}")
     if not np.all(np.isfinite(t)):
         raise ValueError(f"e_to_b must be finite, got {t}")
+    if not (np.all(np.isfinite(k)) and np.all(k > 0)):
+        raise ValueError(f"noise_kept must be positive, got {k}")
     added = np.zeros_like(noise_ell)
-    for lo, hi, fb, tb in zip(edges[:-1], edges[1:], f, np.maximum(t, 0.0)):
-        added[lo:hi] = noise_ell[lo:hi] * (1.0 / fb - 1.0) + tb * theory.ee[lo:hi] / fb
+    for lo, hi, fb, tb, kb in zip(edges[:-1], edges[1:], f, np.maximum(t, 0.0), k):
+        added[lo:hi] = noise_ell[lo:hi] * (kb / fb - 1.0) + tb * theory.ee[lo:hi] / fb
     return added
 
 
@@ -308,14 +316,15 @@ def sigma_r(
     time_fraction: float = 1.0,
     transfer_bb: np.ndarray | None = None,
     e_to_b: np.ndarray | None = None,
+    noise_kept: np.ndarray | None = None,
 ) -> float:
     """The survey's 1-sigma uncertainty on r: the Fisher sum over the bands, F^(-1/2).
 
     Parameters
     ----------
-    noise, theory, edges, r, a_lens, time_fraction, transfer_bb, e_to_b
-        As in :func:`band_fisher`; a filter's ``transfer_bb`` and ``e_to_b`` need N_ell (not a
-        sigma_r given as a number).
+    noise, theory, edges, r, a_lens, time_fraction, transfer_bb, e_to_b, noise_kept
+        As in :func:`band_fisher`; a filter's ``transfer_bb``, ``e_to_b`` and ``noise_kept``
+        need N_ell (not a sigma_r given as a number).
 
     Returns
     -------
@@ -324,7 +333,7 @@ def sigma_r(
         white-noise Knox regime: a sigma(r) given as a number has no N_ell to scale).
     """
     if noise.sigma_r is not None:
-        if transfer_bb is not None or e_to_b is not None:
+        if transfer_bb is not None or e_to_b is not None or noise_kept is not None:
             raise ValueError("a sigma_r given as a number has no N_ell for a filter to scale")
         validation.number("time_fraction", time_fraction, 1e-12, 1.0)
         return float(noise.sigma_r) / math.sqrt(time_fraction)
@@ -337,5 +346,6 @@ def sigma_r(
         time_fraction=time_fraction,
         transfer_bb=transfer_bb,
         e_to_b=e_to_b,
+        noise_kept=noise_kept,
     )
     return float(1.0 / np.sqrt(np.sum(fisher)))

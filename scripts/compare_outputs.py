@@ -103,6 +103,7 @@ COMMANDS = {
         DEEP,
         *HWP_SKY,
     ],
+    "suppression_filter_only": ["suppression", "--filter", "p1", "--schedule", DEEP, *HWP_SKY],
     "suppression_deprojected": [
         "suppression",
         "--deproject",

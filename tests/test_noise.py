@@ -89,6 +89,25 @@ def test_a_filters_transfer_scales_the_noise_and_adds_the_leaked_e():
     assert noise.sigma_r(model, theory, edges, transfer_bb=[1, 1, 1]) == pytest.approx(
         noise.sigma_r(model, theory, edges), rel=1e-14
     )
+    # the noise filtered too: K of it kept is a survey of depth d sqrt(K / F); K = F is the raw
+    # survey, K = 1 the bound N / F
+    kept = np.array([0.9, 0.97, 1.01])
+    per_band = [
+        noise.band_fisher(
+            noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, depth_uk_arcmin=depth * np.sqrt(k / f)),
+            theory,
+            edges,
+        )[b]
+        for b, (f, k) in enumerate(zip(f_bb, kept))
+    ]
+    got = noise.band_fisher(model, theory, edges, transfer_bb=f_bb, noise_kept=kept)
+    np.testing.assert_allclose(got, per_band, rtol=1e-12)
+    assert noise.sigma_r(model, theory, edges, transfer_bb=f_bb, noise_kept=f_bb) == (
+        pytest.approx(noise.sigma_r(model, theory, edges), rel=1e-12)
+    )
+    assert noise.sigma_r(model, theory, edges, transfer_bb=f_bb, noise_kept=[1, 1, 1]) == (
+        noise.sigma_r(model, theory, edges, transfer_bb=f_bb)
+    )
 
 
 @pytest.mark.parametrize(
@@ -98,6 +117,8 @@ def test_a_filters_transfer_scales_the_noise_and_adds_the_leaked_e():
         (dict(transfer_bb=[0.0, 0.5, 0.5]), r"\(0, 1\]"),
         (dict(transfer_bb=[1.5, 0.5, 0.5]), r"\(0, 1\]"),
         (dict(e_to_b=[np.nan, 0, 0]), "finite"),
+        (dict(noise_kept=[0.0, 1, 1]), "noise_kept must be positive"),
+        (dict(noise_kept=[1, 1]), "one value per band"),
     ],
 )
 def test_a_bad_transfer_is_one_clear_error(kwargs, message, theory):
@@ -107,6 +128,8 @@ def test_a_bad_transfer_is_one_clear_error(kwargs, message, theory):
     given = noise.SurveyNoise(fsky=0.1, fwhm_arcmin=30.0, sigma_r=0.003)
     with pytest.raises(ValueError, match="no N_ell for a filter"):
         noise.sigma_r(given, theory, np.array([30, 301]), transfer_bb=[0.5])
+    with pytest.raises(ValueError, match="no N_ell for a filter"):
+        noise.sigma_r(given, theory, np.array([30, 301]), noise_kept=[0.5])
 
 
 def test_sigma_r_matches_the_scatter_of_simulated_estimates():

@@ -201,6 +201,7 @@ def run_filtered(
     out_dir: str,
     *,
     focalplane: FocalPlane | None = None,
+    scattered: bool = False,
     depth_uk_arcmin: float = filtered_suppression.DEPTH_UK_ARCMIN,
     force: bool = False,
     progress: bool = False,
@@ -222,6 +223,10 @@ def run_filtered(
     out_dir : str
     focalplane : boresight.instrument.focalplane.FocalPlane, optional
         The pairs, each on its own samples (default: the paper's pairs on the axis).
+    scattered : bool
+        The systematics drawn per pair (:data:`boresight.jobs.suppression.filtered.SCATTERED`: a
+        gain and a pointing offset scattered over the pairs) in place of the paper's four
+        (:data:`~boresight.jobs.suppression.filtered.CASES`).
     depth_uk_arcmin : float
         The survey's white polarisation depth [muK arcmin] over the footprint's sky fraction:
         each row's delta_r is read against its pipeline's sigma(r).
@@ -233,9 +238,9 @@ def run_filtered(
     list of dict
         The table's rows.
     """
-    schedule, inputs, estimate = _filtered_inputs(
-        sky_config, schedule_path, filtering, focalplane=focalplane, depth_uk_arcmin=depth_uk_arcmin
-    )
+    cases = filtered_suppression.SCATTERED if scattered else filtered_suppression.CASES
+    options = dict(focalplane=focalplane, cases=cases, depth_uk_arcmin=depth_uk_arcmin)
+    schedule, inputs, estimate = _filtered_inputs(sky_config, schedule_path, filtering, **options)
     io.check_output_dir(out_dir, force, inputs)
     resources.require(estimate, checks)
     timer = provenance.Timer(log)
@@ -247,27 +252,20 @@ def run_filtered(
     run_options = RunOptions(evaluation="exact") if exact else RunOptions()
     with timer("simulations"):
         result = filtered_suppression.run(
-            schedule,
-            sky,
-            filtering,
-            run_options=run_options,
-            focalplane=focalplane,
-            depth_uk_arcmin=depth_uk_arcmin,
-            progress=progress,
+            schedule, sky, filtering, run_options=run_options, progress=progress, **options
         )
+    config = {
+        "schedule": schedule_path,
+        "filter": str(filtering),
+        "deprojection_template": filtering.deprojection.template_map,
+        "evaluation": run_options.evaluation,
+        "sky": dataclasses.asdict(sky_config),
+        "focalplane": None if focalplane is None else focalplane.names,
+        "systematics": {case.name: case.amplitude for case in cases},
+        "noise": dataclasses.asdict(result.noise),
+    }
     manifest = provenance.manifest(
-        {
-            "schedule": schedule_path,
-            "filter": str(filtering),
-            "deprojection_template": filtering.deprojection.template_map,
-            "evaluation": run_options.evaluation,
-            "sky": dataclasses.asdict(sky_config),
-            "focalplane": None if focalplane is None else focalplane.names,
-            "noise": dataclasses.asdict(result.noise),
-        },
-        {"sky": sky_config.seed},
-        timer.stages,
-        estimate.as_dict(),
+        config, {"sky": sky_config.seed}, timer.stages, estimate.as_dict()
     )
     with io.staged_dir(out_dir, force, inputs) as stage:
         _write_filtered(stage, result, manifest)
@@ -276,7 +274,7 @@ def run_filtered(
     return result.rows
 
 
-def _filtered_inputs(sky_config, schedule_path, filtering, *, focalplane, depth_uk_arcmin):
+def _filtered_inputs(sky_config, schedule_path, filtering, *, focalplane, cases, depth_uk_arcmin):
     """(the schedule, the input files, the estimate) of the filtered table, every option checked
     against the sky, the schedule and the template map before any work."""
     if not (np.isfinite(depth_uk_arcmin) and 1e-6 <= depth_uk_arcmin <= 1e6):
@@ -307,7 +305,9 @@ def _filtered_inputs(sky_config, schedule_path, filtering, *, focalplane, depth_
         sky_config.nside,
         lmax=sky_config.lmax,
         n_pairs=2 if focalplane is None else focalplane.n_pairs,
-        tod_runs=filtered_suppression.tod_runs(),
+        tod_runs=filtered_suppression.tod_runs(
+            cases=cases, deprojects=bool(filtering.deprojection)
+        ),
     )
     return schedule, inputs, estimate
 
@@ -427,6 +427,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"({filtered_suppression.DEPTH_UK_ARCMIN:g})",
     )
     _common.focalplane_flag(parser, "; with --hwp or --filter only")
+    parser.add_argument(
+        "--scattered",
+        action="store_true",
+        help="with --filter or --deproject: a gain {mean 0, rms 0.01} and a pointing offset "
+        "{mean 0.1, rms 0.05} arcmin in directions {mean 0, rms 90} deg drawn per pair, in place "
+        "of the paper's four systematics (a focal plane's own, with --focalplane)",
+    )
 
 
 def _filtering(args, plate):
@@ -486,6 +493,8 @@ def main(args: argparse.Namespace) -> int:
     on_schedule = plate is not None or cleaning  # the tables of a real schedule
     if args.depth_uk_arcmin is not None and not cleaning:
         raise ConfigError("--depth-uk-arcmin: with --filter or --deproject only")
+    if args.scattered and not cleaning:
+        raise ConfigError("--scattered: with --filter or --deproject only")
     try:
         sky_config = SkyConfig(
             nside=args.nside,
@@ -506,6 +515,7 @@ def main(args: argparse.Namespace) -> int:
             filtering,
             args.out,
             focalplane=_common.focalplane(args),
+            scattered=args.scattered,
             depth_uk_arcmin=filtered_suppression.DEPTH_UK_ARCMIN if depth is None else depth,
             force=args.force,
             progress=_common.progress(args),

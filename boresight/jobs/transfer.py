@@ -26,7 +26,7 @@ from .._util import interrupts
 from ..config import RunOptions
 from ..instrument.pairs import Instrument, Systematics
 from ..mitigation import Filtering
-from ..sky import gaussian_alm, sky_of_alm
+from ..sky import Sky, gaussian_alm, sky_of_alm
 from .residual import simulate_maps
 
 if TYPE_CHECKING:
@@ -282,3 +282,117 @@ def transfer_function(
         bandpowers["filtered"],
     )
     return Transfer(np.asarray(edges), matrix, error, n_sims, fields)
+
+
+#: the noise Monte Carlo's uniform T [muK] and gain jitter: a jitter on detector B of a pair that
+#: sees a uniform T is white noise in its pair difference (rms 0.5 x jitter x T), so the
+#: engine's own stream, filters and binning carry it unchanged
+NOISE_T_UK = 100.0
+NOISE_JITTER = 0.01
+
+
+@dataclass(frozen=True)
+class NoiseTransfer:
+    """What a filter keeps of a white noise's pseudo-power per band.
+
+    Parameters
+    ----------
+    edges : numpy.ndarray of int
+        The bands' edges [lo, hi).
+    kept, error : numpy.ndarray, shape (2, n_bands)
+        EE and BB: the mean over realisations of the filtered noise maps' pseudo-C_ell over the
+        raw ones' (the same draws through both pipelines), and its standard error.
+    n_sims : int
+    """
+
+    edges: np.ndarray
+    kept: np.ndarray
+    error: np.ndarray
+    n_sims: int
+
+    def entry(self, field: str) -> np.ndarray:
+        """K_b of ``"EE"`` or ``"BB"``: the share of the noise's power the filter keeps."""
+        return self.kept[("EE", "BB").index(field)]
+
+    def entry_error(self, field: str) -> np.ndarray:
+        """The standard error of :meth:`entry`."""
+        return self.error[("EE", "BB").index(field)]
+
+
+def noise_transfer(
+    schedule: Schedule,
+    filtering: Filtering,
+    footprint: np.ndarray | spectra.Footprint,
+    edges: np.ndarray,
+    *,
+    nside: int,
+    n_sims: int = 4,
+    run: RunOptions = RunOptions(),
+    focalplane: FocalPlane | None = None,
+) -> NoiseTransfer:
+    """What a filter keeps of white detector noise, per band: ``n_sims`` realisations of white
+    noise in every pair difference (a gain jitter on a uniform T, :data:`NOISE_T_UK`,
+    :data:`NOISE_JITTER`; realisation i draws with seed i) through the raw and the filtered
+    pipeline, the masked pseudo-C_ell^EE and BB of each, binned, filtered over raw. The same
+    draw enters both pipelines, so the ratio is paired and its error small. A polynomial of
+    order p per throw of n samples removes (p + 1) / n of a white noise's variance, on the
+    scales along the scan where it removes the sky; on a footprint's pseudo-spectrum a band's
+    white noise comes mostly from the many smaller scales the mask couples in, which the filter
+    keeps, so K_b stays near 1 where F_b^BB (a red sky's, coupled in from larger scales) is
+    small, and N_ell / F_b^BB (the raw noise read through the filter) is close to a
+    white noise's filtered N_ell K_b / F_b^BB. A 1/f noise, whose low frequencies a filter
+    removes, is not simulated.
+
+    Parameters
+    ----------
+    schedule : boresight.schedule.Schedule
+    filtering : boresight.mitigation.Filtering
+        Filters only: templates regressed from a uniform T would be a constant, not the
+        pipeline's, so a pipeline that deprojects is refused.
+    footprint : numpy.ndarray, shape (npix,), or boresight.spectra.Footprint
+    edges : numpy.ndarray of int
+        Band edges, within 2 .. 2 nside + 1.
+    nside : int
+    n_sims : int
+        Realisations, >= 2.
+    run : boresight.config.RunOptions
+    focalplane : boresight.instrument.focalplane.FocalPlane, optional
+        Every pair at its own place (default the paper's pairs on the boresight).
+
+    Returns
+    -------
+    NoiseTransfer
+    """
+    if n_sims < 2:
+        raise ValueError(f"n_sims = {n_sims}: the error needs at least 2 realisations")
+    if filtering.deprojection:
+        raise ValueError(
+            f"the noise's transfer runs filters only, not deprojecting {filtering.deprojection}"
+            " (its templates of a uniform T would be a constant)"
+        )
+    footprint = spectra.as_footprint(footprint)
+    lmax = 2 * nside
+    maps = np.zeros((3, 12 * nside**2))
+    maps[0] = NOISE_T_UK
+    uniform = Sky.from_maps(maps, lmax=lmax)
+    power = np.empty((n_sims, 2, 2, len(edges) - 1))  # realisation, raw/filtered, EE/BB, band
+    for i in range(n_sims):
+        noise = Systematics(dg_jitter=NOISE_JITTER, seed=i)
+        for p, pipeline in enumerate((Filtering(), filtering)):
+            interrupts.check()
+            out = simulate_maps(
+                uniform,
+                schedule,
+                Instrument(),
+                noise,
+                run=run,
+                filtering=pipeline,
+                focalplane=focalplane,
+            )
+            alm = footprint.alm(out.qu_at(footprint.pixels), lmax, 2)
+            for f in range(2):
+                power[i, p, f] = spectra.bin_spectrum(harmonics.alm2cl(alm[f]), edges)[1]
+    ratio = power[:, 1] / power[:, 0]
+    kept = power[:, 1].mean(axis=0) / power[:, 0].mean(axis=0)
+    error = ratio.std(axis=0, ddof=1) / np.sqrt(n_sims)
+    return NoiseTransfer(np.asarray(edges), kept, error, n_sims)

@@ -544,8 +544,8 @@ def _leak_panels(spectra, edges, names, styles, *, legend, title, path_stem, for
     columns = 3 if len(names) > 4 else min(2, len(names))
     rows = -(-len(names) // columns)
     fig, axes = plt.subplots(
-        rows, columns, figsize=(3.6 * columns, 3.0 * rows), sharey=True, squeeze=False
-    )
+        rows, columns, figsize=(3.6 * columns + 2.4, 3.0 * rows), sharey=True, squeeze=False
+    )  # 2.4 in beside the panels for the legend
     floor = 1e-16
     for ax in axes.flat[len(names) :]:
         ax.set_visible(False)
@@ -573,6 +573,8 @@ def _leak_panels(spectra, edges, names, styles, *, legend, title, path_stem, for
         ax.set_ylim(floor, None)
     for ax in axes[:, 0]:
         ax.set_ylabel(f"leaked pseudo-C_BB {MUK2}")
-    axes.flat[len(names) - 1].legend(fontsize=8, title=legend, title_fontsize=8, loc="lower left")
+    axes.flat[len(names) - 1].legend(  # beside the panels, where it covers no leak
+        fontsize=8, title=legend, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0)
+    )
     fig.suptitle(f"{title}\n(a leak cancelled to rounding stays below the axis)", fontsize=10)
     _save(fig, path_stem, formats)

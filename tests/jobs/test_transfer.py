@@ -17,6 +17,7 @@ from boresight.jobs.residual import residual
 from boresight.jobs.transfer import (
     FIELD_PAIRS,
     FIELD_PAIRS_TEB,
+    noise_transfer,
     pure_skies,
     soopercool_transfer,
     transfer_function,
@@ -122,6 +123,27 @@ def test_nothing_filtered_transfers_everything_as_it_is(sky):
             schedule, Filtering.parse("deproject(gain)"), None, EDGES, nside=NSIDE, n_sims=2,
             intensity=True,
         )  # fmt: skip
+
+
+def test_the_noise_transfer_is_one_where_nothing_is_filtered(sky):
+    """White noise's draws through two raw pipelines are the same maps: everything kept, with no
+    spread (what a filter keeps of it is tests/jobs/suppression/test_filtered.py's). A pipeline
+    that deprojects is refused (its templates of the uniform T would be a constant), and so is
+    a single realisation."""
+    ces = tuple(
+        CES(T0 + 43200 * i, 1200.0, 50.0, 134.0 if i % 2 else 226.0, 40.0, turnaround_s=4.0)
+        for i in range(4)
+    )
+    schedule = Schedule(ces, Site(), 2.0)
+    footprint = _footprint(sky, schedule)
+    same = noise_transfer(schedule, Filtering(), footprint, EDGES, nside=NSIDE, n_sims=2)
+    assert same.n_sims == 2 and same.kept.shape == (2, EDGES.size - 1)
+    assert np.all(same.entry("BB") == 1.0) and np.all(same.entry("EE") == 1.0)
+    assert np.all(same.entry_error("BB") == 0.0)
+    with pytest.raises(ValueError, match="filters only"):
+        noise_transfer(schedule, Filtering.parse("deproject(gain)"), footprint, EDGES, nside=NSIDE)
+    with pytest.raises(ValueError, match="at least 2"):
+        noise_transfer(schedule, Filtering.parse("p1"), footprint, EDGES, nside=NSIDE, n_sims=1)
 
 
 @pytest.mark.slow

@@ -14,9 +14,10 @@ reciprocal condition number above :data:`~boresight.jobs.suppression.hwp.RCOND_F
 
 The filter takes signal as well as leak. Its transfer function on the CES set once
 (:func:`boresight.jobs.transfer.transfer_function`, SOOPERCOOL's estimator, :data:`N_SIMS` pairs
-of pure skies) gives F_ell^BB per band, and each filtered row's leak over raw divided by it is the
-leak's bias on r in the filtered pipeline, whose spectra are corrected by F_ell^BB, over its bias
-in the raw one ("corrected over raw"). A filtered leak is measured here, not predicted: its
+of pure skies; pure T skies too, through each detector's filtered TOD, for F_ell^TT, where the
+pipeline does not deproject) gives F_ell^BB per band, and each filtered row's leak over raw
+divided by it is the leak's bias on r in the filtered pipeline, whose spectra are corrected by
+F_ell^BB, over its bias in the raw one ("corrected over raw"). A filtered leak is measured here, not predicted: its
 prediction from h_n is still to come.
 
 Each row's delta_r (:func:`boresight.predict.delta_r` of its leak, corrected by F_ell^BB in the
@@ -29,7 +30,10 @@ is not purified ("sigma_r unpurified"; a few pure skies estimate T^(EE->BB) no b
 error, which the verdict prints), and the r that E fakes there ("delta_r of its E in B", the raw
 unrotated sky's pseudo-C_EE times T^(EE->BB) per band over F_ell^BB, and its error from
 T^(EE->BB)'s). The noise is the raw survey's read through the filter's
-transfer of the sky: a filter takes part of the noise too, so these are upper bounds.
+transfer of the sky: a filter takes part of the noise too, so these are upper bounds; beside
+them, for a pipeline that filters without templates, "sigma_r its noise filtered" reads
+N_ell K_BB / F_ell^BB, with K_BB what the filter keeps of a white noise's BB per band ("N_BB kept
+<band>", :func:`boresight.jobs.transfer.noise_transfer`).
 
 A pipeline that deprojects templates of T (:class:`boresight.mitigation.Deprojection`) runs here
 as one that filters; its transfer function's skies carry a T of their own. The no-systematic
@@ -52,15 +56,15 @@ from ..._util import interrupts
 from ...config import RunOptions
 from ...cosmology import load_spectra
 from ...coupling import mask_coupling
-from ...instrument.pairs import Instrument, Systematics
+from ...instrument.pairs import Instrument, Spread, Systematics
 from ...mitigation import Filtering, ces_scans
 from ...noise import SurveyNoise, sigma_r
 from ...predict.template_cost import template_cost
 from ..compare_scans import on_focalplane
 from ..residual import reference_from_maps, residual, simulate_maps
-from ..transfer import Transfer, transfer_function
+from ..transfer import NoiseTransfer, Transfer, noise_transfer, transfer_function
 from ..transforms import Transforms
-from .axis import CATALOGUE
+from .axis import CATALOGUE, Entry
 from .hwp import RCOND_FOOTPRINT, ROUNDING, SCHEDULES, bands, boresight_label, leak_markdown
 
 if TYPE_CHECKING:
@@ -72,6 +76,23 @@ if TYPE_CHECKING:
 #: through h_2, of grad T through h_1 and h_3, of T through h_2 with its own template, and of P
 #: through h_0
 CASES = tuple(e for e in CATALOGUE if e.name in ("gain", "pointing", "leak", "angle"))
+#: a focal plane's own systematics, drawn per pair (``Systematics.seed`` 1): gains scattered about
+#: zero and pointing offsets of scattered size and direction, so that no two pairs leak alike and
+#: a rotation cancels only what each pair's own h_n lets it (the cases of the hexagon's table)
+SCATTERED = (
+    Entry(
+        "gain",
+        "dg = {mean 0, rms 0.01} per pair",
+        "h_2 T, h_4 P*",
+        Systematics(dg=Spread(0.0, 0.01), seed=1),
+    ),
+    Entry(
+        "pointing",
+        "rho = {mean 0.1, rms 0.05} arcmin, chi = {mean 0, rms 90} deg per pair",
+        "h_1, h_3 grad T",
+        Systematics(rho_arcmin=Spread(0.1, 0.05), chi_deg=Spread(0.0, 90.0), seed=1),
+    ),
+)
 #: the raw pipeline's label
 RAW = "raw"
 #: the pairs of pure skies of the table's transfer function
@@ -110,6 +131,9 @@ class Result:
         per band over the raw pipeline's on the same schedule ("EE kept <band>", "BB kept
         <band>"); for a pipeline that only deprojects templates of the sky itself, beside them
         the spin rule's prediction ("EE kept predicted <band>", "BB kept predicted <band>").
+    noise_kept : boresight.jobs.transfer.NoiseTransfer, optional
+        What a filter keeps of white noise per band (none for a pipeline that deprojects), whose
+        B part gives each filtered row's "sigma_r its noise filtered".
     """
 
     rows: list
@@ -120,6 +144,7 @@ class Result:
     template: np.ndarray
     sky_ee: np.ndarray
     kept: list
+    noise_kept: NoiseTransfer | None = None
 
 
 def run(
@@ -128,6 +153,7 @@ def run(
     filtering: Filtering,
     *,
     schedules=SCHEDULES,
+    cases: tuple[Entry, ...] = CASES,
     run_options: RunOptions = RunOptions(),
     n_sims: int = N_SIMS,
     focalplane: FocalPlane | None = None,
@@ -148,6 +174,9 @@ def run(
         Not none.
     schedules : sequence of sequence of float
         Boresight angles of the CES set's repeats [deg].
+    cases : tuple of boresight.jobs.suppression.axis.Entry
+        The systematics, each a row per pipeline and schedule (default :data:`CASES`;
+        :data:`SCATTERED` draws a focal plane's gains and pointing per pair).
     run_options : boresight.config.RunOptions
     n_sims : int
         The transfer function's pairs of pure skies.
@@ -210,7 +239,7 @@ def run(
             for field, mine, raw in zip("EB", power, sky_power[RAW, label]):
                 row |= {f"{field * 2} kept {b}": float(x / y) for b, x, y in zip(names, mine, raw)}
             kept.append(row)
-            for case in CASES:
+            for case in cases:
                 systematics = case.systematics
                 if focalplane is not None:
                     systematics = on_focalplane(systematics, focalplane)
@@ -257,8 +286,22 @@ def run(
         n_sims=n_sims,
         run=run_options,
         focalplane=focalplane,
+        intensity=not filtering.deprojection,  # the T block: each detector's TOD filtered
     )
     f_bb = transfer.entry("BB", "BB")
+    f_tt = transfer.entry("TT", "TT") if "TT" in transfer.fields else None
+    noise_kept = None
+    if not filtering.deprojection:  # what the filter keeps of the noise itself
+        noise_kept = noise_transfer(
+            once,
+            filtering,
+            footprint,
+            edges,
+            nside=sky.nside,
+            n_sims=n_sims,
+            run=run_options,
+            focalplane=focalplane,
+        )
     theory = load_spectra()
     template = predict.tensor_template(
         coupling,
@@ -279,6 +322,8 @@ def run(
             sigma_r(noise, theory, edges, transfer_bb=kept_bb, e_to_b=transfer.entry("BB", "EE")),
         ),
     }
+    if noise_kept is not None:  # the noise filtered too: N_ell K_BB / F_BB, E purified
+        own = sigma_r(noise, theory, edges, transfer_bb=kept_bb, noise_kept=noise_kept.entry("BB"))
     per_ell = _per_ell(kept_bb, edges, lmax, outside=1.0)  # F_BB of each multipole
     # unpurified, the E the filter moves into B fakes an r of its own: T^(EE->BB) times the sky's
     # pseudo-C_EE, corrected by F_BB (and the same with T's error)
@@ -291,13 +336,20 @@ def run(
         for band, f in zip(names, f_bb):
             row[f"F_BB {band}"] = 1.0 if raw else float(f)
             row[f"corrected over raw {band}"] = row[f"over raw {band}"] / row[f"F_BB {band}"]
+        if f_tt is not None:  # what the filter keeps of T, beside what it keeps of B
+            row |= {f"F_TT {b}": 1.0 if raw else float(f) for b, f in zip(names, f_tt)}
+        if noise_kept is not None:  # and of the noise's B
+            kept_noise = zip(names, noise_kept.entry("BB"))
+            row |= {f"N_BB kept {b}": 1.0 if raw else float(k) for b, k in kept_noise}
         leak = cls[row["systematic"], row["pipeline"], row["boresight"]]
         row["delta_r"] = predict.delta_r(leak if raw else leak / per_ell, template)
         row["sigma_r"], row["sigma_r unpurified"] = sigma[row["pipeline"]]
+        if noise_kept is not None:
+            row["sigma_r its noise filtered"] = raw_sigma if raw else own
         row["delta_r over sigma_r"] = row["delta_r"] / row["sigma_r"]
         row["delta_r of its E in B"] = 0.0 if raw else e_in_b[0]
         row["delta_r of its E in B error"] = 0.0 if raw else e_in_b[1]
-    return Result(rows, cls, edges, transfer, noise, template, sky_ee, kept)
+    return Result(rows, cls, edges, transfer, noise, template, sky_ee, kept, noise_kept)
 
 
 def _predict_kept(kept, filtering, coupling, edges, names, sky):
@@ -327,11 +379,13 @@ def _per_ell(values, edges, lmax, *, outside):
     return out
 
 
-def tod_runs(schedules=SCHEDULES) -> int:
+def tod_runs(schedules=SCHEDULES, cases=CASES, *, deprojects=False) -> int:
     """The TOD simulations of the table, counted in passes of the CES set: per boresight schedule
     (as many passes as its angles) and pipeline, a reference and every case; and the transfer
-    function's pure E and B skies, raw and filtered."""
-    return sum(len(r) for r in schedules) * 2 * (1 + len(CASES)) + 4 * N_SIMS
+    function's pure T, E and B skies and the noise's realisations, raw and filtered (E and B
+    alone for a pipeline that ``deprojects``)."""
+    skies = 2 if deprojects else 4  # T, E, B and the noise's own, or E and B
+    return sum(len(r) for r in schedules) * 2 * (1 + len(cases)) + 2 * skies * N_SIMS
 
 
 def verdict(
@@ -353,9 +407,12 @@ def verdict(
     filtered_row = next(r for r in rows if r["pipeline"] != RAW)
     raw_first = next(r for r in rows if r["pipeline"] == RAW)
     f_bb = "/".join(_two(filtered_row[f"F_BB {b}"]) for b in bands_)
+    f_tt = ""
+    if f"F_TT {bands_[0]}" in filtered_row:
+        f_tt = f", F_TT = {'/'.join(_two(filtered_row[f'F_TT {b}']) for b in bands_)} of its T"
     lines = [
         f"What the filter {pipelines[-1]} changes (leaked pseudo-C_BB, bands {'/'.join(bands_)}; "
-        f"it keeps F_BB = {f_bb} of the sky's B):"
+        f"it keeps F_BB = {f_bb} of the sky's B{f_tt}):"
     ]
     sky = next((k for k in kept if k["pipeline"] != RAW), None)
     if sky is not None:
@@ -381,6 +438,13 @@ def verdict(
         f"{_g(filtered_row['delta_r of its E in B'])} +- "
         f"{_g(filtered_row['delta_r of its E in B error'])}"
     )
+    if "sigma_r its noise filtered" in filtered_row:
+        k = "/".join(_two(filtered_row[f"N_BB kept {b}"]) for b in bands_)
+        lines.append(
+            f"  the filter keeps {k} of a white noise's BB too: with its noise filtered, "
+            f"N_ell K_BB / F_BB, sigma(r) is {_g(filtered_row['sigma_r its noise filtered'])} "
+            "(E purified; N_ell / F_BB above is its upper bound)"
+        )
     for name in dict.fromkeys(r["systematic"] for r in rows):
         mine = [r for r in rows if r["systematic"] == name]
         unrotated = next(r for r in mine if r["pipeline"] != RAW)  # the first schedule's
@@ -440,6 +504,11 @@ def markdown(rows: list[dict]) -> str:
         "in the filtered pipeline over the raw one's; over unrotated: over its own pipeline's "
         "leak without rotation (what rotation buys in that pipeline). F_BB per band: "
         + ", ".join(f"{b}: {_two(f)}" for b, f in zip(bands_, f_bb))
+        + (
+            "; F_TT: " + ", ".join(f"{b}: {_two(filtered_row[f'F_TT {b}'])}" for b in bands_)
+            if f"F_TT {bands_[0]}" in filtered_row
+            else ""
+        )
         + ".\n"
     )
     kinds = ("over raw", "corrected over raw", "over unrotated")

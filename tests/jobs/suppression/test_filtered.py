@@ -13,6 +13,7 @@ from helpers import T0
 from boresight import noise
 from boresight.cli import main
 from boresight.cosmology import load_spectra
+from boresight.instrument import focalplane
 from boresight.jobs.suppression import filtered
 from boresight.mitigation import Filtering
 from boresight.schedule import load_schedule
@@ -86,13 +87,20 @@ def test_the_filter_takes_most_of_every_leak_on_the_largest_scales(table):
         assert np.allclose(kept, _leak(row) / _leak(raw))
 
 
-def test_the_corrected_leak_is_the_leak_over_the_filters_f_bb(table):
+def test_the_corrected_leak_is_the_leak_over_the_filters_f_bb(result, table):
     """Every filtered row's F_BB is the table's transfer function's, the raw rows' 1, and the
-    corrected ratio is the ratio over it."""
+    corrected ratio is the ratio over it. Beside it F_TT, the T block of the 9x9 matrix (pure T
+    skies through each detector's filtered TOD): the filter acts on T as on Q and U, so F_TT is
+    F_BB within the realisations' spread."""
+    f_tt = result.transfer.entry("TT", "TT")
+    f_bb = result.transfer.entry("BB", "BB")
+    spread = np.hypot(*(result.transfer.entry_error(x, x) for x in ("TT", "BB")))
+    assert np.all(np.abs(f_tt - f_bb) < 3 * spread + 0.02), (f_tt, f_bb, spread)
     for row in table.values():
-        for band in ("30-31", "32-47", "48-64"):
+        for band, tt, bb in zip(("30-31", "32-47", "48-64"), f_tt, f_bb):
             f = row[f"F_BB {band}"]
-            assert (f == 1.0) if row["pipeline"] == "raw" else (0.0 < f < 1.0)
+            assert (f == 1.0) if row["pipeline"] == "raw" else (f == bb and 0.0 < f < 1.0)
+            assert row[f"F_TT {band}"] == (1.0 if row["pipeline"] == "raw" else tt)
             assert row[f"corrected over raw {band}"] == pytest.approx(
                 row[f"over raw {band}"] / f, nan_ok=True
             )  # NaN where the raw leak cancels to rounding
@@ -148,6 +156,38 @@ def test_each_rows_delta_r_is_its_corrected_leaks_against_its_pipelines_sigma_r(
     assert 0.0 < result.noise.fsky < 1.0
 
 
+def test_the_filter_keeps_most_of_a_white_noise_where_it_takes_the_sky(result, table):
+    """White noise through the same pipelines (a gain jitter on a uniform T, the same draws raw
+    and filtered): the filter takes (p + 1) / n of a throw's noise, so on the footprint's
+    pseudo-spectrum, where a band's white noise comes mostly from the smaller scales the mask
+    couples in, it keeps 0.9 or more of it in the band where it keeps 0.1 of the sky's B. Each
+    filtered row's "sigma_r its noise filtered" reads N_ell K_BB / F_BB, within 5 % of the
+    N_ell / F_BB bound here; a raw row's is the raw sigma(r)."""
+    kept = result.noise_kept.entry("BB")
+    error = result.noise_kept.entry_error("BB")
+    f_bb = result.transfer.entry("BB", "BB")
+    assert result.noise_kept.n_sims == filtered.N_SIMS and np.all(error < 0.1), error
+    assert np.all(kept > 0.8) and np.all(kept < 1.0 + 3 * error), (kept, error)
+    assert kept[0] > f_bb[0] + 0.5, (kept, f_bb)
+    own = noise.sigma_r(
+        result.noise,
+        load_spectra(),
+        result.edges,
+        transfer_bb=np.clip(f_bb, 1e-12, 1.0),
+        noise_kept=kept,
+    )
+    for row in table.values():
+        k = [row[f"N_BB kept {b}"] for b in ("30-31", "32-47", "48-64")]
+        if row["pipeline"] == "raw":
+            assert k == [1.0] * 3 and row["sigma_r its noise filtered"] == row["sigma_r"]
+        else:
+            assert k == list(kept) and row["sigma_r its noise filtered"] == own
+            assert abs(own / row["sigma_r"] - 1.0) < 0.05, (own, row["sigma_r"])
+    assert "of a white noise's BB too: with its noise filtered" in filtered.verdict(
+        list(table.values())
+    )
+
+
 def test_the_verdict_names_what_the_filter_keeps_and_the_best_schedules(table):
     text = filtered.verdict(list(table.values()))
     assert text.startswith(f"What the filter {FILTER} changes")
@@ -167,19 +207,16 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
     assert {r["pipeline"] for r in rows} == {"raw", "p3+ground5-split"}
     assert (out / "filtered_suppression.png").is_file() and (out / "transfer.png").is_file()
     transfer = np.load(out / "transfer.npz")
-    assert transfer["matrix"].shape == (4, 4, 3) and list(transfer["field_pairs"]) == [
-        "EE",
-        "EB",
-        "BE",
-        "BB",
-    ]
-    assert len(list(csv.DictReader(open(out / "transfer.csv")))) == 16 * 3
+    assert transfer["matrix"].shape == (9, 9, 3)  # SOOPERCOOL's 9x9, the T block in it
+    assert list(transfer["field_pairs"]) == [a + b for a in "TEB" for b in "TEB"]
+    assert len(list(csv.DictReader(open(out / "transfer.csv")))) == 81 * 3
+    assert all("F_TT 30-31" in r for r in rows)
     assert "over unrotated" in (out / "filtered_suppression.md").read_text()
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["filter"] == "p3+ground5-split"
     assert manifest["config"]["noise"]["depth_uk_arcmin"] == 6.0
     text = capsys.readouterr().out
-    assert "What the filter p3+ground5-split changes" in text
+    assert "What the filter p3+ground5-split changes" in text and " of its T):" in text
     assert "sigma(r) (6 muK arcmin, fsky " in text and "E purified" in text
     assert " with the E it leaks into B unpurified, where it moves " in text and " % of E" in text
     assert ", which alone fakes delta_r = " in text
@@ -211,6 +248,7 @@ def test_the_command_writes_the_table_the_figure_and_the_verdict(tmp_path, capsy
         (["--deproject", "gain", "--deproject-template", "NO", "--schedule", "S"], "no such"),
         (["--deproject", "gain", "--deproject-template", "T8", "--schedule", "S"], "Nside 8"),
         (["--depth-uk-arcmin", "3"], "with --filter or --deproject only"),
+        (["--scattered"], "--scattered: with --filter or --deproject only"),
         (["--filter", "p1", "--schedule", "S", "--depth-uk-arcmin", "-1"], "give a depth"),
         (["--filter", "p1", "--schedule", "S", "--depth-uk-arcmin", "nan"], "give a depth"),
     ],
@@ -234,18 +272,54 @@ def test_the_command_refuses_a_filter_it_cannot_run_before_any_work(tmp_path, ca
 
 def test_the_command_takes_a_focal_plane(tmp_path):
     """--focalplane with --filter: the table and the transfer function of its pairs, each on its
-    own samples; the manifest names them."""
+    own samples; the manifest names them. --scattered draws the gain and the pointing per pair
+    (the rows and the manifest say how) in place of the paper's four systematics."""
     path = _schedule_file(tmp_path / "s.toml")
     out = tmp_path / "out"
     args = ["-q", "suppression", "--out", str(out), "--nside", "32", "--schedule", path]
     flags = ["--fwhm-arcmin", "120", "--filter", "p1", "--focalplane", "hexagon:7:10"]
-    assert main([*args, *flags]) == 0
+    assert main([*args, *flags, "--scattered"]) == 0
     rows = list(csv.DictReader(open(out / "filtered_suppression.csv")))
-    assert len(rows) == 4 * 2 * 4
+    assert len(rows) == 4 * 2 * 2
+    assert {r["amplitude"] for r in rows} == {c.amplitude for c in filtered.SCATTERED}
     manifest = json.loads((out / "manifest.json").read_text())
     assert len(manifest["config"]["focalplane"]) == 7, manifest["config"]
+    assert manifest["config"]["systematics"]["gain"] == "dg = {mean 0, rms 0.01} per pair"
     f_bb = [float(v) for r in rows if r["pipeline"] != "raw" for k, v in r.items() if "F_BB" in k]
     assert all(0.0 < f < 1.0 for f in f_bb)
+
+
+@pytest.mark.parametrize("where", ["hexagon", "axis"])
+def test_a_gain_drawn_per_pair_off_the_axis_escapes_rotation_but_not_deprojection(tmp_path, where):
+    """The hexagon's table (``cases=SCATTERED``): a gain drawn per pair leaks through each pair's
+    own h_2, so 0/90 cancels its leak of T only where every pair's h_2 turns to its opposite, on
+    the axis (what is left, 3e-5, is its leak of P through h_4, which 0/90 keeps); 10 deg off
+    it, each pair's scan differs at 0 and 90 deg and 0/90 leaves about half. The gain template
+    takes the leak of T wherever the pair sits: what is left is the gain's leak of the sky's P
+    (h_4 P*), 2e-5 of raw here, rotated or not."""
+    hexagon = focalplane.hexagon(7, 10.0)
+    plane = hexagon if where == "hexagon" else focalplane.on_axis(hexagon.pair_angles_deg)
+    schedule = load_schedule(_schedule_file(tmp_path / "s.toml"))
+    sky = make_sky(SkyConfig(nside=NSIDE, lmax=2 * NSIDE, fwhm_arcmin=120.0, seed=3))
+    result = filtered.run(
+        schedule,
+        sky,
+        Filtering.parse("deproject(gain)"),
+        schedules=((0.0,), (0.0, 90.0)),
+        cases=filtered.SCATTERED[:1],
+        n_sims=2,
+        focalplane=plane,
+    )
+    table = {(r["pipeline"], r["boresight"]): r for r in result.rows}
+    assert len(table) == 4 and {r["systematic"] for r in result.rows} == {"gain"}
+    rotated = _leak(table["raw", "0/90"]) / _leak(table["raw", "0"])
+    if where == "axis":
+        assert np.all(rotated < 1e-4), rotated
+    else:
+        assert np.all(rotated > 0.3), rotated
+    for label in ("0", "0/90"):
+        kept = _leak(table["deproject(gain)", label]) / _leak(table["raw", "0"])
+        assert np.all(kept < 1e-4), (label, kept)
 
 
 def test_the_table_needs_a_filter():
