@@ -214,6 +214,10 @@ FILE_KEYS = {
 }
 
 
+#: the tables of a pipeline a study cannot take, and the command-line flag that runs each
+PIPELINE_FLAGS = {"filter": "--filter p3+ground", "deprojection": "--deproject gain"}
+
+
 def schema() -> dict:
     """The schema of a study file, read from the section dataclasses.
 
@@ -369,6 +373,13 @@ def check_types(raw):
     """
     known = schema()
     for section, body in raw.items():
+        if section in PIPELINE_FLAGS:  # a pipeline's, on a real schedule only
+            raise ConfigError(
+                f"[{section}]: a study's scan is synthetic, without the throws and CESs a "
+                "pipeline filters or deprojects; run a real schedule through `boresight "
+                f"suppression {PIPELINE_FLAGS[section]} --schedule ...` or a design budget's "
+                f"[{section}]"
+            )
         if section not in known:
             raise ConfigError(f"unknown section [{section}]; allowed: {sorted(known)}")
         if not isinstance(body, dict):

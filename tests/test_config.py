@@ -88,3 +88,14 @@ def test_a_sections_errors_name_its_key_whoever_builds_it():
     with section_errors("run", RunOptions, {"rcond_min": 0.1}):
         options = RunOptions(rcond_min=0.1)
     assert options.rcond_min == 0.1
+
+
+@pytest.mark.parametrize("section, flag", [("filter", "--filter"), ("deprojection", "--deproject")])
+def test_a_study_refuses_a_pipeline_s_table_and_says_where_it_goes(section, flag):
+    """A study's scan is synthetic, with no throws or CESs to filter or deproject: its [filter] or
+    [deprojection] is one error naming the command and the budget table that take them."""
+    raw = {"sky": {"nside": 16}, section: {"poly_order": 3}}
+    with pytest.raises(ConfigError, match=rf"^\[{section}\]: a study's scan is synthetic") as err:
+        parse_study(raw)
+    assert f"boresight suppression {flag}" in str(err.value)
+    assert f"a design budget's [{section}]" in str(err.value)

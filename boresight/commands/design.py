@@ -15,7 +15,10 @@ strategy's row counts what it breaks (``violations``) and ``constraints.csv`` sa
 constraint costs. Scoring the schedule as given (no search) adds its row ("as given") beside the
 baselines and writes no schedule. With ``[deprojection]`` the pipeline regresses those templates
 of T from each pair difference per block: the objective leaves out the leaks of T they fit, the
-TOD check deprojects, and the manifest says so.
+TOD check deprojects, and the manifest says so. With ``[filter]`` the pipeline filters each pair
+difference before binning: the objective is the filtered leak's, each unit simulated on the
+table's ``skies`` (:mod:`boresight.design.filtered`), read against N_ell / F_ell^BB; the TOD check
+filters, and its pulls count the objective's own error.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from .._util import io, precompile, provenance
 from ..config import check_systematics
 from ..cosmology import load_spectra
 from ..design.budget import load_budget, search_instrument
+from ..design.filtered import objective_alm, objective_runs
 from ..design.job import design
 from ..design.operations import shortened, timeline_rows
 from ..design.tod_check import validation_report
@@ -147,12 +151,15 @@ def _prepare(budget, schedule, *, validate, checks, timer):
         schedule,
         opts.nside,
         n_pairs=budget.instrument.n_pairs if focal is None else focal.n_pairs,
-        # every strategy on every sky, each with and without the systematics
-        tod_runs=2 * N_STRATEGIES * opts.validation_skies if validate else 0,
+        # every strategy on every sky, each with and without the systematics; a filtering
+        # pipeline's objective runs every unit on its own skies too
+        tod_runs=(2 * N_STRATEGIES * opts.validation_skies if validate else 0)
+        + objective_runs(budget),
         systematics=budget.systematics,
         instrument=budget.instrument,
         fwhm_arcmin=budget.noise.fwhm_arcmin,
         design_units=len(units_of(schedule.expanded(), opts.group)),
+        **objective_alm(budget),
     )
     resources.require(estimate, checks)
     kernels = precompile.kernels_for("design")
@@ -183,6 +190,9 @@ def _manifest(result, budget, schedule, paths, timer, estimate):
             "deprojection": None
             if budget.deprojection is None
             else dataclasses.asdict(budget.deprojection),
+            "filter": None
+            if budget.filtering is None
+            else {"pipeline": str(budget.filtering), "skies": budget.filter_skies},
             "validation": result.checked,
         },
         {"design": budget.design.seed},

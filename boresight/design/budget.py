@@ -1,10 +1,11 @@
 """A design's budget file: its ``[systematics]``, ``[noise]``, ``[design]``, ``[instrument]``,
-``[hwp]``, ``[operations]``, ``[constraints]`` and ``[deprojection]`` tables, read and checked.
+``[hwp]``, ``[operations]``, ``[constraints]``, ``[deprojection]`` and ``[filter]`` tables, read
+and checked.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,8 +15,9 @@ from ..instrument.added import NOT_CARRIED, split_table
 from ..instrument.focalplane import FocalPlane, focalplane_of_table
 from ..instrument.hwp import HWP, pairs_behind
 from ..instrument.pairs import AMPLITUDES, Instrument, Systematics, is_nonzero
-from ..mitigation import Deprojection
+from ..mitigation import Deprojection, Filtering
 from ..noise import SurveyNoise
+from ..validation import integer
 from .constraints import AngleRule, Constraints
 from .operations import OPERATIONS_KEYS, Operations
 from .white import DesignOptions
@@ -23,6 +25,10 @@ from .white import DesignOptions
 if TYPE_CHECKING:
     from ..instrument.pairs import Systematics
     from ..noise import SurveyNoise
+
+
+#: the sky realisations a filtering pipeline's objective averages by default
+FILTER_SKIES = 4
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,12 @@ class Budget:
         ``block_hours``): the pipeline regresses those templates of T from each pair difference
         per block, so the objective leaves out the leaks of T they fit and the TOD check
         deprojects.
+    filtering : boresight.mitigation.Filtering, optional
+        The ``[filter]`` table (:data:`FILTER_KEYS`, as :class:`boresight.mitigation.Filtering`'s
+        fields): the pipeline filters each pair difference before binning, so the objective is
+        its filtered leak's (:mod:`boresight.design.filtered`) and the TOD check filters.
+    filter_skies : int
+        ``[filter] skies``: the sky realisations that objective averages.
     """
 
     systematics: Systematics
@@ -67,11 +79,22 @@ class Budget:
     operations: Operations | None = None
     constraints: Constraints | None = None
     deprojection: Deprojection | None = None
+    filtering: Filtering | None = None
+    filter_skies: int = FILTER_SKIES
 
     @property
     def deprojected(self) -> tuple:
         """The template sets the pipeline deprojects (none without ``[deprojection]``)."""
         return () if self.deprojection is None else self.deprojection.templates
+
+    @property
+    def pipeline(self) -> Filtering:
+        """What the pipeline does to the pair differences before binning: the ``[filter]``'s
+        filters, then the ``[deprojection]``'s templates (none: raw)."""
+        filtering = Filtering() if self.filtering is None else self.filtering
+        if self.deprojection is None:
+            return filtering
+        return replace(filtering, deprojection=self.deprojection)
 
 
 def search_instrument(focal: FocalPlane) -> Instrument:
@@ -89,6 +112,9 @@ BUDGET_SECTIONS = ("systematics", "noise", "design", "instrument")
 #: the template sets a design's objective can leave out: the beams' leaks of T (width,
 #: ellipticity) ride their filters beside their leaks of P, which it does not split yet
 DESIGN_TEMPLATES = ("gain", "pointing")
+#: the [filter] table's keys (:class:`boresight.mitigation.Filtering`'s filters)
+FILTER_KEYS = ("poly_order", "ground_order", "ground_bin_deg", "ground_split", "skies")
+
 #: the [hwp] table's keys (:class:`boresight.instrument.hwp.HWP`; its jitter and synchronous signal are not
 #: in the design's objective)
 BUDGET_HWP_KEYS = (
@@ -109,7 +135,7 @@ def load_budget(path: str) -> Budget:
     """
 
     raw = read_toml(path, "budget")
-    extra = ("hwp", "operations", "constraints", "deprojection")
+    extra = ("hwp", "operations", "constraints", "deprojection", "filter")
     unknown = sorted(set(raw) - set(BUDGET_SECTIONS) - set(extra))
     if unknown:
         raise ConfigError(
@@ -119,6 +145,7 @@ def load_budget(path: str) -> Budget:
     operations = _budget_operations(path, raw.get("operations"))
     constraints = _budget_constraints(path, raw.get("constraints"))
     deprojection = _budget_deprojection(path, raw.get("deprojection"))
+    filtering, filter_skies = _budget_filter(path, raw.get("filter"))
     if "noise" not in raw:
         raise ConfigError(f"budget {path}: a [noise] table is required")
     tables, focal = {}, None
@@ -190,6 +217,8 @@ def load_budget(path: str) -> Budget:
         )
     if deprojection is not None:
         _check_deprojection(path, deprojection, tables["design"], focal, plate)
+    if filtering is not None:
+        _check_filter(path, deprojection, focal, plate, operations)
     return Budget(
         **tables,
         focalplane=focal,
@@ -197,7 +226,59 @@ def load_budget(path: str) -> Budget:
         operations=operations,
         constraints=constraints,
         deprojection=deprojection,
+        filtering=filtering,
+        filter_skies=filter_skies,
     )
+
+
+def _budget_filter(path, table):
+    """The budget's [filter] table as (a Filtering or None, its skies)."""
+    if table is None:
+        return None, FILTER_SKIES
+    if not isinstance(table, dict):
+        raise ConfigError(f"budget {path}: [filter] must be a table")
+    unknown = sorted(set(table) - set(FILTER_KEYS))
+    if unknown:
+        raise ConfigError(f"budget {path}: unknown key filter.{unknown[0]}; allowed: {FILTER_KEYS}")
+    table = dict(table)
+    skies = table.pop("skies", FILTER_SKIES)
+    try:
+        integer("filter.skies", skies, 2, 1000)
+        with section_errors("filter", Filtering, table):
+            filtering = Filtering(**table)
+    except (ConfigError, ValueError) as err:
+        raise ConfigError(f"budget {path}: {err}") from None
+    if not filtering.filters:
+        raise ConfigError(
+            f"budget {path}: [filter] filters nothing; give poly_order, ground_order or "
+            "ground_bin_deg, or leave the table out"
+        )
+    return filtering, int(skies)
+
+
+def _check_filter(path, deprojection, focal, plate, operations):
+    """What a design of a filtering pipeline cannot take yet: its units are simulated apart, so a
+    deprojection fits per CES."""
+    if deprojection is not None and deprojection.block_hours is not None:
+        raise ConfigError(
+            f"budget {path}: [filter] with [deprojection] fits the templates per CES (the "
+            "objective simulates each unit apart, and a block of hours spans units): leave out "
+            "deprojection.block_hours"
+        )
+    other = [
+        name
+        for name, given in (
+            ("[instrument] focalplane", focal),
+            ("[hwp]", plate),
+            ("[operations]", operations),
+        )
+        if given is not None
+    ]
+    if other:
+        raise ConfigError(
+            f"budget {path}: [filter] designs pairs on the axis without a plate, not with "
+            f"{', '.join(other)} yet; leave out one of them"
+        )
 
 
 def _budget_deprojection(path, table):

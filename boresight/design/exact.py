@@ -539,6 +539,8 @@ def _blocks(obj: ExactObjective, u: int, v: int) -> np.ndarray:
     for n in range(count):
         for m in range(count):
             rows_n, rows_m = [2 * n + 2, 2 * n + 3], [2 * m + 2, 2 * m + 3]
+            if not obj.form.lam[np.ix_(rows_n, rows_m)].any():  # channels the form never joins
+                continue
             g = obj.form.block(bu[n], bv[m], rows_n, rows_m)  # [r, t, p, q]
             for ia, ma in enumerate(rows):
                 for ib, mb in enumerate(rows):

@@ -22,6 +22,7 @@ from ..predict.terms import TERMS, deprojected_by
 from ..validation import ConfigError, require_finite
 from .constraints import Feasibility
 from .exact import exact_objective, search
+from .filtered import filtered_objective, filtered_sigma_r
 from .focalplane import exact_delta_r, search_strategies, strategy_columns, target_of
 from .hwp import Plate
 from .operations import TimePrice, observed, table_columns
@@ -163,20 +164,20 @@ def design(
             moments.rows, moments.units, budget.operations, budget.noise, theory, edges
         )
     with timer("objective"):
-        obj = exact_objective(
-            moments,
-            budget.systematics,
-            theory,
-            budget.noise.fwhm_arcmin,
-            change_cost=opts.change_cost,
-            instrument=budget.instrument,
-            evaluation=opts.evaluation,
-            hwp=plate.hwp,
-            plate_moments=plate.moments,
-            time_price=price,
-            feasibility=_feasibility(budget, moments),
-            deprojected=budget.deprojected,
-        )
+        if budget.filtering is not None:  # each unit's filtered leak, simulated per sky
+            obj = filtered_objective(
+                moments, schedule, budget, theory, change_cost=opts.change_cost,
+                feasibility=_feasibility(budget, moments), progress=progress,
+            )  # fmt: skip
+            sigma = filtered_sigma_r(budget, theory, obj)
+        else:
+            obj = exact_objective(
+                moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
+                change_cost=opts.change_cost, instrument=budget.instrument,
+                evaluation=opts.evaluation, hwp=plate.hwp, plate_moments=plate.moments,
+                time_price=price, feasibility=_feasibility(budget, moments),
+                deprojected=budget.deprojected,
+            )  # fmt: skip
         white = objective(  # the paper's white-h_n approximation, reported beside
             moments, budget.systematics, theory, budget.noise.fwhm_arcmin,
             instrument=budget.instrument, deprojected=budget.deprojected,
@@ -217,7 +218,13 @@ def design(
         moments.pixels.size,
         sigma,
     )
-    if budget.deprojection:
+    if budget.filtering is not None:
+        log.info(
+            "the pipeline runs %s: the objective simulates each unit through it on %d skies",
+            budget.pipeline,
+            budget.filter_skies,
+        )
+    elif budget.deprojection:
         gone = [t for t in TERMS if t.name in deprojected_by(budget.deprojected)]
         log.info(
             "the pipeline deprojects %s: the objective leaves out %s",
@@ -279,8 +286,10 @@ def design(
                 strategy=name,
                 delta_r=dr,
                 delta_r_over_sigma_r=dr / sigma,
-                # the paper's approximation knows no plate
-                delta_r_white_approximation=np.nan if plate.hwp else white.delta_r_of(h),
+                # the paper's approximation knows no plate and no filter
+                delta_r_white_approximation=(
+                    np.nan if plate.hwp or budget.filtering else white.delta_r_of(h)
+                ),
                 changes=obj.changes(angles, steps[name]),
                 **{f"mean_abs_h{n}_sq": float(np.mean(np.abs(h[n]) ** 2)) for n in range(1, 5)},
             )
@@ -510,6 +519,8 @@ def _expected(budget, moments, obj, schedule, theory, plate, angles, steps):
     schedule's and read as the design's ``evaluation``; read exactly, with the samples' offsets
     from their pixel centres (:func:`boresight.moments.centroid_moments`). Behind the budget's
     HWP, of the pairs' reflected h_n and the crossing angles' own (``plate``)."""
+    if budget.filtering is not None:  # the skies' filtered leaks, turned
+        return obj.expected(angles, steps)
     exact = budget.design.evaluation == "exact"
     offsets = centroid_moments(moments.schedule(schedule, angles), moments.nside) if exact else None
     return expected_residual(

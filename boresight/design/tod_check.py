@@ -12,7 +12,6 @@ from tqdm import tqdm
 from ..config import RunOptions
 from ..instrument.focalplane import on_axis
 from ..jobs.residual import residual, simulate_reference
-from ..mitigation import Filtering
 from ..predict import delta_r
 from ..predict import focalplane as predict_fp
 from ..sky import SkyConfig, make_sky
@@ -54,11 +53,15 @@ def tod_check(budget, moments, obj, schedule, assignments, *, expected, progress
             cross, auto = tod_parts(
                 sky, scan, systematics, budget, moments.mask, lmax=lmax, hwp=seen
             )
+            if budget.filtering is not None:  # a filtered leak's bias, as the objective reads it
+                cross, auto = cross / obj.kept_bb, auto / obj.kept_bb
             total.append(delta_r(cross + auto, obj.template))
             leaked.append(delta_r(auto, obj.template))
             bar.update()
         per_sky[name] = np.array(total)
         row = dict(strategy=name, skies=skies)
+        if budget.filtering is not None:  # a filtered objective's own skies: its error too
+            row["predicted_delta_r_se"] = obj.delta_r_se(angles, steps[name])
         for key, values, cl in (
             ("", total, expected[name].residual),
             ("leaked_", leaked, expected[name].leaked),
@@ -103,8 +106,9 @@ def _mean_se(values):
 def validation_report(rows: list[dict]) -> tuple[list[str], list[str]]:
     """The TOD check as lines to print, and its warnings.
 
-    Per strategy: the predicted and simulated total delta_r, the simulation's standard error and
-    how many of them it lies from the prediction; whether the skies resolve its difference from
+    Per strategy: the predicted and simulated total delta_r, the simulation's standard error
+    (with a filtered objective's own, from its skies, in quadrature) and how many of them it lies
+    from the prediction; whether the skies resolve its difference from
     the optimised strategy. A warning for every strategy whose simulation is more than 2 standard
     errors from its prediction, and one naming the differences the skies do not resolve.
 
@@ -126,7 +130,7 @@ def validation_report(rows: list[dict]) -> tuple[list[str], list[str]]:
     warnings, unresolved = [], []
     for row in rows:
         predicted, mean = row["predicted_delta_r"], row["simulated_delta_r"]
-        se = row["simulated_delta_r_se"]
+        se = float(np.hypot(row["simulated_delta_r_se"], row.get("predicted_delta_r_se", 0.0)))
         pull = (mean - predicted) / se if se > 0 else float("nan")
         if row["strategy"] == chosen:
             versus = "-"
@@ -172,7 +176,8 @@ def tod_parts(sky, scan, systematics, budget, mask, *, lmax, hwp=None):
     residual job (:func:`boresight.jobs.residual.residual`). A focal plane (or the budget's
     pairs on the axis behind ``hwp``) is binned with the focal-plane prediction's cut
     (:data:`boresight.predict.focalplane.RCOND_EXPECTATION`), the reference behind the plate
-    without its IP. A budget that deprojects deprojects the TOD, its reference's as its own."""
+    without its IP. A budget that filters or deprojects filters or deprojects the TOD
+    (:attr:`boresight.design.budget.Budget.pipeline`), its reference's as its own."""
     focal = budget.focalplane if hwp is None else on_axis(budget.instrument.pair_angles_deg)
     run = RunOptions(evaluation=budget.design.evaluation)
     reference = None
@@ -182,9 +187,8 @@ def tod_parts(sky, scan, systematics, budget, mask, *, lmax, hwp=None):
         reference, _ = simulate_reference(
             sky, scan, mask, lmax, run=run, focalplane=focal, hwp=dataclasses.replace(hwp, ip=0.0)
         )
-    filtering = Filtering(deprojection=budget.deprojection) if budget.deprojection else Filtering()
     job = residual(
         sky, scan, systematics, mask, lmax, instrument=budget.instrument, run=run,
-        reference=reference, focalplane=focal, hwp=hwp, filtering=filtering,
+        reference=reference, focalplane=focal, hwp=hwp, filtering=budget.pipeline,
     )  # fmt: skip
     return job.cross, job.auto

@@ -323,6 +323,8 @@ def schedule_estimate(
     pair_maps: int = 0,
     observed_pixels: int | None = None,
     design_units: int = 0,
+    design_channels: int = 4,
+    design_band: int | None = None,
     hwp_terms: int = 0,
 ) -> Estimate:
     """The estimate of a schedule's job: ``schedule-stats``, ``compare-scans``, ``design``.
@@ -353,7 +355,11 @@ def schedule_estimate(
         each).
     design_units : int
         The units a design assigns angles to: its exact objective holds each unit's (E, B) alm
-        of up to 4 channels to 2 lmax (:class:`boresight.design.exact.ExactObjective`).
+        of up to ``design_channels`` channels to ``design_band`` (default 4 to 2 lmax,
+        :class:`boresight.design.exact.ExactObjective`; a filtering pipeline's one per sky and
+        moment to lmax, :class:`boresight.design.filtered.FilteredObjective`).
+    design_channels : int
+    design_band : int, optional
 
     Returns
     -------
@@ -370,7 +376,8 @@ def schedule_estimate(
     if hwp_terms:
         parts["hwp moments"] = HWP_TERM_BYTES * hwp_terms * 12.0 * nside**2
     if design_units:
-        parts["unit alm"] = 16.0 * design_units * 4 * 2 * _n_alm(2 * lmax)
+        band = 2 * lmax if design_band is None else design_band
+        parts["unit alm"] = 16.0 * design_units * design_channels * 2 * _n_alm(band)
     if pair_maps:
         observed = 12.0 * nside**2 if observed_pixels is None else float(observed_pixels)
         # sums (5 complex) and hits per pair on the observed pixels, and the pixels' slot table

@@ -57,6 +57,18 @@ from boresight.config import ConfigError
             ),
             "without a plate",
         ),  # fmt: skip
+        (dict(filter="poly_order = -1"), "poly_order"),
+        (dict(filter="order = 3"), "filter.order"),
+        (dict(filter="poly_order = 3\nskies = 1"), "skies"),
+        (dict(filter="ground_split = true"), "ground template"),
+        (dict(filter="skies = 8"), "filters nothing"),
+        (
+            dict(filter="poly_order = 3", deprojection="templates = ['gain']\nblock_hours = 2.0"),
+            "block_hours",
+        ),  # fmt: skip
+        (dict(systematics="dg = 0.01", filter="poly_order = 3", hwp="mode = 'stepped'"), "[hwp]"),
+        (dict(filter="poly_order = 3", operations="preset = 'so-sat'"), "[operations]"),
+        (dict(filter="poly_order = 3", instrument='focalplane = "axis"'), "focalplane"),
     ],
 )
 def test_bad_budgets_are_one_clear_error(tmp_path, tables, message):
@@ -92,3 +104,19 @@ def test_a_budget_that_deprojects_says_which_templates(tmp_path):
     )
     budget = design.load_budget(budget_file(tmp_path, **tables))
     assert budget.deprojected == ("gain", "pointing") and budget.deprojection.block_hours == 10.0
+
+
+def test_a_budget_that_filters_says_how(tmp_path):
+    """[filter] gives the budget its Filtering (the CLI's p3+ground-split) and the skies of its
+    objective; the pipeline is the filter, and without the table raw."""
+    plain = design.load_budget(budget_file(tmp_path))
+    assert plain.filtering is None and not plain.pipeline
+    table = "poly_order = 3\nground_order = 5\nground_split = true\nskies = 6"
+    budget = design.load_budget(budget_file(tmp_path, filter=table))
+    assert str(budget.pipeline) == "p3+ground5-split" and budget.filter_skies == 6
+    default = design.load_budget(budget_file(tmp_path, filter="ground_bin_deg = 2.0"))
+    assert str(default.pipeline) == "groundbin2" and default.filter_skies == 4
+    both = design.load_budget(
+        budget_file(tmp_path, filter="poly_order = 3", deprojection="templates = ['gain']")
+    )
+    assert str(both.pipeline) == "p3+deproject(gain)" and both.deprojected == ("gain",)

@@ -1,9 +1,9 @@
 """What boresight rotation buys a pipeline that filters before binning.
 
 Each systematic of :data:`CASES` runs alone on a real schedule's CES set, the paper's Q and U
-pairs on the boresight or every pair of a focal plane from its own place, through the boresight schedules of
-:data:`boresight.jobs.suppression.hwp.SCHEDULES`, in two pipelines: the maps binned from the raw
-pair differences, and from the pair differences a pipeline filtered first
+pairs on the boresight or every pair of a focal plane from its own place, through the boresight
+schedules of :data:`boresight.jobs.suppression.hwp.SCHEDULES`, in two pipelines: the maps binned
+from the raw pair differences, and from the pair differences a pipeline filtered first
 (:class:`boresight.mitigation.Filtering`, :func:`boresight.engine.simulate_schedule`). Every row is
 one run of the one job (:func:`boresight.jobs.residual.residual`) against the no-systematic maps of
 the same pipeline and schedule, so the filter acts on the leak as on the sky: its leaked
@@ -17,8 +17,9 @@ The filter takes signal as well as leak. Its transfer function on the CES set on
 of pure skies; pure T skies too, through each detector's filtered TOD, for F_ell^TT, where the
 pipeline does not deproject) gives F_ell^BB per band, and each filtered row's leak over raw
 divided by it is the leak's bias on r in the filtered pipeline, whose spectra are corrected by
-F_ell^BB, over its bias in the raw one ("corrected over raw"). A filtered leak is measured here, not predicted: its
-prediction from h_n is still to come.
+F_ell^BB, over its bias in the raw one ("corrected over raw"). A filtered leak is measured here,
+not predicted: its prediction from h_n is still to come (a design for a filtering pipeline
+simulates each unit's, :mod:`boresight.design.filtered`).
 
 Each row's delta_r (:func:`boresight.predict.delta_r` of its leak, corrected by F_ell^BB in the
 filtered pipeline, against the tensor template through the footprint) is read against its
