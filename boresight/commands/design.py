@@ -290,17 +290,16 @@ def _write(result, budget, schedule, schedule_path, stage):
         io.write_csv(stage / "constraints.csv", costs, list(costs[0]))
     curves = {name: e.residual for name, e in result.expected.items()}
     if curves:
-        _figures(
-            curves, result.white, budget, result.sigma_r, moments, result.h_maps, stage,
-            result.chosen,
-        )  # fmt: skip
+        _figures(curves, result, budget, moments, stage)
 
 
-def _figures(curves, white, budget, sigma, moments, h_maps, stage, chosen):
+def _figures(curves, result, budget, moments, stage):
     """design.png (every strategy's expected residual) and hn_before_after.png."""
+    white, h_maps, chosen = result.white, result.h_maps, result.chosen
     plots.design_figure(
-        curves, white, budget.noise, sigma, theory=load_spectra(), path_stem=stage / "design"
-    )
+        curves, white, budget.noise, result.sigma_r, theory=load_spectra(),
+        path_stem=stage / "design", kept_bb=result.kept_bb,
+    )  # fmt: skip
     # the moment of the largest angle-dependent term (h_2 where every term is h_0 or white)
     dominant = max(white.terms, key=lambda n: white.alpha[n] + white.beta[n], default=2)
     maps = [

@@ -73,6 +73,8 @@ class DesignResult:
     constraint_costs : list of dict
         constraints.csv's rows: each of the budget's constraints, the objective the search
         reaches without it and what it costs (empty without constraints or a search).
+    kept_bb : numpy.ndarray, optional
+        A filtering pipeline's F_ell^BB (lmax + 1,), by which its spectra are corrected.
     """
 
     sigma_r: float
@@ -90,6 +92,7 @@ class DesignResult:
     stopped: object = None
     time_price: TimePrice | None = None
     constraint_costs: list = dataclasses.field(default_factory=list)
+    kept_bb: np.ndarray | None = None
 
     @property
     def chosen(self) -> str:
@@ -357,6 +360,7 @@ def design(
         stopped=stopped,
         time_price=price,
         constraint_costs=costs,
+        kept_bb=getattr(obj, "kept_bb", None),
     )
 
 

@@ -339,6 +339,7 @@ def design_figure(
     *,
     theory: Spectra,
     path_stem: str | os.PathLike,
+    kept_bb: np.ndarray | None = None,
 ) -> None:
     """Predicted residual pseudo-C_BB of each rotation strategy beside the noise and r.
 
@@ -353,6 +354,9 @@ def design_figure(
         The survey's sigma(r): its tensor spectrum is drawn.
     theory : boresight.cosmology.Spectra
     path_stem : pathlib.Path
+    kept_bb : numpy.ndarray, shape (lmax + 1,), optional
+        A filtering pipeline's F_ell^BB, by which its curves are corrected: the noise is drawn as
+        N_ell / F_ell^BB.
     """
 
     coupling = objective.coupling
@@ -364,13 +368,17 @@ def design_figure(
     for i, (name, cl) in enumerate(curves.items()):
         style = dict(lw=2.5, color="black") if name == "optimised" else dict(lw=1, color=f"C{i}")
         ax.plot(ell[keep], np.abs(cl[keep]), label=name, **style)
+    nl, label = None, None
     if noise.nl_bb_file is not None:  # the table's N_ell through the beam and the sky fraction
         beam = hp.gauss_beam(noise.fwhm_arcmin * ARCMIN, lmax=coupling.lmax)
-        nl = fsky * noise.n_ell(coupling.lmax) * beam**2
-        ax.plot(ell[keep], nl[keep], color="grey", ls=":", label="noise (nl_bb_file)")
+        nl, label = fsky * noise.n_ell(coupling.lmax) * beam**2, "noise (nl_bb_file)"
     elif noise.has_spectrum:
-        white = fsky * (noise.depth * ARCMIN) ** 2
-        ax.axhline(white, color="grey", ls=":", label=f"noise ({noise.depth:.3g} \u03bcK\u2032)")
+        nl = np.full(ell.size, fsky * (noise.depth * ARCMIN) ** 2)
+        label = f"noise ({noise.depth:.3g} \u03bcK\u2032)"
+    if nl is not None:
+        if kept_bb is not None:  # the filtered pipeline's yardstick
+            nl, label = nl / kept_bb[: nl.size], label + " / F_BB"
+        ax.plot(ell[keep], nl[keep], color="grey", ls=":", label=label)
     for r, ls in ((sigma_r, "--"), (10 * sigma_r, "-.")):
         ref = predict.reference_bb(coupling, theory, noise.fwhm_arcmin, nside, r=r)
         ax.plot(ell[keep], ref[keep], "k", ls=ls, lw=1, label=f"r = {r:.2g}")

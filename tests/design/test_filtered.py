@@ -123,6 +123,7 @@ def test_the_design_of_a_filtering_pipeline(tmp_path, schedule):
     values = {name: float(r["delta_r"]) for name, r in rows.items()}
     assert values["optimised"] <= min(values.values())
     assert all(r["delta_r_white_approximation"] == "nan" for r in rows.values())
+    assert (out / "design.png").exists() and (out / "validation.csv").exists()
     manifest = json.load(open(out / "manifest.json"))
     assert manifest["config"]["filter"] == {"pipeline": "p1+ground3", "skies": 4}
     budget = design.load_budget(path)
