@@ -341,6 +341,15 @@ def log_bins(lmin: int, lmax: int, n_bins: int) -> np.ndarray:
     return edges
 
 
+def per_ell(values, edges, lmax: int, *, outside: float) -> np.ndarray:
+    """Per-band ``values`` on every multipole of their band (edges[i] <= ell < edges[i + 1]),
+    ``outside`` elsewhere: (lmax + 1,), the inverse of :func:`bin_spectrum` on a flat band."""
+    out = np.full(lmax + 1, outside, dtype=float)
+    for lo, hi, v in zip(edges[:-1], edges[1:], values):
+        out[lo:hi] = v
+    return out
+
+
 def bin_spectrum(cl: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Band means of a spectrum.
 

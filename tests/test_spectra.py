@@ -155,3 +155,15 @@ def test_a_footprint_keeps_its_pixels_not_the_full_sky_mask():
     assert footprint.npix == mask.size and footprint.nside == 32
     with pytest.raises(ValueError, match="maps have 10 pixels but the mask has 12288"):
         spectra.masked_alm(np.zeros((3, 10)), footprint, 8)
+
+
+def test_per_ell_is_the_inverse_of_binning_a_flat_band():
+    """Per-band values spread on their multipoles bin back to themselves; outside the bands the
+    fill."""
+    from boresight.spectra import bin_spectrum, per_ell
+
+    edges = np.array([30, 64, 96, 129])
+    values = np.array([0.6, 0.85, 0.9])
+    spread = per_ell(values, edges, 140, outside=1.0)
+    np.testing.assert_allclose(bin_spectrum(spread, edges)[1], values, rtol=1e-15)
+    assert np.all(spread[:30] == 1.0) and np.all(spread[129:] == 1.0)

@@ -307,9 +307,7 @@ def exact_objective(
         rows = rows[:k] + [1 + channels.index(t[3]) for t in extra] + rows[k:]
     couplings = coupling.mask_coupling(mask, lmax, nthreads)
     template = predict.tensor_template(couplings, theory, fwhm_arcmin, nside)
-    weight_l = np.zeros(lmax + 1)
-    lo, hi = predict.R_RANGE[0], min(predict.R_RANGE[1], lmax)
-    weight_l[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
+    weight_l = predict.delta_r_weights(template, lmax)
     kappa_w, kappa_v = fp.bb_kernels(
         spins, fields, model.sky_cl, weight_l, second=second, pseudo=pseudo
     )

@@ -88,7 +88,7 @@ class FilteredObjective(ExactObjective):
     leak_moments : tuple of int
         The moments of each sky's leak channels (:func:`moments_of`).
     kept_bb : numpy.ndarray, shape (lmax + 1,)
-        F_ell^BB of each multipole (1 outside the bands).
+        F_ell^BB of each multipole (:func:`kept_bands`; 1 outside the bands).
     transfer : boresight.jobs.transfer.Transfer
         The filter's transfer function on the schedule.
     """
@@ -133,7 +133,7 @@ def moments_of(systematics: Systematics) -> tuple[int, ...]:
     """The moments n a budget's filtered leak may carry: a pair difference's spin-s parts (s = 0
     of a gain, +-1 of a pointing offset, +-2 of a beam's ellipticity or width, each on T, and
     those +-2 on P) binned with exp(2 i psi), n = 2 + s, every order of the offsets within
-    -s_max .. 4 + s_max (the sky's own P as n = 0)."""
+    -s_max .. 4 + s_max."""
     s_max = 2 if systematics.has_beams else 1 if systematics.has_pointing else 0
     return tuple(range(-s_max, 5 + s_max))
 
@@ -227,15 +227,10 @@ def filtered_objective(
         once, budget.pipeline, footprint, edges, nside=nside,
         fwhm_arcmin=budget.noise.fwhm_arcmin, n_sims=TRANSFER_SIMS, run=run,
     )  # fmt: skip
-    kept = np.ones(lmax + 1)
-    for lo, hi, f in zip(edges[:-1], edges[1:], transfer.entry("BB", "BB")):
-        kept[lo:hi] = max(float(f), 1e-12)
+    kept = spectra.per_ell(kept_bands(transfer), edges, lmax, outside=1.0)
     couplings = mask_coupling(moments.mask, lmax, nthreads)
     template = predict.tensor_template(couplings, theory, budget.noise.fwhm_arcmin, nside)
-    weight = np.zeros(lmax + 1)
-    lo, hi = predict.R_RANGE[0], min(predict.R_RANGE[1], lmax)
-    weight[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
-    weight /= kept
+    weight = predict.delta_r_weights(template, lmax) / kept
     nalm = (lmax + 1) * (lmax + 2) // 2
     per = len(ns) + 1  # each sky's leak moments and its own map
     channels = tuple(
@@ -301,5 +296,10 @@ def filtered_sigma_r(budget: Budget, theory: Spectra, obj: FilteredObjective) ->
     F_ell^BB held to the end of :data:`boresight.predict.R_RANGE`."""
     edges = np.array(obj.transfer.edges)
     edges[-1] = max(edges[-1], predict.R_RANGE[1] + 1)
-    kept = np.clip(obj.transfer.entry("BB", "BB"), 1e-12, 1.0)
-    return sigma_r(budget.noise, theory, edges, transfer_bb=kept)
+    return sigma_r(budget.noise, theory, edges, transfer_bb=kept_bands(obj.transfer))
+
+
+def kept_bands(transfer: Transfer) -> np.ndarray:
+    """F_BB per band as the objective reads it: an estimate above 1 (its noise) keeps the whole
+    band, as the filtered table reads it."""
+    return np.clip(transfer.entry("BB", "BB"), 1e-12, 1.0)

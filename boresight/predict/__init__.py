@@ -64,7 +64,7 @@ The package, in the order a prediction is made:
 
 from ..constants import N_MAX
 from .beam_fields import BEAM_N_MAX, beam_filters, beam_h0_bb, beam_power, beam_spectra
-from .bias import R_RANGE, delta_r, reference_bb, tensor_template
+from .bias import R_RANGE, delta_r, delta_r_weights, reference_bb, tensor_template
 from .cl import (
     COHERENT_BLOCK,
     PixelBlocks,
@@ -122,6 +122,7 @@ __all__ = [
     "delta_p",
     "deprojected",
     "delta_r",
+    "delta_r_weights",
     "expected_coefficients",
     "expected_power",
     "expected_residual",

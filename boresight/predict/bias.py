@@ -69,6 +69,15 @@ def tensor_template(
     return reference_bb(coupling, theory, fwhm_arcmin, nside, r=1.0)
 
 
+def delta_r_weights(template: np.ndarray, lmax: int) -> np.ndarray:
+    """w (lmax + 1,) with :func:`delta_r` = sum_ell w_ell C_ell over :data:`R_RANGE` (to lmax):
+    the template over its squared norm there, 0 elsewhere."""
+    out = np.zeros(lmax + 1)
+    lo, hi = R_RANGE[0], min(R_RANGE[1], lmax)
+    out[lo : hi + 1] = template[lo : hi + 1] / np.sum(template[lo : hi + 1] ** 2)
+    return out
+
+
 def delta_r(
     residual: np.ndarray, template: np.ndarray, lmin: int = R_RANGE[0], lmax: int = R_RANGE[1]
 ) -> float:

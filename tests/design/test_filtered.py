@@ -71,7 +71,7 @@ def test_an_assignment_s_filtered_leak_is_its_units_turned(tmp_path, schedule, m
     """On 16 units (8 CESs at two repeats) filtered by p1+ground3, the units' moments turned by a
     drawn assignment give each of the objective's skies its filtered TOD's total residual of that
     assignment: a gain and an angle error to rounding (1e-9; their leaks are exact in the
-    moments), a pointing offset of 0.5 arcmin to 1e-3 (measured 1e-4: the offsets' higher orders
+    moments), a pointing offset of 0.5 arcmin to 3e-4 (measured 1.1e-4: the offsets' higher orders
     that the moments h_-1 .. h_5 do not all carry), and a pipeline that filters and then
     deprojects the gain's template per CES (BICEP/Keck's) to rounding too. The sky's own filtered
     map does not turn, and a second assignment agrees alike. The objective (its skies' leaks and the cross term of the
@@ -79,7 +79,7 @@ def test_an_assignment_s_filtered_leak_is_its_units_turned(tmp_path, schedule, m
     rng = np.random.default_rng(1)
     cases = (
         ("dg = [0.01, -0.01]\npol_angle_deg = 1.0", "interp", 1e-9, None),
-        ("rho_arcmin = 0.5\nchi_deg = 30.0", "exact", 1e-3, None),
+        ("rho_arcmin = 0.5\nchi_deg = 30.0", "exact", 3e-4, None),
         ("dg = [0.01, -0.01]\npol_angle_deg = 1.0", "interp", 1e-9, "templates = ['gain']"),
     )
     for k, (systematics, evaluation, tol, deprojection) in enumerate(cases):

@@ -43,3 +43,15 @@ def test_an_empty_range_is_refused(deep):
 def test_delta_r_of_a_zero_template_is_an_error_not_nan():
     with pytest.raises(ValueError, match="the template is zero"):
         predict.delta_r(np.ones(400), np.zeros(400))
+
+
+def test_delta_r_is_its_weights_on_the_spectrum():
+    """delta_r of any residual is the weights' sum over it (what the design objectives hold),
+    the weights zero outside R_RANGE."""
+    from boresight.predict import R_RANGE, delta_r, delta_r_weights
+
+    rng = np.random.default_rng(0)
+    template, residual = rng.uniform(0.1, 1.0, (2, 257))
+    weights = delta_r_weights(template, 256)
+    assert np.sum(weights * residual) == pytest.approx(delta_r(residual, template), rel=1e-13)
+    assert not weights[: R_RANGE[0]].any() and weights.size == 257

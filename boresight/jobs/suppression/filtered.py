@@ -325,11 +325,11 @@ def run(
     }
     if noise_kept is not None:  # the noise filtered too: N_ell K_BB / F_BB, E purified
         own = sigma_r(noise, theory, edges, transfer_bb=kept_bb, noise_kept=noise_kept.entry("BB"))
-    per_ell = _per_ell(kept_bb, edges, lmax, outside=1.0)  # F_BB of each multipole
+    per_ell = spectra.per_ell(kept_bb, edges, lmax, outside=1.0)  # F_BB of each multipole
     # unpurified, the E the filter moves into B fakes an r of its own: T^(EE->BB) times the sky's
     # pseudo-C_EE, corrected by F_BB (and the same with T's error)
     e_in_b = [
-        predict.delta_r(sky_ee * _per_ell(t, edges, lmax, outside=0.0) / per_ell, template)
+        predict.delta_r(sky_ee * spectra.per_ell(t, edges, lmax, outside=0.0) / per_ell, template)
         for t in (transfer.entry("BB", "EE"), transfer.entry_error("BB", "EE"))
     ]
     for row in rows:
@@ -370,14 +370,6 @@ def _predict_kept(kept, filtering, coupling, edges, names, sky):
         for field, predicted in zip("EB", pair):
             values = np.ones_like(predicted) if row["pipeline"] == RAW else predicted
             row |= {f"{field * 2} kept predicted {b}": float(x) for b, x in zip(names, values)}
-
-
-def _per_ell(values, edges, lmax, *, outside):
-    """Per-band ``values`` on every multipole of their band, ``outside`` elsewhere (lmax + 1,)."""
-    out = np.full(lmax + 1, outside, dtype=float)
-    for lo, hi, v in zip(edges[:-1], edges[1:], values):
-        out[lo:hi] = v
-    return out
 
 
 def tod_runs(schedules=SCHEDULES, cases=CASES, *, deprojects=False) -> int:
